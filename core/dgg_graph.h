@@ -1,0 +1,94 @@
+// The discrete geodesic graph (DGG, Wang et al., CAGD 2017) as an immutable,
+// memory-mappable structure.
+//
+// Nodes 0..n-1 are the mesh vertices (same ids); nodes n.. are pseudo
+// vertices (section 4.3), each a point inside a face. Edges are stored
+// directed in compressed adjacency (CSR): every undirected DGG edge appears
+// once from each end. Per node, outgoing edges are sorted by their polar angle
+// at the node (the node's intrinsic tangent frame, core/mesh.h), and each
+// directed edge u->v carries its fan: the range of v's outgoing edges that
+// continue a geodesic arriving along u->v (section 5.1.2), which the
+// DGG-tailored solver scans instead of all of v's edges.
+//
+// Weights are float32 lengths of real surface paths, rounded up, so graph
+// distances never undercut exact geodesic distances (float32's 6e-8 relative
+// step is far below any useful epsilon; see BENCHMARKS.md).
+#ifndef GEODESIC_CORE_DGG_GRAPH_H_
+#define GEODESIC_CORE_DGG_GRAPH_H_
+
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "core/mesh.h"
+#include "core/surface_point.h"
+
+namespace geodesic {
+
+// Parameters a graph was built with; part of its identity.
+struct DggParams {
+  double epsilon = 1e-3;
+  bool pseudo_vertices = true;
+};
+
+class DggGraph {
+ public:
+  // Ownership of the arrays: either vectors built in memory or a mapping of a
+  // graph file. The spans below point into one or the other.
+  struct Storage;
+
+  uint32_t num_nodes() const { return num_nodes_; }
+  uint32_t num_mesh_vertices() const { return num_mesh_vertices_; }
+  uint32_t num_pseudo_vertices() const { return num_nodes_ - num_mesh_vertices_; }
+  uint64_t num_directed_edges() const { return targets_.size(); }
+  const DggParams& params() const { return params_; }
+  uint64_t mesh_fingerprint() const { return mesh_fingerprint_; }
+
+  // Outgoing edges of node u: indices [offsets[u], offsets[u+1]).
+  std::span<const uint64_t> offsets() const { return offsets_; }
+  std::span<const uint32_t> targets() const { return targets_; }
+  std::span<const float> weights() const { return weights_; }
+  // Polar angle of each directed edge at its tail, normalised to [0, 2*pi).
+  std::span<const float> angles() const { return angles_; }
+  // Fan of directed edge i (u->v): fan_count[i] consecutive edges of v
+  // starting at local index fan_begin[i], wrapping around v's edge list.
+  std::span<const uint32_t> fan_begin() const { return fan_begin_; }
+  std::span<const uint32_t> fan_count() const { return fan_count_; }
+  // Where pseudo vertex n + i lies.
+  std::span<const SurfacePoint> pseudo_points() const { return pseudo_points_; }
+
+  // Bytes of the arrays (resident if built, mapped if opened from a file).
+  uint64_t byte_size() const;
+  bool is_mapped() const;
+
+  // Full validation: every index in range, offsets monotone, fans inside their
+  // target's edge list, weights finite and positive, pseudo points valid.
+  absl::Status Validate(const Mesh& mesh) const;
+
+ private:
+  friend class DggGraphBuilder;
+  friend class GraphFile;
+
+  uint32_t num_nodes_ = 0;
+  uint32_t num_mesh_vertices_ = 0;
+  DggParams params_;
+  uint64_t mesh_fingerprint_ = 0;
+  std::span<const uint64_t> offsets_;
+  std::span<const uint32_t> targets_;
+  std::span<const float> weights_;
+  std::span<const float> angles_;
+  std::span<const uint32_t> fan_begin_;
+  std::span<const uint32_t> fan_count_;
+  std::span<const SurfacePoint> pseudo_points_;
+  std::shared_ptr<const Storage> storage_;
+};
+
+// Hash of the mesh's positions and faces (xxHash64): a graph is only ever used
+// with the mesh it was built for.
+uint64_t MeshFingerprint(const Mesh& mesh);
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_DGG_GRAPH_H_

@@ -1,0 +1,122 @@
+// A compact, immutable triangle mesh in half-edge form, stored as flat arrays.
+//
+// Conventions (shared by every algorithm, the graph file and the API):
+// - Vertex ids and face ids are the order of the vertices and faces in the
+//   mesh file. Corner k of face f is the k-th vertex the file lists for f.
+// - Half-edges are implicit: h = 3 * f + k runs from corner k to corner
+//   (k + 1) % 3 of face f, so next/prev/face/tail need no storage. Only the
+//   twin (kNone on the boundary) and the undirected edge id are stored.
+// - Edge ids number the undirected edges in order of first appearance when the
+//   faces are scanned in file order, corners in order. The canonical half-edge
+//   of an edge is that first appearance; "edge e at t" is the point
+//   (1 - t) * tail + t * head of the canonical half-edge.
+// - Around each vertex, outgoing half-edges are visited by h -> twin(prev(h)).
+//   On a boundary vertex the rotation starts at the outgoing boundary
+//   half-edge, so it visits every face of the (single) fan. The polar angle of
+//   an outgoing half-edge is the sum of the corner angles before it in this
+//   rotation: the vertex's intrinsic tangent frame, in radians of the cone
+//   (total_angle(v) may differ from 2*pi).
+#ifndef GEODESIC_CORE_MESH_H_
+#define GEODESIC_CORE_MESH_H_
+
+#include <array>
+#include <cstdint>
+#include <string>
+#include <string_view>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "core/vec.h"
+
+namespace geodesic {
+
+using VertexId = uint32_t;
+using FaceId = uint32_t;
+using HalfedgeId = uint32_t;
+using EdgeId = uint32_t;
+inline constexpr uint32_t kNone = 0xffffffffu;
+
+// Vertices and triangles exactly as a file lists them.
+struct TriangleSoup {
+  std::vector<Vec3> positions;
+  std::vector<std::array<VertexId, 3>> triangles;
+};
+
+class Mesh {
+ public:
+  Mesh() = default;
+
+  // Builds the half-edge structure. Fails with INVALID_ARGUMENT naming the
+  // first offending element for out-of-range indices, non-finite coordinates,
+  // faces with a repeated vertex, non-manifold edges or vertices, and
+  // inconsistently oriented neighbours. `source` names the input in messages.
+  static absl::StatusOr<Mesh> Build(TriangleSoup soup, std::string_view source);
+
+  size_t num_vertices() const { return positions_.size(); }
+  size_t num_faces() const { return corners_.size() / 3; }
+  size_t num_halfedges() const { return corners_.size(); }
+  size_t num_edges() const { return edge_halfedge_.size(); }
+
+  const Vec3& position(VertexId v) const { return positions_[v]; }
+  const std::vector<Vec3>& positions() const { return positions_; }
+  VertexId face_vertex(FaceId f, int k) const { return corners_[3 * f + k]; }
+  const std::vector<VertexId>& corners() const { return corners_; }
+
+  static HalfedgeId halfedge(FaceId f, int k) { return 3 * f + k; }
+  static FaceId face(HalfedgeId h) { return h / 3; }
+  static int corner(HalfedgeId h) { return h % 3; }
+  static HalfedgeId next(HalfedgeId h) { return h % 3 == 2 ? h - 2 : h + 1; }
+  static HalfedgeId prev(HalfedgeId h) { return h % 3 == 0 ? h + 2 : h - 1; }
+  VertexId tail(HalfedgeId h) const { return corners_[h]; }
+  VertexId head(HalfedgeId h) const { return corners_[next(h)]; }
+  // The vertex of face(h) not on h.
+  VertexId opposite(HalfedgeId h) const { return corners_[prev(h)]; }
+  HalfedgeId twin(HalfedgeId h) const { return twin_[h]; }
+  EdgeId edge(HalfedgeId h) const { return edge_[h]; }
+  HalfedgeId edge_halfedge(EdgeId e) const { return edge_halfedge_[e]; }
+
+  double length(HalfedgeId h) const { return length_[h]; }
+  // Interior angle of face(h) at tail(h).
+  double corner_angle(HalfedgeId h) const { return corner_angle_[h]; }
+  // Polar angle of outgoing half-edge h in tail(h)'s tangent frame.
+  double polar_angle(HalfedgeId h) const { return polar_angle_[h]; }
+
+  // An outgoing half-edge of v that starts the rotation (kNone if isolated).
+  HalfedgeId vertex_halfedge(VertexId v) const { return vertex_halfedge_[v]; }
+  // Rotation step around tail(h); kNone past the last face of a boundary fan.
+  HalfedgeId rotate(HalfedgeId h) const { return twin_[prev(h)]; }
+  double total_angle(VertexId v) const { return total_angle_[v]; }
+  bool is_boundary(VertexId v) const { return flags_[v] & kBoundary; }
+  bool is_isolated(VertexId v) const { return vertex_halfedge_[v] == kNone; }
+  // Saddle (cone angle above 2*pi) or boundary: a geodesic may bend here, so
+  // exact propagation treats it as a pseudo-source.
+  bool is_saddle_or_boundary(VertexId v) const { return flags_[v] & (kSaddle | kBoundary); }
+  bool is_saddle(VertexId v) const { return flags_[v] & kSaddle; }
+
+  // Position of the point at parameter t along half-edge h.
+  Vec3 point_on_halfedge(HalfedgeId h, double t) const {
+    return position(tail(h)) * (1 - t) + position(head(h)) * t;
+  }
+  // Structural consistency checks (twin of twin, next cycles, angle
+  // sums); used by tests and by graph validation.
+  absl::Status CheckConsistency() const;
+
+ private:
+  enum Flag : uint8_t { kBoundary = 1, kSaddle = 2 };
+
+  std::vector<Vec3> positions_;
+  std::vector<VertexId> corners_;
+  std::vector<HalfedgeId> twin_;
+  std::vector<EdgeId> edge_;
+  std::vector<HalfedgeId> edge_halfedge_;
+  std::vector<double> length_;
+  std::vector<double> corner_angle_;
+  std::vector<double> polar_angle_;
+  std::vector<HalfedgeId> vertex_halfedge_;
+  std::vector<double> total_angle_;
+  std::vector<uint8_t> flags_;
+};
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_MESH_H_

@@ -1,0 +1,103 @@
+// Geodesic queries on a DGG: distance fields, point-to-point distances and
+// geodesic paths between arbitrary surface points.
+//
+// A GeodesicEngine is the resident "solver object": it holds a mesh and its
+// graph, both immutable and shared, and answers queries from any number of
+// threads at once. Each thread reuses its own scratch memory between queries.
+#ifndef GEODESIC_CORE_QUERIES_H_
+#define GEODESIC_CORE_QUERIES_H_
+
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "core/dgg_graph.h"
+#include "core/mesh.h"
+#include "core/surface_point.h"
+
+namespace geodesic {
+
+inline constexpr double kInfinity = std::numeric_limits<double>::infinity();
+
+enum class FieldMethod {
+  kLabelCorrecting,  // Algorithm 2: SLF queue, fan-restricted relaxation
+  kDijkstra,         // plain Dijkstra on the same graph, for checking
+};
+
+struct FieldOptions {
+  FieldMethod method = FieldMethod::kLabelCorrecting;
+  // Only vertices within this distance are settled; the rest are +inf.
+  double max_distance = kInfinity;
+  // If non-empty, stop once these vertices are settled (others may be +inf or
+  // upper bounds). Only honoured by kDijkstra, which settles in order; the
+  // label-correcting solver runs to completion (still correct).
+  std::vector<VertexId> targets;
+  bool nearest_source = false;  // fill FieldResult::nearest_source
+  // Polled during the solve; returning true aborts with CANCELLED.
+  std::function<bool()> cancelled;
+};
+
+struct FieldResult {
+  std::vector<double> distance;          // per mesh vertex; +inf if unreached
+  std::vector<uint32_t> nearest_source;  // index into sources; kNone if unreached
+  uint64_t queue_pops = 0;               // work measure: pops per vertex ~ 1-2
+};
+
+struct PathPoint {
+  SurfacePoint point;
+  Vec3 xyz;
+};
+
+struct GeodesicPath {
+  double length = 0;
+  std::vector<PathPoint> points;  // from the first point to the second
+};
+
+struct PairOptions {
+  bool want_path = false;
+  bool use_astar = true;  // bidirectional A* with the straight-line potential
+  std::function<bool()> cancelled;
+};
+
+struct PairResult {
+  double distance = kInfinity;  // +inf when the points are in different components
+  uint64_t settled = 0;         // nodes settled by the bidirectional search
+  std::optional<GeodesicPath> path;
+};
+
+class GeodesicEngine {
+ public:
+  GeodesicEngine(std::shared_ptr<const Mesh> mesh, std::shared_ptr<const DggGraph> graph);
+  ~GeodesicEngine();
+
+  const Mesh& mesh() const { return *mesh_; }
+  const DggGraph& graph() const { return *graph_; }
+
+  // Single- or multi-source distance field. Sources are validated
+  // (OUT_OF_RANGE / INVALID_ARGUMENT naming the source's index).
+  absl::StatusOr<FieldResult> Field(absl::Span<const SurfacePoint> sources,
+                                    const FieldOptions& options) const;
+
+  // Distance (and optionally path) between two arbitrary surface points
+  // (Algorithm 3: locally augmented graph, bidirectional search).
+  absl::StatusOr<PairResult> Distance(const SurfacePoint& a, const SurfacePoint& b,
+                                      const PairOptions& options) const;
+
+  // sources x targets distances, row-major.
+  absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
+                                             absl::Span<const SurfacePoint> targets,
+                                             const std::function<bool()>& cancelled = {}) const;
+
+ private:
+  std::shared_ptr<const Mesh> mesh_;
+  std::shared_ptr<const DggGraph> graph_;
+};
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_QUERIES_H_

@@ -1,0 +1,61 @@
+// Shared helpers for core tests: paths to shared data, temp dirs, small meshes.
+#ifndef GEODESIC_TESTS_CORE_TEST_UTIL_H_
+#define GEODESIC_TESTS_CORE_TEST_UTIL_H_
+
+#include <string>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "core/mesh.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geodesic::testing {
+
+// ../shared next to the clone (meshes/, truth/).
+std::string SharedPath(const std::string& relative);
+bool SharedDataAvailable();
+std::string SourcePath(const std::string& relative);
+
+// Reads a raw little-endian float64 file.
+std::vector<double> ReadF64(const std::string& path);
+
+// A temporary directory removed when the object goes away.
+class TempDir {
+ public:
+  TempDir();
+  ~TempDir();
+  const std::string& path() const { return path_; }
+  std::string File(const std::string& name) const { return path_ + "/" + name; }
+
+ private:
+  std::string path_;
+};
+
+// Regular planar grid of nx x ny quads split into triangles, spacing h, z=0.
+Mesh PlanarGrid(int nx, int ny, double h);
+// Axis-aligned unit cube, each square face split into 2 * k * k triangles.
+Mesh Cube(int k);
+// Mesh::Build that fails the test on error.
+Mesh MustBuild(TriangleSoup soup);
+
+inline const absl::Status& ToStatus(const absl::Status& s) { return s; }
+template <typename T>
+absl::Status ToStatus(const absl::StatusOr<T>& s) {
+  return s.status();
+}
+
+}  // namespace geodesic::testing
+
+#define EXPECT_OK(expr)                                                   \
+  do {                                                                    \
+    const ::absl::Status geodesic_test_status_ = ::geodesic::testing::ToStatus(expr); \
+    EXPECT_TRUE(geodesic_test_status_.ok()) << geodesic_test_status_;     \
+  } while (0)
+#define ASSERT_OK(expr)                                                   \
+  do {                                                                    \
+    const ::absl::Status geodesic_test_status_ = ::geodesic::testing::ToStatus(expr); \
+    ASSERT_TRUE(geodesic_test_status_.ok()) << geodesic_test_status_;     \
+  } while (0)
+
+#endif  // GEODESIC_TESTS_CORE_TEST_UTIL_H_
