@@ -1,0 +1,38 @@
+// geodesicd: the geodesic distance daemon and its offline subcommands.
+#include <cstdio>
+#include <cstring>
+#include <string_view>
+
+#include "server/offline/commands.h"
+
+namespace {
+
+constexpr char kUsage[] =
+    "usage: geodesicd <command> [options]\n"
+    "\n"
+    "commands:\n"
+    "  info MESH|GRAPH.dgg   diagnostics of a mesh, or describe and validate a graph file\n"
+    "  exact                 exact geodesic distances from one source (window propagation)\n"
+    "  build MESH            build the discrete geodesic graph of a mesh\n"
+    "  field                 distance field on a graph\n"
+    "  distance              point-to-point distance (and path) on a graph\n"
+    "\n"
+    "Run 'geodesicd <command> --help' for a command's options.\n";
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc < 2 || !std::strcmp(argv[1], "--help") || !std::strcmp(argv[1], "-h")) {
+    std::fputs(kUsage, argc < 2 ? stderr : stdout);
+    return argc < 2 ? 2 : 0;
+  }
+  std::string_view command = argv[1];
+  using namespace geodesic::offline;
+  if (command == "info") return RunInfo(argc - 1, argv + 1);
+  if (command == "exact") return RunExact(argc - 1, argv + 1);
+  if (command == "build") return RunBuild(argc - 1, argv + 1);
+  if (command == "field") return RunField(argc - 1, argv + 1);
+  if (command == "distance") return RunDistance(argc - 1, argv + 1);
+  std::fprintf(stderr, "geodesicd: unknown command '%s'\n\n%s", argv[1], kUsage);
+  return 2;
+}

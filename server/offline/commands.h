@@ -1,0 +1,17 @@
+// The offline subcommands of `geodesicd`: each takes the arguments after its
+// name (argv[0] is the subcommand) and returns the process exit code. Their
+// flags and --json keys are a contract that scripts rely on.
+#ifndef GEODESIC_SERVER_OFFLINE_COMMANDS_H_
+#define GEODESIC_SERVER_OFFLINE_COMMANDS_H_
+
+namespace geodesic::offline {
+
+int RunInfo(int argc, char** argv);      // geodesicd info MESH|GRAPH.dgg [--json]
+int RunExact(int argc, char** argv);     // geodesicd exact --mesh M --source SPEC --out F.f64
+int RunBuild(int argc, char** argv);     // geodesicd build MESH --eps E --out G.dgg
+int RunField(int argc, char** argv);     // geodesicd field --mesh M --graph G --source SPEC
+int RunDistance(int argc, char** argv);  // geodesicd distance --mesh M --graph G --from A --to B
+
+}  // namespace geodesic::offline
+
+#endif  // GEODESIC_SERVER_OFFLINE_COMMANDS_H_
