@@ -50,8 +50,8 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
       m.corners_[3 * f + k] = t[k];
     }
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "%s: face %u repeats a vertex (%u %u %u)", source, f, t[0], t[1], t[2]));
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s: face %u repeats a vertex (%u %u %u)", source, f, t[0], t[1], t[2]));
     }
   }
   m.positions_ = std::move(soup.positions);
@@ -147,7 +147,8 @@ absl::Status Mesh::CheckConsistency() const {
     HalfedgeId t = twin_[h];
     if (t != kNone) {
       if (twin_[t] != h) {
-        return absl::InternalError(absl::StrFormat("twin of twin of half-edge %u is not itself", h));
+        return absl::InternalError(
+            absl::StrFormat("twin of twin of half-edge %u is not itself", h));
       }
       if (tail(t) != head(h) || head(t) != tail(h)) {
         return absl::InternalError(absl::StrFormat("half-edge %u and its twin disagree", h));

@@ -9,9 +9,9 @@
 #define GEODESIC_CONCAT_INNER_(a, b) a##b
 #define GEODESIC_CONCAT_(a, b) GEODESIC_CONCAT_INNER_(a, b)
 
-#define RETURN_IF_ERROR(expr)                        \
-  do {                                               \
-    ::absl::Status geodesic_status_ = (expr);        \
+#define RETURN_IF_ERROR(expr)                            \
+  do {                                                   \
+    ::absl::Status geodesic_status_ = (expr);            \
     if (!geodesic_status_.ok()) return geodesic_status_; \
   } while (0)
 

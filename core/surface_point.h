@@ -30,8 +30,8 @@ namespace geodesic {
 struct SurfacePoint {
   enum class Kind : uint8_t { kVertex, kEdge, kFace };
   Kind kind = Kind::kVertex;
-  uint32_t id = 0;              // vertex, edge or face id
-  double t = 0;                 // edge parameter
+  uint32_t id = 0;               // vertex, edge or face id
+  double t = 0;                  // edge parameter
   std::array<double, 3> bary{};  // face barycentrics, file corner order
 
   static SurfacePoint Vertex(VertexId v) { return {Kind::kVertex, v, 0, {}}; }

@@ -1,0 +1,539 @@
+#include "core/dgg_build.h"
+
+#include <tbb/enumerable_thread_specific.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <mutex>
+#include <numbers>
+#include <queue>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "core/dgg_graph_internal.h"
+#include "core/exact_geodesic.h"
+#include "core/fan.h"
+#include "core/geodesic_shooting.h"
+#include "core/status.h"
+
+namespace geodesic {
+namespace {
+
+constexpr double kTwoPi = 2 * std::numbers::pi;
+// Fans used when choosing replacement paths, relative to the solver's.
+constexpr double kPruningFanScale = 0.9;
+// Share of the error budget epsilon that pruning may spend; the rest is left
+// to the candidates' early termination and to the fan-restricted solver.
+constexpr double kPruneShare = 0.7;
+
+// A graph edge as seen from one end.
+struct HalfEdgeRecord {
+  uint32_t to;
+  float weight;
+  float angle_here;   // polar angle at this end, normalised to [0, 2*pi)
+  float angle_there;  // polar angle at the other end, normalised
+};
+
+// Lengths are rounded up to float so that graph distances never undercut the
+// surface paths they stand for.
+float RoundUp(double d) {
+  float f = static_cast<float>(d);
+  if (static_cast<double>(f) < d) f = std::nextafter(f, std::numeric_limits<float>::infinity());
+  return f;
+}
+
+float Normalized(double raw, double period) {
+  double a = raw * (kTwoPi / period);
+  a = std::fmod(a, kTwoPi);
+  if (a < 0) a += kTwoPi;
+  float f = static_cast<float>(a);
+  return f >= static_cast<float>(kTwoPi) ? 0.0f : f;
+}
+
+// A total order on undirected edges: by weight, then by end ids. A pruned
+// edge is only ever replaced by strictly smaller edges, so replacements are
+// well-founded and pruning can run on every vertex in parallel.
+struct EdgeKey {
+  float w;
+  uint32_t lo, hi;
+  static EdgeKey Of(float w, uint32_t a, uint32_t b) { return {w, std::min(a, b), std::max(a, b)}; }
+  bool operator<(const EdgeKey& o) const {
+    if (w != o.w) return w < o.w;
+    if (lo != o.lo) return lo < o.lo;
+    return hi < o.hi;
+  }
+};
+
+// Adjacency lists in compressed form.
+struct Adjacency {
+  std::vector<uint64_t> offsets;
+  std::vector<HalfEdgeRecord> edges;
+  std::span<const HalfEdgeRecord> of(uint32_t u) const {
+    return {edges.data() + offsets[u], edges.data() + offsets[u + 1]};
+  }
+  std::span<HalfEdgeRecord> of(uint32_t u) {
+    return {edges.data() + offsets[u], edges.data() + offsets[u + 1]};
+  }
+};
+
+class Progress {
+ public:
+  Progress(const DggBuildOptions& options) : callback_(options.progress) {}
+  // Reports `done / total` of a phase spanning [begin, end) of the build.
+  // Returns false once the build is cancelled.
+  bool Report(std::string_view phase, double begin, double end, uint64_t done, uint64_t total) {
+    if (cancelled_.load(std::memory_order_relaxed)) return false;
+    if (!callback_) return true;
+    std::lock_guard<std::mutex> lock(mu_);
+    double f = begin + (end - begin) * (total ? double(done) / double(total) : 1.0);
+    if (!callback_(phase, f)) cancelled_ = true;
+    return !cancelled_;
+  }
+  bool cancelled() const { return cancelled_.load(std::memory_order_relaxed); }
+
+ private:
+  std::function<bool(std::string_view, double)> callback_;
+  std::mutex mu_;
+  std::atomic<bool> cancelled_{false};
+};
+
+double Seconds(std::chrono::steady_clock::time_point since) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - since).count();
+}
+
+// Runs body(i) for i in [0, n) on the arena's threads with dynamic load
+// balancing, reporting progress every few items.
+template <typename Body>
+void ParallelFor(uint32_t n, Progress& progress, std::string_view phase, double begin, double end,
+                 Body body) {
+  std::atomic<uint64_t> done{0};
+  tbb::parallel_for(tbb::blocked_range<uint32_t>(0, n, 8),
+                    [&](const tbb::blocked_range<uint32_t>& r) {
+                      if (progress.cancelled()) return;
+                      for (uint32_t i = r.begin(); i != r.end(); ++i) body(i);
+                      uint64_t now = done.fetch_add(r.size()) + r.size();
+                      if ((now / 64) != ((now - r.size()) / 64) || now == n)
+                        progress.Report(phase, begin, end, now, n);
+                    });
+}
+
+// Phase 1 (section 4.2.1): the direct geodesics from every vertex, each window
+// stopped at Theorem 2's d_max. Returns, per vertex, candidates sorted by id.
+std::vector<std::vector<HalfEdgeRecord>> ComputeCandidates(const Mesh& mesh, double epsilon,
+                                                           Progress& progress,
+                                                           uint64_t* windows_created) {
+  const uint32_t n = mesh.num_vertices();
+  std::vector<std::vector<HalfEdgeRecord>> candidates(n);
+  tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
+      [&] { return std::make_unique<ExactGeodesic>(mesh); });
+  std::atomic<uint64_t> windows{0};
+  ParallelFor(n, progress, "candidates", 0.0, 0.7, [&](uint32_t s) {
+    if (mesh.is_isolated(s)) return;
+    ExactGeodesic& engine = *engines.local();
+    DirectOptions options;
+    options.epsilon = epsilon;
+    auto hits = engine.DirectGeodesics(SurfacePoint::Vertex(s), options);
+    if (!hits.ok()) return;  // a validated vertex source cannot fail
+    windows.fetch_add(engine.stats().windows_created, std::memory_order_relaxed);
+    auto& out = candidates[s];
+    out.reserve(hits->size());
+    const double period_s = mesh.total_angle(s);
+    for (const DirectHit& h : *hits) {
+      out.push_back({h.vertex, RoundUp(h.distance), Normalized(h.angle_at_source, period_s),
+                     Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
+    }
+  });
+  *windows_created = windows.load();
+  return candidates;
+}
+
+// An edge found from either end is an edge; its length is the shorter of the
+// two direct paths found, with that path's directions.
+Adjacency Symmetrize(std::vector<std::vector<HalfEdgeRecord>> out) {
+  const uint32_t n = out.size();
+  std::vector<uint64_t> in_offsets(n + 1, 0);
+  for (uint32_t s = 0; s < n; ++s)
+    for (const auto& e : out[s]) ++in_offsets[e.to + 1];
+  for (uint32_t v = 0; v < n; ++v) in_offsets[v + 1] += in_offsets[v];
+  std::vector<HalfEdgeRecord> in(in_offsets[n]);
+  {
+    std::vector<uint64_t> fill(in_offsets.begin(), in_offsets.end() - 1);
+    for (uint32_t s = 0; s < n; ++s) {
+      for (const auto& e : out[s]) in[fill[e.to]++] = {s, e.weight, e.angle_there, e.angle_here};
+    }
+  }
+  Adjacency adj;
+  adj.offsets.assign(n + 1, 0);
+  std::vector<std::vector<HalfEdgeRecord>> merged(n);
+  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
+    const auto& a = out[s];
+    std::span<const HalfEdgeRecord> b(in.data() + in_offsets[s], in.data() + in_offsets[s + 1]);
+    auto& m = merged[s];
+    m.reserve(a.size() + b.size());
+    size_t i = 0, j = 0;
+    while (i < a.size() || j < b.size()) {
+      if (j == b.size() || (i < a.size() && a[i].to < b[j].to)) {
+        m.push_back(a[i++]);
+      } else if (i == a.size() || b[j].to < a[i].to) {
+        m.push_back(b[j++]);
+      } else {
+        m.push_back(b[j].weight < a[i].weight ? b[j] : a[i]);
+        ++i, ++j;
+      }
+    }
+  });
+  out = {};
+  for (uint32_t s = 0; s < n; ++s) adj.offsets[s + 1] = adj.offsets[s] + merged[s].size();
+  adj.edges.resize(adj.offsets[n]);
+  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
+    std::copy(merged[s].begin(), merged[s].end(), adj.edges.begin() + adj.offsets[s]);
+    merged[s] = {};
+  });
+  return adj;
+}
+
+// Phase 2 (section 4.2.2, PRUNEREDUNDANTEDGES): edge (s, x) is redundant when
+// a path from s through its other neighbours reaches x within (1 + eps) of
+// it. The local Dijkstra starts from every neighbour at its direct distance;
+// only paths made of edges smaller than (s, x) count (EdgeKey), so the result
+// does not depend on the order in which vertices are processed. A replacement
+// path must also turn only within the fans (fan.h) at its relays, so that the
+// fan-restricted solver can follow it; the fans used here are slightly
+// narrower than the solver's so that rounding cannot break that promise.
+std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, double epsilon,
+                                   Progress& progress) {
+  const uint32_t n = adj.offsets.size() - 1;
+  std::vector<uint8_t> redundant(adj.edges.size(), 0);
+  struct Scratch {
+    std::vector<uint32_t> stamp, local;
+    uint32_t current = 0;
+    std::vector<double> dist;
+    std::vector<EdgeKey> bottleneck;
+    std::vector<float> arrival;
+    std::vector<std::pair<double, uint32_t>> heap;
+  };
+  tbb::enumerable_thread_specific<Scratch> scratch([n] {
+    Scratch s;
+    s.stamp.assign(n, 0);
+    s.local.assign(n, 0);
+    return s;
+  });
+  ParallelFor(n, progress, "pruning", 0.8, 0.95, [&](uint32_t s) {
+    Scratch& sc = scratch.local();
+    auto nbrs = adj.of(s);
+    if (nbrs.size() < 2) return;
+    if (++sc.current == 0) {
+      std::fill(sc.stamp.begin(), sc.stamp.end(), 0);
+      sc.current = 1;
+    }
+    sc.dist.resize(nbrs.size());
+    sc.bottleneck.resize(nbrs.size());
+    sc.arrival.resize(nbrs.size());
+    sc.heap.clear();
+    for (uint32_t i = 0; i < nbrs.size(); ++i) {
+      sc.stamp[nbrs[i].to] = sc.current;
+      sc.local[nbrs[i].to] = i;
+      sc.dist[i] = nbrs[i].weight;
+      sc.bottleneck[i] = EdgeKey::Of(nbrs[i].weight, s, nbrs[i].to);
+      sc.arrival[i] = nbrs[i].angle_there;
+      sc.heap.push_back({-sc.dist[i], i});
+    }
+    std::make_heap(sc.heap.begin(), sc.heap.end());
+    const uint64_t base = adj.offsets[s];
+    while (!sc.heap.empty()) {
+      std::pop_heap(sc.heap.begin(), sc.heap.end());
+      auto [neg, i] = sc.heap.back();
+      sc.heap.pop_back();
+      if (-neg > sc.dist[i]) continue;
+      const uint32_t u = nbrs[i].to;
+      const bool is_vertex = u < mesh.num_vertices();
+      const double period = is_vertex ? mesh.total_angle(u) : kTwoPi;
+      const bool boundary = is_vertex && mesh.is_boundary(u);
+      for (const HalfEdgeRecord& e : adj.of(u)) {
+        if (e.to == s || sc.stamp[e.to] != sc.current) continue;
+        if (!InFan(sc.arrival[i], e.angle_here, period, boundary, epsilon, kPruningFanScale)) {
+          continue;
+        }
+        const uint32_t j = sc.local[e.to];
+        const double through = sc.dist[i] + e.weight;
+        const EdgeKey own = EdgeKey::Of(nbrs[j].weight, s, e.to);
+        EdgeKey b = std::max(sc.bottleneck[i], EdgeKey::Of(e.weight, u, e.to));
+        if (!(b < own)) continue;
+        if (through <= (1 + kPruneShare * epsilon) * nbrs[j].weight) redundant[base + j] = 1;
+        if (through < sc.dist[j]) {
+          sc.dist[j] = through;
+          sc.bottleneck[j] = b;
+          sc.arrival[j] = e.angle_there;
+          sc.heap.push_back({-through, j});
+          std::push_heap(sc.heap.begin(), sc.heap.end());
+        }
+      }
+    }
+  });
+  return redundant;
+}
+
+// Keeps an edge unless either end found it redundant.
+Adjacency DropRedundant(const Adjacency& adj, const std::vector<uint8_t>& redundant) {
+  const uint32_t n = adj.offsets.size() - 1;
+  auto reverse_index = [&](uint32_t s, uint32_t u) -> uint64_t {
+    auto list = adj.of(u);
+    auto it = std::lower_bound(list.begin(), list.end(), s,
+                               [](const HalfEdgeRecord& e, uint32_t id) { return e.to < id; });
+    return adj.offsets[u] + (it - list.begin());
+  };
+  std::vector<uint8_t> keep(adj.edges.size(), 0);
+  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
+    for (uint64_t i = adj.offsets[s]; i < adj.offsets[s + 1]; ++i) {
+      keep[i] = !redundant[i] && !redundant[reverse_index(s, adj.edges[i].to)];
+    }
+  });
+  Adjacency out;
+  out.offsets.assign(n + 1, 0);
+  for (uint32_t s = 0; s < n; ++s) {
+    uint64_t count = 0;
+    for (uint64_t i = adj.offsets[s]; i < adj.offsets[s + 1]; ++i) count += keep[i];
+    out.offsets[s + 1] = out.offsets[s] + count;
+  }
+  out.edges.reserve(out.offsets[n]);
+  for (uint64_t i = 0; i < adj.edges.size(); ++i)
+    if (keep[i]) out.edges.push_back(adj.edges[i]);
+  return out;
+}
+
+// Phase 3 (section 4.3, ADDPSEUDOVERTICESANDEDGES): where the candidate
+// directions at a vertex leave a gap wider than sqrt(2 eps), shoot geodesics
+// into it every sqrt(eps) and connect their end points to the vertices they
+// see directly. Gaps are measured on the candidate edges: a pruned edge's
+// direction is still served by the path that replaced it.
+struct PseudoVertex {
+  SurfacePoint point;
+  std::vector<HalfEdgeRecord> edges;  // to mesh vertices
+};
+
+std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const Adjacency& candidates,
+                                            double epsilon, Progress& progress) {
+  const uint32_t n = mesh.num_vertices();
+  const double step = std::sqrt(epsilon);
+  const double threshold = std::sqrt(2 * epsilon);
+  std::vector<std::vector<PseudoVertex>> per_vertex(n);
+  tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
+      [&] { return std::make_unique<ExactGeodesic>(mesh); });
+  ParallelFor(n, progress, "pseudo", 0.7, 0.8, [&](uint32_t s) {
+    auto cand = candidates.of(s);
+    if (cand.empty()) return;
+    const double period = mesh.total_angle(s);
+    const double to_raw = period / kTwoPi;
+    std::vector<std::pair<float, float>> dirs;  // (normalised angle, length)
+    for (const auto& e : cand) dirs.push_back({e.angle_here, e.weight});
+    std::sort(dirs.begin(), dirs.end());
+    const bool boundary = mesh.is_boundary(s);
+    // Gaps between consecutive directions; around a boundary vertex the
+    // directions span [0, period] without wrapping.
+    std::vector<std::tuple<double, double, double>> gaps;  // from, to (raw), length
+    for (size_t i = 0; i + 1 < dirs.size(); ++i) {
+      gaps.push_back({dirs[i].first * to_raw, dirs[i + 1].first * to_raw,
+                      0.5 * (dirs[i].second + dirs[i + 1].second)});
+    }
+    if (boundary) {
+      gaps.push_back({0.0, dirs.front().first * to_raw, dirs.front().second});
+      gaps.push_back({dirs.back().first * to_raw, period, dirs.back().second});
+    } else {
+      gaps.push_back({dirs.back().first * to_raw, dirs.front().first * to_raw + period,
+                      0.5 * (dirs.back().second + dirs.front().second)});
+    }
+    ExactGeodesic& engine = *engines.local();
+    for (auto [from, to, length] : gaps) {
+      const double gap = to - from;
+      if (gap < threshold) continue;
+      const int count = static_cast<int>(gap / step);
+      for (int j = 1; j <= count; ++j) {
+        double angle = from + gap * j / (count + 1);
+        if (angle >= period) angle -= period;
+        auto end = ShootGeodesic(mesh, s, angle, length);
+        if (!end.ok() || end->hit_vertex || end->point.kind == SurfacePoint::Kind::kVertex ||
+            end->length <= 0) {
+          continue;
+        }
+        DirectOptions options;
+        options.max_distance = end->length * (1 + 1e-9) + 1e-300;
+        auto hits = engine.DirectGeodesics(end->point, options);
+        if (!hits.ok() || hits->empty()) continue;
+        PseudoVertex p{end->point, {}};
+        for (const DirectHit& h : *hits) {
+          p.edges.push_back({h.vertex, RoundUp(h.distance), Normalized(h.angle_at_source, kTwoPi),
+                             Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
+        }
+        per_vertex[s].push_back(std::move(p));
+      }
+    }
+  });
+  std::vector<PseudoVertex> all;
+  for (auto& list : per_vertex)
+    for (auto& p : list) all.push_back(std::move(p));
+  return all;
+}
+
+// Joins pseudo vertices (nodes n, n+1, ...) and their edges, seen from both
+// ends, to the candidate graph, keeping every list sorted by node id.
+Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVertex>& pseudo) {
+  if (pseudo.empty()) return cand;
+  const uint32_t n = cand.offsets.size() - 1;
+  const uint32_t nodes = n + pseudo.size();
+  std::vector<std::vector<HalfEdgeRecord>> extra(n);
+  for (uint32_t i = 0; i < pseudo.size(); ++i) {
+    for (const auto& e : pseudo[i].edges) {
+      extra[e.to].push_back({n + i, e.weight, e.angle_there, e.angle_here});
+    }
+  }
+  Adjacency out;
+  out.offsets.assign(nodes + 1, 0);
+  for (uint32_t u = 0; u < nodes; ++u) {
+    const size_t size = u < n ? cand.of(u).size() + extra[u].size() : pseudo[u - n].edges.size();
+    out.offsets[u + 1] = out.offsets[u] + size;
+  }
+  out.edges.resize(out.offsets[nodes]);
+  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
+    auto dst = out.edges.begin() + out.offsets[u];
+    if (u < n) {
+      auto own = cand.of(u);
+      // Pseudo ids are above every vertex id: appending keeps the order.
+      dst = std::copy(own.begin(), own.end(), dst);
+      std::copy(extra[u].begin(), extra[u].end(), dst);
+    } else {
+      const auto& edges = pseudo[u - n].edges;
+      std::copy(edges.begin(), edges.end(), dst);
+    }
+  });
+  return out;
+}
+
+// Phase 4 (section 5.1.2): sort each node's edges by polar angle and give
+// every directed edge u -> v the range of v's edges that continue a geodesic
+// arriving along it.
+DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
+                        const std::vector<PseudoVertex>& pseudo, double epsilon,
+                        Progress& progress) {
+  const uint32_t n = mesh.num_vertices();
+  const uint32_t nodes = kept.offsets.size() - 1;
+  std::vector<std::vector<HalfEdgeRecord>> lists(nodes);
+  for (uint32_t u = 0; u < nodes; ++u) {
+    auto e = kept.of(u);
+    lists[u].assign(e.begin(), e.end());
+  }
+  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
+    std::sort(lists[u].begin(), lists[u].end(),
+              [](const HalfEdgeRecord& a, const HalfEdgeRecord& b) {
+                return a.angle_here < b.angle_here || (a.angle_here == b.angle_here && a.to < b.to);
+              });
+  });
+  DggGraphArrays a;
+  a.offsets.assign(nodes + 1, 0);
+  for (uint32_t u = 0; u < nodes; ++u) a.offsets[u + 1] = a.offsets[u] + lists[u].size();
+  const uint64_t m = a.offsets[nodes];
+  a.targets.resize(m);
+  a.weights.resize(m);
+  a.angles.resize(m);
+  a.fan_begin.resize(m);
+  a.fan_count.resize(m);
+  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
+    uint64_t i = a.offsets[u];
+    for (const auto& e : lists[u]) {
+      a.targets[i] = e.to;
+      a.weights[i] = e.weight;
+      a.angles[i] = e.angle_here;
+      ++i;
+    }
+  });
+  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
+    for (uint64_t i = a.offsets[u]; i < a.offsets[u + 1]; ++i) {
+      const uint32_t v = a.targets[i];
+      const bool is_vertex = v < n;
+      std::span<const float> angles(a.angles.data() + a.offsets[v],
+                                    a.angles.data() + a.offsets[v + 1]);
+      FanRange fan = ComputeFan(angles, lists[u][i - a.offsets[u]].angle_there,
+                                is_vertex ? mesh.total_angle(v) : kTwoPi,
+                                is_vertex && mesh.is_boundary(v), epsilon);
+      a.fan_begin[i] = fan.begin;
+      a.fan_count[i] = fan.count;
+    }
+  });
+  a.pseudo_points.reserve(pseudo.size());
+  for (const auto& p : pseudo) a.pseudo_points.push_back(p.point);
+  progress.Report("fans", 0.95, 1.0, 1, 1);
+  return a;
+}
+
+}  // namespace
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
+                                                         const DggBuildOptions& options,
+                                                         DggBuildStats* stats) {
+  const double epsilon = options.params.epsilon;
+  if (!(epsilon > 0 && epsilon < 1)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("epsilon must be in (0, 1), got %g", epsilon));
+  }
+  if (epsilon < 1e-6) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "epsilon %g is below 1e-6: the graph would approach the complete direct-geodesic graph "
+        "(quadratic size); use the exact engine instead",
+        epsilon));
+  }
+  DggBuildStats local;
+  DggBuildStats& st = stats ? *stats : local;
+  st = {};
+  const auto start = std::chrono::steady_clock::now();
+  Progress progress(options);
+  const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
+  tbb::task_arena arena(threads);
+
+  std::shared_ptr<const DggGraph> graph;
+  arena.execute([&] {
+    auto t = std::chrono::steady_clock::now();
+    auto candidates = ComputeCandidates(mesh, epsilon, progress, &st.windows_created);
+    if (progress.cancelled()) return;
+    Adjacency cand = Symmetrize(std::move(candidates));
+    st.candidate_edges = cand.edges.size() / 2;
+    st.candidate_seconds = Seconds(t);
+
+    t = std::chrono::steady_clock::now();
+    std::vector<PseudoVertex> pseudo;
+    if (options.params.pseudo_vertices) {
+      pseudo = AddPseudoVertices(mesh, cand, epsilon, progress);
+      if (progress.cancelled()) return;
+      cand = WithPseudoVertices(cand, pseudo);
+    }
+    st.pseudo_seconds = Seconds(t);
+
+    t = std::chrono::steady_clock::now();
+    auto redundant = FindRedundant(mesh, cand, epsilon, progress);
+    if (progress.cancelled()) return;
+    Adjacency kept = DropRedundant(cand, redundant);
+    redundant = {};
+    cand = {};
+    st.pruning_seconds = Seconds(t);
+
+    t = std::chrono::steady_clock::now();
+    DggGraphArrays arrays = Finalize(mesh, kept, pseudo, epsilon, progress);
+    st.fan_seconds = Seconds(t);
+    const uint32_t nodes = mesh.num_vertices() + pseudo.size();
+    st.pseudo_vertices = pseudo.size();
+    st.edges = arrays.targets.size() / 2;
+    for (uint32_t u = 0; u < nodes; ++u) {
+      st.max_degree = std::max<uint32_t>(st.max_degree, arrays.offsets[u + 1] - arrays.offsets[u]);
+    }
+    st.average_degree = nodes ? double(arrays.targets.size()) / nodes : 0;
+    graph = DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(),
+                                        options.params, MeshFingerprint(mesh));
+  });
+  if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
+  st.total_seconds = Seconds(start);
+  return graph;
+}
+
+}  // namespace geodesic

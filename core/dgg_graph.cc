@@ -1,0 +1,114 @@
+#include "core/dgg_graph.h"
+
+#include <sys/mman.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "core/dgg_graph_internal.h"
+#include "core/status.h"
+#include "xxhash.h"
+
+namespace geodesic {
+
+DggGraph::Storage::~Storage() {
+  if (mapping != nullptr) munmap(mapping, mapping_bytes);
+}
+
+uint64_t DggGraph::byte_size() const {
+  if (storage_ && storage_->mapping) return storage_->mapping_bytes;
+  return offsets_.size_bytes() + targets_.size_bytes() + weights_.size_bytes() +
+         angles_.size_bytes() + fan_begin_.size_bytes() + fan_count_.size_bytes() +
+         pseudo_points_.size_bytes();
+}
+
+bool DggGraph::is_mapped() const { return storage_ && storage_->mapping; }
+
+absl::Status DggGraph::Validate(const Mesh& mesh) const {
+  if (num_mesh_vertices_ != mesh.num_vertices()) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "graph has %u mesh vertices but the mesh has %u", num_mesh_vertices_, mesh.num_vertices()));
+  }
+  if (num_nodes_ < num_mesh_vertices_ || pseudo_points_.size() != num_nodes_ - num_mesh_vertices_) {
+    return absl::DataLossError("pseudo vertex count does not match the node count");
+  }
+  if (offsets_.size() != size_t{num_nodes_} + 1 || offsets_[0] != 0) {
+    return absl::DataLossError("offsets table has the wrong size or does not start at 0");
+  }
+  const uint64_t m = targets_.size();
+  if (weights_.size() != m || angles_.size() != m || fan_begin_.size() != m ||
+      fan_count_.size() != m || offsets_[num_nodes_] != m) {
+    return absl::DataLossError("edge arrays disagree in length");
+  }
+  for (uint32_t u = 0; u < num_nodes_; ++u) {
+    if (offsets_[u] > offsets_[u + 1]) {
+      return absl::DataLossError(absl::StrFormat("offsets are not monotone at node %u", u));
+    }
+  }
+  constexpr float kTwoPi = 2 * std::numbers::pi_v<float>;
+  for (uint32_t u = 0; u < num_nodes_; ++u) {
+    for (uint64_t i = offsets_[u]; i < offsets_[u + 1]; ++i) {
+      const uint32_t v = targets_[i];
+      if (v >= num_nodes_ || v == u) {
+        return absl::DataLossError(absl::StrFormat("edge %u of node %u points to %u", i, u, v));
+      }
+      if (!(weights_[i] > 0) || !std::isfinite(weights_[i])) {
+        return absl::DataLossError(absl::StrFormat("edge %u has weight %g", i, weights_[i]));
+      }
+      if (!(angles_[i] >= 0 && angles_[i] <= kTwoPi)) {
+        return absl::DataLossError(absl::StrFormat("edge %u has angle %g", i, angles_[i]));
+      }
+      const uint64_t degree = offsets_[v + 1] - offsets_[v];
+      if (fan_count_[i] > degree || (degree > 0 && fan_begin_[i] >= degree)) {
+        return absl::DataLossError(absl::StrFormat("fan of edge %u leaves node %u's edges", i, v));
+      }
+    }
+  }
+  for (uint32_t i = 0; i < pseudo_points_.size(); ++i) {
+    absl::Status s = ValidateSurfacePoint(mesh, pseudo_points_[i]);
+    if (!s.ok()) {
+      return absl::DataLossError(absl::StrFormat("pseudo vertex %u: %s", i, s.message()));
+    }
+  }
+  return absl::OkStatus();
+}
+
+uint64_t MeshFingerprint(const Mesh& mesh) {
+  XXH3_state_t* state = XXH3_createState();
+  XXH3_64bits_reset(state);
+  const uint64_t counts[2] = {mesh.num_vertices(), mesh.num_faces()};
+  XXH3_64bits_update(state, counts, sizeof(counts));
+  XXH3_64bits_update(state, mesh.positions().data(), mesh.positions().size() * sizeof(Vec3));
+  XXH3_64bits_update(state, mesh.corners().data(), mesh.corners().size() * sizeof(VertexId));
+  uint64_t hash = XXH3_64bits_digest(state);
+  XXH3_freeState(state);
+  return hash;
+}
+
+std::shared_ptr<const DggGraph> DggGraphBuilder::FromArrays(DggGraphArrays arrays,
+                                                            uint32_t num_nodes,
+                                                            uint32_t num_mesh_vertices,
+                                                            const DggParams& params,
+                                                            uint64_t mesh_fingerprint) {
+  auto storage = std::make_shared<DggGraph::Storage>();
+  storage->arrays = std::move(arrays);
+  auto graph = std::make_shared<DggGraph>();
+  graph->num_nodes_ = num_nodes;
+  graph->num_mesh_vertices_ = num_mesh_vertices;
+  graph->params_ = params;
+  graph->mesh_fingerprint_ = mesh_fingerprint;
+  const DggGraphArrays& a = storage->arrays;
+  graph->offsets_ = a.offsets;
+  graph->targets_ = a.targets;
+  graph->weights_ = a.weights;
+  graph->angles_ = a.angles;
+  graph->fan_begin_ = a.fan_begin;
+  graph->fan_count_ = a.fan_count;
+  graph->pseudo_points_ = a.pseudo_points;
+  graph->storage_ = std::move(storage);
+  return graph;
+}
+
+}  // namespace geodesic

@@ -1,0 +1,331 @@
+#include "core/graph_file.h"
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <array>
+#include <cerrno>
+#include <cstring>
+#include <filesystem>
+#include <random>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "core/dgg_graph_internal.h"
+#include "core/status.h"
+#include "xxhash.h"
+
+namespace geodesic {
+namespace {
+
+constexpr char kMagic[8] = {'G', 'E', 'O', 'D', 'D', 'G', 'G', '\0'};
+constexpr uint32_t kEndianTag = 0x01020304;
+constexpr size_t kHeaderBytes = 4096;
+constexpr size_t kAlignment = 64;
+
+enum Section : uint32_t {
+  kOffsets,
+  kTargets,
+  kWeights,
+  kAngles,
+  kFanBegin,
+  kFanCount,
+  kPseudoPoints,
+  kSectionCount
+};
+constexpr const char* kSectionNames[kSectionCount] = {
+    "offsets", "targets", "weights", "angles", "fan_begin", "fan_count", "pseudo_points"};
+constexpr uint32_t kElementSize[kSectionCount] = {8, 4, 4, 4, 4, 4, sizeof(SurfacePoint)};
+
+struct SectionEntry {
+  char name[16];
+  uint64_t offset;
+  uint64_t bytes;
+  uint32_t element_size;
+  uint32_t reserved;
+  uint64_t checksum;  // XXH3-64 of the section's bytes
+};
+
+struct Header {
+  char magic[8];
+  uint32_t version;
+  uint32_t endian;
+  uint64_t mesh_fingerprint;
+  double epsilon;
+  uint32_t pseudo_vertices;  // build parameter: 1 if enabled
+  uint32_t num_nodes;
+  uint32_t num_mesh_vertices;
+  uint32_t section_count;
+  uint64_t num_directed_edges;
+  uint64_t file_bytes;
+  SectionEntry sections[kSectionCount];
+  uint64_t header_checksum;  // XXH3-64 of this struct with this field zero
+};
+static_assert(sizeof(Header) <= kHeaderBytes);
+static_assert(std::is_trivially_copyable_v<SurfacePoint>);
+
+uint64_t HeaderChecksum(Header h) {
+  h.header_checksum = 0;
+  return XXH3_64bits(&h, sizeof(h));
+}
+
+absl::Status ErrnoStatus(const std::string& what, const std::string& path) {
+  int e = errno;
+  std::string message = absl::StrFormat("%s %s: %s", what, path, std::strerror(e));
+  if (e == ENOENT) return absl::NotFoundError(message);
+  if (e == EACCES || e == EPERM) return absl::PermissionDeniedError(message);
+  if (e == ENOSPC || e == EDQUOT) return absl::ResourceExhaustedError(message);
+  return absl::InternalError(message);
+}
+
+absl::Status WriteAll(int fd, const void* data, size_t bytes, const std::string& path) {
+  const char* p = static_cast<const char*>(data);
+  while (bytes > 0) {
+    ssize_t n = ::write(fd, p, bytes);
+    if (n < 0) {
+      if (errno == EINTR) continue;
+      return ErrnoStatus("cannot write", path);
+    }
+    p += n;
+    bytes -= n;
+  }
+  return absl::OkStatus();
+}
+
+// Validates the header of a mapped file of `size` bytes.
+absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::string& path) {
+  if (size < kHeaderBytes) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: %u bytes is too short for a graph file header", path, size));
+  }
+  Header h;
+  std::memcpy(&h, base, sizeof(h));
+  if (std::memcmp(h.magic, kMagic, sizeof(kMagic)) != 0) {
+    return absl::DataLossError(absl::StrFormat("%s is not a geodesicd graph file", path));
+  }
+  if (h.endian != kEndianTag) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%s was written on a machine of other endianness", path));
+  }
+  if (h.version != kGraphFormatVersion) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%s has graph format version %u; this build reads version %u", path,
+                        h.version, kGraphFormatVersion));
+  }
+  if (HeaderChecksum(h) != h.header_checksum) {
+    return absl::DataLossError(absl::StrFormat("%s: header checksum mismatch", path));
+  }
+  if (h.file_bytes != size) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: header says %u bytes but the file has %u", path, h.file_bytes, size));
+  }
+  if (h.section_count != kSectionCount) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: %u sections, expected %u", path, h.section_count, kSectionCount));
+  }
+  const uint64_t expected_elements[kSectionCount] = {uint64_t{h.num_nodes} + 1,
+                                                     h.num_directed_edges,
+                                                     h.num_directed_edges,
+                                                     h.num_directed_edges,
+                                                     h.num_directed_edges,
+                                                     h.num_directed_edges,
+                                                     uint64_t{h.num_nodes} - h.num_mesh_vertices};
+  if (h.num_nodes < h.num_mesh_vertices) {
+    return absl::DataLossError(absl::StrFormat("%s: fewer nodes than mesh vertices", path));
+  }
+  uint64_t previous_end = kHeaderBytes;
+  for (uint32_t i = 0; i < kSectionCount; ++i) {
+    const SectionEntry& s = h.sections[i];
+    if (s.element_size != kElementSize[i] || s.bytes / kElementSize[i] != expected_elements[i] ||
+        s.bytes % kElementSize[i] != 0) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: section %s has the wrong size", path, kSectionNames[i]));
+    }
+    if (s.offset % kAlignment != 0 || s.offset < previous_end || s.offset > size ||
+        s.bytes > size - s.offset) {
+      return absl::DataLossError(absl::StrFormat(
+          "%s: section %s lies outside the file or out of order", path, kSectionNames[i]));
+    }
+    previous_end = s.offset + s.bytes;
+  }
+  return h;
+}
+
+}  // namespace
+
+absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
+  Header h{};
+  std::memcpy(h.magic, kMagic, sizeof(kMagic));
+  h.version = kGraphFormatVersion;
+  h.endian = kEndianTag;
+  h.mesh_fingerprint = graph.mesh_fingerprint();
+  h.epsilon = graph.params().epsilon;
+  h.pseudo_vertices = graph.params().pseudo_vertices ? 1 : 0;
+  h.num_nodes = graph.num_nodes();
+  h.num_mesh_vertices = graph.num_mesh_vertices();
+  h.section_count = kSectionCount;
+  h.num_directed_edges = graph.num_directed_edges();
+  const std::array<std::pair<const void*, uint64_t>, kSectionCount> data = {{
+      {graph.offsets().data(), graph.offsets().size_bytes()},
+      {graph.targets().data(), graph.targets().size_bytes()},
+      {graph.weights().data(), graph.weights().size_bytes()},
+      {graph.angles().data(), graph.angles().size_bytes()},
+      {graph.fan_begin().data(), graph.fan_begin().size_bytes()},
+      {graph.fan_count().data(), graph.fan_count().size_bytes()},
+      {graph.pseudo_points().data(), graph.pseudo_points().size_bytes()},
+  }};
+  uint64_t offset = kHeaderBytes;
+  for (uint32_t i = 0; i < kSectionCount; ++i) {
+    SectionEntry& s = h.sections[i];
+    std::strncpy(s.name, kSectionNames[i], sizeof(s.name) - 1);
+    s.offset = offset;
+    s.bytes = data[i].second;
+    s.element_size = kElementSize[i];
+    s.checksum = XXH3_64bits(data[i].first, data[i].second);
+    offset += (s.bytes + kAlignment - 1) / kAlignment * kAlignment;
+  }
+  h.file_bytes = offset;
+  h.header_checksum = HeaderChecksum(h);
+
+  // Temp file in the same directory, fsync, rename, fsync the directory: a
+  // reader sees the old file or the whole new one, never a partial one.
+  std::filesystem::path target(path);
+  std::filesystem::path dir = target.has_parent_path() ? target.parent_path() : ".";
+  std::string tmp = absl::StrFormat("%s.tmp.%d.%x", path, getpid(), std::random_device{}());
+  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  if (fd < 0) return ErrnoStatus("cannot create", tmp);
+  auto fail = [&](absl::Status s) {
+    ::close(fd);
+    ::unlink(tmp.c_str());
+    return s;
+  };
+  std::vector<char> header_block(kHeaderBytes, 0);
+  std::memcpy(header_block.data(), &h, sizeof(h));
+  absl::Status s = WriteAll(fd, header_block.data(), header_block.size(), tmp);
+  static const char kZeros[kAlignment] = {};
+  for (uint32_t i = 0; i < kSectionCount && s.ok(); ++i) {
+    s = WriteAll(fd, data[i].first, data[i].second, tmp);
+    const uint64_t pad = (kAlignment - data[i].second % kAlignment) % kAlignment;
+    if (s.ok() && pad) s = WriteAll(fd, kZeros, pad, tmp);
+  }
+  if (!s.ok()) return fail(s);
+  if (::fsync(fd) != 0) return fail(ErrnoStatus("cannot fsync", tmp));
+  if (::close(fd) != 0) {
+    ::unlink(tmp.c_str());
+    return ErrnoStatus("cannot close", tmp);
+  }
+  if (::rename(tmp.c_str(), path.c_str()) != 0) {
+    absl::Status r = ErrnoStatus("cannot rename into", path);
+    ::unlink(tmp.c_str());
+    return r;
+  }
+  int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
+  if (dfd >= 0) {
+    ::fsync(dfd);
+    ::close(dfd);
+  }
+  return absl::OkStatus();
+}
+
+namespace {
+
+struct Mapping {
+  void* base = nullptr;
+  size_t size = 0;
+};
+
+absl::StatusOr<Mapping> MapReadOnly(const std::string& path) {
+  int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) return ErrnoStatus("cannot open", path);
+  struct stat st;
+  if (::fstat(fd, &st) != 0) {
+    absl::Status s = ErrnoStatus("cannot stat", path);
+    ::close(fd);
+    return s;
+  }
+  Mapping m;
+  m.size = st.st_size;
+  if (m.size == 0) {
+    ::close(fd);
+    return absl::DataLossError(absl::StrFormat("%s is empty", path));
+  }
+  m.base = ::mmap(nullptr, m.size, PROT_READ, MAP_PRIVATE, fd, 0);
+  ::close(fd);
+  if (m.base == MAP_FAILED) return ErrnoStatus("cannot map", path);
+  return m;
+}
+
+absl::Status VerifyChecksums(const Header& h, const char* base, const std::string& path) {
+  for (uint32_t i = 0; i < kSectionCount; ++i) {
+    const SectionEntry& s = h.sections[i];
+    if (XXH3_64bits(base + s.offset, s.bytes) != s.checksum) {
+      return absl::DataLossError(
+          absl::StrFormat("%s: section %s is corrupt (checksum mismatch)", path, kSectionNames[i]));
+    }
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphFile::Open(const std::string& path,
+                                                                const Mesh& mesh, Check check) {
+  ASSIGN_OR_RETURN(Mapping m, MapReadOnly(path));
+  auto storage = std::make_shared<DggGraph::Storage>();
+  storage->mapping = m.base;
+  storage->mapping_bytes = m.size;
+  ASSIGN_OR_RETURN(Header h, ReadHeader(m.base, m.size, path));
+  if (h.num_mesh_vertices != mesh.num_vertices() || h.mesh_fingerprint != MeshFingerprint(mesh)) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%s was built for another mesh (fingerprint %016x, this mesh has %016x)",
+                        path, h.mesh_fingerprint, MeshFingerprint(mesh)));
+  }
+  const char* base = static_cast<const char*>(m.base);
+  if (check == Check::kFull) RETURN_IF_ERROR(VerifyChecksums(h, base, path));
+  auto graph = std::make_shared<DggGraph>();
+  graph->num_nodes_ = h.num_nodes;
+  graph->num_mesh_vertices_ = h.num_mesh_vertices;
+  graph->params_.epsilon = h.epsilon;
+  graph->params_.pseudo_vertices = h.pseudo_vertices != 0;
+  graph->mesh_fingerprint_ = h.mesh_fingerprint;
+  auto section = [&]<typename T>(Section i, std::span<const T>& out) {
+    out = std::span<const T>(reinterpret_cast<const T*>(base + h.sections[i].offset),
+                             h.sections[i].bytes / sizeof(T));
+  };
+  section(kOffsets, graph->offsets_);
+  section(kTargets, graph->targets_);
+  section(kWeights, graph->weights_);
+  section(kAngles, graph->angles_);
+  section(kFanBegin, graph->fan_begin_);
+  section(kFanCount, graph->fan_count_);
+  section(kPseudoPoints, graph->pseudo_points_);
+  graph->storage_ = std::move(storage);
+  if (check == Check::kFull) {
+    absl::Status s = graph->Validate(mesh);
+    if (!s.ok()) return absl::DataLossError(absl::StrFormat("%s: %s", path, s.message()));
+  }
+  return graph;
+}
+
+absl::StatusOr<GraphFile::Info> GraphFile::Inspect(const std::string& path) {
+  ASSIGN_OR_RETURN(Mapping m, MapReadOnly(path));
+  DggGraph::Storage owner;  // unmaps on return
+  owner.mapping = m.base;
+  owner.mapping_bytes = m.size;
+  ASSIGN_OR_RETURN(Header h, ReadHeader(m.base, m.size, path));
+  RETURN_IF_ERROR(VerifyChecksums(h, static_cast<const char*>(m.base), path));
+  Info info;
+  info.version = h.version;
+  info.mesh_fingerprint = h.mesh_fingerprint;
+  info.params.epsilon = h.epsilon;
+  info.params.pseudo_vertices = h.pseudo_vertices != 0;
+  info.num_nodes = h.num_nodes;
+  info.num_mesh_vertices = h.num_mesh_vertices;
+  info.num_directed_edges = h.num_directed_edges;
+  info.file_bytes = h.file_bytes;
+  return info;
+}
+
+}  // namespace geodesic

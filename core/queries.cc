@@ -1,0 +1,503 @@
+#include "core/queries.h"
+
+#include <algorithm>
+#include <cmath>
+#include <deque>
+#include <numbers>
+#include <queue>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "core/exact_geodesic.h"
+#include "core/fan.h"
+#include "core/status.h"
+
+namespace geodesic {
+namespace {
+
+constexpr double kTwoPi = 2 * std::numbers::pi;
+constexpr uint32_t kViaSource = kNone;         // reached from a source node itself
+constexpr uint32_t kViaTemporary = kNone - 1;  // reached by a temporary edge
+
+// Direct edges from a point that is not a graph node to mesh vertices
+// (Appendix A: the locally augmented graph).
+struct TemporaryEdge {
+  VertexId vertex;
+  double weight;
+  double arrival;  // normalised angle at the vertex pointing back to the point
+};
+
+// Per-thread scratch reused by every query on that thread: stamps mean no
+// O(n) clearing per point-to-point query.
+struct Scratch {
+  std::vector<double> dist[2];
+  std::vector<uint32_t> via[2];  // arriving edge index, or kViaSource / kViaTemporary
+  std::vector<uint32_t> pred[2];
+  std::vector<uint32_t> stamp[2];
+  std::vector<uint8_t> done[2];
+  std::vector<double> arrival;  // for kViaTemporary: angle of arrival
+  uint32_t current = 0;
+  std::unique_ptr<ExactGeodesic> exact;
+  const Mesh* exact_mesh = nullptr;
+
+  void Prepare(size_t nodes) {
+    for (int s = 0; s < 2; ++s) {
+      if (dist[s].size() < nodes) {
+        dist[s].resize(nodes);
+        via[s].resize(nodes);
+        pred[s].resize(nodes);
+        stamp[s].assign(nodes, 0);
+        done[s].resize(nodes);
+      }
+    }
+    if (arrival.size() < nodes) arrival.resize(nodes);
+    if (++current == 0) {
+      for (auto& st : stamp) std::fill(st.begin(), st.end(), 0);
+      current = 1;
+    }
+  }
+  ExactGeodesic& Exact(const Mesh& mesh) {
+    if (exact_mesh != &mesh || !exact) {
+      exact = std::make_unique<ExactGeodesic>(mesh);
+      exact_mesh = &mesh;
+    }
+    return *exact;
+  }
+};
+
+Scratch& ThreadScratch() {
+  thread_local Scratch scratch;
+  return scratch;
+}
+
+absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_view what) {
+  absl::Status s = ValidateSurfacePoint(mesh, p);
+  if (s.ok()) return s;
+  return absl::Status(s.code(), absl::StrFormat("%s: %s", what, s.message()));
+}
+
+}  // namespace
+
+GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
+                               std::shared_ptr<const DggGraph> graph)
+    : mesh_(std::move(mesh)), graph_(std::move(graph)) {}
+
+GeodesicEngine::~GeodesicEngine() = default;
+
+namespace {
+
+std::vector<TemporaryEdge> TemporaryEdges(const Mesh& mesh, ExactGeodesic& exact,
+                                          const SurfacePoint& p, double epsilon) {
+  DirectOptions options;
+  options.epsilon = epsilon;
+  std::vector<TemporaryEdge> edges;
+  auto hits = exact.DirectGeodesics(p, options);
+  if (!hits.ok()) return edges;
+  edges.reserve(hits->size());
+  for (const DirectHit& h : *hits) {
+    edges.push_back(
+        {h.vertex, h.distance, h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
+  }
+  return edges;
+}
+
+}  // namespace
+
+absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint> sources,
+                                                  const FieldOptions& options) const {
+  const Mesh& mesh = *mesh_;
+  const DggGraph& g = *graph_;
+  if (sources.empty()) return absl::InvalidArgumentError("a field needs at least one source");
+  for (size_t i = 0; i < sources.size(); ++i) {
+    RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
+  }
+  for (VertexId t : options.targets) {
+    if (t >= mesh.num_vertices()) {
+      return absl::OutOfRangeError(absl::StrFormat(
+          "target vertex %u is out of range (the mesh has %u vertices)", t, mesh.num_vertices()));
+    }
+  }
+  const uint32_t nodes = g.num_nodes();
+  const double epsilon = g.params().epsilon;
+  Scratch& sc = ThreadScratch();
+  sc.Prepare(nodes);
+  std::vector<double>& dist = sc.dist[0];
+  std::vector<uint32_t>& via = sc.via[0];
+  std::vector<uint32_t>& label = sc.pred[0];
+  std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
+  std::fill(label.begin(), label.begin() + nodes, kNone);
+  auto offsets = g.offsets();
+  auto targets = g.targets();
+  auto weights = g.weights();
+  auto angles = g.angles();
+
+  // Seed: vertex sources at 0; other points through their temporary edges.
+  std::vector<uint32_t> seeds;
+  for (uint32_t i = 0; i < sources.size(); ++i) {
+    const SurfacePoint p = CanonicalizeSurfacePoint(mesh, sources[i]);
+    if (p.kind == SurfacePoint::Kind::kVertex) {
+      dist[p.id] = 0;
+      via[p.id] = kViaSource;
+      label[p.id] = i;
+      seeds.push_back(p.id);
+      continue;
+    }
+    for (const TemporaryEdge& e : TemporaryEdges(mesh, sc.Exact(mesh), p, epsilon)) {
+      if (e.weight < dist[e.vertex]) {
+        dist[e.vertex] = e.weight;
+        via[e.vertex] = kViaTemporary;
+        sc.arrival[e.vertex] = e.arrival;
+        label[e.vertex] = i;
+        seeds.push_back(e.vertex);
+      }
+    }
+  }
+  std::sort(seeds.begin(), seeds.end());
+  seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
+
+  FieldResult result;
+  uint64_t pops = 0;
+  auto cancelled = [&] { return options.cancelled && (pops & 4095) == 0 && options.cancelled(); };
+
+  // The edges of u to relax: all of them for a source, otherwise the fan of
+  // the edge u was reached by.
+  auto for_each_relaxed = [&](uint32_t u, auto&& relax) {
+    const uint64_t begin = offsets[u], degree = offsets[u + 1] - begin;
+    uint64_t first = 0, count = degree;
+    if (options.method == FieldMethod::kLabelCorrecting && via[u] != kViaSource) {
+      if (via[u] == kViaTemporary) {
+        std::span<const float> a(angles.data() + begin, degree);
+        const bool is_vertex = u < mesh.num_vertices();
+        FanRange fan = ComputeFan(a, sc.arrival[u], is_vertex ? mesh.total_angle(u) : kTwoPi,
+                                  is_vertex && mesh.is_boundary(u), epsilon);
+        first = fan.begin;
+        count = fan.count;
+      } else {
+        first = g.fan_begin()[via[u]];
+        count = g.fan_count()[via[u]];
+      }
+    }
+    for (uint64_t k = 0; k < count; ++k) {
+      uint64_t i = begin + (first + k) % degree;
+      relax(i, targets[i], dist[u] + weights[i]);
+    }
+  };
+
+  if (options.method == FieldMethod::kLabelCorrecting) {
+    // Algorithm 2: a FIFO queue with Small-Label-First insertion, popping
+    // only labels at most the queue's mean (Bertsekas' SLF + threshold).
+    std::vector<uint8_t>& in_queue = sc.done[0];
+    std::fill(in_queue.begin(), in_queue.begin() + nodes, 0);
+    std::deque<uint32_t> queue;
+    double sum = 0;
+    for (uint32_t s : seeds) {
+      if (dist[s] > options.max_distance) continue;
+      queue.push_back(s);
+      in_queue[s] = 1;
+      sum += dist[s];
+    }
+    while (!queue.empty()) {
+      if (cancelled()) return absl::CancelledError("field cancelled");
+      const double mean = sum / queue.size();
+      uint32_t u = queue.front();
+      for (size_t spins = 0; dist[u] > mean && spins < queue.size(); ++spins) {
+        queue.pop_front();
+        queue.push_back(u);
+        u = queue.front();
+      }
+      queue.pop_front();
+      in_queue[u] = 0;
+      sum -= dist[u];
+      ++pops;
+      for_each_relaxed(u, [&](uint64_t i, uint32_t v, double d) {
+        if (!(d < dist[v]) || d > options.max_distance) return;
+        if (in_queue[v]) {
+          sum += d - dist[v];
+        } else {
+          in_queue[v] = 1;
+          sum += d;
+          if (!queue.empty() && d <= dist[queue.front()]) {
+            queue.push_front(v);
+          } else {
+            queue.push_back(v);
+          }
+        }
+        dist[v] = d;
+        via[v] = static_cast<uint32_t>(i);
+        label[v] = label[u];
+      });
+      if (queue.empty()) sum = 0;  // drop accumulated rounding
+    }
+  } else {
+    std::vector<uint8_t>& settled = sc.done[0];
+    std::fill(settled.begin(), settled.begin() + nodes, 0);
+    using Entry = std::pair<double, uint32_t>;
+    std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap;
+    for (uint32_t s : seeds) heap.push({dist[s], s});
+    size_t targets_left = options.targets.size();
+    std::vector<uint8_t> is_target;
+    if (targets_left) {
+      is_target.assign(nodes, 0);
+      for (VertexId t : options.targets) is_target[t] = 1;
+      targets_left = std::count(is_target.begin(), is_target.end(), 1);
+    }
+    while (!heap.empty()) {
+      auto [d, u] = heap.top();
+      heap.pop();
+      if (settled[u] || d > dist[u]) continue;
+      if (d > options.max_distance) break;
+      if (cancelled()) return absl::CancelledError("field cancelled");
+      settled[u] = 1;
+      ++pops;
+      if (!is_target.empty() && is_target[u] && --targets_left == 0) break;
+      for_each_relaxed(u, [&](uint64_t i, uint32_t v, double nd) {
+        if (nd < dist[v]) {
+          dist[v] = nd;
+          via[v] = static_cast<uint32_t>(i);
+          label[v] = label[u];
+          heap.push({nd, v});
+        }
+      });
+    }
+  }
+  const uint32_t n = mesh.num_vertices();
+  result.distance.assign(dist.begin(), dist.begin() + n);
+  for (double& d : result.distance) {
+    if (d > options.max_distance) d = kInfinity;
+  }
+  if (options.nearest_source) {
+    result.nearest_source.assign(label.begin(), label.begin() + n);
+    for (uint32_t v = 0; v < n; ++v) {
+      if (result.distance[v] == kInfinity) result.nearest_source[v] = kNone;
+    }
+  }
+  result.queue_pops = pops;
+  return result;
+}
+
+namespace {
+
+// One endpoint of a point-to-point query: a graph node, or a point joined to
+// the graph by temporary edges.
+struct Endpoint {
+  SurfacePoint point;
+  Vec3 xyz;
+  bool is_node = false;
+  uint32_t node = kNone;
+  std::vector<TemporaryEdge> edges;
+};
+
+// Length of the straight segments of a traced path.
+double PolylineLength(const std::vector<PathPoint>& points) {
+  double length = 0;
+  for (size_t i = 1; i < points.size(); ++i)
+    length += geodesic::Distance(points[i - 1].xyz, points[i].xyz);
+  return length;
+}
+
+}  // namespace
+
+absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
+                                                    const SurfacePoint& raw_b,
+                                                    const PairOptions& options) const {
+  const Mesh& mesh = *mesh_;
+  const DggGraph& g = *graph_;
+  RETURN_IF_ERROR(CheckPoint(mesh, raw_a, "first point"));
+  RETURN_IF_ERROR(CheckPoint(mesh, raw_b, "second point"));
+  const double epsilon = g.params().epsilon;
+  Scratch& sc = ThreadScratch();
+  ExactGeodesic& exact = sc.Exact(mesh);
+
+  Endpoint ends[2];
+  const SurfacePoint raw[2] = {raw_a, raw_b};
+  for (int s = 0; s < 2; ++s) {
+    ends[s].point = CanonicalizeSurfacePoint(mesh, raw[s]);
+    ends[s].xyz = PositionOf(mesh, ends[s].point);
+    if (ends[s].point.kind == SurfacePoint::Kind::kVertex) {
+      ends[s].is_node = true;
+      ends[s].node = ends[s].point.id;
+    }
+  }
+  PairResult result;
+  // The direct geodesic between the two points, if the first sees the
+  // second: exact, and the answer whenever it is the shortest.
+  double best = kInfinity;
+  {
+    DirectOptions options_a;
+    options_a.epsilon = epsilon;
+    options_a.keep_windows = true;
+    auto hits = exact.DirectGeodesics(ends[0].point, options_a);
+    if (!hits.ok()) return hits.status();
+    if (!ends[0].is_node) {
+      for (const DirectHit& h : *hits) {
+        ends[0].edges.push_back(
+            {h.vertex, h.distance, h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
+      }
+    }
+    auto direct = exact.DistanceTo(ends[1].point);
+    if (direct.ok()) best = *direct;
+  }
+  if (!ends[1].is_node) ends[1].edges = TemporaryEdges(mesh, exact, ends[1].point, epsilon);
+
+  const uint32_t nodes = g.num_nodes();
+  sc.Prepare(nodes);
+  const uint32_t stamp = sc.current;
+  auto offsets = g.offsets();
+  auto targets = g.targets();
+  auto weights = g.weights();
+  // Node positions for the straight-line potential.
+  auto node_xyz = [&](uint32_t u) -> Vec3 {
+    if (u < mesh.num_vertices()) return mesh.position(u);
+    return PositionOf(mesh, g.pseudo_points()[u - mesh.num_vertices()]);
+  };
+  // Average potential p(v) = (|v - b| - |v - a|) / 2: consistent for both
+  // directions because every edge is at least as long as its chord.
+  auto potential = [&](uint32_t u) {
+    if (!options.use_astar) return 0.0;
+    Vec3 x = node_xyz(u);
+    return 0.5 * (geodesic::Distance(x, ends[1].xyz) - geodesic::Distance(x, ends[0].xyz));
+  };
+  using Entry = std::pair<double, uint32_t>;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap[2];
+  auto label = [&](int s, uint32_t u) {
+    return sc.stamp[s][u] == stamp ? sc.dist[s][u] : kInfinity;
+  };
+  uint32_t meet = kNone;
+  double mu = best;
+  auto set = [&](int s, uint32_t u, double d, uint32_t from) {
+    if (sc.stamp[s][u] != stamp) {
+      sc.stamp[s][u] = stamp;
+      sc.done[s][u] = 0;
+    } else if (!(d < sc.dist[s][u])) {
+      return;
+    }
+    sc.dist[s][u] = d;
+    sc.pred[s][u] = from;
+    const double sign = s == 0 ? 1 : -1;
+    heap[s].push({d + sign * potential(u), u});
+    const double other = label(1 - s, u);
+    if (d + other < mu) {
+      mu = d + other;
+      meet = u;
+    }
+  };
+  for (int s = 0; s < 2; ++s) {
+    if (ends[s].is_node) {
+      set(s, ends[s].node, 0, kViaSource);
+    } else {
+      for (const TemporaryEdge& e : ends[s].edges) set(s, e.vertex, e.weight, kViaTemporary);
+    }
+  }
+  uint64_t steps = 0;
+  while (!heap[0].empty() && !heap[1].empty()) {
+    if (heap[0].top().first + heap[1].top().first >= mu) break;
+    if (options.cancelled && (++steps & 1023) == 0 && options.cancelled()) {
+      return absl::CancelledError("distance query cancelled");
+    }
+    const int s = heap[0].size() <= heap[1].size() ? 0 : 1;
+    auto [key, u] = heap[s].top();
+    heap[s].pop();
+    if (sc.done[s][u]) continue;
+    sc.done[s][u] = 1;
+    ++result.settled;
+    const double du = sc.dist[s][u];
+    for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) set(s, targets[i], du + weights[i], u);
+  }
+  result.distance = mu;
+  if (!options.want_path || mu == kInfinity) return result;
+
+  // Graph path: first point, forward chain to the meeting node, backward
+  // chain to the second point. A direct geodesic that won has no relays.
+  std::vector<SurfacePoint> relays;
+  if (meet != kNone && mu < best) {
+    std::vector<uint32_t> chain;
+    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = sc.pred[0][u])
+      chain.push_back(u);
+    std::reverse(chain.begin(), chain.end());
+    for (uint32_t u = sc.pred[1][meet]; u != kViaSource && u != kViaTemporary; u = sc.pred[1][u]) {
+      chain.push_back(u);
+    }
+    for (uint32_t u : chain) {
+      relays.push_back(u < mesh.num_vertices() ? SurfacePoint::Vertex(u)
+                                               : g.pseudo_points()[u - mesh.num_vertices()]);
+    }
+  }
+  std::vector<SurfacePoint> stops;
+  stops.push_back(ends[0].point);
+  for (const SurfacePoint& r : relays) stops.push_back(r);
+  stops.push_back(ends[1].point);
+  // Each hop is a direct geodesic: trace it with the exact engine.
+  GeodesicPath path;
+  for (size_t k = 0; k + 1 < stops.size(); ++k) {
+    const SurfacePoint& from = stops[k];
+    const SurfacePoint& to = stops[k + 1];
+    const Vec3 a = PositionOf(mesh, from), b = PositionOf(mesh, to);
+    DirectOptions options_hop;
+    options_hop.keep_windows = true;
+    // The hop is no longer than the whole path; bound the propagation by it.
+    options_hop.max_distance = mu * (1 + 1e-6) + 1e-12;
+    (void)a;
+    (void)b;
+    auto hits = exact.DirectGeodesics(from, options_hop);
+    if (!hits.ok()) return hits.status();
+    auto traced = exact.Trace(to);
+    if (!traced.ok()) {
+      return absl::InternalError(absl::StrFormat("could not trace graph edge %s -> %s: %s",
+                                                 FormatSurfacePoint(from), FormatSurfacePoint(to),
+                                                 traced.status().message()));
+    }
+    for (const auto& tp : *traced) {
+      if (!path.points.empty() && geodesic::Distance(path.points.back().xyz, tp.xyz) == 0) continue;
+      path.points.push_back({tp.point, tp.xyz});
+    }
+  }
+  path.length = PolylineLength(path.points);
+  // The traced path is a real surface path, never longer than the graph's
+  // rounded-up weights: report its exact length.
+  result.distance = path.length;
+  result.path = std::move(path);
+  return result;
+}
+
+absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
+    absl::Span<const SurfacePoint> sources, absl::Span<const SurfacePoint> targets,
+    const std::function<bool()>& cancelled) const {
+  const Mesh& mesh = *mesh_;
+  for (size_t j = 0; j < targets.size(); ++j) {
+    RETURN_IF_ERROR(CheckPoint(mesh, targets[j], absl::StrFormat("target %u", j)));
+  }
+  // A target inside a face is reached through its own direct edges.
+  Scratch& sc = ThreadScratch();
+  std::vector<std::vector<TemporaryEdge>> target_edges(targets.size());
+  std::vector<SurfacePoint> canon(targets.size());
+  for (size_t j = 0; j < targets.size(); ++j) {
+    canon[j] = CanonicalizeSurfacePoint(mesh, targets[j]);
+    if (canon[j].kind != SurfacePoint::Kind::kVertex) {
+      target_edges[j] = TemporaryEdges(mesh, sc.Exact(mesh), canon[j], graph_->params().epsilon);
+    }
+  }
+  std::vector<double> out;
+  out.reserve(sources.size() * targets.size());
+  FieldOptions options;
+  options.cancelled = cancelled;
+  for (size_t i = 0; i < sources.size(); ++i) {
+    ASSIGN_OR_RETURN(FieldResult field, Field(absl::MakeConstSpan(&sources[i], 1), options));
+    const SurfacePoint src = CanonicalizeSurfacePoint(mesh, sources[i]);
+    for (size_t j = 0; j < targets.size(); ++j) {
+      double d;
+      if (canon[j].kind == SurfacePoint::Kind::kVertex) {
+        d = field.distance[canon[j].id];
+        if (src.kind == SurfacePoint::Kind::kVertex && src.id == canon[j].id) d = 0;
+      } else {
+        d = kInfinity;
+        for (const TemporaryEdge& e : target_edges[j]) {
+          d = std::min(d, field.distance[e.vertex] + e.weight);
+        }
+      }
+      out.push_back(d);
+    }
+  }
+  return out;
+}
+
+}  // namespace geodesic
