@@ -22,6 +22,9 @@ constexpr double kMinHeight = 1e-14;
 // The vertex filter only trims what is dominated by more than this relative
 // margin, so rounding never trims the true geodesic.
 constexpr double kFilterSlack = 1e-12;
+// Bisection steps when cutting off rays served by a corner: the cut is
+// conservative, so fewer steps only keep a little more of a window.
+constexpr int kRelayBisections = 8;
 // Scratch larger than this after a call is released (bytes).
 constexpr size_t kScratchKeepBytes = size_t{64} << 20;
 
@@ -82,6 +85,12 @@ struct ExactGeodesic::Window {
   double sigma;     // distance from the source to the pseudo-source
   double dmax;      // direct mode: Theorem 2's travel limit
   double angle0;    // direct mode: polar angle at the source of the ray through b0
+  // Direct mode with epsilon: points on the window's two boundary rays that
+  // the graph reaches by a known route ("corners"), with that route's length.
+  // Any point beyond the window is reachable through a corner and a straight
+  // segment inside the window's cone (which is convex).
+  Vec2 lc, rc;
+  double lg, rg;
 };
 
 struct ExactGeodesic::QueueEntry {
@@ -107,6 +116,8 @@ ExactGeodesic::ExactGeodesic(const Mesh& mesh) : mesh_(mesh) {
   angle_src_.assign(n, 0);
   angle_vtx_.assign(n, 0);
   emitted_.assign(n, 0);
+  route_.assign(n, kInf);
+  excluded_.assign(n, 0);
 }
 
 ExactGeodesic::~ExactGeodesic() = default;
@@ -117,6 +128,8 @@ void ExactGeodesic::Reset() {
     via_window_[v] = kNone;
     via_vertex_[v] = kNone;
     emitted_[v] = 0;
+    route_[v] = kInf;
+    excluded_[v] = 0;
   }
   touched_.clear();
   windows_.clear();
@@ -148,6 +161,7 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   if (!(d < dist_[v])) return;
   if (dist_[v] == kInf) touched_.push_back(v);
   dist_[v] = d;
+  excluded_[v] = 0;
   via_window_[v] = window;
   via_vertex_[v] = via_vertex;
   if (mode_ == Mode::kDirect) {
@@ -212,7 +226,8 @@ void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double
   double d0 = Distance(point, mesh_.position(mesh_.tail(g)));
   double d1 = Distance(point, mesh_.position(mesh_.head(g)));
   Vec2 s = PlaceFromDistances(L, d0, d1, /*above=*/false);
-  Window w{g, kNone, pseudo_source, 0, L, s.x, s.y, sigma, kInf, angle_tail};
+  Window w{g, kNone, pseudo_source, 0, L, s.x, s.y, sigma, kInf, angle_tail, {0, 0}, {L, 0},
+           sigma + d0, sigma + d1};
   TrimAndPush(w);
 }
 
@@ -228,10 +243,12 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo) {
                             ? mesh_.polar_angle(back_b)
                             : mesh_.polar_angle(Mesh::next(h)) + mesh_.corner_angle(Mesh::next(h));
     UpdateVertex(b, sigma + mesh_.length(h), kNone, v, mesh_.polar_angle(h), at_b);
+    route_[b] = std::min(route_[b], sigma + mesh_.length(h));
     if (mesh_.twin(p) == kNone) {
       // Last face of a boundary fan: its far edge is reached by no rotation.
       UpdateVertex(c, sigma + mesh_.length(p), kNone, v,
                    mesh_.polar_angle(h) + mesh_.corner_angle(h), mesh_.polar_angle(p));
+      route_[c] = std::min(route_[c], sigma + mesh_.length(p));
     }
     // Across the edge opposite v. The window's tail is c, where the ray's
     // polar angle is polar(h) + corner(h).
@@ -240,8 +257,13 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo) {
     if (g != kNone) {
       const double L = mesh_.length(g);
       Vec2 s = PlaceFromDistances(L, mesh_.length(p), mesh_.length(h), /*above=*/false);
-      Window w{g,   kNone, pseudo, 0,    L,
-               s.x, s.y,   sigma,  kInf, mesh_.polar_angle(h) + mesh_.corner_angle(h)};
+      Window w{g,      kNone,
+               pseudo, 0,
+               L,      s.x,
+               s.y,    sigma,
+               kInf,   mesh_.polar_angle(h) + mesh_.corner_angle(h),
+               {0, 0}, {L, 0},
+               sigma + mesh_.length(p), sigma + mesh_.length(h)};
       TrimAndPush(w);
     }
     h = mesh_.rotate(h);
@@ -307,12 +329,53 @@ void ExactGeodesic::SeedSource(const SurfacePoint& source) {
       const Vec3 xp = mesh_.position(x);
       const double a_src = FacePlaneAngle(mesh_, f, ref, xp - p);
       UpdateVertex(x, Distance(p, xp), kNone, kNone, a_src, CornerDirection(mesh_, h, p));
+      route_[x] = std::min(route_[x], Distance(p, xp));
       if (k == skip) continue;
       // Window across h, whose tail (as seen from the twin) is head(h).
       const double a_tail = FacePlaneAngle(mesh_, f, ref, mesh_.position(mesh_.head(h)) - p);
       EmitWindowAcross(h, p, 0, kNone, a_tail, 0);
     }
   }
+}
+
+bool ExactGeodesic::TrimByRelays(Window& w) const {
+  // Rays through x are served by a corner c once g_c + |c x| <= (1 + eps)
+  // |I x|: every point p beyond x then has a graph route within 1 + eps of
+  // its direct geodesic, g_c + |c x| + |x p| <= (1 + eps) (|I x| + |x p|).
+  // Served rays form an interval at each end of the window; cut both off.
+  const Vec2 I{w.sx, w.sy};
+  auto slack = [&](const Vec2& c, double g, double x) {
+    const Vec2 p{x, 0};
+    return g + Norm(p - c) - (1 + epsilon_) * (w.sigma + Norm(p - I));
+  };
+  // Largest x (conservatively) with slack <= 0 on [from, x], by bisection.
+  auto reach = [&](const Vec2& c, double g, double from, double to) {
+    if (slack(c, g, from) > 0) return from;
+    if (slack(c, g, to) <= 0) return to;
+    double ok = from, bad = to;
+    for (int i = 0; i < kRelayBisections; ++i) {
+      const double mid = 0.5 * (ok + bad);
+      (slack(c, g, mid) <= 0 ? ok : bad) = mid;
+    }
+    return ok;
+  };
+  const double x_left = reach(w.lc, w.lg, w.b0, w.b1);
+  if (x_left >= w.b1) return false;
+  const double x_right = reach(w.rc, w.rg, w.b1, x_left);
+  if (x_right <= x_left) return false;
+  if (x_left > w.b0) {
+    const Vec2 p{x_left, 0};
+    w.lg += Norm(p - w.lc);
+    w.lc = p;
+    w.b0 = x_left;
+  }
+  if (x_right < w.b1) {
+    const Vec2 p{x_right, 0};
+    w.rg += Norm(p - w.rc);
+    w.rc = p;
+    w.b1 = x_right;
+  }
+  return true;
 }
 
 void ExactGeodesic::Propagate(uint32_t index) {
@@ -341,6 +404,8 @@ void ExactGeodesic::Propagate(uint32_t index) {
     }
   }
 
+  if (relays_ && !TrimByRelays(w)) return;
+
   const double xc = CrossingX(w.sx, w.sy, C.x, C.y);
   const double tol = kMinWidth * L;
   const bool sees_c = xc >= w.b0 - tol && xc <= w.b1 + tol;
@@ -356,23 +421,39 @@ void ExactGeodesic::Propagate(uint32_t index) {
               std::clamp(SignedAngle(A - C, I - C), 0.0, mesh_.corner_angle(hp));
     }
     UpdateVertex(vc, d, keep_windows_ ? index : kNone, w.pseudo, a_src, a_vtx);
+    if (relays_) {
+      // A vertex the graph already reaches within 1 + epsilon through a
+      // corner needs no edge from the source: only the route is recorded.
+      const double via = std::min(w.lg + Norm(C - w.lc), w.rg + Norm(C - w.rc));
+      const bool needed = via > (1 + epsilon_) * d;
+      if (dist_[vc] == d) excluded_[vc] = !needed;
+      route_[vc] = std::min(route_[vc], needed ? d : via);
+    }
   }
 
   auto make_child = [&](HalfedgeId g, const Vec2& origin, const Vec2& toward, double len, double t0,
-                        double t1, double angle0) {
+                        double t1, double angle0, bool c_is_left, bool c_is_right) {
     if (g == kNone || len <= 0) return;
     const Vec2 u = (toward - origin) * (1 / len);
-    const Vec2 rel = I - origin;
-    Window c{g,
-             keep_windows_ ? index : kNone,
-             w.pseudo,
-             t0 * len,
-             t1 * len,
-             Dot(rel, u),
-             Cross(u, rel),
-             w.sigma,
-             dmax,
-             angle0};
+    auto to_child = [&](const Vec2& p) {
+      const Vec2 rel = p - origin;
+      return Vec2{Dot(rel, u), Cross(u, rel)};
+    };
+    const Vec2 src = to_child(I);
+    Window c{g,     keep_windows_ ? index : kNone,
+             w.pseudo, t0 * len,
+             t1 * len, src.x,
+             src.y, w.sigma,
+             dmax,  angle0,
+             {},    {},
+             w.lg,  w.rg};
+    if (relays_) {
+      // The ray through C bounds the children it separates; C is its corner.
+      c.lc = c_is_left ? to_child(C) : to_child(w.lc);
+      c.rc = c_is_right ? to_child(C) : to_child(w.rc);
+      if (c_is_left) c.lg = route_[vc];
+      if (c_is_right) c.rg = route_[vc];
+    }
     if (mode_ == Mode::kDirect && dmax < kInf) {
       // The paper's rule: a child travels on only if both of its ends are
       // still within the parent's limit.
@@ -388,14 +469,15 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const double end = std::min(w.b1, xc);
     const double t0 = HitParameter(I, Vec2{w.b0, 0} - I, A, C, 0);
     const double t1 = sees_c || xc <= w.b1 ? 1.0 : HitParameter(I, Vec2{end, 0} - I, A, C, 1);
-    make_child(mesh_.twin(hp), A, C, lb, t0, t1, w.angle0);
+    make_child(mesh_.twin(hp), A, C, lb, t0, t1, w.angle0, false, sees_c && route_[vc] < kInf);
   }
   // Child on edge C -> B (the twin of next(h) runs C -> B).
   if (w.b1 > xc) {
     const double begin = std::max(w.b0, xc);
     const double t0 = sees_c || xc >= w.b0 ? 0.0 : HitParameter(I, Vec2{begin, 0} - I, C, B, 0);
     const double t1 = HitParameter(I, Vec2{w.b1, 0} - I, C, B, 1);
-    make_child(mesh_.twin(hn), C, B, la, t0, t1, mode_ == Mode::kDirect ? ray_angle(begin) : 0.0);
+    make_child(mesh_.twin(hn), C, B, la, t0, t1, mode_ == Mode::kDirect ? ray_angle(begin) : 0.0,
+               sees_c && route_[vc] < kInf, false);
   }
 }
 
@@ -416,6 +498,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   mode_ = mode;
   keep_windows_ = keep_windows;
   epsilon_ = epsilon;
+  relays_ = mode == Mode::kDirect && epsilon > 0;
   max_distance_ = max_distance;
   source_ = CanonicalizeSurfacePoint(mesh_, raw_source);
   have_source_ = true;
@@ -479,7 +562,7 @@ absl::StatusOr<std::vector<DirectHit>> ExactGeodesic::DirectGeodesics(
   const double source_period = vertex_source ? mesh_.total_angle(source_.id) : kTwoPi;
   for (VertexId v : touched_) {
     if (vertex_source && v == source_.id) continue;
-    if (!(dist_[v] <= options.max_distance)) continue;
+    if (!(dist_[v] <= options.max_distance) || excluded_[v]) continue;
     hits.push_back({v, dist_[v], NormalizeAngle(angle_src_[v], source_period),
                     NormalizeAngle(angle_vtx_[v], mesh_.total_angle(v))});
   }

@@ -140,6 +140,7 @@ class ExactGeodesic {
   void UpdateVertex(VertexId v, double d, uint32_t window, uint32_t via_vertex, double angle_src,
                     double angle_vertex);
   bool Trim(Window& w) const;
+  bool TrimByRelays(Window& w) const;
   bool TrimAndPush(Window w);
   uint32_t Allocate(const Window& w);
   void Push(double key, uint32_t item);
@@ -152,6 +153,7 @@ class ExactGeodesic {
   Mode mode_ = Mode::kFull;
   bool keep_windows_ = false;
   double epsilon_ = 0;
+  bool relays_ = false;  // direct mode with epsilon: stop rays served by corners
   double max_distance_ = 0;
   SurfacePoint source_;
   bool have_source_ = false;
@@ -163,6 +165,8 @@ class ExactGeodesic {
   std::vector<double> angle_src_;     // direct mode: direction at the source
   std::vector<double> angle_vtx_;     // direct mode: direction at the vertex
   std::vector<uint8_t> emitted_;      // pseudo-source already emitted
+  std::vector<double> route_;         // relay mode: length of a known graph route
+  std::vector<uint8_t> excluded_;     // relay mode: best lighting is served by a relay
   std::vector<VertexId> touched_;
 
   std::vector<Window> windows_;
