@@ -226,8 +226,8 @@ void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double
   double d0 = Distance(point, mesh_.position(mesh_.tail(g)));
   double d1 = Distance(point, mesh_.position(mesh_.head(g)));
   Vec2 s = PlaceFromDistances(L, d0, d1, /*above=*/false);
-  Window w{g, kNone, pseudo_source, 0, L, s.x, s.y, sigma, kInf, angle_tail, {0, 0}, {L, 0},
-           sigma + d0, sigma + d1};
+  Window w{g,     kNone, pseudo_source, 0,      L,      s.x,        s.y,
+           sigma, kInf,  angle_tail,    {0, 0}, {L, 0}, sigma + d0, sigma + d1};
   TrimAndPush(w);
 }
 
@@ -257,13 +257,20 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo) {
     if (g != kNone) {
       const double L = mesh_.length(g);
       Vec2 s = PlaceFromDistances(L, mesh_.length(p), mesh_.length(h), /*above=*/false);
-      Window w{g,      kNone,
-               pseudo, 0,
-               L,      s.x,
-               s.y,    sigma,
-               kInf,   mesh_.polar_angle(h) + mesh_.corner_angle(h),
-               {0, 0}, {L, 0},
-               sigma + mesh_.length(p), sigma + mesh_.length(h)};
+      Window w{g,
+               kNone,
+               pseudo,
+               0,
+               L,
+               s.x,
+               s.y,
+               sigma,
+               kInf,
+               mesh_.polar_angle(h) + mesh_.corner_angle(h),
+               {0, 0},
+               {L, 0},
+               sigma + mesh_.length(p),
+               sigma + mesh_.length(h)};
       TrimAndPush(w);
     }
     h = mesh_.rotate(h);
@@ -440,13 +447,13 @@ void ExactGeodesic::Propagate(uint32_t index) {
       return Vec2{Dot(rel, u), Cross(u, rel)};
     };
     const Vec2 src = to_child(I);
-    Window c{g,     keep_windows_ ? index : kNone,
+    Window c{g,        keep_windows_ ? index : kNone,
              w.pseudo, t0 * len,
              t1 * len, src.x,
-             src.y, w.sigma,
-             dmax,  angle0,
-             {},    {},
-             w.lg,  w.rg};
+             src.y,    w.sigma,
+             dmax,     angle0,
+             {},       {},
+             w.lg,     w.rg};
     if (relays_) {
       // The ray through C bounds the children it separates; C is its corner.
       c.lc = c_is_left ? to_child(C) : to_child(w.lc);

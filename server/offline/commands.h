@@ -4,9 +4,12 @@
 #ifndef GEODESIC_SERVER_OFFLINE_COMMANDS_H_
 #define GEODESIC_SERVER_OFFLINE_COMMANDS_H_
 
+#include <string>
+
 namespace geodesic::offline {
 
-int RunInfo(int argc, char** argv);      // geodesicd info MESH|GRAPH.dgg [--json]
+int RunInfo(int argc, char** argv);                    // geodesicd info MESH|GRAPH.dgg [--json]
+int RunGraphInfo(const std::string& path, bool json);  // info on a .dgg file
 int RunExact(int argc, char** argv);     // geodesicd exact --mesh M --source SPEC --out F.f64
 int RunBuild(int argc, char** argv);     // geodesicd build MESH --eps E --out G.dgg
 int RunField(int argc, char** argv);     // geodesicd field --mesh M --graph G --source SPEC

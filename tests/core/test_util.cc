@@ -89,7 +89,9 @@ Mesh Cube(int k) {
       {{0, 0, 0}, {0, 0, 1}, {0, 1, 0}}, {{1, 0, 0}, {0, 1, 0}, {0, 0, 1}},
   };
   for (const Side& s : sides) {
-    auto at = [&](int i, int j) { return vertex(s.o + s.u * (double(i) / k) + s.v * (double(j) / k)); };
+    auto at = [&](int i, int j) {
+      return vertex(s.o + s.u * (double(i) / k) + s.v * (double(j) / k));
+    };
     for (int j = 0; j < k; ++j) {
       for (int i = 0; i < k; ++i) {
         VertexId a = at(i, j), b = at(i + 1, j), c = at(i + 1, j + 1), d = at(i, j + 1);

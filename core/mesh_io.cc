@@ -1,0 +1,705 @@
+#include "core/mesh_io.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <OpenMesh/Core/IO/IOManager.hh>
+#include <OpenMesh/Core/IO/importer/BaseImporter.hh>
+#include <OpenMesh/Core/System/omstream.hh>
+#include <algorithm>
+#include <cerrno>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <numeric>
+#include <sstream>
+
+#include "absl/container/flat_hash_map.h"
+#include "absl/status/status.h"
+#include "absl/strings/ascii.h"
+#include "absl/strings/str_format.h"
+#include "core/status.h"
+
+namespace geodesic {
+namespace {
+
+using OpenMesh::VertexHandle;
+
+// Records what OpenMesh's readers find, in file order, without building any
+// topology: OpenMesh's own kernel duplicates vertices and drops faces on
+// non-manifold input, which would break "vertex ids are file order".
+class SoupImporter : public OpenMesh::IO::BaseImporter {
+ public:
+  explicit SoupImporter(TriangleSoup* soup) : soup_(soup) {}
+
+  VertexHandle add_vertex(const OpenMesh::Vec3f& p) override {
+    return add_vertex(OpenMesh::Vec3d(p[0], p[1], p[2]));
+  }
+  VertexHandle add_vertex(const OpenMesh::Vec3d& p) override {
+    soup_->positions.push_back({p[0], p[1], p[2]});
+    return VertexHandle(static_cast<int>(soup_->positions.size() - 1));
+  }
+  VertexHandle add_vertex() override { return add_vertex(OpenMesh::Vec3d(0, 0, 0)); }
+  OpenMesh::HalfedgeHandle add_edge(VertexHandle, VertexHandle) override { return {}; }
+  OpenMesh::FaceHandle add_face(const VHandles& v) override {
+    ++input_faces_;
+    if (v.size() < 3) {
+      if (first_error_.empty()) {
+        first_error_ = absl::StrFormat("face %u has only %u vertices", input_faces_ - 1, v.size());
+      }
+      return {};
+    }
+    for (VertexHandle h : v) {
+      if (!h.is_valid() || static_cast<size_t>(h.idx()) >= soup_->positions.size()) {
+        if (first_error_.empty()) {
+          first_error_ =
+              absl::StrFormat("face %u refers to vertex %d, but the file has %u vertices",
+                              input_faces_ - 1, h.idx(), soup_->positions.size());
+        }
+        return {};
+      }
+    }
+    if (v.size() > 3) ++polygons_;
+    // Fan triangulation keeps the face's orientation and corner order.
+    for (size_t k = 1; k + 1 < v.size(); ++k) {
+      soup_->triangles.push_back({static_cast<VertexId>(v[0].idx()),
+                                  static_cast<VertexId>(v[k].idx()),
+                                  static_cast<VertexId>(v[k + 1].idx())});
+    }
+    return OpenMesh::FaceHandle(static_cast<int>(soup_->triangles.size() - 1));
+  }
+  OpenMesh::FaceHandle add_face(OpenMesh::HalfedgeHandle) override { return {}; }
+  void add_face_texcoords(OpenMesh::FaceHandle, VertexHandle,
+                          const std::vector<OpenMesh::Vec2f>&) override {}
+  void add_face_texcoords(OpenMesh::FaceHandle, VertexHandle,
+                          const std::vector<OpenMesh::Vec3f>&) override {}
+  void set_face_texindex(OpenMesh::FaceHandle, int) override {}
+  void set_point(VertexHandle h, const OpenMesh::Vec3f& p) override {
+    if (h.is_valid() && static_cast<size_t>(h.idx()) < soup_->positions.size()) {
+      soup_->positions[h.idx()] = {p[0], p[1], p[2]};
+    }
+  }
+  void set_halfedge(VertexHandle, OpenMesh::HalfedgeHandle) override {}
+  void set_normal(VertexHandle, const OpenMesh::Vec3f&) override {}
+  void set_normal(VertexHandle, const OpenMesh::Vec3d&) override {}
+  void set_color(VertexHandle, const OpenMesh::Vec3uc&) override {}
+  void set_color(VertexHandle, const OpenMesh::Vec4uc&) override {}
+  void set_color(VertexHandle, const OpenMesh::Vec3f&) override {}
+  void set_color(VertexHandle, const OpenMesh::Vec4f&) override {}
+  void set_texcoord(VertexHandle, const OpenMesh::Vec2f&) override {}
+  void set_status(VertexHandle, const OpenMesh::Attributes::StatusInfo&) override {}
+  void set_next(OpenMesh::HalfedgeHandle, OpenMesh::HalfedgeHandle) override {}
+  void set_face(OpenMesh::HalfedgeHandle, OpenMesh::FaceHandle) override {}
+  void request_face_texcoords2D() override {}
+  void set_texcoord(OpenMesh::HalfedgeHandle, const OpenMesh::Vec2f&) override {}
+  void set_texcoord(VertexHandle, const OpenMesh::Vec3f&) override {}
+  void set_texcoord(OpenMesh::HalfedgeHandle, const OpenMesh::Vec3f&) override {}
+  void set_status(OpenMesh::HalfedgeHandle, const OpenMesh::Attributes::StatusInfo&) override {}
+  void set_color(OpenMesh::EdgeHandle, const OpenMesh::Vec3uc&) override {}
+  void set_color(OpenMesh::EdgeHandle, const OpenMesh::Vec4uc&) override {}
+  void set_color(OpenMesh::EdgeHandle, const OpenMesh::Vec3f&) override {}
+  void set_color(OpenMesh::EdgeHandle, const OpenMesh::Vec4f&) override {}
+  void set_status(OpenMesh::EdgeHandle, const OpenMesh::Attributes::StatusInfo&) override {}
+  void set_normal(OpenMesh::FaceHandle, const OpenMesh::Vec3f&) override {}
+  void set_normal(OpenMesh::FaceHandle, const OpenMesh::Vec3d&) override {}
+  void set_color(OpenMesh::FaceHandle, const OpenMesh::Vec3uc&) override {}
+  void set_color(OpenMesh::FaceHandle, const OpenMesh::Vec4uc&) override {}
+  void set_color(OpenMesh::FaceHandle, const OpenMesh::Vec3f&) override {}
+  void set_color(OpenMesh::FaceHandle, const OpenMesh::Vec4f&) override {}
+  void set_status(OpenMesh::FaceHandle, const OpenMesh::Attributes::StatusInfo&) override {}
+  void add_texture_information(int, std::string) override {}
+  size_t n_vertices() const override { return soup_->positions.size(); }
+  size_t n_faces() const override { return soup_->triangles.size(); }
+  size_t n_edges() const override { return 0; }
+
+  size_t input_faces() const { return input_faces_; }
+  size_t polygons() const { return polygons_; }
+  const std::string& first_error() const { return first_error_; }
+
+ private:
+  TriangleSoup* soup_;
+  size_t input_faces_ = 0;
+  size_t polygons_ = 0;
+  std::string first_error_;
+};
+
+// OpenMesh's readers are chatty on stderr; the daemon must not be.
+void SilenceOpenMesh() {
+  static bool done = [] {
+    omlog().disable();
+    omout().disable();
+    omerr().disable();
+    return true;
+  }();
+  (void)done;
+}
+
+std::string Extension(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  if (!ext.empty()) ext.erase(0, 1);
+  return absl::AsciiStrToLower(ext);
+}
+
+// OpenMesh parses ASCII coordinates as float (24-bit mantissa), moving
+// vertices by up to 6e-8 relative, so exact distances would disagree with
+// tools that read doubles. For the ASCII formats we read the coordinates
+// again in double precision; counts must agree with what OpenMesh read.
+absl::Status RefineAsciiCoordinates(const std::string& path, const std::string& format,
+                                    TriangleSoup* soup) {
+  std::ifstream in(path);
+  if (!in) return absl::OkStatus();
+  std::string line;
+  size_t next = 0;
+  auto take = [&](std::istringstream& fields) {
+    double x, y, z;
+    if (next < soup->positions.size() && (fields >> x >> y >> z)) soup->positions[next] = {x, y, z};
+    ++next;
+  };
+  if (format == "obj") {
+    while (std::getline(in, line)) {
+      if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
+        std::istringstream fields(line.substr(2));
+        take(fields);
+      }
+    }
+  } else if (format == "off") {
+    // Header "OFF" (possibly with counts on the same line), then counts, then
+    // one vertex per line; '#' starts a comment.
+    std::vector<std::string> tokens_needed;
+    size_t nv = 0;
+    bool have_counts = false;
+    std::string header;
+    while (!have_counts && std::getline(in, line)) {
+      auto hash = line.find('#');
+      if (hash != std::string::npos) line.resize(hash);
+      std::istringstream fields(line);
+      std::string word;
+      while (fields >> word) {
+        if (header.empty()) {
+          header = word;
+          if (header.find("OFF") == std::string::npos) return absl::OkStatus();
+          continue;
+        }
+        nv = std::stoull(word);
+        have_counts = true;
+        break;
+      }
+    }
+    if (!have_counts || header != "OFF") return absl::OkStatus();  // variants: keep floats
+    while (next < nv && std::getline(in, line)) {
+      auto hash = line.find('#');
+      if (hash != std::string::npos) line.resize(hash);
+      std::istringstream fields(line);
+      double probe;
+      if (!(std::istringstream(line) >> probe)) continue;  // blank or comment line
+      take(fields);
+    }
+  }
+  return absl::OkStatus();
+}
+
+// Counts the file declares, where the format declares them.
+struct DeclaredCounts {
+  bool known = false;
+  uint64_t vertices = 0, faces = 0;
+};
+
+DeclaredCounts ReadDeclaredCounts(const std::string& path, const std::string& format) {
+  DeclaredCounts d;
+  std::ifstream in(path, std::ios::binary);
+  std::string line;
+  if (format == "off") {
+    std::string word;
+    std::vector<uint64_t> numbers;
+    while (numbers.size() < 2 && std::getline(in, line)) {
+      auto hash = line.find('#');
+      if (hash != std::string::npos) line.resize(hash);
+      std::istringstream fields(line);
+      while (numbers.size() < 2 && fields >> word) {
+        if (word.find("OFF") != std::string::npos) continue;
+        char* end;
+        uint64_t v = std::strtoull(word.c_str(), &end, 10);
+        if (*end != '\0') return d;
+        numbers.push_back(v);
+      }
+    }
+    if (numbers.size() == 2) d = {true, numbers[0], numbers[1]};
+  } else if (format == "ply") {
+    while (std::getline(in, line)) {
+      if (!line.empty() && line.back() == '\r') line.pop_back();
+      std::istringstream fields(line);
+      std::string a, b;
+      uint64_t n;
+      fields >> a;
+      if (a == "end_header") break;
+      if (a == "element" && fields >> b >> n) {
+        if (b == "vertex") d.vertices = n, d.known = true;
+        if (b == "face") d.faces = n;
+      }
+    }
+  }
+  return d;
+}
+
+absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std::string& name,
+                                              const std::string& format,
+                                              MeshDiagnostics* diagnostics) {
+  SilenceOpenMesh();
+  const DeclaredCounts declared = ReadDeclaredCounts(path, format);
+  // Refuse absurd declared counts before OpenMesh reserves memory for them.
+  std::error_code ec;
+  const uint64_t bytes = std::filesystem::file_size(path, ec);
+  if (declared.known && (declared.vertices > bytes || declared.faces > bytes)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s declares %u vertices and %u faces, more than its %u bytes can hold",
+                        name, declared.vertices, declared.faces, bytes));
+  }
+  TriangleSoup soup;
+  SoupImporter importer(&soup);
+  OpenMesh::IO::Options options;
+  bool ok = false;
+  try {
+    ok = OpenMesh::IO::IOManager().read(path, importer, options);
+  } catch (const std::exception& e) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: unreadable %s file (%s)", name, format, e.what()));
+  }
+  if (!importer.first_error().empty()) {
+    return absl::InvalidArgumentError(absl::StrFormat("%s: %s", name, importer.first_error()));
+  }
+  if (!ok) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: not a readable %s file (malformed or truncated)", name, format));
+  }
+  if (declared.known && (soup.positions.size() != declared.vertices ||
+                         (format == "off" && importer.input_faces() != declared.faces) ||
+                         (format == "ply" && importer.input_faces() != declared.faces))) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s is truncated or malformed: it declares %u vertices and %u faces but %u and %u were "
+        "read",
+        name, declared.vertices, declared.faces, soup.positions.size(), importer.input_faces()));
+  }
+  if (soup.positions.empty() && soup.triangles.empty()) {
+    return absl::InvalidArgumentError(absl::StrFormat("%s: no vertices or faces", name));
+  }
+  RETURN_IF_ERROR(RefineAsciiCoordinates(path, format, &soup));
+  for (size_t v = 0; v < soup.positions.size(); ++v) {
+    const Vec3& p = soup.positions[v];
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "%s: vertex %u has a non-finite coordinate (%g, %g, %g)", name, v, p.x, p.y, p.z));
+    }
+  }
+  if (diagnostics) {
+    diagnostics->path = name;
+    diagnostics->format = format;
+    diagnostics->polygons_triangulated = importer.polygons();
+  }
+  return soup;
+}
+
+absl::Status CheckReadable(const std::string& path) {
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0) {
+    if (errno == ENOENT) return absl::NotFoundError(absl::StrFormat("%s: no such file", path));
+    return absl::PermissionDeniedError(
+        absl::StrFormat("%s: cannot access (%s)", path, std::strerror(errno)));
+  }
+  if (S_ISDIR(st.st_mode)) {
+    return absl::InvalidArgumentError(absl::StrFormat("%s is a directory", path));
+  }
+  if (::access(path.c_str(), R_OK) != 0) {
+    return absl::PermissionDeniedError(absl::StrFormat("%s: permission denied", path));
+  }
+  if (st.st_size == 0) return absl::InvalidArgumentError(absl::StrFormat("%s is empty", path));
+  return absl::OkStatus();
+}
+
+absl::Status CheckFormat(const std::string& format, std::string_view name) {
+  if (format == "obj" || format == "off" || format == "ply" || format == "stl") {
+    return absl::OkStatus();
+  }
+  return absl::InvalidArgumentError(absl::StrFormat(
+      "%s: unknown mesh format '%s' (supported: obj, off, ply, stl)", name, format));
+}
+
+// Union-find over indices.
+struct DisjointSets {
+  std::vector<uint32_t> parent;
+  explicit DisjointSets(size_t n) : parent(n) { std::iota(parent.begin(), parent.end(), 0); }
+  uint32_t Find(uint32_t x) {
+    while (parent[x] != x) x = parent[x] = parent[parent[x]];
+    return x;
+  }
+  void Union(uint32_t a, uint32_t b) { parent[Find(a)] = Find(b); }
+};
+
+}  // namespace
+
+absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
+                                              MeshDiagnostics* diagnostics) {
+  const auto start = std::chrono::steady_clock::now();
+  RETURN_IF_ERROR(CheckReadable(path));
+  const std::string format = Extension(path);
+  RETURN_IF_ERROR(CheckFormat(format, path));
+  ASSIGN_OR_RETURN(TriangleSoup soup, ReadWithOpenMesh(path, path, format, diagnostics));
+  if (diagnostics) {
+    diagnostics->load_seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  }
+  return soup;
+}
+
+absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
+                                                        std::string_view format,
+                                                        std::string_view name,
+                                                        MeshDiagnostics* diagnostics) {
+  const std::string fmt = absl::AsciiStrToLower(std::string(format));
+  RETURN_IF_ERROR(CheckFormat(fmt, name));
+  if (bytes.empty()) return absl::InvalidArgumentError(absl::StrFormat("%s is empty", name));
+  // OpenMesh's readers pick the format by file name: go through a private
+  // temporary file that is removed right after reading.
+  std::string pattern =
+      (std::filesystem::temp_directory_path() / ("geodesic-upload-XXXXXX." + fmt)).string();
+  int fd = ::mkstemps(pattern.data(), static_cast<int>(fmt.size() + 1));
+  if (fd < 0) return absl::InternalError("cannot create a temporary file for the upload");
+  size_t written = 0;
+  while (written < bytes.size()) {
+    ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
+    if (n <= 0) {
+      ::close(fd);
+      ::unlink(pattern.c_str());
+      return absl::ResourceExhaustedError("cannot write the upload to a temporary file");
+    }
+    written += n;
+  }
+  ::close(fd);
+  auto soup = ReadWithOpenMesh(pattern, std::string(name), fmt, diagnostics);
+  ::unlink(pattern.c_str());
+  return soup;
+}
+
+void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
+  const size_t nv = soup.positions.size(), nf = soup.triangles.size();
+  d->vertices = nv;
+  d->faces = nf;
+  // Bounding box and duplicates.
+  Vec3 lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
+  for (const Vec3& p : soup.positions) {
+    lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+    hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+  }
+  d->bbox_diagonal = nv ? Distance(lo, hi) : 0;
+  {
+    std::vector<uint32_t> order(nv);
+    std::iota(order.begin(), order.end(), 0);
+    auto key = [&](uint32_t i) {
+      const Vec3& p = soup.positions[i];
+      return std::tie(p.x, p.y, p.z);
+    };
+    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return key(a) < key(b); });
+    d->duplicate_vertices = 0;
+    for (size_t i = 1; i < nv; ++i) d->duplicate_vertices += key(order[i]) == key(order[i - 1]);
+  }
+  // Edges, their face counts and directed uses.
+  absl::flat_hash_map<uint64_t, uint32_t> edge_faces, directed_uses;
+  edge_faces.reserve(nf * 2);
+  auto undirected = [](VertexId a, VertexId b) {
+    return (uint64_t{std::min(a, b)} << 32) | std::max(a, b);
+  };
+  std::vector<uint8_t> used(nv, 0);
+  double edge_sum = 0, edge_min = INFINITY;
+  uint64_t edge_count = 0;
+  std::vector<double> anisotropy;
+  anisotropy.reserve(nf);
+  d->zero_area_faces = d->near_degenerate_faces = 0;
+  const double area_floor = 1e-12 * d->bbox_diagonal * d->bbox_diagonal;
+  for (const auto& t : soup.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      used[t[k]] = 1;
+      VertexId a = t[k], b = t[(k + 1) % 3];
+      if (a == b) continue;
+      if (++edge_faces[undirected(a, b)] == 1) {
+        const double len = Distance(soup.positions[a], soup.positions[b]);
+        edge_sum += len;
+        edge_min = std::min(edge_min, len);
+        ++edge_count;
+      }
+      ++directed_uses[(uint64_t{a} << 32) | b];
+    }
+    const Vec3 &a = soup.positions[t[0]], &b = soup.positions[t[1]], &c = soup.positions[t[2]];
+    const double area = 0.5 * Norm(Cross(b - a, c - a));
+    const bool repeated = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
+    if (repeated || area <= area_floor) {
+      ++d->zero_area_faces;
+      continue;
+    }
+    const double la = Distance(b, c), lb = Distance(a, c), lc = Distance(a, b);
+    const double inradius = 2 * area / (la + lb + lc);
+    const double ratio = std::max({la, lb, lc}) / (2 * std::sqrt(3.0) * inradius);
+    anisotropy.push_back(ratio);
+    // Near-degenerate: so thin that angles lose most of their precision.
+    if (ratio > 1e3) ++d->near_degenerate_faces;
+  }
+  d->edges = edge_count;
+  d->mean_edge_length = edge_count ? edge_sum / edge_count : 0;
+  d->min_edge_length = edge_count ? edge_min : 0;
+  if (!anisotropy.empty()) {
+    d->anisotropy_mean =
+        std::accumulate(anisotropy.begin(), anisotropy.end(), 0.0) / anisotropy.size();
+    std::sort(anisotropy.begin(), anisotropy.end());
+    d->anisotropy_p95 = anisotropy[static_cast<size_t>(0.95 * (anisotropy.size() - 1))];
+    d->anisotropy_max = anisotropy.back();
+  }
+  d->isolated_vertices = std::count(used.begin(), used.end(), 0);
+  d->non_manifold_edges = 0;
+  for (const auto& [key, count] : edge_faces) d->non_manifold_edges += count > 2;
+  uint64_t twice_directed = 0;
+  for (const auto& [key, count] : directed_uses) twice_directed += count > 1;
+  // Faces OpenMesh's kernel would refuse: the ones that make an edge carry a
+  // third face or repeat a directed edge, counted in file order.
+  {
+    absl::flat_hash_map<uint64_t, uint32_t> seen_directed, seen_faces;
+    d->faces_refused = 0;
+    for (const auto& t : soup.triangles) {
+      bool refuse = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
+      for (int k = 0; k < 3 && !refuse; ++k) {
+        VertexId a = t[k], b = t[(k + 1) % 3];
+        refuse =
+            seen_directed.contains((uint64_t{a} << 32) | b) || seen_faces[undirected(a, b)] >= 2;
+      }
+      if (refuse) {
+        ++d->faces_refused;
+        continue;
+      }
+      for (int k = 0; k < 3; ++k) {
+        VertexId a = t[k], b = t[(k + 1) % 3];
+        seen_directed[(uint64_t{a} << 32) | b] = 1;
+        ++seen_faces[undirected(a, b)];
+      }
+    }
+  }
+  // Components of faces sharing a vertex.
+  DisjointSets vertex_sets(nv);
+  for (const auto& t : soup.triangles) {
+    vertex_sets.Union(t[0], t[1]);
+    vertex_sets.Union(t[1], t[2]);
+  }
+  std::vector<uint8_t> root_seen(nv, 0);
+  d->components = 0;
+  for (size_t v = 0; v < nv; ++v) {
+    if (!used[v]) continue;
+    uint32_t r = vertex_sets.Find(v);
+    if (!root_seen[r]) {
+      root_seen[r] = 1;
+      ++d->components;
+    }
+  }
+  // Boundary loops: components of the graph of boundary edges.
+  DisjointSets boundary_sets(nv);
+  std::vector<uint8_t> on_boundary(nv, 0);
+  for (const auto& [key, count] : edge_faces) {
+    if (count != 1) continue;
+    VertexId a = key >> 32, b = key & 0xffffffffu;
+    boundary_sets.Union(a, b);
+    on_boundary[a] = on_boundary[b] = 1;
+  }
+  std::fill(root_seen.begin(), root_seen.end(), 0);
+  d->boundary_loops = 0;
+  d->boundary_vertices = 0;
+  for (size_t v = 0; v < nv; ++v) {
+    if (!on_boundary[v]) continue;
+    ++d->boundary_vertices;
+    uint32_t r = boundary_sets.Find(v);
+    if (!root_seen[r]) {
+      root_seen[r] = 1;
+      ++d->boundary_loops;
+    }
+  }
+  // Non-manifold vertices: corners around a vertex joined across its
+  // two-face edges must form a single fan.
+  {
+    absl::flat_hash_map<uint64_t, std::vector<uint32_t>> edge_corner_faces;
+    for (uint32_t f = 0; f < nf; ++f) {
+      const auto& t = soup.triangles[f];
+      for (int k = 0; k < 3; ++k) {
+        if (t[k] != t[(k + 1) % 3])
+          edge_corner_faces[undirected(t[k], t[(k + 1) % 3])].push_back(f);
+      }
+    }
+    DisjointSets corners(3 * nf);
+    auto corner_of = [&](uint32_t f, VertexId v) {
+      const auto& t = soup.triangles[f];
+      return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
+    };
+    for (const auto& [key, faces] : edge_corner_faces) {
+      if (faces.size() != 2) continue;
+      VertexId a = key >> 32, b = key & 0xffffffffu;
+      corners.Union(corner_of(faces[0], a), corner_of(faces[1], a));
+      corners.Union(corner_of(faces[0], b), corner_of(faces[1], b));
+    }
+    std::vector<uint32_t> first_root(nv, kNone);
+    std::vector<uint8_t> pinched(nv, 0);
+    for (uint32_t c = 0; c < 3 * nf; ++c) {
+      VertexId v = soup.triangles[c / 3][c % 3];
+      uint32_t r = corners.Find(c);
+      if (first_root[v] == kNone) {
+        first_root[v] = r;
+      } else if (first_root[v] != r) {
+        pinched[v] = 1;
+      }
+    }
+    d->non_manifold_vertices = std::count(pinched.begin(), pinched.end(), 1);
+  }
+  d->manifold = d->non_manifold_edges == 0 && d->non_manifold_vertices == 0 && twice_directed == 0;
+  // Genus per the manifest: (2 * components - euler - boundary loops) / 2.
+  const int64_t euler = int64_t(nv - d->isolated_vertices) - int64_t(edge_count) + int64_t(nf);
+  d->genus = (2 * int64_t(d->components) - euler - int64_t(d->boundary_loops)) / 2;
+  // Saddles: interior vertices whose angle sum exceeds 2 pi.
+  {
+    std::vector<double> angle_sum(nv, 0);
+    for (const auto& t : soup.triangles) {
+      for (int k = 0; k < 3; ++k) {
+        const Vec3& p = soup.positions[t[k]];
+        Vec3 u = soup.positions[t[(k + 1) % 3]] - p, w = soup.positions[t[(k + 2) % 3]] - p;
+        double nu = Norm(u), nw = Norm(w);
+        if (nu > 0 && nw > 0)
+          angle_sum[t[k]] += std::acos(std::clamp(Dot(u, w) / (nu * nw), -1.0, 1.0));
+      }
+    }
+    d->saddle_vertices = 0;
+    for (size_t v = 0; v < nv; ++v) {
+      d->saddle_vertices +=
+          used[v] && !on_boundary[v] && angle_sum[v] > 2 * std::numbers::pi * (1 + 1e-10);
+    }
+  }
+}
+
+namespace {
+
+// Splits every non-manifold vertex into one copy per fan of its corners;
+// copies are appended after the file's vertices so file ids are unchanged.
+uint64_t SplitNonManifoldVertices(TriangleSoup* soup) {
+  const size_t nf = soup->triangles.size();
+  auto undirected = [](VertexId a, VertexId b) {
+    return (uint64_t{std::min(a, b)} << 32) | std::max(a, b);
+  };
+  absl::flat_hash_map<uint64_t, std::vector<uint32_t>> edge_faces;
+  for (uint32_t f = 0; f < nf; ++f) {
+    const auto& t = soup->triangles[f];
+    for (int k = 0; k < 3; ++k) edge_faces[undirected(t[k], t[(k + 1) % 3])].push_back(f);
+  }
+  DisjointSets corners(3 * nf);
+  auto corner_of = [&](uint32_t f, VertexId v) {
+    const auto& t = soup->triangles[f];
+    return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
+  };
+  for (const auto& [key, faces] : edge_faces) {
+    if (faces.size() != 2) continue;
+    VertexId a = key >> 32, b = key & 0xffffffffu;
+    corners.Union(corner_of(faces[0], a), corner_of(faces[1], a));
+    corners.Union(corner_of(faces[0], b), corner_of(faces[1], b));
+  }
+  absl::flat_hash_map<uint64_t, VertexId> copy_of;  // (vertex, fan root) -> id
+  std::vector<uint32_t> first_root(soup->positions.size(), kNone);
+  uint64_t split = 0;
+  for (uint32_t c = 0; c < 3 * nf; ++c) {
+    VertexId& v = soup->triangles[c / 3][c % 3];
+    uint32_t r = corners.Find(c);
+    if (first_root[v] == kNone) first_root[v] = r;
+    if (first_root[v] == r) continue;
+    auto [it, inserted] =
+        copy_of.emplace((uint64_t{v} << 32) | r, static_cast<VertexId>(soup->positions.size()));
+    if (inserted) {
+      soup->positions.push_back(soup->positions[v]);
+      ++split;
+    }
+    v = it->second;
+  }
+  return split;
+}
+
+}  // namespace
+
+absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& options,
+                              MeshDiagnostics* diagnostics) {
+  MeshDiagnostics local;
+  MeshDiagnostics& d = diagnostics ? *diagnostics : local;
+  const auto start = std::chrono::steady_clock::now();
+  ASSIGN_OR_RETURN(TriangleSoup soup, ReadTriangleSoup(path, &d));
+  ComputeDiagnostics(soup, &d);
+  if (options.repair_non_manifold && !d.manifold) SplitNonManifoldVertices(&soup);
+  auto mesh = Mesh::Build(std::move(soup), path);
+  d.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!mesh.ok()) {
+    d.mesh_error = std::string(mesh.status().message());
+    if (!options.repair_non_manifold && !d.manifold) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "%s (non-manifold input is rejected; load with repair to split non-manifold vertices)",
+          mesh.status().message()));
+    }
+  }
+  return mesh;
+}
+
+std::string MeshDiagnostics::ToText() const {
+  std::string s;
+  s += absl::StrFormat("%s (%s)\n", path, format);
+  s += absl::StrFormat("  vertices %u, faces %u, edges %u", vertices, faces, edges);
+  if (polygons_triangulated)
+    s += absl::StrFormat(" (%u polygons triangulated)", polygons_triangulated);
+  s += absl::StrFormat("\n  components %u, boundary loops %u, genus %d%s\n", components,
+                       boundary_loops, genus, manifold ? "" : " (not meaningful: non-manifold)");
+  s += absl::StrFormat(
+      "  isolated vertices %u, duplicate vertices %u, zero-area faces %u, near-degenerate "
+      "faces %u\n",
+      isolated_vertices, duplicate_vertices, zero_area_faces, near_degenerate_faces);
+  s += absl::StrFormat(
+      "  non-manifold edges %u, non-manifold vertices %u, faces OpenMesh would refuse %u\n",
+      non_manifold_edges, non_manifold_vertices, faces_refused);
+  s += absl::StrFormat("  bounding-box diagonal %.6g, edge length mean %.6g min %.6g\n",
+                       bbox_diagonal, mean_edge_length, min_edge_length);
+  s += absl::StrFormat("  anisotropy mean %.4g, p95 %.4g, max %.4g\n", anisotropy_mean,
+                       anisotropy_p95, anisotropy_max);
+  s += absl::StrFormat("  saddle vertices %u, boundary vertices %u\n", saddle_vertices,
+                       boundary_vertices);
+  s += absl::StrFormat("  loaded in %.3f s\n", load_seconds);
+  s += mesh_error.empty() ? "  usable for geodesics: yes\n"
+                          : absl::StrFormat("  usable for geodesics: no: %s\n", mesh_error);
+  return s;
+}
+
+std::string MeshDiagnostics::ToJson() const {
+  auto str = [](const std::string& x) {
+    std::string out = "\"";
+    for (char c : x) {
+      if (c == '"' || c == '\\') out += '\\';
+      if (static_cast<unsigned char>(c) < 0x20) {
+        out += absl::StrFormat("\\u%04x", c);
+        continue;
+      }
+      out += c;
+    }
+    return out + "\"";
+  };
+  return absl::StrFormat(
+      "{\"path\": %s, \"format\": %s, \"vertices\": %u, \"faces\": %u, \"edges\": %u, "
+      "\"polygons_triangulated\": %u, \"components\": %u, \"boundary_loops\": %u, \"genus\": %d, "
+      "\"isolated_vertices\": %u, \"duplicate_vertices\": %u, \"zero_area_faces\": %u, "
+      "\"near_degenerate_faces\": %u, \"non_manifold_edges\": %u, \"non_manifold_vertices\": %u, "
+      "\"faces_refused\": %u, \"bbox_diagonal\": %.17g, \"mean_edge_length\": %.17g, "
+      "\"min_edge_length\": %.17g, \"anisotropy_mean\": %.17g, \"anisotropy_p95\": %.17g, "
+      "\"anisotropy_max\": %.17g, \"saddle_vertices\": %u, \"boundary_vertices\": %u, "
+      "\"manifold\": %s, \"usable\": %s, \"mesh_error\": %s, \"load_seconds\": %.6f}",
+      str(path), str(format), vertices, faces, edges, polygons_triangulated, components,
+      boundary_loops, genus, isolated_vertices, duplicate_vertices, zero_area_faces,
+      near_degenerate_faces, non_manifold_edges, non_manifold_vertices, faces_refused,
+      bbox_diagonal, mean_edge_length, min_edge_length, anisotropy_mean, anisotropy_p95,
+      anisotropy_max, saddle_vertices, boundary_vertices, manifold ? "true" : "false",
+      mesh_error.empty() ? "true" : "false", str(mesh_error), load_seconds);
+}
+
+}  // namespace geodesic

@@ -1,0 +1,116 @@
+// geodesicd distance: point-to-point distances (and paths) on a DGG.
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+
+#include "CLI/CLI.hpp"
+#include "absl/strings/str_format.h"
+#include "core/graph_file.h"
+#include "core/queries.h"
+#include "server/offline/commands.h"
+#include "server/offline/common.h"
+
+namespace geodesic::offline {
+namespace {
+
+std::string PathJson(const GeodesicPath& path) {
+  std::string out = "[";
+  for (size_t i = 0; i < path.points.size(); ++i) {
+    const PathPoint& p = path.points[i];
+    out += absl::StrFormat("%s{\"point\": \"%s\", \"xyz\": [%.17g, %.17g, %.17g]}", i ? ", " : "",
+                           FormatSurfacePoint(p.point), p.xyz.x, p.xyz.y, p.xyz.z);
+  }
+  return out + "]";
+}
+
+}  // namespace
+
+int RunDistance(int argc, char** argv) {
+  CLI::App app{"Geodesic distance (and path) between surface points on a discrete geodesic graph",
+               "geodesicd distance"};
+  std::string mesh_path, graph_path, from, to, pairs_path;
+  bool json = false, want_path = false, no_astar = false;
+  app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
+  app.add_option("--graph", graph_path, "graph file (geodesicd build)")->required();
+  app.add_option("--from", from,
+                 "first point: v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's vertex "
+                 "order of that face) or xyz:X,Y,Z");
+  app.add_option("--to", to, "second point, same forms");
+  app.add_option("--pairs", pairs_path, "file with one pair of points per line");
+  app.add_flag("--path", want_path, "also recover the geodesic path");
+  app.add_flag("--no-astar", no_astar, "plain bidirectional Dijkstra instead of A*");
+  app.add_flag("--json", json, "print JSON");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  std::vector<std::pair<std::string, std::string>> pairs;
+  if (!pairs_path.empty()) {
+    std::ifstream in(pairs_path);
+    if (!in) return Fail("distance", absl::NotFoundError("cannot read " + pairs_path));
+    std::string line;
+    size_t number = 0;
+    while (std::getline(in, line)) {
+      ++number;
+      std::istringstream fields(line);
+      std::string a, b;
+      if (!(fields >> a)) continue;  // blank line
+      if (!(fields >> b)) {
+        return Fail("distance", absl::InvalidArgumentError(absl::StrFormat(
+                                    "%s line %u: expected two points", pairs_path, number)));
+      }
+      pairs.push_back({a, b});
+    }
+  } else if (!from.empty() && !to.empty()) {
+    pairs.push_back({from, to});
+  } else {
+    return Fail("distance", absl::InvalidArgumentError("give --from and --to, or --pairs FILE"));
+  }
+  auto mesh = LoadMeshOrError(mesh_path);
+  if (!mesh.ok()) return Fail("distance", mesh.status());
+  auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
+  if (!graph.ok()) return Fail("distance", graph.status());
+  GeodesicEngine engine(*mesh, *graph);
+  PairOptions options;
+  options.want_path = want_path;
+  options.use_astar = !no_astar;
+  std::string out = json && !pairs_path.empty() ? "[" : "";
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    auto a = ResolvePoint(**mesh, pairs[i].first);
+    if (!a.ok()) return Fail("distance", a.status());
+    auto b = ResolvePoint(**mesh, pairs[i].second);
+    if (!b.ok()) return Fail("distance", b.status());
+    auto t0 = std::chrono::steady_clock::now();
+    auto r = engine.Distance(*a, *b, options);
+    const double seconds =
+        std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    if (!r.ok()) return Fail("distance", r.status());
+    if (json) {
+      out += absl::StrFormat(
+          "%s{\"from\": \"%s\", \"to\": \"%s\", \"distance\": %s, \"reachable\": %s, "
+          "\"seconds\": %.9f, \"settled\": %u%s}",
+          i ? ", " : "", pairs[i].first, pairs[i].second, JsonNumber(r->distance),
+          r->distance < kInfinity ? "true" : "false", seconds, r->settled,
+          r->path ? ", \"path\": " + PathJson(*r->path) : "");
+      if (pairs_path.empty()) out += "\n";
+    } else {
+      std::string d = r->distance < kInfinity ? absl::StrFormat("%.12g", r->distance)
+                                              : std::string("unreachable");
+      out += absl::StrFormat("%s -> %s: %s (%.3f ms, %u nodes settled)\n", pairs[i].first,
+                             pairs[i].second, d, 1e3 * seconds, r->settled);
+      if (r->path) {
+        for (const PathPoint& p : r->path->points) {
+          out += absl::StrFormat("  %s  %.9g %.9g %.9g\n", FormatSurfacePoint(p.point), p.xyz.x,
+                                 p.xyz.y, p.xyz.z);
+        }
+      }
+    }
+  }
+  if (json && !pairs_path.empty()) out += "]\n";
+  std::fputs(out.c_str(), stdout);
+  return 0;
+}
+
+}  // namespace geodesic::offline

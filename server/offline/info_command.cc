@@ -1,0 +1,44 @@
+// geodesicd info: diagnostics of a mesh file, or a description of a graph file.
+#include <cstdio>
+
+#include "CLI/CLI.hpp"
+#include "core/mesh_io.h"
+#include "server/offline/commands.h"
+#include "server/offline/common.h"
+
+namespace geodesic::offline {
+
+int RunInfo(int argc, char** argv) {
+  CLI::App app{
+      "Diagnostics of a mesh file (obj, off, ply, stl), or describe and validate a "
+      "graph file (.dgg)",
+      "geodesicd info"};
+  std::string path;
+  bool json = false, repair = false;
+  app.add_option("path", path, "mesh or graph file")->required();
+  app.add_flag("--json", json, "print a JSON object");
+  app.add_flag("--repair-non-manifold", repair,
+               "split non-manifold vertices before checking usability");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  if (path.size() > 4 && path.compare(path.size() - 4, 4, ".dgg") == 0) {
+    return RunGraphInfo(path, json);
+  }
+  MeshDiagnostics diagnostics;
+  LoadOptions options;
+  options.repair_non_manifold = repair;
+  auto mesh = LoadMesh(path, options, &diagnostics);
+  if (!mesh.ok() && diagnostics.vertices == 0 && diagnostics.faces == 0) {
+    return Fail("info", mesh.status());  // the file itself could not be read
+  }
+  if (!mesh.ok() && diagnostics.mesh_error.empty()) {
+    diagnostics.mesh_error = std::string(mesh.status().message());
+  }
+  std::fputs(json ? (diagnostics.ToJson() + "\n").c_str() : diagnostics.ToText().c_str(), stdout);
+  return 0;
+}
+
+}  // namespace geodesic::offline

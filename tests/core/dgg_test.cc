@@ -1,0 +1,296 @@
+// DGG construction and the graph file: accuracy against exact distances,
+// determinism, persistence and defence against corrupt files.
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include "core/dgg_build.h"
+#include "core/exact_geodesic.h"
+#include "core/graph_file.h"
+#include "core/mesh_io.h"
+#include "core/queries.h"
+#include "tests/core/test_util.h"
+
+namespace geodesic {
+namespace {
+
+using testing::SourcePath;
+using testing::TempDir;
+
+struct ErrorStats {
+  double mean = 0, max = 0, most_under = 0;
+};
+
+// Relative errors of `got` against `want`, skipping the source and vertices
+// without an exact distance.
+ErrorStats Compare(const std::vector<double>& got, const std::vector<double>& want) {
+  ErrorStats s;
+  size_t count = 0;
+  for (size_t v = 0; v < want.size(); ++v) {
+    if (!std::isfinite(want[v]) || want[v] == 0) continue;
+    double e = (got[v] - want[v]) / want[v];
+    s.most_under = std::min(s.most_under, e);
+    s.mean += std::abs(e);
+    s.max = std::max(s.max, std::abs(e));
+    ++count;
+  }
+  s.mean /= std::max<size_t>(count, 1);
+  return s;
+}
+
+class SpotGraphTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    auto mesh = LoadMesh(SourcePath("data/spot.obj"));
+    ASSERT_TRUE(mesh.ok()) << mesh.status();
+    mesh_ = std::make_shared<const Mesh>(std::move(mesh).value());
+    DggBuildOptions options;
+    options.params.epsilon = 1e-2;
+    auto graph = BuildDgg(*mesh_, options, &stats_);
+    ASSERT_TRUE(graph.ok()) << graph.status();
+    graph_ = *graph;
+  }
+  static void TearDownTestSuite() {
+    graph_.reset();
+    mesh_.reset();
+  }
+  static std::shared_ptr<const Mesh> mesh_;
+  static std::shared_ptr<const DggGraph> graph_;
+  static DggBuildStats stats_;
+};
+std::shared_ptr<const Mesh> SpotGraphTest::mesh_;
+std::shared_ptr<const DggGraph> SpotGraphTest::graph_;
+DggBuildStats SpotGraphTest::stats_;
+
+TEST_F(SpotGraphTest, GraphIsValidAndSmallerThanItsCandidates) {
+  EXPECT_OK(graph_->Validate(*mesh_));
+  EXPECT_EQ(graph_->num_mesh_vertices(), mesh_->num_vertices());
+  EXPECT_GT(stats_.candidate_edges, stats_.edges);
+  EXPECT_GE(stats_.average_degree, 6);  // at least the mesh's own edges, on average
+  // Symmetric: every directed edge has its reverse with the same weight.
+  auto off = graph_->offsets();
+  for (uint32_t u = 0; u < graph_->num_nodes(); u += 97) {
+    for (uint64_t i = off[u]; i < off[u + 1]; ++i) {
+      uint32_t v = graph_->targets()[i];
+      bool found = false;
+      for (uint64_t j = off[v]; j < off[v + 1]; ++j) {
+        if (graph_->targets()[j] == u) {
+          EXPECT_EQ(graph_->weights()[j], graph_->weights()[i]);
+          found = true;
+        }
+      }
+      EXPECT_TRUE(found) << u << " -> " << v;
+    }
+  }
+}
+
+TEST_F(SpotGraphTest, FieldsAreWithinEpsilonOfExact) {
+  GeodesicEngine engine(mesh_, graph_);
+  ExactGeodesic exact(*mesh_);
+  const double eps = graph_->params().epsilon;
+  for (VertexId s : {VertexId{0}, VertexId{976}, VertexId{1953}}) {
+    auto truth = exact.Distances(SurfacePoint::Vertex(s));
+    ASSERT_OK(truth);
+    SurfacePoint source = SurfacePoint::Vertex(s);
+    FieldOptions lc;
+    auto fast = engine.Field(absl::MakeConstSpan(&source, 1), lc);
+    ASSERT_OK(fast);
+    FieldOptions dijkstra;
+    dijkstra.method = FieldMethod::kDijkstra;
+    auto plain = engine.Field(absl::MakeConstSpan(&source, 1), dijkstra);
+    ASSERT_OK(plain);
+    ErrorStats e = Compare(fast->distance, *truth);
+    EXPECT_LE(e.mean, 0.3 * eps) << "source " << s;
+    EXPECT_LE(e.max, 1.5 * eps) << "source " << s;
+    // Graph distances are lengths of real paths: never below exact.
+    EXPECT_GE(e.most_under, -1e-9);
+    ErrorStats vs_dijkstra = Compare(fast->distance, plain->distance);
+    EXPECT_LE(vs_dijkstra.mean, eps / 10) << "source " << s;
+    EXPECT_LT(fast->queue_pops, 4 * mesh_->num_vertices());
+  }
+}
+
+TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
+  GeodesicEngine engine(mesh_, graph_);
+  SurfacePoint sources[] = {SurfacePoint::Vertex(0), SurfacePoint::Vertex(2000)};
+  FieldOptions options;
+  options.nearest_source = true;
+  auto both = engine.Field(sources, options);
+  ASSERT_OK(both);
+  auto a = engine.Field(absl::MakeConstSpan(&sources[0], 1), {});
+  auto b = engine.Field(absl::MakeConstSpan(&sources[1], 1), {});
+  ASSERT_OK(a);
+  ASSERT_OK(b);
+  for (VertexId v = 0; v < mesh_->num_vertices(); ++v) {
+    EXPECT_NEAR(both->distance[v], std::min(a->distance[v], b->distance[v]),
+                1e-9 * both->distance[v] + 1e-12);
+    double da = a->distance[v], db = b->distance[v];
+    if (std::abs(da - db) > 1e-6 * std::max(da, db)) {
+      EXPECT_EQ(both->nearest_source[v], da < db ? 0u : 1u) << "vertex " << v;
+    }
+  }
+  FieldOptions ball;
+  ball.max_distance = 0.3;
+  auto limited = engine.Field(absl::MakeConstSpan(&sources[0], 1), ball);
+  ASSERT_OK(limited);
+  for (VertexId v = 0; v < mesh_->num_vertices(); ++v) {
+    if (a->distance[v] <= 0.3) EXPECT_DOUBLE_EQ(limited->distance[v], a->distance[v]);
+    if (limited->distance[v] < kInfinity) EXPECT_LE(limited->distance[v], 0.3);
+  }
+  FieldOptions targeted;
+  targeted.method = FieldMethod::kDijkstra;
+  targeted.targets = {17, 42};
+  auto t = engine.Field(absl::MakeConstSpan(&sources[0], 1), targeted);
+  ASSERT_OK(t);
+  FieldOptions full_dijkstra;
+  full_dijkstra.method = FieldMethod::kDijkstra;
+  auto full = engine.Field(absl::MakeConstSpan(&sources[0], 1), full_dijkstra);
+  ASSERT_OK(full);
+  EXPECT_DOUBLE_EQ(t->distance[17], full->distance[17]);
+  EXPECT_DOUBLE_EQ(t->distance[42], full->distance[42]);
+  EXPECT_LT(t->queue_pops, full->queue_pops);
+}
+
+TEST_F(SpotGraphTest, BuildIsIdenticalWhateverTheThreadCount) {
+  DggBuildOptions one;
+  one.params = graph_->params();
+  one.threads = 1;
+  auto single = BuildDgg(*mesh_, one);
+  ASSERT_OK(single);
+  TempDir dir;
+  ASSERT_OK(GraphFile::Write(**single, dir.File("one.dgg")));
+  ASSERT_OK(GraphFile::Write(*graph_, dir.File("many.dgg")));
+  std::ifstream a(dir.File("one.dgg"), std::ios::binary), b(dir.File("many.dgg"), std::ios::binary);
+  std::string sa((std::istreambuf_iterator<char>(a)), {}),
+      sb((std::istreambuf_iterator<char>(b)), {});
+  EXPECT_EQ(sa.size(), sb.size());
+  EXPECT_TRUE(sa == sb) << "graph files differ between 1 and several threads";
+}
+
+TEST_F(SpotGraphTest, GraphFileRoundTripsAndMapsTheSameGraph) {
+  TempDir dir;
+  const std::string path = dir.File("spot.dgg");
+  ASSERT_OK(GraphFile::Write(*graph_, path));
+  auto mapped = GraphFile::Open(path, *mesh_, GraphFile::Check::kFull);
+  ASSERT_OK(mapped);
+  EXPECT_TRUE((*mapped)->is_mapped());
+  EXPECT_EQ((*mapped)->num_nodes(), graph_->num_nodes());
+  EXPECT_EQ((*mapped)->num_directed_edges(), graph_->num_directed_edges());
+  EXPECT_TRUE(
+      std::equal(graph_->targets().begin(), graph_->targets().end(), (*mapped)->targets().begin()));
+  EXPECT_TRUE(std::equal(graph_->fan_begin().begin(), graph_->fan_begin().end(),
+                         (*mapped)->fan_begin().begin()));
+  auto info = GraphFile::Inspect(path);
+  ASSERT_OK(info);
+  EXPECT_EQ(info->params.epsilon, graph_->params().epsilon);
+  EXPECT_EQ(info->mesh_fingerprint, MeshFingerprint(*mesh_));
+  // No temp files are left behind.
+  size_t files = 0;
+  for (auto& e : std::filesystem::directory_iterator(dir.path())) files += e.is_regular_file();
+  EXPECT_EQ(files, 1u);
+}
+
+// Flips one byte at `offset` of a copy of the graph file.
+std::string Corrupt(const std::string& path, const std::string& out, size_t offset) {
+  std::filesystem::copy_file(path, out, std::filesystem::copy_options::overwrite_existing);
+  std::fstream f(out, std::ios::in | std::ios::out | std::ios::binary);
+  f.seekg(offset);
+  char c;
+  f.read(&c, 1);
+  c ^= 0x5a;
+  f.seekp(offset);
+  f.write(&c, 1);
+  return out;
+}
+
+TEST_F(SpotGraphTest, CorruptGraphFilesAreDetected) {
+  TempDir dir;
+  const std::string path = dir.File("spot.dgg");
+  ASSERT_OK(GraphFile::Write(*graph_, path));
+  const size_t size = std::filesystem::file_size(path);
+  // Header bit flips.
+  for (size_t offset : {size_t{0}, size_t{9}, size_t{24}, size_t{40}, size_t{100}}) {
+    auto s = GraphFile::Open(Corrupt(path, dir.File("h.dgg"), offset), *mesh_,
+                             GraphFile::Check::kHeader);
+    EXPECT_FALSE(s.ok()) << "header byte " << offset;
+  }
+  // A flipped byte in a section is caught by the full check.
+  for (size_t offset : {size_t{4096 + 8}, size / 2, size - 70}) {
+    auto s =
+        GraphFile::Open(Corrupt(path, dir.File("s.dgg"), offset), *mesh_, GraphFile::Check::kFull);
+    EXPECT_EQ(s.status().code(), absl::StatusCode::kDataLoss) << "section byte " << offset;
+  }
+  // Truncated.
+  std::filesystem::copy_file(path, dir.File("t.dgg"));
+  std::filesystem::resize_file(dir.File("t.dgg"), size - 100);
+  EXPECT_EQ(GraphFile::Open(dir.File("t.dgg"), *mesh_, GraphFile::Check::kHeader).status().code(),
+            absl::StatusCode::kDataLoss);
+  std::filesystem::resize_file(dir.File("t.dgg"), 10);
+  EXPECT_EQ(GraphFile::Open(dir.File("t.dgg"), *mesh_, GraphFile::Check::kHeader).status().code(),
+            absl::StatusCode::kDataLoss);
+  // Another mesh.
+  Mesh other = testing::PlanarGrid(4, 4, 1.0);
+  EXPECT_EQ(GraphFile::Open(path, other, GraphFile::Check::kHeader).status().code(),
+            absl::StatusCode::kFailedPrecondition);
+  // Missing.
+  EXPECT_EQ(
+      GraphFile::Open(dir.File("none.dgg"), *mesh_, GraphFile::Check::kHeader).status().code(),
+      absl::StatusCode::kNotFound);
+}
+
+TEST(DggBuildTest, RejectsBadEpsilon) {
+  Mesh grid = testing::PlanarGrid(4, 4, 1.0);
+  for (double eps : {0.0, -1.0, 1.0, 2.0, std::nan(""), 1e-9}) {
+    DggBuildOptions options;
+    options.params.epsilon = eps;
+    EXPECT_EQ(BuildDgg(grid, options).status().code(), absl::StatusCode::kInvalidArgument) << eps;
+  }
+}
+
+TEST(DggBuildTest, CancelsWhenProgressSaysSo) {
+  Mesh grid = testing::PlanarGrid(40, 40, 1.0);
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  int calls = 0;
+  options.progress = [&](std::string_view, double) { return ++calls < 3; };
+  EXPECT_EQ(BuildDgg(grid, options).status().code(), absl::StatusCode::kCancelled);
+}
+
+TEST(DggBuildTest, ReportsProgressUpToOne) {
+  Mesh grid = testing::PlanarGrid(20, 20, 1.0);
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  double last = 0;
+  bool monotone = true;
+  std::mutex mu;
+  options.progress = [&](std::string_view, double f) {
+    std::lock_guard<std::mutex> lock(mu);
+    monotone &= f >= last - 1e-12;
+    last = f;
+    return true;
+  };
+  ASSERT_OK(BuildDgg(grid, options));
+  EXPECT_TRUE(monotone);
+  EXPECT_DOUBLE_EQ(last, 1.0);
+}
+
+TEST(DggBuildTest, PlanarGridGraphIsNearlyExact) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(30, 30, 0.1));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-3;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  SurfacePoint s = SurfacePoint::Vertex(480);
+  auto field = engine.Field(absl::MakeConstSpan(&s, 1), {});
+  ASSERT_OK(field);
+  for (VertexId v = 0; v < mesh->num_vertices(); ++v) {
+    double want = Distance(mesh->position(480), mesh->position(v));
+    EXPECT_GE(field->distance[v], want * (1 - 1e-9));
+    EXPECT_LE(field->distance[v], want * (1 + 1.5e-3) + 1e-12);
+  }
+}
+
+}  // namespace
+}  // namespace geodesic

@@ -1,0 +1,235 @@
+// Point-to-point queries and paths on a DGG against the independent exact
+// solver's pairs (../shared/truth/<mesh>.p2p.*) and our exact engine.
+#include "core/queries.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <random>
+#include <sstream>
+
+#include "core/dgg_build.h"
+#include "core/exact_geodesic.h"
+#include "core/mesh_io.h"
+#include "tests/core/test_util.h"
+
+namespace geodesic {
+namespace {
+
+using testing::SharedDataAvailable;
+using testing::SharedPath;
+
+double PolylineLength(const GeodesicPath& path) {
+  double length = 0;
+  for (size_t i = 1; i < path.points.size(); ++i) {
+    length += Distance(path.points[i - 1].xyz, path.points[i].xyz);
+  }
+  return length;
+}
+
+// Every path point must be where its surface point says, and consecutive
+// points must share a face (so each segment lies on the surface).
+void ExpectOnSurface(const Mesh& mesh, const GeodesicPath& path) {
+  auto faces_of = [&](const SurfacePoint& p) {
+    std::vector<FaceId> faces;
+    if (p.kind == SurfacePoint::Kind::kFace) {
+      faces.push_back(p.id);
+    } else if (p.kind == SurfacePoint::Kind::kEdge) {
+      HalfedgeId h = mesh.edge_halfedge(p.id);
+      faces.push_back(Mesh::face(h));
+      if (mesh.twin(h) != kNone) faces.push_back(Mesh::face(mesh.twin(h)));
+    } else {
+      HalfedgeId h = mesh.vertex_halfedge(p.id), start = h;
+      do {
+        faces.push_back(Mesh::face(h));
+        h = mesh.rotate(h);
+      } while (h != kNone && h != start);
+    }
+    std::sort(faces.begin(), faces.end());
+    return faces;
+  };
+  for (size_t i = 0; i < path.points.size(); ++i) {
+    const PathPoint& p = path.points[i];
+    EXPECT_LT(Distance(PositionOf(mesh, p.point), p.xyz), 1e-12) << "point " << i;
+    if (i == 0) continue;
+    auto a = faces_of(path.points[i - 1].point), b = faces_of(p.point);
+    std::vector<FaceId> common;
+    std::set_intersection(a.begin(), a.end(), b.begin(), b.end(), std::back_inserter(common));
+    EXPECT_FALSE(common.empty()) << "segment " << i << " leaves the surface";
+  }
+}
+
+struct Pair {
+  SurfacePoint a, b;
+  double exact;
+};
+
+std::vector<Pair> ReadPairs(const Mesh& mesh, const std::string& name) {
+  std::ifstream pairs(SharedPath("truth/" + name + ".p2p.pairs"));
+  std::ifstream exact(SharedPath("truth/" + name + ".p2p.exact"));
+  std::vector<Pair> out;
+  std::string a, b, d;
+  while (pairs >> a >> b && exact >> d) {
+    auto pa = ParseSurfacePointSpec(a);
+    auto pb = ParseSurfacePointSpec(b);
+    EXPECT_OK(pa);
+    EXPECT_OK(pb);
+    if (!pa.ok() || !pb.ok()) break;
+    out.push_back({pa->point, pb->point, d == "nan" ? kInfinity : std::stod(d)});
+  }
+  return out;
+}
+
+class PairsTest : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
+  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  const std::string name = GetParam();
+  std::string mesh_path;
+  for (const char* ext : {".off", ".obj", ".ply"}) {
+    if (std::filesystem::exists(SharedPath("meshes/" + name + ext))) {
+      mesh_path = SharedPath("meshes/" + name + ext);
+    }
+  }
+  auto loaded = LoadMesh(mesh_path);
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  const double eps = 1e-2;
+  DggBuildOptions options;
+  options.params.epsilon = eps;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  auto pairs = ReadPairs(*mesh, name);
+  ASSERT_GE(pairs.size(), 100u);
+  double sum = 0;
+  size_t count = 0;
+  for (size_t i = 0; i < pairs.size(); ++i) {
+    const Pair& p = pairs[i];
+    PairOptions with_path;
+    with_path.want_path = i % 4 == 0;
+    auto r = engine.Distance(p.a, p.b, with_path);
+    ASSERT_OK(r);
+    if (p.exact == kInfinity) {
+      EXPECT_EQ(r->distance, kInfinity) << "pair " << i;
+      continue;
+    }
+    if (p.exact == 0) continue;
+    const double rel = (r->distance - p.exact) / p.exact;
+    EXPECT_GE(rel, -1e-9) << "pair " << i;
+    EXPECT_LE(rel, 1.5 * eps) << "pair " << i;
+    sum += rel;
+    ++count;
+    if (r->path) {
+      EXPECT_NEAR(PolylineLength(*r->path), r->distance, 1e-9 * r->distance) << "pair " << i;
+      ExpectOnSurface(*mesh, *r->path);
+    }
+    // Plain bidirectional Dijkstra finds the same graph distance.
+    PairOptions plain;
+    plain.use_astar = false;
+    auto d = engine.Distance(p.a, p.b, plain);
+    ASSERT_OK(d);
+    EXPECT_NEAR(d->distance, r->path ? d->distance : r->distance, 1e-9 * d->distance);
+    EXPECT_LE(r->settled, d->settled + 1) << "A* settled more than Dijkstra on pair " << i;
+  }
+  EXPECT_LT(sum / count, 0.3 * eps);
+}
+
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, PairsTest, ::testing::Values("camelhead", "fertility"));
+
+TEST(QueriesTest, SameFaceAndCornerCasesOnAGrid) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(20, 20, 0.1));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  const SurfacePoint points[] = {SurfacePoint::Face(5, 0.2, 0.3, 0.5),
+                                 SurfacePoint::Face(5, 0.6, 0.3, 0.1),
+                                 SurfacePoint::Edge(7, 0.25),
+                                 SurfacePoint::Vertex(0),
+                                 SurfacePoint::Vertex(440),
+                                 SurfacePoint::Face(700, 0.1, 0.1, 0.8)};
+  PairOptions with_path;
+  with_path.want_path = true;
+  for (const SurfacePoint& a : points) {
+    for (const SurfacePoint& b : points) {
+      auto r = engine.Distance(a, b, with_path);
+      ASSERT_OK(r);
+      const double straight = Distance(PositionOf(*mesh, a), PositionOf(*mesh, b));
+      EXPECT_GE(r->distance, straight * (1 - 1e-9));
+      EXPECT_LE(r->distance, straight * (1 + 1.5e-2) + 1e-12);
+      ASSERT_TRUE(r->path.has_value());
+      EXPECT_NEAR(PolylineLength(*r->path), r->distance, 1e-9 * r->distance + 1e-15);
+    }
+  }
+}
+
+TEST(QueriesTest, DifferentComponentsAreUnreachable) {
+  TriangleSoup soup;
+  soup.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {5, 0, 0}, {6, 0, 0}, {5, 1, 0}};
+  soup.triangles = {{0, 1, 2}, {3, 4, 5}};
+  auto mesh = std::make_shared<const Mesh>(testing::MustBuild(soup));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  PairOptions with_path;
+  with_path.want_path = true;
+  auto r =
+      engine.Distance(SurfacePoint::Face(0, 0.3, 0.3, 0.4), SurfacePoint::Vertex(4), with_path);
+  ASSERT_OK(r);
+  EXPECT_EQ(r->distance, kInfinity);
+  EXPECT_FALSE(r->path.has_value());
+  auto m =
+      engine.Matrix(std::vector<SurfacePoint>{SurfacePoint::Vertex(0)},
+                    std::vector<SurfacePoint>{SurfacePoint::Vertex(1), SurfacePoint::Vertex(5)});
+  ASSERT_OK(m);
+  EXPECT_DOUBLE_EQ((*m)[0], 1.0);
+  EXPECT_EQ((*m)[1], kInfinity);
+}
+
+TEST(QueriesTest, BadPointsGetPreciseCodes) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(4, 4, 1.0));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  EXPECT_EQ(engine.Distance(SurfacePoint::Vertex(99), SurfacePoint::Vertex(0), {}).status().code(),
+            absl::StatusCode::kOutOfRange);
+  EXPECT_EQ(
+      engine.Distance(SurfacePoint::Face(0, -1, 1, 1), SurfacePoint::Vertex(0), {}).status().code(),
+      absl::StatusCode::kInvalidArgument);
+  SurfacePoint nan_point = SurfacePoint::Face(0, std::nan(""), 0.5, 0.5);
+  EXPECT_EQ(engine.Field(absl::MakeConstSpan(&nan_point, 1), {}).status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(engine.Field({}, {}).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST(QueriesTest, MatrixAgreesWithPairs) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(12, 12, 0.2));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  std::vector<SurfacePoint> sources = {SurfacePoint::Vertex(3),
+                                       SurfacePoint::Face(40, 0.2, 0.2, 0.6)};
+  std::vector<SurfacePoint> targets = {SurfacePoint::Vertex(100),
+                                       SurfacePoint::Face(200, 0.5, 0.25, 0.25)};
+  auto m = engine.Matrix(sources, targets);
+  ASSERT_OK(m);
+  for (size_t i = 0; i < sources.size(); ++i) {
+    for (size_t j = 0; j < targets.size(); ++j) {
+      const double straight =
+          Distance(PositionOf(*mesh, sources[i]), PositionOf(*mesh, targets[j]));
+      EXPECT_GE((*m)[i * 2 + j], straight * (1 - 1e-9));
+      EXPECT_LE((*m)[i * 2 + j], straight * 1.02);
+    }
+  }
+}
+
+}  // namespace
+}  // namespace geodesic
