@@ -407,37 +407,43 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   if (!options.want_path || mu == kInfinity) return result;
 
   // Graph path: first point, forward chain to the meeting node, backward
-  // chain to the second point. A direct geodesic that won has no relays.
-  std::vector<SurfacePoint> relays;
+  // chain to the second point, with the distance along the graph at each
+  // stop. A direct geodesic that won has no relays.
+  std::vector<SurfacePoint> stops{ends[0].point};
+  std::vector<double> along{0.0};
   if (meet != kNone && mu < best) {
+    auto as_point = [&](uint32_t u) {
+      return u < mesh.num_vertices() ? SurfacePoint::Vertex(u)
+                                     : g.pseudo_points()[u - mesh.num_vertices()];
+    };
     std::vector<uint32_t> chain;
-    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = sc.pred[0][u])
-      chain.push_back(u);
-    std::reverse(chain.begin(), chain.end());
-    for (uint32_t u = sc.pred[1][meet]; u != kViaSource && u != kViaTemporary; u = sc.pred[1][u]) {
+    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = sc.pred[0][u]) {
       chain.push_back(u);
     }
+    std::reverse(chain.begin(), chain.end());
     for (uint32_t u : chain) {
-      relays.push_back(u < mesh.num_vertices() ? SurfacePoint::Vertex(u)
-                                               : g.pseudo_points()[u - mesh.num_vertices()]);
+      if (!(ends[0].is_node && u == ends[0].node)) {
+        stops.push_back(as_point(u));
+        along.push_back(sc.dist[0][u]);
+      }
+    }
+    for (uint32_t u = sc.pred[1][meet]; u != kViaSource && u != kViaTemporary; u = sc.pred[1][u]) {
+      if (ends[1].is_node && u == ends[1].node) break;
+      stops.push_back(as_point(u));
+      along.push_back(mu - sc.dist[1][u]);
     }
   }
-  std::vector<SurfacePoint> stops;
-  stops.push_back(ends[0].point);
-  for (const SurfacePoint& r : relays) stops.push_back(r);
   stops.push_back(ends[1].point);
-  // Each hop is a direct geodesic: trace it with the exact engine.
+  along.push_back(mu);
+  // Each hop is a direct geodesic: trace it with the exact engine, bounding
+  // the propagation by the hop's graph length.
   GeodesicPath path;
   for (size_t k = 0; k + 1 < stops.size(); ++k) {
     const SurfacePoint& from = stops[k];
     const SurfacePoint& to = stops[k + 1];
-    const Vec3 a = PositionOf(mesh, from), b = PositionOf(mesh, to);
     DirectOptions options_hop;
     options_hop.keep_windows = true;
-    // The hop is no longer than the whole path; bound the propagation by it.
-    options_hop.max_distance = mu * (1 + 1e-6) + 1e-12;
-    (void)a;
-    (void)b;
+    options_hop.max_distance = (along[k + 1] - along[k]) * (1 + 1e-6) + 1e-12;
     auto hits = exact.DirectGeodesics(from, options_hop);
     if (!hits.ok()) return hits.status();
     auto traced = exact.Trace(to);

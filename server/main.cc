@@ -4,6 +4,7 @@
 #include <string_view>
 
 #include "server/offline/commands.h"
+#include "server/serve.h"
 
 namespace {
 
@@ -11,6 +12,8 @@ constexpr char kUsage[] =
     "usage: geodesicd <command> [options]\n"
     "\n"
     "commands:\n"
+    "  serve                 the gRPC daemon (with no options: the bundled sample mesh on\n"
+    "                        127.0.0.1:50051)\n"
     "  info MESH|GRAPH.dgg   diagnostics of a mesh, or describe and validate a graph file\n"
     "  exact                 exact geodesic distances from one source (window propagation)\n"
     "  build MESH            build the discrete geodesic graph of a mesh\n"
@@ -28,6 +31,7 @@ int main(int argc, char** argv) {
   }
   std::string_view command = argv[1];
   using namespace geodesic::offline;
+  if (command == "serve") return geodesic::server::RunServe(argc - 1, argv + 1);
   if (command == "info") return RunInfo(argc - 1, argv + 1);
   if (command == "exact") return RunExact(argc - 1, argv + 1);
   if (command == "build") return RunBuild(argc - 1, argv + 1);

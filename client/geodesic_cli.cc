@@ -1,0 +1,717 @@
+// geodesic: the command-line client of geodesicd.
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <fstream>
+#include <mutex>
+#include <sstream>
+#include <thread>
+
+#include "CLI/CLI.hpp"
+#include "absl/strings/str_format.h"
+#include "core/mesh_io.h"
+#include "core/surface_point.h"
+#include "geodesic/v1/geodesic.grpc.pb.h"
+#include "grpcpp/grpcpp.h"
+
+namespace {
+
+using namespace geodesic;
+namespace v1 = geodesic::v1;
+
+struct Common {
+  std::string server = "127.0.0.1:50051";
+  std::string mesh = "spot";
+  double epsilon = 0;
+  bool json = false;
+  double timeout = 600;
+};
+
+std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c) {
+  grpc::ChannelArguments args;
+  args.SetMaxReceiveMessageSize(256 << 20);
+  auto channel = grpc::CreateCustomChannel(c.server, grpc::InsecureChannelCredentials(), args);
+  return v1::Geodesic::NewStub(channel);
+}
+
+// Every call carries the mesh name so that a proxy can route by it.
+void Prepare(grpc::ClientContext* ctx, const Common& c) {
+  ctx->AddMetadata("x-geodesic-mesh", c.mesh);
+  ctx->set_deadline(std::chrono::system_clock::now() +
+                    std::chrono::milliseconds(static_cast<int64_t>(c.timeout * 1000)));
+}
+
+int Fail(const grpc::Status& s) {
+  static const char* kNames[] = {"OK",
+                                 "CANCELLED",
+                                 "UNKNOWN",
+                                 "INVALID_ARGUMENT",
+                                 "DEADLINE_EXCEEDED",
+                                 "NOT_FOUND",
+                                 "ALREADY_EXISTS",
+                                 "PERMISSION_DENIED",
+                                 "RESOURCE_EXHAUSTED",
+                                 "FAILED_PRECONDITION",
+                                 "ABORTED",
+                                 "OUT_OF_RANGE",
+                                 "UNIMPLEMENTED",
+                                 "INTERNAL",
+                                 "UNAVAILABLE",
+                                 "DATA_LOSS",
+                                 "UNAUTHENTICATED"};
+  int code = s.error_code();
+  std::fprintf(stderr, "geodesic: %s: %s\n", code >= 0 && code < 17 ? kNames[code] : "?",
+               s.error_message().c_str());
+  return code == grpc::StatusCode::UNAVAILABLE ? 3 : 1;
+}
+
+int FailText(const std::string& message) {
+  std::fprintf(stderr, "geodesic: %s\n", message.c_str());
+  return 2;
+}
+
+bool ParsePoint(const std::string& text, v1::SurfacePoint* out, v1::Vec3* position,
+                bool* is_position, std::string* error) {
+  auto spec = ParseSurfacePointSpec(text);
+  if (!spec.ok()) {
+    *error = std::string(spec.status().message());
+    return false;
+  }
+  *is_position = spec->is_position;
+  if (spec->is_position) {
+    position->set_x(spec->position.x);
+    position->set_y(spec->position.y);
+    position->set_z(spec->position.z);
+    return true;
+  }
+  const SurfacePoint& p = spec->point;
+  if (p.kind == SurfacePoint::Kind::kVertex) out->set_vertex(p.id);
+  if (p.kind == SurfacePoint::Kind::kEdge) {
+    out->mutable_edge()->set_edge(p.id);
+    out->mutable_edge()->set_t(p.t);
+  }
+  if (p.kind == SurfacePoint::Kind::kFace) {
+    out->mutable_face()->set_face(p.id);
+    out->mutable_face()->set_b0(p.bary[0]);
+    out->mutable_face()->set_b1(p.bary[1]);
+    out->mutable_face()->set_b2(p.bary[2]);
+  }
+  return true;
+}
+
+// Resolves point specs, snapping xyz positions through the server.
+bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<std::string>& specs,
+                   std::vector<v1::SurfacePoint>* out, int* rc) {
+  out->assign(specs.size(), {});
+  v1::SnapRequest snap;
+  snap.set_mesh(c.mesh);
+  std::vector<size_t> snapped;
+  for (size_t i = 0; i < specs.size(); ++i) {
+    std::string error;
+    bool is_position = false;
+    v1::Vec3 position;
+    if (!ParsePoint(specs[i], &(*out)[i], &position, &is_position, &error)) {
+      *rc = FailText(error);
+      return false;
+    }
+    if (is_position) {
+      *snap.add_positions() = position;
+      snapped.push_back(i);
+    }
+  }
+  if (snapped.empty()) return true;
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::SnapResponse resp;
+  grpc::Status s = stub->Snap(&ctx, snap, &resp);
+  if (!s.ok()) {
+    *rc = Fail(s);
+    return false;
+  }
+  for (size_t k = 0; k < snapped.size(); ++k) (*out)[snapped[k]] = resp.points(k);
+  return true;
+}
+
+std::string PointText(const v1::SurfacePoint& p) {
+  switch (p.point_case()) {
+    case v1::SurfacePoint::kVertex:
+      return absl::StrFormat("v:%u", p.vertex());
+    case v1::SurfacePoint::kEdge:
+      return absl::StrFormat("e:%u:%.17g", p.edge().edge(), p.edge().t());
+    case v1::SurfacePoint::kFace:
+      return absl::StrFormat("f:%u:%.17g,%.17g,%.17g", p.face().face(), p.face().b0(),
+                             p.face().b1(), p.face().b2());
+    default:
+      return "?";
+  }
+}
+
+std::string JsonNumber(double d) { return std::isfinite(d) ? absl::StrFormat("%.17g", d) : "null"; }
+
+const char* StateName(v1::GraphState s) {
+  switch (s) {
+    case v1::GRAPH_STATE_QUEUED:
+      return "queued";
+    case v1::GRAPH_STATE_BUILDING:
+      return "building";
+    case v1::GRAPH_STATE_LOADING:
+      return "loading";
+    case v1::GRAPH_STATE_READY:
+      return "ready";
+    case v1::GRAPH_STATE_FAILED:
+      return "failed";
+    case v1::GRAPH_STATE_CANCELLED:
+      return "cancelled";
+    case v1::GRAPH_STATE_EVICTED:
+      return "evicted";
+    default:
+      return "unknown";
+  }
+}
+
+std::string GraphJson(const v1::Graph& g) {
+  return absl::StrFormat(
+      "{\"mesh\": \"%s\", \"epsilon\": %g, \"state\": \"%s\", \"phase\": \"%s\", "
+      "\"progress\": %.4f, \"error\": \"%s\", \"bytes\": %u, \"mapped\": %s, \"from_file\": %s, "
+      "\"nodes\": %u, \"edges\": %u, \"build_seconds\": %.4f}",
+      g.mesh(), g.epsilon(), StateName(g.state()), g.phase(), g.progress(), g.error(), g.bytes(),
+      g.mapped() ? "true" : "false", g.from_file() ? "true" : "false", g.nodes(), g.edges(),
+      g.build_seconds());
+}
+
+int CmdMeshes(const Common& c) {
+  auto stub = Connect(c);
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::ListMeshesResponse resp;
+  grpc::Status s = stub->ListMeshes(&ctx, {}, &resp);
+  if (!s.ok()) return Fail(s);
+  if (c.json) std::printf("[");
+  for (int i = 0; i < resp.meshes_size(); ++i) {
+    const auto& m = resp.meshes(i);
+    if (c.json) {
+      std::printf(
+          "%s{\"name\": \"%s\", \"fingerprint\": \"%s\", \"source\": \"%s\", "
+          "\"diagnostics\": %s}",
+          i ? ", " : "", m.name().c_str(), m.fingerprint().c_str(), m.source().c_str(),
+          m.diagnostics().json().c_str());
+    } else {
+      std::printf("%-16s %8lu vertices %8lu faces  %s  %s\n", m.name().c_str(),
+                  m.diagnostics().vertices(), m.diagnostics().faces(), m.fingerprint().c_str(),
+                  m.source().c_str());
+    }
+  }
+  if (c.json) std::printf("]\n");
+  return 0;
+}
+
+int CmdLoad(const Common& c, const std::string& path, const std::string& upload) {
+  auto stub = Connect(c);
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::Mesh resp;
+  grpc::Status s;
+  if (!upload.empty()) {
+    std::ifstream in(upload, std::ios::binary);
+    if (!in) return FailText("cannot read " + upload);
+    auto writer = stub->UploadMesh(&ctx, &resp);
+    std::string ext = upload.substr(upload.rfind('.') + 1);
+    std::vector<char> buffer(1 << 20);
+    bool first = true;
+    while (in || first) {
+      in.read(buffer.data(), buffer.size());
+      v1::UploadMeshRequest chunk;
+      if (first) {
+        chunk.set_name(c.mesh);
+        chunk.set_format(ext);
+        first = false;
+      }
+      chunk.set_data(buffer.data(), in.gcount());
+      if (!writer->Write(chunk)) break;
+    }
+    writer->WritesDone();
+    s = writer->Finish();
+  } else {
+    v1::RegisterMeshRequest req;
+    req.set_name(c.mesh);
+    req.set_path(path);
+    s = stub->RegisterMesh(&ctx, req, &resp);
+  }
+  if (!s.ok()) return Fail(s);
+  if (c.json) {
+    std::printf("{\"name\": \"%s\", \"fingerprint\": \"%s\", \"diagnostics\": %s}\n",
+                resp.name().c_str(), resp.fingerprint().c_str(), resp.diagnostics().json().c_str());
+  } else {
+    std::printf("registered %s: %lu vertices, %lu faces, fingerprint %s\n", resp.name().c_str(),
+                resp.diagnostics().vertices(), resp.diagnostics().faces(),
+                resp.fingerprint().c_str());
+  }
+  return 0;
+}
+
+int CmdGraph(const Common& c, bool wait, bool pseudo, bool cancel) {
+  auto stub = Connect(c);
+  v1::Graph g;
+  {
+    grpc::ClientContext ctx;
+    Prepare(&ctx, c);
+    grpc::Status s;
+    if (cancel) {
+      v1::CancelGraphRequest req;
+      req.set_mesh(c.mesh);
+      req.set_epsilon(c.epsilon);
+      s = stub->CancelGraph(&ctx, req, &g);
+    } else {
+      v1::RequestGraphRequest req;
+      req.set_mesh(c.mesh);
+      req.set_epsilon(c.epsilon);
+      req.set_pseudo_vertices(pseudo);
+      s = stub->RequestGraph(&ctx, req, &g);
+    }
+    if (!s.ok()) return Fail(s);
+  }
+  if (wait && !cancel) {
+    grpc::ClientContext ctx;
+    Prepare(&ctx, c);
+    v1::GetGraphRequest req;
+    req.set_mesh(c.mesh);
+    req.set_epsilon(g.epsilon());
+    auto reader = stub->WatchGraph(&ctx, req);
+    const bool bar = !c.json && isatty(STDERR_FILENO);
+    while (reader->Read(&g)) {
+      if (bar) {
+        const int width = 40, filled = static_cast<int>(g.progress() * width);
+        std::fprintf(stderr, "\r%-10s [%s%s] %5.1f%%", g.phase().c_str(),
+                     std::string(filled, '#').c_str(), std::string(width - filled, ' ').c_str(),
+                     100 * g.progress());
+      }
+    }
+    if (bar) std::fprintf(stderr, "\n");
+    grpc::Status s = reader->Finish();
+    if (!s.ok()) return Fail(s);
+  }
+  if (c.json) {
+    std::printf("%s\n", GraphJson(g).c_str());
+  } else {
+    std::printf("graph %s at eps %g: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
+                g.mesh().c_str(), g.epsilon(), StateName(g.state()), g.error().empty() ? "" : ": ",
+                g.error().c_str(), g.nodes(), g.edges(), g.bytes(),
+                g.from_file() ? ", mapped from the graph directory" : "");
+  }
+  return g.state() == v1::GRAPH_STATE_FAILED ? 1 : 0;
+}
+
+int CmdStatus(const Common& c) {
+  auto stub = Connect(c);
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::ListGraphsResponse resp;
+  grpc::Status s = stub->ListGraphs(&ctx, {}, &resp);
+  if (!s.ok()) return Fail(s);
+  if (c.json) std::printf("[");
+  for (int i = 0; i < resp.graphs_size(); ++i) {
+    const auto& g = resp.graphs(i);
+    if (c.json) {
+      std::printf("%s%s", i ? ", " : "", GraphJson(g).c_str());
+    } else {
+      std::printf("%-16s eps %-8g %-10s %5.1f%% %12lu bytes %s%s\n", g.mesh().c_str(), g.epsilon(),
+                  StateName(g.state()), 100 * g.progress(), g.bytes(),
+                  g.mapped() ? "mapped" : "resident",
+                  g.error().empty() ? "" : (" " + g.error()).c_str());
+    }
+  }
+  if (c.json) std::printf("]\n");
+  return 0;
+}
+
+// Writes a field as .f64, .csv, or a PLY with per-vertex colours.
+int WriteField(const Common& c, const std::string& out, const std::vector<double>& values) {
+  auto ends_with = [&](const char* ext) {
+    return out.size() >= std::strlen(ext) &&
+           out.compare(out.size() - std::strlen(ext), std::string::npos, ext) == 0;
+  };
+  if (ends_with(".csv")) {
+    std::ofstream f(out);
+    f << "vertex,distance\n";
+    for (size_t i = 0; i < values.size(); ++i)
+      f << i << "," << absl::StrFormat("%.17g", values[i]) << "\n";
+    return f ? 0 : FailText("cannot write " + out);
+  }
+  if (ends_with(".ply")) return FailText(".ply output needs --mesh-file (the mesh geometry)");
+  std::ofstream f(out, std::ios::binary);
+  f.write(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
+  return f ? 0 : FailText("cannot write " + out);
+}
+
+int WriteColouredPly(const std::string& mesh_file, const std::string& out,
+                     const std::vector<double>& values) {
+  auto soup = ReadTriangleSoup(mesh_file);
+  if (!soup.ok()) return FailText(std::string(soup.status().message()));
+  if (soup->positions.size() != values.size()) {
+    return FailText("the mesh file has a different vertex count than the field");
+  }
+  double hi = 0;
+  for (double v : values)
+    if (std::isfinite(v)) hi = std::max(hi, v);
+  std::ofstream f(out);
+  f << "ply\nformat ascii 1.0\nelement vertex " << values.size()
+    << "\nproperty double x\nproperty double y\nproperty double z\nproperty uchar red\n"
+       "property uchar green\nproperty uchar blue\nproperty double distance\nelement face "
+    << soup->triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
+  for (size_t i = 0; i < values.size(); ++i) {
+    const Vec3& p = soup->positions[i];
+    // Blue (near) to red (far), grey where unreachable; isolines every 1/20.
+    double t = std::isfinite(values[i]) && hi > 0 ? values[i] / hi : -1;
+    int r = 128, g = 128, b = 128;
+    if (t >= 0) {
+      const bool line = std::fmod(t * 20, 1.0) < 0.08;
+      r = line ? 0 : static_cast<int>(255 * t);
+      g = line ? 0 : static_cast<int>(255 * (1 - std::abs(2 * t - 1)));
+      b = line ? 0 : static_cast<int>(255 * (1 - t));
+    }
+    f << absl::StrFormat("%.17g %.17g %.17g %d %d %d %.17g\n", p.x, p.y, p.z, r, g, b,
+                         std::isfinite(values[i]) ? values[i] : -1.0);
+  }
+  for (const auto& t : soup->triangles) f << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
+  return f ? 0 : FailText("cannot write " + out);
+}
+
+int CmdField(const Common& c, const std::vector<std::string>& sources, const std::string& out,
+             double radius, const std::string& method, bool f32, const std::string& mesh_file) {
+  auto stub = Connect(c);
+  v1::DistanceFieldRequest req;
+  req.set_mesh(c.mesh);
+  req.set_epsilon(c.epsilon);
+  req.set_max_distance(radius);
+  req.set_method(method);
+  req.set_float32(f32);
+  std::vector<v1::SurfacePoint> points;
+  int rc = 0;
+  if (!ResolvePoints(stub.get(), c, sources, &points, &rc)) return rc;
+  for (auto& p : points) *req.add_sources() = p;
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  const auto start = std::chrono::steady_clock::now();
+  auto reader = stub->DistanceField(&ctx, req);
+  std::vector<double> values;
+  v1::DistanceFieldChunk chunk;
+  while (reader->Read(&chunk)) {
+    values.resize(chunk.total());
+    for (int i = 0; i < chunk.values_size(); ++i) values[chunk.offset() + i] = chunk.values(i);
+    for (int i = 0; i < chunk.values_f32_size(); ++i)
+      values[chunk.offset() + i] = chunk.values_f32(i);
+  }
+  grpc::Status s = reader->Finish();
+  if (!s.ok()) return Fail(s);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!out.empty()) {
+    int w = out.size() > 4 && out.substr(out.size() - 4) == ".ply"
+                ? WriteColouredPly(mesh_file, out, values)
+                : WriteField(c, out, values);
+    if (w) return w;
+  }
+  size_t reached = 0;
+  double far = 0;
+  for (double v : values) {
+    if (std::isfinite(v)) ++reached, far = std::max(far, v);
+  }
+  if (c.json) {
+    std::printf("{\"vertices\": %zu, \"reached\": %zu, \"max_distance\": %s, \"seconds\": %.6f}\n",
+                values.size(), reached, JsonNumber(far).c_str(), seconds);
+  } else {
+    std::printf("field on %s: %zu of %zu vertices reached, farthest %.9g, %.2f ms%s%s\n",
+                c.mesh.c_str(), reached, values.size(), far, 1e3 * seconds,
+                out.empty() ? "" : ", written to ", out.c_str());
+  }
+  return 0;
+}
+
+int CmdDistance(const Common& c, const std::string& from, const std::string& to,
+                const std::string& pairs_file, bool with_path) {
+  auto stub = Connect(c);
+  std::vector<std::string> specs;
+  if (!pairs_file.empty()) {
+    std::ifstream in(pairs_file);
+    if (!in) return FailText("cannot read " + pairs_file);
+    std::string a, b;
+    while (in >> a >> b) specs.push_back(a), specs.push_back(b);
+  } else {
+    if (from.empty() || to.empty()) return FailText("give --from and --to, or --pairs FILE");
+    specs = {from, to};
+  }
+  std::vector<v1::SurfacePoint> points;
+  int rc = 0;
+  if (!ResolvePoints(stub.get(), c, specs, &points, &rc)) return rc;
+  v1::DistanceRequest req;
+  req.set_mesh(c.mesh);
+  req.set_epsilon(c.epsilon);
+  req.set_with_path(with_path);
+  for (size_t i = 0; i + 1 < points.size(); i += 2) {
+    auto* p = req.add_pairs();
+    *p->mutable_from() = points[i];
+    *p->mutable_to() = points[i + 1];
+  }
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::DistanceResponse resp;
+  const auto start = std::chrono::steady_clock::now();
+  grpc::Status s = stub->Distance(&ctx, req, &resp);
+  if (!s.ok()) return Fail(s);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (c.json) std::printf("[");
+  for (int i = 0; i < resp.results_size(); ++i) {
+    const auto& r = resp.results(i);
+    if (c.json) {
+      std::string path;
+      if (with_path) {
+        path = ", \"path\": [";
+        for (int k = 0; k < r.path().points_size(); ++k) {
+          const auto& q = r.path().points(k);
+          path += absl::StrFormat("%s{\"point\": \"%s\", \"xyz\": [%.17g, %.17g, %.17g]}",
+                                  k ? ", " : "", PointText(q.point()), q.xyz().x(), q.xyz().y(),
+                                  q.xyz().z());
+        }
+        path += "]";
+      }
+      std::printf("%s{\"from\": \"%s\", \"to\": \"%s\", \"distance\": %s, \"reachable\": %s%s}",
+                  i ? ", " : "", specs[2 * i].c_str(), specs[2 * i + 1].c_str(),
+                  JsonNumber(r.distance()).c_str(), r.reachable() ? "true" : "false", path.c_str());
+    } else {
+      std::printf("%s -> %s: %s\n", specs[2 * i].c_str(), specs[2 * i + 1].c_str(),
+                  r.reachable() ? absl::StrFormat("%.12g", r.distance()).c_str() : "unreachable");
+      for (const auto& q : r.path().points()) {
+        std::printf("  %-48s %.9g %.9g %.9g\n", PointText(q.point()).c_str(), q.xyz().x(),
+                    q.xyz().y(), q.xyz().z());
+      }
+    }
+  }
+  if (c.json) {
+    std::printf("]\n");
+  } else {
+    std::printf("(%d pairs in %.2f ms, eps %g)\n", resp.results_size(), 1e3 * seconds,
+                resp.echo().epsilon());
+  }
+  return 0;
+}
+
+int CmdMatrix(const Common& c, const std::vector<std::string>& sources,
+              const std::vector<std::string>& targets) {
+  auto stub = Connect(c);
+  std::vector<v1::SurfacePoint> s_points, t_points;
+  int rc = 0;
+  if (!ResolvePoints(stub.get(), c, sources, &s_points, &rc)) return rc;
+  if (!ResolvePoints(stub.get(), c, targets, &t_points, &rc)) return rc;
+  v1::MatrixRequest req;
+  req.set_mesh(c.mesh);
+  req.set_epsilon(c.epsilon);
+  for (auto& p : s_points) *req.add_sources() = p;
+  for (auto& p : t_points) *req.add_targets() = p;
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::MatrixResponse resp;
+  grpc::Status s = stub->Matrix(&ctx, req, &resp);
+  if (!s.ok()) return Fail(s);
+  if (c.json)
+    std::printf("{\"rows\": %u, \"cols\": %u, \"distances\": [", resp.rows(), resp.cols());
+  for (uint32_t i = 0; i < resp.rows(); ++i) {
+    if (c.json) std::printf("%s[", i ? ", " : "");
+    for (uint32_t j = 0; j < resp.cols(); ++j) {
+      const double d = resp.distances(i * resp.cols() + j);
+      if (c.json) {
+        std::printf("%s%s", j ? ", " : "", JsonNumber(d).c_str());
+      } else {
+        std::printf("%s%14.9g", j ? " " : "", d);
+      }
+    }
+    std::printf(c.json ? "]" : "\n");
+  }
+  if (c.json) std::printf("]}\n");
+  return 0;
+}
+
+int CmdSnap(const Common& c, const std::vector<std::string>& positions) {
+  auto stub = Connect(c);
+  std::vector<v1::SurfacePoint> points;
+  std::vector<std::string> specs;
+  for (const auto& p : positions) specs.push_back(p.rfind("xyz:", 0) == 0 ? p : "xyz:" + p);
+  int rc = 0;
+  if (!ResolvePoints(stub.get(), c, specs, &points, &rc)) return rc;
+  for (size_t i = 0; i < points.size(); ++i) {
+    if (c.json) {
+      std::printf("%s{\"position\": \"%s\", \"point\": \"%s\"}%s", i ? ", " : "[", specs[i].c_str(),
+                  PointText(points[i]).c_str(), i + 1 == points.size() ? "]\n" : "");
+    } else {
+      std::printf("%s -> %s\n", specs[i].c_str(), PointText(points[i]).c_str());
+    }
+  }
+  return 0;
+}
+
+// A bounded load: `concurrency` clients issue random point-to-point queries
+// between vertices until `count` queries or `duration` seconds are done.
+int CmdBench(const Common& c, int concurrency, double duration, int count, uint32_t vertices,
+             bool with_path) {
+  auto stub = Connect(c);
+  if (vertices == 0) {
+    grpc::ClientContext ctx;
+    Prepare(&ctx, c);
+    v1::GetMeshRequest req;
+    req.set_name(c.mesh);
+    v1::Mesh m;
+    grpc::Status s = stub->GetMesh(&ctx, req, &m);
+    if (!s.ok()) return Fail(s);
+    vertices = m.diagnostics().vertices();
+  }
+  std::mutex mu;
+  std::vector<double> latencies;
+  std::atomic<int> issued{0}, failed{0};
+  const auto start = std::chrono::steady_clock::now();
+  const auto stop = start + std::chrono::milliseconds(static_cast<int64_t>(duration * 1000));
+  std::vector<std::thread> workers;
+  for (int w = 0; w < concurrency; ++w) {
+    workers.emplace_back([&, w] {
+      uint64_t state = 0x9e3779b97f4a7c15ull * (w + 1);
+      auto next = [&] {
+        state ^= state << 13, state ^= state >> 7, state ^= state << 17;
+        return static_cast<uint32_t>(state % vertices);
+      };
+      std::vector<double> mine;
+      while (std::chrono::steady_clock::now() < stop && issued.fetch_add(1) < count) {
+        v1::DistanceRequest req;
+        req.set_mesh(c.mesh);
+        req.set_epsilon(c.epsilon);
+        req.set_with_path(with_path);
+        auto* p = req.add_pairs();
+        p->mutable_from()->set_vertex(next());
+        p->mutable_to()->set_vertex(next());
+        grpc::ClientContext ctx;
+        Prepare(&ctx, c);
+        v1::DistanceResponse resp;
+        const auto t0 = std::chrono::steady_clock::now();
+        grpc::Status s = stub->Distance(&ctx, req, &resp);
+        const double dt =
+            std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        if (s.ok()) {
+          mine.push_back(dt);
+        } else {
+          ++failed;
+        }
+      }
+      std::lock_guard<std::mutex> lock(mu);
+      latencies.insert(latencies.end(), mine.begin(), mine.end());
+    });
+  }
+  for (auto& t : workers) t.join();
+  const double elapsed =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::sort(latencies.begin(), latencies.end());
+  auto pct = [&](double q) {
+    return latencies.empty() ? 0.0 : latencies[static_cast<size_t>(q * (latencies.size() - 1))];
+  };
+  const double qps = latencies.size() / elapsed;
+  if (c.json) {
+    std::printf(
+        "{\"queries\": %zu, \"failed\": %d, \"seconds\": %.3f, \"qps\": %.1f, "
+        "\"p50_ms\": %.4f, \"p90_ms\": %.4f, \"p99_ms\": %.4f, \"max_ms\": %.4f, "
+        "\"concurrency\": %d}\n",
+        latencies.size(), failed.load(), elapsed, qps, 1e3 * pct(0.5), 1e3 * pct(0.9),
+        1e3 * pct(0.99), 1e3 * pct(1.0), concurrency);
+  } else {
+    std::printf(
+        "%zu queries (%d failed) in %.2f s: %.1f queries/s; latency p50 %.3f ms, p90 %.3f "
+        "ms, p99 %.3f ms, max %.3f ms\n",
+        latencies.size(), failed.load(), elapsed, qps, 1e3 * pct(0.5), 1e3 * pct(0.9),
+        1e3 * pct(0.99), 1e3 * pct(1.0));
+  }
+  return failed.load() ? 1 : 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{
+      "geodesic: client of the geodesicd server.\n\n"
+      "Surface points: v:ID (vertex), e:EDGE:T (edge point), f:FACE:B0,B1,B2 (face point; the\n"
+      "barycentric coordinates weight the face's vertices in the order the mesh file lists them\n"
+      "for that face) or xyz:X,Y,Z (snapped to the surface). Ids are the file's order.",
+      "geodesic"};
+  Common c;
+  app.add_option("--server", c.server, "geodesicd address");
+  app.add_option("--mesh", c.mesh, "mesh name")->capture_default_str();
+  app.add_option("--eps", c.epsilon, "graph accuracy (0: the server's default)");
+  app.add_flag("--json", c.json, "machine-readable output");
+  app.add_option("--timeout", c.timeout, "deadline per call, seconds");
+  app.require_subcommand(1);
+
+  app.add_subcommand("meshes", "list registered meshes");
+  auto* load =
+      app.add_subcommand("load", "register a mesh (server-side path under --mesh-root, or upload)");
+  std::string load_path, upload;
+  load->add_option("path", load_path, "path relative to the server's --mesh-root");
+  load->add_option("--upload", upload, "upload this local file instead");
+  auto* graph = app.add_subcommand("graph", "request the graph of --mesh at --eps");
+  bool wait = false, pseudo = false, cancel = false;
+  graph->add_flag("--wait", wait, "wait for it, with a progress bar");
+  graph->add_flag("--pseudo-vertices", pseudo, "build with pseudo vertices (anisotropic meshes)");
+  graph->add_flag("--cancel", cancel, "cancel its build");
+  app.add_subcommand("status", "list graphs and their state");
+  auto* field = app.add_subcommand("field", "distance field");
+  std::vector<std::string> sources;
+  std::string out, method = "lc", mesh_file;
+  double radius = 0;
+  bool f32 = false;
+  field->add_option("--source", sources, "source point(s)")->required();
+  field->add_option("--out", out, "write .f64 (float64 per vertex), .csv, or .ply (colours)");
+  field->add_option("--mesh-file", mesh_file, "local copy of the mesh, for .ply output");
+  field->add_option("--radius", radius, "only vertices within this distance");
+  field->add_option("--method", method, "lc or dijkstra");
+  field->add_flag("--float32", f32, "transfer float32 values");
+  auto* distance = app.add_subcommand("distance", "point-to-point distance");
+  std::string from, to, pairs;
+  bool with_path = false;
+  distance->add_option("--from", from, "first point");
+  distance->add_option("--to", to, "second point");
+  distance->add_option("--pairs", pairs, "file with one pair of points per line");
+  distance->add_flag("--path", with_path, "also return the geodesic path");
+  auto* path = app.add_subcommand("path", "geodesic path between two points");
+  path->add_option("--from", from, "first point")->required();
+  path->add_option("--to", to, "second point")->required();
+  auto* matrix = app.add_subcommand("matrix", "sources x targets distances");
+  std::vector<std::string> targets;
+  matrix->add_option("--source", sources, "source points")->required();
+  matrix->add_option("--target", targets, "target points")->required();
+  auto* snap = app.add_subcommand("snap", "nearest surface point to positions X,Y,Z");
+  std::vector<std::string> positions;
+  snap->add_option("positions", positions, "X,Y,Z ...")->required();
+  auto* bench = app.add_subcommand("bench", "bounded load of random point-to-point queries");
+  int concurrency = 4, count = 1000;
+  double duration = 10;
+  uint32_t bench_vertices = 0;
+  bench->add_option("--concurrency", concurrency, "parallel clients");
+  bench->add_option("--duration", duration, "stop after this many seconds");
+  bench->add_option("--count", count, "stop after this many queries");
+  bench->add_flag("--path", with_path, "also request paths");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  if (app.got_subcommand("meshes")) return CmdMeshes(c);
+  if (app.got_subcommand("load")) return CmdLoad(c, load_path, upload);
+  if (app.got_subcommand("graph")) return CmdGraph(c, wait, pseudo, cancel);
+  if (app.got_subcommand("status")) return CmdStatus(c);
+  if (app.got_subcommand("field")) return CmdField(c, sources, out, radius, method, f32, mesh_file);
+  if (app.got_subcommand("distance")) return CmdDistance(c, from, to, pairs, with_path);
+  if (app.got_subcommand("path")) return CmdDistance(c, from, to, "", true);
+  if (app.got_subcommand("matrix")) return CmdMatrix(c, sources, targets);
+  if (app.got_subcommand("snap")) return CmdSnap(c, positions);
+  if (app.got_subcommand("bench"))
+    return CmdBench(c, concurrency, duration, count, bench_vertices, with_path);
+  return 2;
+}

@@ -1,0 +1,74 @@
+#include "server/convert.h"
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+
+namespace geodesic::server {
+
+absl::StatusOr<SurfacePoint> FromProto(const v1::SurfacePoint& p, const Mesh& mesh,
+                                       const std::string& what) {
+  SurfacePoint out;
+  switch (p.point_case()) {
+    case v1::SurfacePoint::kVertex:
+      out = SurfacePoint::Vertex(p.vertex());
+      break;
+    case v1::SurfacePoint::kEdge:
+      out = SurfacePoint::Edge(p.edge().edge(), p.edge().t());
+      break;
+    case v1::SurfacePoint::kFace:
+      out = SurfacePoint::Face(p.face().face(), p.face().b0(), p.face().b1(), p.face().b2());
+      break;
+    default:
+      return absl::InvalidArgumentError(absl::StrFormat("%s: no point given", what));
+  }
+  absl::Status s = ValidateSurfacePoint(mesh, out);
+  if (!s.ok()) return absl::Status(s.code(), absl::StrFormat("%s: %s", what, s.message()));
+  return out;
+}
+
+v1::SurfacePoint ToProto(const SurfacePoint& p) {
+  v1::SurfacePoint out;
+  switch (p.kind) {
+    case SurfacePoint::Kind::kVertex:
+      out.set_vertex(p.id);
+      break;
+    case SurfacePoint::Kind::kEdge:
+      out.mutable_edge()->set_edge(p.id);
+      out.mutable_edge()->set_t(p.t);
+      break;
+    case SurfacePoint::Kind::kFace:
+      out.mutable_face()->set_face(p.id);
+      out.mutable_face()->set_b0(p.bary[0]);
+      out.mutable_face()->set_b1(p.bary[1]);
+      out.mutable_face()->set_b2(p.bary[2]);
+      break;
+  }
+  return out;
+}
+
+void ToProto(const GraphStatus& s, v1::Graph* out) {
+  out->set_mesh(s.mesh);
+  out->set_epsilon(s.epsilon);
+  static const v1::GraphState kStates[] = {v1::GRAPH_STATE_QUEUED,  v1::GRAPH_STATE_BUILDING,
+                                           v1::GRAPH_STATE_LOADING, v1::GRAPH_STATE_READY,
+                                           v1::GRAPH_STATE_FAILED,  v1::GRAPH_STATE_CANCELLED,
+                                           v1::GRAPH_STATE_EVICTED};
+  out->set_state(kStates[static_cast<int>(s.state)]);
+  out->set_phase(s.phase);
+  out->set_progress(s.progress);
+  out->set_error(s.error);
+  out->set_bytes(s.bytes);
+  out->set_mapped(s.mapped);
+  out->set_from_file(s.from_file);
+  out->set_nodes(s.nodes);
+  out->set_edges(s.edges);
+  out->set_build_seconds(s.build_seconds);
+  out->set_last_used_unix_ms(s.last_used_unix_ms);
+}
+
+grpc::Status ToGrpc(const absl::Status& s) {
+  if (s.ok()) return grpc::Status::OK;
+  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+}
+
+}  // namespace geodesic::server

@@ -1,0 +1,21 @@
+// Conversions between the API's messages and core types.
+#ifndef GEODESIC_SERVER_CONVERT_H_
+#define GEODESIC_SERVER_CONVERT_H_
+
+#include "absl/status/statusor.h"
+#include "core/surface_point.h"
+#include "geodesic/v1/geodesic.pb.h"
+#include "grpcpp/support/status.h"
+#include "server/graph_cache.h"
+
+namespace geodesic::server {
+
+absl::StatusOr<SurfacePoint> FromProto(const v1::SurfacePoint& p, const Mesh& mesh,
+                                       const std::string& what);
+v1::SurfacePoint ToProto(const SurfacePoint& p);
+void ToProto(const GraphStatus& s, v1::Graph* out);
+grpc::Status ToGrpc(const absl::Status& s);
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_CONVERT_H_

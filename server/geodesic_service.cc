@@ -1,0 +1,387 @@
+#include "server/geodesic_service.h"
+
+#include <chrono>
+#include <cstdio>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "absl/time/time.h"
+#include "server/convert.h"
+
+namespace geodesic::server {
+namespace {
+
+const char* CodeName(grpc::StatusCode code) {
+  static const char* kNames[] = {"OK",
+                                 "CANCELLED",
+                                 "UNKNOWN",
+                                 "INVALID_ARGUMENT",
+                                 "DEADLINE_EXCEEDED",
+                                 "NOT_FOUND",
+                                 "ALREADY_EXISTS",
+                                 "PERMISSION_DENIED",
+                                 "RESOURCE_EXHAUSTED",
+                                 "FAILED_PRECONDITION",
+                                 "ABORTED",
+                                 "OUT_OF_RANGE",
+                                 "UNIMPLEMENTED",
+                                 "INTERNAL",
+                                 "UNAVAILABLE",
+                                 "DATA_LOSS",
+                                 "UNAUTHENTICATED"};
+  int i = static_cast<int>(code);
+  return i >= 0 && i < 17 ? kNames[i] : "UNKNOWN";
+}
+
+// Polled by long solves: the client went away or its deadline passed.
+std::function<bool()> Cancelled(grpc::ServerContext* ctx) {
+  return [ctx] { return ctx->IsCancelled() || ctx->deadline() < std::chrono::system_clock::now(); };
+}
+
+absl::Status CheckEpsilon(double eps) {
+  if (!(eps >= 1e-6 && eps <= 0.5)) {
+    return absl::InvalidArgumentError(absl::StrFormat("epsilon %g is outside [1e-6, 0.5]", eps));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+template <typename Body>
+grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ctx,
+                                     const std::string& mesh, bool is_query, Body body) {
+  const auto start = std::chrono::steady_clock::now();
+  grpc::Status status;
+  if (is_query && inflight_.fetch_add(1) >= limits_.max_inflight) {
+    inflight_.fetch_sub(1);
+    status =
+        grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                     absl::StrFormat("server overloaded: %d queries running; retry with backoff",
+                                     limits_.max_inflight));
+  } else {
+    if (is_query) metrics_->SetQueueDepth(inflight_.load());
+    status = ToGrpc(body());
+    if (is_query) inflight_.fetch_sub(1);
+  }
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  metrics_->Record(method, CodeName(status.error_code()), seconds);
+  if (limits_.log_requests) {
+    std::fprintf(stderr, "geodesicd: method=%s mesh=%s code=%s ms=%.3f peer=%s%s%s\n", method,
+                 mesh.c_str(), CodeName(status.error_code()), 1e3 * seconds, ctx->peer().c_str(),
+                 status.ok() ? "" : " error=", status.error_message().c_str());
+  }
+  return status;
+}
+
+namespace {
+
+void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
+  out->set_name(m.name);
+  out->set_fingerprint(absl::StrFormat("%016x", m.fingerprint));
+  out->set_source(m.source);
+  auto* d = out->mutable_diagnostics();
+  d->set_vertices(m.diagnostics.vertices);
+  d->set_faces(m.diagnostics.faces);
+  d->set_edges(m.diagnostics.edges);
+  d->set_components(m.diagnostics.components);
+  d->set_boundary_loops(m.diagnostics.boundary_loops);
+  d->set_genus(m.diagnostics.genus);
+  d->set_isolated_vertices(m.diagnostics.isolated_vertices);
+  d->set_non_manifold_vertices(m.diagnostics.non_manifold_vertices);
+  d->set_bbox_diagonal(m.diagnostics.bbox_diagonal);
+  d->set_anisotropy_mean(m.diagnostics.anisotropy_mean);
+  d->set_json(m.diagnostics.ToJson());
+}
+
+}  // namespace
+
+grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
+                                           const v1::RegisterMeshRequest* req, v1::Mesh* resp) {
+  return Handle("RegisterMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    auto m = meshes_->RegisterPath(req->name(), req->path());
+    if (!m.ok()) return m.status();
+    FillMesh(**m, resp);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
+                                         grpc::ServerReader<v1::UploadMeshRequest>* reader,
+                                         v1::Mesh* resp) {
+  std::string name, format, bytes;
+  return Handle("UploadMesh", ctx, name, false, [&]() -> absl::Status {
+    v1::UploadMeshRequest chunk;
+    while (reader->Read(&chunk)) {
+      if (!chunk.name().empty()) name = chunk.name();
+      if (!chunk.format().empty()) format = chunk.format();
+      if (bytes.size() + chunk.data().size() > limits_.max_upload_bytes) {
+        return absl::ResourceExhaustedError(absl::StrFormat(
+            "upload exceeds the limit of %u bytes (--max-upload-bytes)", limits_.max_upload_bytes));
+      }
+      bytes += chunk.data();
+    }
+    auto m = meshes_->RegisterBytes(name, format, bytes);
+    if (!m.ok()) return m.status();
+    FillMesh(**m, resp);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::ListMeshes(grpc::ServerContext* ctx, const v1::ListMeshesRequest*,
+                                         v1::ListMeshesResponse* resp) {
+  return Handle("ListMeshes", ctx, "", false, [&]() -> absl::Status {
+    for (const auto& m : meshes_->List()) FillMesh(*m, resp->add_meshes());
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::GetMesh(grpc::ServerContext* ctx, const v1::GetMeshRequest* req,
+                                      v1::Mesh* resp) {
+  return Handle("GetMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    auto m = meshes_->Get(req->name());
+    if (!m.ok()) return m.status();
+    FillMesh(**m, resp);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::UnloadMeshRequest* req,
+                                         v1::UnloadMeshResponse*) {
+  return Handle("UnloadMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    absl::Status s = meshes_->Remove(req->name());
+    if (s.ok()) graphs_->DropMesh(req->name());
+    return s;
+  });
+}
+
+grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
+                                           const v1::RequestGraphRequest* req, v1::Graph* resp) {
+  return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
+    const double eps = Epsilon(req->epsilon());
+    absl::Status s = CheckEpsilon(eps);
+    if (!s.ok()) return s;
+    auto m = meshes_->Get(req->mesh());
+    if (!m.ok()) return m.status();
+    ToProto(graphs_->Request(*m, eps, req->pseudo_vertices()), resp);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
+                                       v1::Graph* resp) {
+  return Handle("GetGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
+    auto g = graphs_->Get(req->mesh(), Epsilon(req->epsilon()));
+    if (!g.ok()) return g.status();
+    ToProto(*g, resp);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
+                                         grpc::ServerWriter<v1::Graph>* writer) {
+  return Handle("WatchGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
+    const double eps = Epsilon(req->epsilon());
+    auto g = graphs_->Get(req->mesh(), eps);
+    while (g.ok()) {
+      v1::Graph out;
+      ToProto(*g, &out);
+      if (!writer->Write(out)) return absl::CancelledError("client went away");
+      if (g->state != GraphState::kQueued && g->state != GraphState::kBuilding &&
+          g->state != GraphState::kLoading) {
+        return absl::OkStatus();
+      }
+      if (Cancelled(ctx)()) return absl::CancelledError("watch cancelled");
+      g = graphs_->WaitForChange(req->mesh(), eps, g->version, absl::Now() + absl::Seconds(1));
+    }
+    return g.status();
+  });
+}
+
+grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
+                                          const v1::CancelGraphRequest* req, v1::Graph* resp) {
+  return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
+    auto g = graphs_->Cancel(req->mesh(), Epsilon(req->epsilon()));
+    if (!g.ok()) return g.status();
+    ToProto(*g, resp);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::ListGraphs(grpc::ServerContext* ctx, const v1::ListGraphsRequest*,
+                                         v1::ListGraphsResponse* resp) {
+  return Handle("ListGraphs", ctx, "", false, [&]() -> absl::Status {
+    for (const auto& g : graphs_->List()) ToProto(g, resp->add_graphs());
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
+                                            const v1::DistanceFieldRequest* req,
+                                            grpc::ServerWriter<v1::DistanceFieldChunk>* writer) {
+  return Handle("DistanceField", ctx, req->mesh(), true, [&]() -> absl::Status {
+    if (req->sources_size() == 0) return absl::InvalidArgumentError("a field needs a source");
+    if (req->sources_size() > limits_.max_sources) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "%d sources exceed the limit of %d per field", req->sources_size(), limits_.max_sources));
+    }
+    const double eps = Epsilon(req->epsilon());
+    if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
+    auto engine = graphs_->Acquire(req->mesh(), eps);
+    if (!engine.ok()) return engine.status();
+    const Mesh& mesh = (*engine)->mesh();
+    std::vector<SurfacePoint> sources;
+    for (int i = 0; i < req->sources_size(); ++i) {
+      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
+      if (!p.ok()) return p.status();
+      sources.push_back(*p);
+    }
+    FieldOptions options;
+    options.method =
+        req->method() == "dijkstra" ? FieldMethod::kDijkstra : FieldMethod::kLabelCorrecting;
+    if (!req->method().empty() && req->method() != "lc" && req->method() != "dijkstra") {
+      return absl::InvalidArgumentError("method must be \"lc\" or \"dijkstra\"");
+    }
+    if (req->max_distance() > 0) options.max_distance = req->max_distance();
+    options.nearest_source = req->nearest_source();
+    options.cancelled = Cancelled(ctx);
+    for (uint32_t t : req->targets()) {
+      if (t >= mesh.num_vertices()) {
+        return absl::OutOfRangeError(absl::StrFormat(
+            "target vertex %u is out of range: the mesh has %u vertices", t, mesh.num_vertices()));
+      }
+    }
+    auto field = (*engine)->Field(sources, options);
+    if (!field.ok()) return field.status();
+    std::vector<uint32_t> order(req->targets().begin(), req->targets().end());
+    const size_t total = order.empty() ? field->distance.size() : order.size();
+    for (size_t offset = 0; offset < total || offset == 0; offset += limits_.field_chunk) {
+      v1::DistanceFieldChunk chunk;
+      if (offset == 0) {
+        chunk.mutable_echo()->set_mesh(req->mesh());
+        chunk.mutable_echo()->set_epsilon(eps);
+        chunk.mutable_echo()->set_method(options.method == FieldMethod::kDijkstra ? "dijkstra"
+                                                                                  : "lc");
+      }
+      chunk.set_offset(offset);
+      chunk.set_total(total);
+      const size_t end = std::min(total, offset + limits_.field_chunk);
+      for (size_t i = offset; i < end; ++i) {
+        const uint32_t v = order.empty() ? i : order[i];
+        if (req->float32()) {
+          chunk.add_values_f32(static_cast<float>(field->distance[v]));
+        } else {
+          chunk.add_values(field->distance[v]);
+        }
+        if (req->nearest_source()) chunk.add_nearest_source(field->nearest_source[v]);
+      }
+      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      if (total == 0) break;
+    }
+    return absl::OkStatus();
+  });
+}
+
+namespace {
+
+void FillPath(const GeodesicPath& path, v1::Path* out) {
+  out->set_length(path.length);
+  for (const PathPoint& p : path.points) {
+    auto* q = out->add_points();
+    *q->mutable_point() = ToProto(p.point);
+    q->mutable_xyz()->set_x(p.xyz.x);
+    q->mutable_xyz()->set_y(p.xyz.y);
+    q->mutable_xyz()->set_z(p.xyz.z);
+  }
+}
+
+}  // namespace
+
+grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::DistanceRequest* req,
+                                       v1::DistanceResponse* resp) {
+  return Handle("Distance", ctx, req->mesh(), true, [&]() -> absl::Status {
+    if (req->pairs_size() > limits_.max_pairs) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
+    }
+    const double eps = Epsilon(req->epsilon());
+    if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
+    auto engine = graphs_->Acquire(req->mesh(), eps);
+    if (!engine.ok()) return engine.status();
+    const Mesh& mesh = (*engine)->mesh();
+    resp->mutable_echo()->set_mesh(req->mesh());
+    resp->mutable_echo()->set_epsilon(eps);
+    resp->mutable_echo()->set_method("bidirectional-astar");
+    PairOptions options;
+    options.want_path = req->with_path();
+    options.cancelled = Cancelled(ctx);
+    for (int i = 0; i < req->pairs_size(); ++i) {
+      auto a = FromProto(req->pairs(i).from(), mesh, absl::StrFormat("pair %d, from", i));
+      if (!a.ok()) return a.status();
+      auto b = FromProto(req->pairs(i).to(), mesh, absl::StrFormat("pair %d, to", i));
+      if (!b.ok()) return b.status();
+      auto r = (*engine)->Distance(*a, *b, options);
+      if (!r.ok()) return r.status();
+      auto* out = resp->add_results();
+      out->set_distance(r->distance);
+      out->set_reachable(r->distance < kInfinity);
+      if (r->path) FillPath(*r->path, out->mutable_path());
+    }
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
+                                     v1::MatrixResponse* resp) {
+  return Handle("Matrix", ctx, req->mesh(), true, [&]() -> absl::Status {
+    if (req->sources_size() > limits_.max_sources || req->targets_size() > limits_.max_pairs) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
+          req->targets_size(), limits_.max_sources, limits_.max_pairs));
+    }
+    const double eps = Epsilon(req->epsilon());
+    if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
+    auto engine = graphs_->Acquire(req->mesh(), eps);
+    if (!engine.ok()) return engine.status();
+    const Mesh& mesh = (*engine)->mesh();
+    std::vector<SurfacePoint> sources, targets;
+    for (int i = 0; i < req->sources_size(); ++i) {
+      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
+      if (!p.ok()) return p.status();
+      sources.push_back(*p);
+    }
+    for (int i = 0; i < req->targets_size(); ++i) {
+      auto p = FromProto(req->targets(i), mesh, absl::StrFormat("target %d", i));
+      if (!p.ok()) return p.status();
+      targets.push_back(*p);
+    }
+    auto m = (*engine)->Matrix(sources, targets, Cancelled(ctx));
+    if (!m.ok()) return m.status();
+    resp->mutable_echo()->set_mesh(req->mesh());
+    resp->mutable_echo()->set_epsilon(eps);
+    resp->mutable_echo()->set_method("lc");
+    resp->set_rows(sources.size());
+    resp->set_cols(targets.size());
+    for (double d : *m) resp->add_distances(d);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapRequest* req,
+                                   v1::SnapResponse* resp) {
+  return Handle("Snap", ctx, req->mesh(), true, [&]() -> absl::Status {
+    if (req->positions_size() > limits_.max_pairs) {
+      return absl::ResourceExhaustedError("too many positions in one call");
+    }
+    auto m = meshes_->Get(req->mesh());
+    if (!m.ok()) return m.status();
+    for (const auto& p : req->positions()) {
+      auto s = (*m)->locator->Snap({p.x(), p.y(), p.z()});
+      if (!s.ok()) return s.status();
+      *resp->add_points() = ToProto(*s);
+    }
+    return absl::OkStatus();
+  });
+}
+
+}  // namespace geodesic::server

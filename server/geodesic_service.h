@@ -1,0 +1,72 @@
+// The geodesic.v1.Geodesic gRPC service: thin handlers over the mesh
+// registry, the graph cache and core queries.
+#ifndef GEODESIC_SERVER_GEODESIC_SERVICE_H_
+#define GEODESIC_SERVER_GEODESIC_SERVICE_H_
+
+#include <atomic>
+
+#include "geodesic/v1/geodesic.grpc.pb.h"
+#include "server/graph_cache.h"
+#include "server/mesh_registry.h"
+#include "server/metrics.h"
+
+namespace geodesic::server {
+
+struct ServiceLimits {
+  double default_epsilon = 1e-3;
+  int max_inflight = 64;   // queries running at once; beyond: RESOURCE_EXHAUSTED
+  int max_pairs = 10000;   // pairs per Distance call
+  int max_sources = 1024;  // sources per field, rows/cols per matrix
+  uint64_t max_upload_bytes = uint64_t{256} << 20;
+  int field_chunk = 65536;  // values per streamed chunk
+  bool log_requests = true;
+};
+
+class GeodesicService final : public v1::Geodesic::Service {
+ public:
+  GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics, ServiceLimits limits)
+      : meshes_(meshes), graphs_(graphs), metrics_(metrics), limits_(limits) {}
+
+  grpc::Status RegisterMesh(grpc::ServerContext*, const v1::RegisterMeshRequest*,
+                            v1::Mesh*) override;
+  grpc::Status UploadMesh(grpc::ServerContext*, grpc::ServerReader<v1::UploadMeshRequest>*,
+                          v1::Mesh*) override;
+  grpc::Status ListMeshes(grpc::ServerContext*, const v1::ListMeshesRequest*,
+                          v1::ListMeshesResponse*) override;
+  grpc::Status GetMesh(grpc::ServerContext*, const v1::GetMeshRequest*, v1::Mesh*) override;
+  grpc::Status UnloadMesh(grpc::ServerContext*, const v1::UnloadMeshRequest*,
+                          v1::UnloadMeshResponse*) override;
+  grpc::Status RequestGraph(grpc::ServerContext*, const v1::RequestGraphRequest*,
+                            v1::Graph*) override;
+  grpc::Status GetGraph(grpc::ServerContext*, const v1::GetGraphRequest*, v1::Graph*) override;
+  grpc::Status WatchGraph(grpc::ServerContext*, const v1::GetGraphRequest*,
+                          grpc::ServerWriter<v1::Graph>*) override;
+  grpc::Status CancelGraph(grpc::ServerContext*, const v1::CancelGraphRequest*,
+                           v1::Graph*) override;
+  grpc::Status ListGraphs(grpc::ServerContext*, const v1::ListGraphsRequest*,
+                          v1::ListGraphsResponse*) override;
+  grpc::Status DistanceField(grpc::ServerContext*, const v1::DistanceFieldRequest*,
+                             grpc::ServerWriter<v1::DistanceFieldChunk>*) override;
+  grpc::Status Distance(grpc::ServerContext*, const v1::DistanceRequest*,
+                        v1::DistanceResponse*) override;
+  grpc::Status Matrix(grpc::ServerContext*, const v1::MatrixRequest*, v1::MatrixResponse*) override;
+  grpc::Status Snap(grpc::ServerContext*, const v1::SnapRequest*, v1::SnapResponse*) override;
+
+ private:
+  template <typename Body>
+  grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
+                      bool is_query, Body body);
+  double Epsilon(double requested) const {
+    return requested > 0 ? requested : limits_.default_epsilon;
+  }
+
+  MeshRegistry* meshes_;
+  GraphCache* graphs_;
+  Metrics* metrics_;
+  ServiceLimits limits_;
+  std::atomic<int> inflight_{0};
+};
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_GEODESIC_SERVICE_H_

@@ -1,0 +1,58 @@
+// The meshes a daemon knows, by name: loaded once, immutable, shared.
+#ifndef GEODESIC_SERVER_MESH_REGISTRY_H_
+#define GEODESIC_SERVER_MESH_REGISTRY_H_
+
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "absl/base/thread_annotations.h"
+#include "absl/status/statusor.h"
+#include "absl/synchronization/mutex.h"
+#include "core/mesh.h"
+#include "core/mesh_io.h"
+#include "core/surface_locator.h"
+
+namespace geodesic::server {
+
+struct RegisteredMesh {
+  std::string name;
+  std::string source;  // path, or "upload"
+  uint64_t fingerprint = 0;
+  std::shared_ptr<const Mesh> mesh;
+  MeshDiagnostics diagnostics;
+  std::shared_ptr<const SurfaceLocator> locator;
+};
+
+class MeshRegistry {
+ public:
+  explicit MeshRegistry(std::string mesh_root) : mesh_root_(std::move(mesh_root)) {}
+
+  // `relative_path` must stay inside the mesh root once symbolic links are
+  // resolved (PERMISSION_DENIED otherwise).
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterPath(
+      const std::string& name, const std::string& relative_path);
+  // Registers an absolute path the operator chose (the bundled sample).
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterTrustedPath(
+      const std::string& name, const std::string& path);
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterBytes(const std::string& name,
+                                                                      const std::string& format,
+                                                                      const std::string& bytes);
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;
+  std::vector<std::shared_ptr<const RegisteredMesh>> List() const;
+  absl::Status Remove(const std::string& name);
+
+  static absl::Status ValidateName(const std::string& name);
+
+ private:
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Insert(std::shared_ptr<RegisteredMesh> m);
+
+  const std::string mesh_root_;
+  mutable absl::Mutex mu_;
+  std::map<std::string, std::shared_ptr<const RegisteredMesh>> meshes_ ABSL_GUARDED_BY(mu_);
+};
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_MESH_REGISTRY_H_

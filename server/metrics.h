@@ -1,0 +1,60 @@
+// Prometheus text metrics for the daemon, served over HTTP.
+#ifndef GEODESIC_SERVER_METRICS_H_
+#define GEODESIC_SERVER_METRICS_H_
+
+#include <array>
+#include <atomic>
+#include <functional>
+#include <map>
+#include <memory>
+#include <string>
+#include <thread>
+
+#include "absl/base/thread_annotations.h"
+#include "absl/synchronization/mutex.h"
+
+namespace geodesic::server {
+
+class Metrics {
+ public:
+  // Records one finished request.
+  void Record(const std::string& method, const std::string& code, double seconds);
+  void SetQueueDepth(int depth) { queue_depth_ = depth; }
+  // Gauges read when the page is rendered (resident bytes, builds, ...).
+  void AddGauge(const std::string& name, const std::string& help, std::function<double()> read);
+  std::string Render() const;
+
+ private:
+  static constexpr std::array<double, 12> kBuckets = {0.0005, 0.001, 0.002, 0.005, 0.01, 0.02,
+                                                      0.05,   0.1,   0.2,   0.5,   1,    5};
+  struct Histogram {
+    std::array<uint64_t, kBuckets.size()> buckets{};
+    uint64_t count = 0;
+    double sum = 0;
+  };
+  mutable absl::Mutex mu_;
+  std::map<std::pair<std::string, std::string>, uint64_t> requests_ ABSL_GUARDED_BY(mu_);
+  std::map<std::string, Histogram> latency_ ABSL_GUARDED_BY(mu_);
+  struct Gauge {
+    std::string help;
+    std::function<double()> read;
+  };
+  std::map<std::string, Gauge> gauges_ ABSL_GUARDED_BY(mu_);
+  std::atomic<int> queue_depth_{0};
+};
+
+// Serves GET /metrics on host:port in a background thread until destroyed.
+class MetricsHttpServer {
+ public:
+  static std::unique_ptr<MetricsHttpServer> Start(const std::string& address,
+                                                  const Metrics* metrics, std::string* error);
+  ~MetricsHttpServer();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_METRICS_H_

@@ -1,0 +1,198 @@
+// geodesicd serve: the daemon.
+#include <signal.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <condition_variable>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <mutex>
+#include <thread>
+
+#include "CLI/CLI.hpp"
+#include "absl/strings/str_format.h"
+#include "grpcpp/ext/proto_server_reflection_plugin.h"
+#include "grpcpp/grpcpp.h"
+#include "grpcpp/health_check_service_interface.h"
+#include "server/geodesic_service.h"
+#include "server/serve.h"
+
+namespace geodesic::server {
+namespace {
+
+std::atomic<bool> g_stop{false};
+void OnSignal(int) { g_stop = true; }
+
+std::string DefaultGraphDir() {
+  if (const char* xdg = std::getenv("XDG_CACHE_HOME"); xdg && *xdg) {
+    return std::string(xdg) + "/geodesicd";
+  }
+  if (const char* home = std::getenv("HOME"); home && *home) {
+    return std::string(home) + "/.cache/geodesicd";
+  }
+  return "/tmp/geodesicd-graphs";
+}
+
+// The bundled sample mesh: GEODESIC_DATA_DIR, or data/ next to the source
+// tree the binary was built from (build/bin/../../data), or an install path.
+std::string FindSampleMesh(const char* argv0) {
+  std::vector<std::filesystem::path> candidates;
+  if (const char* dir = std::getenv("GEODESIC_DATA_DIR"); dir && *dir) {
+    candidates.push_back(std::filesystem::path(dir) / "spot.obj");
+  }
+  std::error_code ec;
+  auto exe = std::filesystem::read_symlink("/proc/self/exe", ec);
+  if (ec) exe = argv0;
+  candidates.push_back(exe.parent_path() / "../../data/spot.obj");
+  candidates.push_back(exe.parent_path() / "../share/geodesicd/spot.obj");
+  candidates.push_back("/usr/share/geodesicd/spot.obj");
+  for (const auto& c : candidates) {
+    if (std::filesystem::exists(c)) return std::filesystem::weakly_canonical(c).string();
+  }
+  return "";
+}
+
+std::string ServiceName(const std::string& mesh, double epsilon) {
+  return absl::StrFormat("geodesic.v1.Geodesic/%s@%g", mesh, epsilon);
+}
+
+}  // namespace
+
+int RunServe(int argc, char** argv) {
+  CLI::App app{"Serve geodesic queries over gRPC", "geodesicd serve"};
+  std::string listen = "127.0.0.1:50051", graph_dir = DefaultGraphDir(), mesh_root, metrics_listen,
+              log_level = "info", sample;
+  uint64_t memory_limit = 0;
+  int build_threads = 0, build_workers = 1, query_threads = 0;
+  ServiceLimits limits;
+  bool no_sample = false;
+  double drain_seconds = 10;
+  app.add_option("--listen", listen, "address to serve gRPC on (HOST:PORT)");
+  app.add_option("--graph-dir", graph_dir, "where graphs are written and mapped from");
+  app.add_option("--mesh-root", mesh_root, "RegisterMesh paths must lie under this directory");
+  app.add_option("--memory-limit", memory_limit, "bytes of ready graphs to keep (0: no limit)");
+  app.add_option("--build-threads", build_threads, "threads per graph build (0: all cores)");
+  app.add_option("--build-workers", build_workers, "graphs built at once");
+  app.add_option("--query-threads", query_threads,
+                 "gRPC worker threads (0: max(16, 4 x cores)); beyond them calls get "
+                 "RESOURCE_EXHAUSTED");
+  app.add_option("--max-inflight", limits.max_inflight,
+                 "queries running at once before RESOURCE_EXHAUSTED");
+  app.add_option("--max-pairs", limits.max_pairs, "pairs per Distance call");
+  app.add_option("--max-sources", limits.max_sources, "sources per field");
+  app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
+  app.add_option("--default-epsilon", limits.default_epsilon, "epsilon when a request gives none");
+  app.add_option("--metrics-listen", metrics_listen, "serve Prometheus metrics on HOST:PORT");
+  app.add_option("--log-level", log_level, "info (one line per request) or warning")
+      ->check(CLI::IsMember({"info", "warning"}));
+  app.add_option("--sample-mesh", sample, "mesh registered as 'spot' at start (default: bundled)");
+  app.add_flag("--no-sample", no_sample, "do not register the bundled sample mesh");
+  app.add_option("--drain-seconds", drain_seconds, "grace period for running calls at shutdown");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  limits.log_requests = log_level == "info";
+  if (mesh_root.empty() && !no_sample) {
+    // With no --mesh-root, clients may register the bundled meshes.
+    std::string found = FindSampleMesh(argv[0]);
+    if (!found.empty()) mesh_root = std::filesystem::path(found).parent_path().string();
+  }
+
+  Metrics metrics;
+  std::unique_ptr<grpc::Server> server;
+  grpc::HealthCheckServiceInterface* health = nullptr;
+  std::mutex health_mu;
+  GraphCache::Options cache_options;
+  cache_options.graph_dir = graph_dir;
+  cache_options.memory_limit = memory_limit;
+  cache_options.build_workers = build_workers;
+  cache_options.build_threads = build_threads;
+  cache_options.on_readiness = [&](const std::string& mesh, double eps, bool ready) {
+    std::lock_guard<std::mutex> lock(health_mu);
+    if (health) health->SetServingStatus(ServiceName(mesh, eps), ready);
+  };
+  GraphCache graphs(cache_options);
+  MeshRegistry meshes(mesh_root);
+  metrics.AddGauge("geodesicd_graph_resident_bytes", "Bytes of graphs built in memory.",
+                   [&] { return double(graphs.resident_bytes()); });
+  metrics.AddGauge("geodesicd_graph_mapped_bytes", "Bytes of memory-mapped graphs.",
+                   [&] { return double(graphs.mapped_bytes()); });
+  metrics.AddGauge("geodesicd_builds_running", "Graph builds running.",
+                   [&] { return double(graphs.builds_running()); });
+  metrics.AddGauge("geodesicd_cache_hits", "Queries that found their graph ready.",
+                   [&] { return double(graphs.hits()); });
+  metrics.AddGauge("geodesicd_cache_misses", "Queries whose graph was not ready.",
+                   [&] { return double(graphs.misses()); });
+
+  GeodesicService service(&meshes, &graphs, &metrics, limits);
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  int bound_port = 0;
+  builder.AddListeningPort(listen, grpc::InsecureServerCredentials(), &bound_port);
+  builder.RegisterService(&service);
+  builder.SetMaxReceiveMessageSize(64 << 20);
+  builder.SetMaxSendMessageSize(64 << 20);
+  grpc::ResourceQuota quota("geodesicd");
+  const int threads = query_threads > 0
+                          ? query_threads
+                          : std::max(16, 4 * static_cast<int>(std::thread::hardware_concurrency()));
+  quota.SetMaxThreads(std::max(4, threads));
+  builder.SetResourceQuota(quota);
+  server = builder.BuildAndStart();
+  if (!server || bound_port == 0) {
+    std::fprintf(stderr, "geodesicd serve: cannot listen on %s\n", listen.c_str());
+    return 1;
+  }
+  {
+    std::lock_guard<std::mutex> lock(health_mu);
+    health = server->GetHealthCheckService();
+    health->SetServingStatus("", true);
+    health->SetServingStatus("geodesic.v1.Geodesic", true);
+  }
+  std::unique_ptr<MetricsHttpServer> metrics_http;
+  if (!metrics_listen.empty()) {
+    std::string error;
+    metrics_http = MetricsHttpServer::Start(metrics_listen, &metrics, &error);
+    if (!metrics_http) {
+      std::fprintf(stderr, "geodesicd serve: %s\n", error.c_str());
+      return 1;
+    }
+  }
+  std::fprintf(stderr, "geodesicd: serving on %s (port %d), graphs in %s, mesh root %s\n",
+               listen.c_str(), bound_port, graph_dir.c_str(),
+               mesh_root.empty() ? "(none)" : mesh_root.c_str());
+  if (!no_sample) {
+    std::string path = sample.empty() ? FindSampleMesh(argv[0]) : sample;
+    if (path.empty()) {
+      std::fprintf(stderr, "geodesicd: bundled sample mesh not found (set GEODESIC_DATA_DIR)\n");
+    } else {
+      auto m = meshes.RegisterTrustedPath("spot", path);
+      if (m.ok()) {
+        graphs.Request(*m, limits.default_epsilon, false);
+        std::fprintf(stderr, "geodesicd: registered sample mesh 'spot' from %s\n", path.c_str());
+      } else {
+        std::fprintf(stderr, "geodesicd: sample mesh: %s\n",
+                     std::string(m.status().message()).c_str());
+      }
+    }
+  }
+  signal(SIGTERM, OnSignal);
+  signal(SIGINT, OnSignal);
+  while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  std::fprintf(stderr, "geodesicd: shutting down (draining up to %.0f s)\n", drain_seconds);
+  {
+    std::lock_guard<std::mutex> lock(health_mu);
+    health->SetServingStatus("", false);
+  }
+  server->Shutdown(std::chrono::system_clock::now() +
+                   std::chrono::milliseconds(static_cast<int64_t>(drain_seconds * 1000)));
+  // Graph writes are atomic (temp + rename): an interrupted build leaves no
+  // file a restart would trust. The cache's destructor cancels and joins.
+  return 0;
+}
+
+}  // namespace geodesic::server
