@@ -1,17 +1,24 @@
 #!/usr/bin/env bash
-# The README's first command: set up, build, and run the main job on the
-# bundled sample mesh (data/spot.obj).
+# The README's first command: set up and build, start the daemon on the
+# bundled sample mesh (data/spot.obj), query it with the CLI, stop it.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
-out=$(mktemp -d)
-trap 'rm -rf "$out"' EXIT
-echo "== mesh diagnostics"
-build/bin/geodesicd info data/spot.obj
-echo "== building the discrete geodesic graph (eps 1e-3)"
-build/bin/geodesicd build data/spot.obj --eps 1e-3 --out "$out/spot.dgg"
+port=${GEODESIC_PORT:-50051}
+work=$(mktemp -d)
+build/bin/geodesicd serve --listen "127.0.0.1:$port" --graph-dir "$work/graphs" \
+  --log-level warning &
+daemon=$!
+trap 'kill "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; rm -rf "$work"' EXIT
+geodesic() { build/bin/geodesic --server "127.0.0.1:$port" "$@"; }
+for _ in $(seq 50); do geodesic meshes >/dev/null 2>&1 && break; sleep 0.2; done
+echo "== meshes"
+geodesic meshes
+echo "== graph of the sample mesh at eps 1e-3 (built in the background)"
+geodesic graph --wait
+echo "== distance and geodesic path between a point inside face 0 and vertex 1500"
+geodesic path --from f:0:0.2,0.3,0.5 --to v:1500
 echo "== distance field from vertex 0"
-build/bin/geodesicd field --mesh data/spot.obj --graph "$out/spot.dgg" --source v:0 --out "$out/field.f64"
-echo "== point-to-point distance and path between two surface points"
-build/bin/geodesicd distance --mesh data/spot.obj --graph "$out/spot.dgg" \
-  --from f:0:0.2,0.3,0.5 --to v:1500 --path
+geodesic field --source v:0 --out "$work/field.f64"
+echo "== 2000 random point-to-point queries from 4 clients"
+geodesic bench --count 2000 --concurrency 4

@@ -1,0 +1,92 @@
+#!/usr/bin/env bash
+# End-to-end: a real daemon on 127.0.0.1 (a free port), driven by the CLI.
+# Usage: e2e_test.sh BUILD_BIN_DIR SOURCE_DIR
+set -uo pipefail
+bin=$1
+src=$2
+work=$(mktemp -d)
+failures=0
+passes=0
+port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+daemon=
+start_daemon() {
+  "$bin/geodesicd" serve --listen "127.0.0.1:$port" --graph-dir "$work/graphs" \
+    --mesh-root "$src/data" --log-level warning "$@" 2>>"$work/daemon.log" &
+  daemon=$!
+  for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && return 0; sleep 0.1; done
+  echo "daemon did not start"; cat "$work/daemon.log"; exit 1
+}
+stop_daemon() { kill -TERM "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; }
+trap 'stop_daemon; rm -rf "$work"' EXIT
+cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$port" "$@"; }
+check() {  # check NAME COMMAND...: passes when the command succeeds
+  local name=$1; shift
+  if "$@"; then passes=$((passes + 1)); echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
+}
+json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
+
+start_daemon
+check "sample mesh registered" test "$(cli --json meshes | json 'd[0]["name"]')" = spot
+state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
+check "graph builds to ready" test "$state" = ready
+graph=$(ls "$work"/graphs/*eps0.01.dgg)
+check "graph persisted atomically (no temp files)" test "$(ls "$work/graphs" | grep -c tmp)" = 0
+
+# Query results equal the offline core results on the same graph file.
+cli --json --eps 0.01 distance --from f:10:0.2,0.3,0.5 --to v:2000 > "$work/d_daemon.json"
+"$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$graph" \
+  --from f:10:0.2,0.3,0.5 --to v:2000 --json > "$work/d_offline.json"
+d1=$(json 'd[0]["distance"]' < "$work/d_daemon.json")
+d2=$(json 'd["distance"]' < "$work/d_offline.json")
+check "distance equals the offline result ($d1)" test "$d1" = "$d2"
+cli --eps 0.01 field --source v:7 --out "$work/f_daemon.f64" >/dev/null
+"$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$graph" --source v:7 --out "$work/f_offline.f64" >/dev/null
+check "streamed field equals the offline field" cmp -s "$work/f_daemon.f64" "$work/f_offline.f64"
+plen=$(cli --json --eps 0.01 path --from v:1 --to v:2500 | json 'len(d[0]["path"])')
+check "path has points ($plen)" test "$plen" -gt 2
+
+# Bad requests get precise codes and the daemon keeps serving.
+cli --eps 0.01 distance --from v:999999 --to v:1 2>"$work/e1"; check "vertex id too large" grep -q OUT_OF_RANGE "$work/e1"
+cli --eps 0.01 distance --from f:1:0.5,0.6,0.1 --to v:1 2>"$work/e2"; check "barycentrics not summing to 1" grep -q INVALID_ARGUMENT "$work/e2"
+cli --mesh nosuch distance --from v:1 --to v:2 2>"$work/e3"; check "unknown mesh" grep -q NOT_FOUND "$work/e3"
+cli --mesh evil load ../../../etc/passwd 2>"$work/e4"; check "path outside the mesh root" grep -q PERMISSION_DENIED "$work/e4"
+cli --eps 2 graph 2>"$work/e5"; check "epsilon out of range" grep -q INVALID_ARGUMENT "$work/e5"
+printf 'OFF\n3 1 0\n0 0 0\n1 0 0\n' > "$work/broken.off"
+cli --mesh broken load --upload "$work/broken.off" 2>"$work/e6"; check "truncated upload rejected" grep -q INVALID_ARGUMENT "$work/e6"
+check "still serving after bad requests" cli meshes >/dev/null
+
+# Concurrent clients.
+failed=$(cli --json --eps 0.01 bench --concurrency 4 --count 400 | json 'd["failed"]')
+check "concurrent queries all succeed" test "$failed" = 0
+
+# Upload, then cancel a long build.
+cli --mesh bigger load --upload "$src/data/spot.obj" >/dev/null
+cli --mesh bigger --eps 0.0001 graph >/dev/null
+sleep 0.5
+cli --mesh bigger --eps 0.0001 graph --cancel >/dev/null
+for _ in $(seq 100); do
+  s=$(cli --json status | json '[g["state"] for g in d if g["epsilon"]==0.0001][0]')
+  [ "$s" = cancelled ] && break; sleep 0.1
+done
+check "build cancelled" test "$s" = cancelled
+
+# Restart: the graph is mapped again from the graph directory, not rebuilt.
+stop_daemon
+start_daemon
+from_file=$(cli --json --eps 0.01 graph --wait | json 'd["from_file"]')
+check "graph mapped again after restart" test "$from_file" = True
+
+# Eviction under a small memory budget: the least recently used graph goes,
+# and comes back (mapped from its file) on the next request.
+stop_daemon
+start_daemon --memory-limit 1
+cli --eps 0.01 graph --wait >/dev/null
+cli --eps 0.02 graph --wait >/dev/null
+s=$(cli --json status | json '[g["state"] for g in d if g["epsilon"]==0.01][0]')
+check "least recently used graph evicted" test "$s" = evicted
+cli --eps 0.01 distance --from v:1 --to v:2 2>"$work/e7"; check "evicted graph answers UNAVAILABLE" grep -q UNAVAILABLE "$work/e7"
+state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
+check "evicted graph comes back" test "$state" = ready
+
+echo "$passes passed, $failures failed"
+[ "$failures" = 0 ]
