@@ -146,59 +146,75 @@ std::string Extension(const std::string& path) {
 // OpenMesh parses ASCII coordinates as float (24-bit mantissa), moving
 // vertices by up to 6e-8 relative, so exact distances would disagree with
 // tools that read doubles. For the ASCII formats we read the coordinates
-// again in double precision; counts must agree with what OpenMesh read.
-absl::Status RefineAsciiCoordinates(const std::string& path, const std::string& format,
-                                    TriangleSoup* soup) {
+// again in double precision (and check them: OpenMesh silently skips a vertex
+// line it cannot parse, which would shift every later id).
+struct AsciiVertices {
+  bool available = false;
+  std::vector<Vec3> positions;
+};
+
+absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const std::string& name,
+                                                const std::string& format) {
+  AsciiVertices out;
   std::ifstream in(path);
-  if (!in) return absl::OkStatus();
+  if (!in || (format != "obj" && format != "off")) return out;
   std::string line;
-  size_t next = 0;
-  auto take = [&](std::istringstream& fields) {
-    double x, y, z;
-    if (next < soup->positions.size() && (fields >> x >> y >> z)) soup->positions[next] = {x, y, z};
-    ++next;
+  size_t line_number = 0;
+  auto take = [&](const std::string& text) -> absl::Status {
+    std::istringstream fields(text);
+    std::string t[3];
+    fields >> t[0] >> t[1] >> t[2];
+    double x[3];
+    for (int k = 0; k < 3; ++k) {
+      char* end = nullptr;
+      x[k] = std::strtod(t[k].c_str(), &end);
+      if (t[k].empty() || *end != '\0' || !std::isfinite(x[k])) {
+        return absl::InvalidArgumentError(
+            absl::StrFormat("%s line %u: vertex %u has a bad coordinate '%s'", name, line_number,
+                            out.positions.size(), t[k]));
+      }
+    }
+    out.positions.push_back({x[0], x[1], x[2]});
+    return absl::OkStatus();
   };
   if (format == "obj") {
     while (std::getline(in, line)) {
+      ++line_number;
       if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
-        std::istringstream fields(line.substr(2));
-        take(fields);
+        absl::Status s = take(line.substr(2));
+        if (!s.ok()) return s;
       }
     }
-  } else if (format == "off") {
-    // Header "OFF" (possibly with counts on the same line), then counts, then
-    // one vertex per line; '#' starts a comment.
-    std::vector<std::string> tokens_needed;
-    size_t nv = 0;
-    bool have_counts = false;
-    std::string header;
-    while (!have_counts && std::getline(in, line)) {
-      auto hash = line.find('#');
-      if (hash != std::string::npos) line.resize(hash);
-      std::istringstream fields(line);
-      std::string word;
-      while (fields >> word) {
-        if (header.empty()) {
-          header = word;
-          if (header.find("OFF") == std::string::npos) return absl::OkStatus();
-          continue;
-        }
-        nv = std::stoull(word);
-        have_counts = true;
-        break;
-      }
-    }
-    if (!have_counts || header != "OFF") return absl::OkStatus();  // variants: keep floats
-    while (next < nv && std::getline(in, line)) {
-      auto hash = line.find('#');
-      if (hash != std::string::npos) line.resize(hash);
-      std::istringstream fields(line);
-      double probe;
-      if (!(std::istringstream(line) >> probe)) continue;  // blank or comment line
-      take(fields);
+    out.available = true;
+    return out;
+  }
+  // OFF: header "OFF" (counts may follow on the same line), counts, then one
+  // vertex per line; '#' starts a comment. Variants (COFF, NOFF, ...) keep
+  // OpenMesh's values.
+  std::vector<std::string> words;
+  size_t nv = 0;
+  bool header_done = false;
+  while (!header_done && std::getline(in, line)) {
+    ++line_number;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    std::istringstream fields(line);
+    std::string word;
+    while (fields >> word) words.push_back(word);
+    if (!words.empty() && words[0] != "OFF") return out;
+    if (words.size() >= 2) {
+      nv = std::strtoull(words[1].c_str(), nullptr, 10);
+      header_done = true;
     }
   }
-  return absl::OkStatus();
+  while (out.positions.size() < nv && std::getline(in, line)) {
+    ++line_number;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    absl::Status s = take(line);
+    if (!s.ok()) return s;
+  }
+  out.available = out.positions.size() == nv;
+  return out;
 }
 
 // Counts the file declares, where the format declares them.
@@ -257,6 +273,8 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
         absl::StrFormat("%s declares %u vertices and %u faces, more than its %u bytes can hold",
                         name, declared.vertices, declared.faces, bytes));
   }
+  // Bad coordinates are reported by line before OpenMesh skips them.
+  ASSIGN_OR_RETURN(AsciiVertices ascii, ScanAsciiVertices(path, name, format));
   TriangleSoup soup;
   SoupImporter importer(&soup);
   OpenMesh::IO::Options options;
@@ -285,7 +303,14 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
   if (soup.positions.empty() && soup.triangles.empty()) {
     return absl::InvalidArgumentError(absl::StrFormat("%s: no vertices or faces", name));
   }
-  RETURN_IF_ERROR(RefineAsciiCoordinates(path, format, &soup));
+  if (ascii.available) {
+    if (ascii.positions.size() != soup.positions.size()) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s: %u vertex lines but %u vertices could be read", name,
+                          ascii.positions.size(), soup.positions.size()));
+    }
+    soup.positions = std::move(ascii.positions);
+  }
   for (size_t v = 0; v < soup.positions.size(); ++v) {
     const Vec3& p = soup.positions[v];
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {

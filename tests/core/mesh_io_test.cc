@@ -1,0 +1,266 @@
+// Mesh loading: the shared meshes load with their manifest's counts and the
+// file's vertex order; diagnostics match the manifest; broken files get
+// precise errors; the half-edge structure is consistent.
+#include "core/mesh_io.h"
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <numbers>
+#include <random>
+#include <sstream>
+
+#include "core/surface_locator.h"
+#include "core/surface_point.h"
+#include "tests/core/test_util.h"
+
+namespace geodesic {
+namespace {
+
+using ::testing::HasSubstr;
+using testing::SharedDataAvailable;
+using testing::SharedPath;
+using testing::TempDir;
+
+struct ManifestRow {
+  const char* file;
+  uint64_t vertices, faces, edges, components, boundary_loops;
+  int64_t genus;
+  uint64_t isolated;
+  double bbox_diagonal;
+};
+
+// From ../shared/meshes/MANIFEST.md.
+const ManifestRow kManifest[] = {
+    {"eight.off", 766, 1536, 2304, 1, 0, 2, 0, 2.898},
+    {"spot.obj", 2930, 5856, 8784, 1, 0, 0, 0, 2.5881},
+    {"blade_aniso.off", 8231, 16222, 24453, 1, 2, 0, 0, 129.57},
+    {"camelhead.off", 11381, 22704, 34084, 1, 1, 0, 0, 1.2477},
+    {"fertility.off", 17827, 35666, 53499, 1, 0, 4, 0, 1.289},
+    {"bunny.ply", 35947, 69451, 104288, 1, 5, 0, 1113, 0.25025},
+    {"armadillo.obj", 49990, 99976, 149964, 1, 0, 0, 0, 228.79},
+    {"igea.ply", 134345, 268686, 403029, 1, 0, 0, 0, 0.1564},
+};
+
+class ManifestTest : public ::testing::TestWithParam<ManifestRow> {};
+
+TEST_P(ManifestTest, LoadsWithManifestCountsAndDiagnostics) {
+  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  const ManifestRow& row = GetParam();
+  MeshDiagnostics d;
+  auto mesh = LoadMesh(SharedPath(std::string("meshes/") + row.file), {}, &d);
+  ASSERT_OK(mesh);
+  EXPECT_EQ(mesh->num_vertices(), row.vertices);
+  EXPECT_EQ(mesh->num_faces(), row.faces);
+  EXPECT_EQ(mesh->num_edges(), row.edges);
+  EXPECT_EQ(d.vertices, row.vertices);
+  EXPECT_EQ(d.faces, row.faces);
+  EXPECT_EQ(d.edges, row.edges);
+  EXPECT_EQ(d.components, row.components);
+  EXPECT_EQ(d.boundary_loops, row.boundary_loops);
+  EXPECT_EQ(d.genus, row.genus);
+  EXPECT_EQ(d.isolated_vertices, row.isolated);
+  EXPECT_EQ(d.non_manifold_edges, 0u);
+  EXPECT_EQ(d.non_manifold_vertices, 0u);
+  EXPECT_EQ(d.duplicate_vertices, 0u);
+  EXPECT_EQ(d.zero_area_faces, 0u);
+  EXPECT_TRUE(d.manifold);
+  EXPECT_NEAR(d.bbox_diagonal, row.bbox_diagonal, 1e-3 * row.bbox_diagonal);
+  EXPECT_OK(mesh->CheckConsistency());
+  // Interior vertices that are not saddles have angle sums of at most 2 pi.
+  for (VertexId v = 0; v < mesh->num_vertices(); v += 101) {
+    if (mesh->is_isolated(v) || mesh->is_boundary(v)) continue;
+    EXPECT_EQ(mesh->is_saddle(v), mesh->total_angle(v) > 2 * std::numbers::pi * (1 + 1e-10));
+  }
+}
+
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, ManifestTest, ::testing::ValuesIn(kManifest),
+                         [](const auto& info) {
+                           std::string name = info.param.file;
+                           for (char& c : name) c = std::isalnum(c) ? c : '_';
+                           return name;
+                         });
+
+// The first and last vertex lines of an OBJ/OFF file, read as text.
+TEST(MeshIoTest, VertexOrderIsTheFileOrder) {
+  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  auto mesh = LoadMesh(SharedPath("meshes/armadillo.obj"));
+  ASSERT_OK(mesh);
+  std::ifstream in(SharedPath("meshes/armadillo.obj"));
+  std::string line;
+  std::vector<Vec3> listed;
+  while (std::getline(in, line)) {
+    if (line.rfind("v ", 0) == 0) {
+      std::istringstream f(line.substr(2));
+      Vec3 p;
+      f >> p.x >> p.y >> p.z;
+      listed.push_back(p);
+    }
+  }
+  ASSERT_EQ(listed.size(), mesh->num_vertices());
+  for (VertexId v : {VertexId{0}, VertexId{1}, VertexId{12345}, VertexId(listed.size() - 1)}) {
+    // Exactly: coordinates are read in double precision.
+    EXPECT_EQ(mesh->position(v), listed[v]) << "vertex " << v;
+  }
+}
+
+TEST(MeshIoTest, MessyOgreDiagnosticsMatchTheManifest) {
+  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  MeshDiagnostics d;
+  auto mesh = LoadMesh(SharedPath("meshes/ogre_messy.obj"), {}, &d);
+  EXPECT_EQ(mesh.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(mesh.status().message()), HasSubstr("non-manifold"));
+  EXPECT_EQ(d.vertices, 62194u);
+  EXPECT_EQ(d.faces, 124008u);
+  EXPECT_EQ(d.edges, 186130u);
+  EXPECT_EQ(d.components, 44u);
+  EXPECT_EQ(d.boundary_loops, 12u);
+  EXPECT_EQ(d.non_manifold_vertices, 3u);
+  EXPECT_EQ(d.duplicate_vertices, 9u);
+  EXPECT_EQ(d.zero_area_faces, 4u);
+  EXPECT_FALSE(d.manifold);
+  LoadOptions repair;
+  repair.repair_non_manifold = true;
+  auto repaired = LoadMesh(SharedPath("meshes/ogre_messy.obj"), repair);
+  ASSERT_OK(repaired);
+  EXPECT_GT(repaired->num_vertices(), 62194u);  // split copies appended
+  EXPECT_OK(repaired->CheckConsistency());
+}
+
+class BrokenFilesTest : public ::testing::Test {
+ protected:
+  std::string Write(const std::string& name, const std::string& content) {
+    std::string path = dir_.File(name);
+    std::ofstream(path, std::ios::binary) << content;
+    return path;
+  }
+  absl::Status Load(const std::string& path) { return LoadMesh(path).status(); }
+  TempDir dir_;
+};
+
+TEST_F(BrokenFilesTest, EachGetsAClearError) {
+  const std::string tri = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  ASSERT_OK(Load(Write("ok.off", tri)));
+
+  absl::Status missing = Load(dir_.File("missing.off"));
+  EXPECT_EQ(missing.code(), absl::StatusCode::kNotFound);
+  EXPECT_THAT(std::string(missing.message()), HasSubstr("missing.off"));
+
+  EXPECT_EQ(Load(Write("empty.off", "")).code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(Load(Write("mesh.xyz", tri)).code(), absl::StatusCode::kInvalidArgument);
+
+  absl::Status truncated = Load(Write("cut.off", "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n"));
+  EXPECT_EQ(truncated.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(truncated.message()), HasSubstr("cut.off"));
+
+  absl::Status nan = Load(Write("nan.obj", "v 0 0 0\nv nan 0 0\nv 0 1 0\nf 1 2 3\n"));
+  EXPECT_EQ(nan.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(nan.message()), HasSubstr("vertex 1"));
+
+  absl::Status range = Load(Write("range.off", "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n"));
+  EXPECT_EQ(range.code(), absl::StatusCode::kInvalidArgument);
+
+  absl::Status huge = Load(Write("huge.off", "OFF\n999999999999 1 0\n0 0 0\n"));
+  EXPECT_EQ(huge.code(), absl::StatusCode::kInvalidArgument);
+
+  // Three faces on one edge.
+  absl::Status fin = Load(Write(
+      "fin.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nf 1 2 3\nf 2 1 4\nf 1 2 5\n"));
+  EXPECT_EQ(fin.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(fin.message()), HasSubstr("non-manifold"));
+
+  // Bow tie: two triangles sharing only a vertex.
+  absl::Status bowtie = Load(
+      Write("bowtie.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n"));
+  EXPECT_EQ(bowtie.code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(bowtie.message()), HasSubstr("vertex 0"));
+
+  // Binary PLY cut short.
+  std::string ply =
+      "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float "
+      "y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n";
+  ply += std::string(20, '\0');
+  EXPECT_EQ(Load(Write("cut.ply", ply)).code(), absl::StatusCode::kInvalidArgument);
+}
+
+TEST_F(BrokenFilesTest, PolygonsAreTriangulatedAndIsolatedVerticesKept) {
+  MeshDiagnostics d;
+  auto mesh = LoadMesh(
+      Write("quad.obj", "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 5 5 5\nf 1 2 3 4\n"), {}, &d);
+  ASSERT_OK(mesh);
+  EXPECT_EQ(mesh->num_faces(), 2u);
+  EXPECT_EQ(d.polygons_triangulated, 1u);
+  EXPECT_EQ(d.isolated_vertices, 1u);
+  EXPECT_TRUE(mesh->is_isolated(4));
+}
+
+TEST_F(BrokenFilesTest, UploadedBytesLoadLikeFiles) {
+  const std::string tri = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  auto soup = ReadTriangleSoupFromMemory(tri, "off", "upload");
+  ASSERT_OK(soup);
+  EXPECT_EQ(soup->positions.size(), 3u);
+  EXPECT_EQ(ReadTriangleSoupFromMemory(tri, "exe", "upload").status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
+TEST(SurfacePointTest, ParseValidateCanonicalize) {
+  Mesh grid = testing::PlanarGrid(3, 3, 1.0);
+  auto v = ParseSurfacePointSpec("v:5");
+  ASSERT_OK(v);
+  EXPECT_EQ(v->point.kind, SurfacePoint::Kind::kVertex);
+  auto f = ParseSurfacePointSpec("f:2:0.2,0.3,0.5");
+  ASSERT_OK(f);
+  EXPECT_EQ(f->point.id, 2u);
+  EXPECT_DOUBLE_EQ(f->point.bary[2], 0.5);
+  auto x = ParseSurfacePointSpec("xyz:1,2.5,-3");
+  ASSERT_OK(x);
+  EXPECT_TRUE(x->is_position);
+  for (const char* bad : {"v:", "v:-1", "f:1:0.2,0.3", "q:1", "e:1", "xyz:1,2,nan", ""}) {
+    EXPECT_EQ(ParseSurfacePointSpec(bad).status().code(), absl::StatusCode::kInvalidArgument)
+        << bad;
+  }
+  EXPECT_EQ(ValidateSurfacePoint(grid, SurfacePoint::Vertex(16)).code(),
+            absl::StatusCode::kOutOfRange);
+  EXPECT_EQ(ValidateSurfacePoint(grid, SurfacePoint::Face(0, 0.5, 0.6, 0.1)).code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(ValidateSurfacePoint(grid, SurfacePoint::Edge(0, 1.5)).code(),
+            absl::StatusCode::kInvalidArgument);
+  // A face point on a corner is that vertex; on an edge, that edge point.
+  SurfacePoint corner = CanonicalizeSurfacePoint(grid, SurfacePoint::Face(3, 0, 1, 0));
+  EXPECT_EQ(corner.kind, SurfacePoint::Kind::kVertex);
+  EXPECT_EQ(corner.id, grid.face_vertex(3, 1));
+  SurfacePoint edge = CanonicalizeSurfacePoint(grid, SurfacePoint::Face(3, 0.25, 0.75, 0));
+  EXPECT_EQ(edge.kind, SurfacePoint::Kind::kEdge);
+  EXPECT_LT(
+      Distance(PositionOf(grid, edge), PositionOf(grid, SurfacePoint::Face(3, 0.25, 0.75, 0))),
+      1e-15);
+}
+
+TEST(SurfaceLocatorTest, SnapsToTheClosestPointLikeBruteForce) {
+  auto mesh = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(mesh);
+  auto locator = SurfaceLocator::Build(*mesh);
+  ASSERT_OK(locator);
+  auto at_vertex = locator->Snap(mesh->position(123));
+  ASSERT_OK(at_vertex);
+  EXPECT_LT(Distance(PositionOf(*mesh, *at_vertex), mesh->position(123)), 1e-12);
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> coord(-1, 1);
+  for (int i = 0; i < 50; ++i) {
+    Vec3 q{coord(rng), coord(rng), coord(rng)};
+    auto snapped = locator->Snap(q);
+    ASSERT_OK(snapped);
+    double best = INFINITY;
+    for (FaceId f = 0; f < mesh->num_faces(); ++f) {
+      // Dense sampling of each face bounds the true distance from above.
+      for (double a = 0; a <= 1; a += 0.25)
+        for (double b = 0; a + b <= 1; b += 0.25)
+          best = std::min(best,
+                          Distance(q, PositionOf(*mesh, SurfacePoint::Face(f, a, b, 1 - a - b))));
+    }
+    EXPECT_LE(Distance(q, PositionOf(*mesh, *snapped)), best + 1e-12);
+  }
+}
+
+}  // namespace
+}  // namespace geodesic
