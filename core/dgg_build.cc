@@ -30,14 +30,6 @@ constexpr double kPruningFanScale = 0.9;
 // to the candidates' early termination and to the fan-restricted solver.
 constexpr double kPruneShare = 0.7;
 
-// A graph edge as seen from one end.
-struct HalfEdgeRecord {
-  uint32_t to;
-  float weight;
-  float angle_here;   // polar angle at this end, normalised to [0, 2*pi)
-  float angle_there;  // polar angle at the other end, normalised
-};
-
 // Lengths are rounded up to float so that graph distances never undercut the
 // surface paths they stand for.
 float RoundUp(double d) {
@@ -71,11 +63,11 @@ struct EdgeKey {
 // Adjacency lists in compressed form.
 struct Adjacency {
   std::vector<uint64_t> offsets;
-  std::vector<HalfEdgeRecord> edges;
-  std::span<const HalfEdgeRecord> of(uint32_t u) const {
+  std::vector<DggHalfEdge> edges;
+  std::span<const DggHalfEdge> of(uint32_t u) const {
     return {edges.data() + offsets[u], edges.data() + offsets[u + 1]};
   }
-  std::span<HalfEdgeRecord> of(uint32_t u) {
+  std::span<DggHalfEdge> of(uint32_t u) {
     return {edges.data() + offsets[u], edges.data() + offsets[u + 1]};
   }
 };
@@ -123,15 +115,17 @@ void ParallelFor(uint32_t n, Progress& progress, std::string_view phase, double 
 
 // Phase 1 (section 4.2.1): the direct geodesics from every vertex, each window
 // stopped at Theorem 2's d_max. Returns, per vertex, candidates sorted by id.
-std::vector<std::vector<HalfEdgeRecord>> ComputeCandidates(const Mesh& mesh, double epsilon,
-                                                           Progress& progress,
-                                                           uint64_t* windows_created) {
-  const uint32_t n = mesh.num_vertices();
-  std::vector<std::vector<HalfEdgeRecord>> candidates(n);
+// Sources [begin, end) only; element i of the result belongs to begin + i.
+std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double epsilon,
+                                                        uint32_t begin, uint32_t end,
+                                                        Progress& progress, double progress_end,
+                                                        uint64_t* windows_created) {
+  std::vector<std::vector<DggHalfEdge>> candidates(end - begin);
   tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
       [&] { return std::make_unique<ExactGeodesic>(mesh); });
   std::atomic<uint64_t> windows{0};
-  ParallelFor(n, progress, "candidates", 0.0, 0.7, [&](uint32_t s) {
+  ParallelFor(end - begin, progress, "candidates", 0.0, progress_end, [&](uint32_t i) {
+    const uint32_t s = begin + i;
     if (mesh.is_isolated(s)) return;
     ExactGeodesic& engine = *engines.local();
     DirectOptions options;
@@ -139,7 +133,7 @@ std::vector<std::vector<HalfEdgeRecord>> ComputeCandidates(const Mesh& mesh, dou
     auto hits = engine.DirectGeodesics(SurfacePoint::Vertex(s), options);
     if (!hits.ok()) return;  // a validated vertex source cannot fail
     windows.fetch_add(engine.stats().windows_created, std::memory_order_relaxed);
-    auto& out = candidates[s];
+    auto& out = candidates[i];
     out.reserve(hits->size());
     const double period_s = mesh.total_angle(s);
     for (const DirectHit& h : *hits) {
@@ -153,13 +147,13 @@ std::vector<std::vector<HalfEdgeRecord>> ComputeCandidates(const Mesh& mesh, dou
 
 // An edge found from either end is an edge; its length is the shorter of the
 // two direct paths found, with that path's directions.
-Adjacency Symmetrize(std::vector<std::vector<HalfEdgeRecord>> out) {
+Adjacency Symmetrize(std::vector<std::vector<DggHalfEdge>> out) {
   const uint32_t n = out.size();
   std::vector<uint64_t> in_offsets(n + 1, 0);
   for (uint32_t s = 0; s < n; ++s)
     for (const auto& e : out[s]) ++in_offsets[e.to + 1];
   for (uint32_t v = 0; v < n; ++v) in_offsets[v + 1] += in_offsets[v];
-  std::vector<HalfEdgeRecord> in(in_offsets[n]);
+  std::vector<DggHalfEdge> in(in_offsets[n]);
   {
     std::vector<uint64_t> fill(in_offsets.begin(), in_offsets.end() - 1);
     for (uint32_t s = 0; s < n; ++s) {
@@ -168,10 +162,10 @@ Adjacency Symmetrize(std::vector<std::vector<HalfEdgeRecord>> out) {
   }
   Adjacency adj;
   adj.offsets.assign(n + 1, 0);
-  std::vector<std::vector<HalfEdgeRecord>> merged(n);
+  std::vector<std::vector<DggHalfEdge>> merged(n);
   tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
     const auto& a = out[s];
-    std::span<const HalfEdgeRecord> b(in.data() + in_offsets[s], in.data() + in_offsets[s + 1]);
+    std::span<const DggHalfEdge> b(in.data() + in_offsets[s], in.data() + in_offsets[s + 1]);
     auto& m = merged[s];
     m.reserve(a.size() + b.size());
     size_t i = 0, j = 0;
@@ -253,7 +247,7 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
       const bool is_vertex = u < mesh.num_vertices();
       const double period = is_vertex ? mesh.total_angle(u) : kTwoPi;
       const bool boundary = is_vertex && mesh.is_boundary(u);
-      for (const HalfEdgeRecord& e : adj.of(u)) {
+      for (const DggHalfEdge& e : adj.of(u)) {
         if (e.to == s || sc.stamp[e.to] != sc.current) continue;
         if (!InFan(sc.arrival[i], e.angle_here, period, boundary, epsilon, kPruningFanScale)) {
           continue;
@@ -283,7 +277,7 @@ Adjacency DropRedundant(const Adjacency& adj, const std::vector<uint8_t>& redund
   auto reverse_index = [&](uint32_t s, uint32_t u) -> uint64_t {
     auto list = adj.of(u);
     auto it = std::lower_bound(list.begin(), list.end(), s,
-                               [](const HalfEdgeRecord& e, uint32_t id) { return e.to < id; });
+                               [](const DggHalfEdge& e, uint32_t id) { return e.to < id; });
     return adj.offsets[u] + (it - list.begin());
   };
   std::vector<uint8_t> keep(adj.edges.size(), 0);
@@ -312,7 +306,7 @@ Adjacency DropRedundant(const Adjacency& adj, const std::vector<uint8_t>& redund
 // direction is still served by the path that replaced it.
 struct PseudoVertex {
   SurfacePoint point;
-  std::vector<HalfEdgeRecord> edges;  // to mesh vertices
+  std::vector<DggHalfEdge> edges;  // to mesh vertices
 };
 
 std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const Adjacency& candidates,
@@ -384,7 +378,7 @@ Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVert
   if (pseudo.empty()) return cand;
   const uint32_t n = cand.offsets.size() - 1;
   const uint32_t nodes = n + pseudo.size();
-  std::vector<std::vector<HalfEdgeRecord>> extra(n);
+  std::vector<std::vector<DggHalfEdge>> extra(n);
   for (uint32_t i = 0; i < pseudo.size(); ++i) {
     for (const auto& e : pseudo[i].edges) {
       extra[e.to].push_back({n + i, e.weight, e.angle_there, e.angle_here});
@@ -420,16 +414,15 @@ DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
                         Progress& progress) {
   const uint32_t n = mesh.num_vertices();
   const uint32_t nodes = kept.offsets.size() - 1;
-  std::vector<std::vector<HalfEdgeRecord>> lists(nodes);
+  std::vector<std::vector<DggHalfEdge>> lists(nodes);
   for (uint32_t u = 0; u < nodes; ++u) {
     auto e = kept.of(u);
     lists[u].assign(e.begin(), e.end());
   }
   tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
-    std::sort(lists[u].begin(), lists[u].end(),
-              [](const HalfEdgeRecord& a, const HalfEdgeRecord& b) {
-                return a.angle_here < b.angle_here || (a.angle_here == b.angle_here && a.to < b.to);
-              });
+    std::sort(lists[u].begin(), lists[u].end(), [](const DggHalfEdge& a, const DggHalfEdge& b) {
+      return a.angle_here < b.angle_here || (a.angle_here == b.angle_here && a.to < b.to);
+    });
   });
   DggGraphArrays a;
   a.offsets.assign(nodes + 1, 0);
@@ -470,10 +463,9 @@ DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
 
 }  // namespace
 
-absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
-                                                         const DggBuildOptions& options,
-                                                         DggBuildStats* stats) {
-  const double epsilon = options.params.epsilon;
+namespace {
+
+absl::Status CheckEpsilon(double epsilon) {
   if (!(epsilon > 0 && epsilon < 1)) {
     return absl::InvalidArgumentError(
         absl::StrFormat("epsilon must be in (0, 1), got %g", epsilon));
@@ -484,53 +476,178 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
         "(quadratic size); use the exact engine instead",
         epsilon));
   }
+  return absl::OkStatus();
+}
+
+// Phases 2-4 on the candidates of every vertex: pseudo vertices, pruning,
+// fans. Runs inside the caller's arena.
+std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
+                                            std::vector<std::vector<DggHalfEdge>> candidates,
+                                            const DggParams& params, Progress& progress,
+                                            DggBuildStats& st) {
+  const double epsilon = params.epsilon;
+  auto t = std::chrono::steady_clock::now();
+  Adjacency cand = Symmetrize(std::move(candidates));
+  st.candidate_edges = cand.edges.size() / 2;
+  st.candidate_seconds += Seconds(t);
+
+  t = std::chrono::steady_clock::now();
+  std::vector<PseudoVertex> pseudo;
+  if (params.pseudo_vertices) {
+    pseudo = AddPseudoVertices(mesh, cand, epsilon, progress);
+    if (progress.cancelled()) return nullptr;
+    cand = WithPseudoVertices(cand, pseudo);
+  }
+  st.pseudo_seconds = Seconds(t);
+
+  t = std::chrono::steady_clock::now();
+  auto redundant = FindRedundant(mesh, cand, epsilon, progress);
+  if (progress.cancelled()) return nullptr;
+  Adjacency kept = DropRedundant(cand, redundant);
+  redundant = {};
+  cand = {};
+  st.pruning_seconds = Seconds(t);
+
+  t = std::chrono::steady_clock::now();
+  DggGraphArrays arrays = Finalize(mesh, kept, pseudo, epsilon, progress);
+  st.fan_seconds = Seconds(t);
+  const uint32_t nodes = mesh.num_vertices() + pseudo.size();
+  st.pseudo_vertices = pseudo.size();
+  st.edges = arrays.targets.size() / 2;
+  for (uint32_t u = 0; u < nodes; ++u) {
+    st.max_degree = std::max<uint32_t>(st.max_degree, arrays.offsets[u + 1] - arrays.offsets[u]);
+  }
+  st.average_degree = nodes ? double(arrays.targets.size()) / nodes : 0;
+  return DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
+                                     MeshFingerprint(mesh));
+}
+
+int ThreadCount(const DggBuildOptions& options) {
+  return options.threads > 0 ? options.threads : tbb::info::default_concurrency();
+}
+
+}  // namespace
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
+                                                         const DggBuildOptions& options,
+                                                         DggBuildStats* stats) {
+  if (absl::Status s = CheckEpsilon(options.params.epsilon); !s.ok()) return s;
   DggBuildStats local;
   DggBuildStats& st = stats ? *stats : local;
   st = {};
   const auto start = std::chrono::steady_clock::now();
   Progress progress(options);
-  const int threads = options.threads > 0 ? options.threads : tbb::info::default_concurrency();
-  tbb::task_arena arena(threads);
-
+  tbb::task_arena arena(ThreadCount(options));
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
-    auto t = std::chrono::steady_clock::now();
-    auto candidates = ComputeCandidates(mesh, epsilon, progress, &st.windows_created);
+    auto candidates = ComputeCandidates(mesh, options.params.epsilon, 0, mesh.num_vertices(),
+                                        progress, 0.7, &st.windows_created);
+    st.candidate_seconds = Seconds(start);
     if (progress.cancelled()) return;
-    Adjacency cand = Symmetrize(std::move(candidates));
-    st.candidate_edges = cand.edges.size() / 2;
-    st.candidate_seconds = Seconds(t);
-
-    t = std::chrono::steady_clock::now();
-    std::vector<PseudoVertex> pseudo;
-    if (options.params.pseudo_vertices) {
-      pseudo = AddPseudoVertices(mesh, cand, epsilon, progress);
-      if (progress.cancelled()) return;
-      cand = WithPseudoVertices(cand, pseudo);
-    }
-    st.pseudo_seconds = Seconds(t);
-
-    t = std::chrono::steady_clock::now();
-    auto redundant = FindRedundant(mesh, cand, epsilon, progress);
-    if (progress.cancelled()) return;
-    Adjacency kept = DropRedundant(cand, redundant);
-    redundant = {};
-    cand = {};
-    st.pruning_seconds = Seconds(t);
-
-    t = std::chrono::steady_clock::now();
-    DggGraphArrays arrays = Finalize(mesh, kept, pseudo, epsilon, progress);
-    st.fan_seconds = Seconds(t);
-    const uint32_t nodes = mesh.num_vertices() + pseudo.size();
-    st.pseudo_vertices = pseudo.size();
-    st.edges = arrays.targets.size() / 2;
-    for (uint32_t u = 0; u < nodes; ++u) {
-      st.max_degree = std::max<uint32_t>(st.max_degree, arrays.offsets[u + 1] - arrays.offsets[u]);
-    }
-    st.average_degree = nodes ? double(arrays.targets.size()) / nodes : 0;
-    graph = DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(),
-                                        options.params, MeshFingerprint(mesh));
+    graph = FinishBuild(mesh, std::move(candidates), options.params, progress, st);
   });
+  if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
+  st.total_seconds = Seconds(start);
+  return graph;
+}
+
+absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
+                                                       const DggBuildOptions& options,
+                                                       uint32_t index, uint32_t count) {
+  if (absl::Status s = CheckEpsilon(options.params.epsilon); !s.ok()) return s;
+  if (count == 0 || index >= count) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("part %u/%u: the index must be in [0, %u)", index, count, count));
+  }
+  const uint64_t n = mesh.num_vertices();
+  DggCandidatePart part;
+  part.params = options.params;
+  part.mesh_fingerprint = MeshFingerprint(mesh);
+  part.num_vertices = n;
+  part.begin = n * index / count;
+  part.end = n * (index + 1) / count;
+  Progress progress(options);
+  tbb::task_arena arena(ThreadCount(options));
+  std::vector<std::vector<DggHalfEdge>> candidates;
+  arena.execute([&] {
+    candidates = ComputeCandidates(mesh, options.params.epsilon, part.begin, part.end, progress,
+                                   1.0, &part.windows_created);
+  });
+  if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
+  part.offsets.assign(1, 0);
+  for (const auto& c : candidates) part.offsets.push_back(part.offsets.back() + c.size());
+  part.edges.reserve(part.offsets.back());
+  for (const auto& c : candidates) part.edges.insert(part.edges.end(), c.begin(), c.end());
+  return part;
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
+                                                              std::vector<DggCandidatePart> parts,
+                                                              const DggBuildOptions& options,
+                                                              DggBuildStats* stats) {
+  if (parts.empty()) return absl::InvalidArgumentError("no parts to merge");
+  const uint32_t n = mesh.num_vertices();
+  const uint64_t fingerprint = MeshFingerprint(mesh);
+  const DggParams params = parts[0].params;
+  if (absl::Status s = CheckEpsilon(params.epsilon); !s.ok()) return s;
+  for (size_t i = 0; i < parts.size(); ++i) {
+    const DggCandidatePart& p = parts[i];
+    if (p.mesh_fingerprint != fingerprint || p.num_vertices != n) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "part %u (vertices %u..%u) was built for another mesh", i, p.begin, p.end));
+    }
+    if (p.params.epsilon != params.epsilon || p.params.pseudo_vertices != params.pseudo_vertices) {
+      return absl::FailedPreconditionError(
+          absl::StrFormat("part %u was built with epsilon %g%s, part 0 with epsilon %g%s", i,
+                          p.params.epsilon, p.params.pseudo_vertices ? " and pseudo vertices" : "",
+                          params.epsilon, params.pseudo_vertices ? " and pseudo vertices" : ""));
+    }
+    if (p.begin > p.end || p.end > n || p.offsets.size() != p.end - p.begin + 1 ||
+        p.offsets.front() != 0 || p.offsets.back() != p.edges.size() ||
+        !std::is_sorted(p.offsets.begin(), p.offsets.end())) {
+      return absl::FailedPreconditionError(
+          absl::StrFormat("part %u (vertices %u..%u) is inconsistent", i, p.begin, p.end));
+    }
+    for (const DggHalfEdge& e : p.edges) {
+      if (e.to >= n || !(e.weight >= 0) || !std::isfinite(e.weight)) {
+        return absl::FailedPreconditionError(
+            absl::StrFormat("part %u holds an edge to vertex %u of length %g", i, e.to, e.weight));
+      }
+    }
+  }
+  std::sort(parts.begin(), parts.end(),
+            [](const auto& a, const auto& b) { return a.begin < b.begin; });
+  uint32_t covered = 0;
+  for (const DggCandidatePart& p : parts) {
+    if (p.begin != covered) {
+      return absl::FailedPreconditionError(
+          p.begin > covered ? absl::StrFormat("no part covers vertices %u..%u", covered, p.begin)
+                            : absl::StrFormat("two parts cover vertex %u", p.begin));
+    }
+    covered = p.end;
+  }
+  if (covered != n) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("no part covers vertices %u..%u", covered, n));
+  }
+
+  DggBuildStats local;
+  DggBuildStats& st = stats ? *stats : local;
+  st = {};
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<std::vector<DggHalfEdge>> candidates(n);
+  for (DggCandidatePart& p : parts) {
+    st.windows_created += p.windows_created;
+    for (uint32_t s = p.begin; s < p.end; ++s) {
+      const size_t i = s - p.begin;
+      candidates[s].assign(p.edges.begin() + p.offsets[i], p.edges.begin() + p.offsets[i + 1]);
+    }
+    p = {};
+  }
+  Progress progress(options);
+  tbb::task_arena arena(ThreadCount(options));
+  std::shared_ptr<const DggGraph> graph;
+  arena.execute([&] { graph = FinishBuild(mesh, std::move(candidates), params, progress, st); });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
   return graph;

@@ -7,6 +7,7 @@
 #include <functional>
 #include <memory>
 #include <string_view>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/dgg_graph.h"
@@ -42,6 +43,42 @@ struct DggBuildStats {
 absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
                                                          const DggBuildOptions& options,
                                                          DggBuildStats* stats = nullptr);
+
+// A graph edge as seen from one end: a direct geodesic from the source to
+// `to`, its length rounded up to float, and its polar angles at both ends.
+struct DggHalfEdge {
+  uint32_t to;
+  float weight;
+  float angle_here;   // polar angle at this end, normalised to [0, 2*pi)
+  float angle_there;  // polar angle at the other end, normalised
+};
+
+// Distributed builds. The candidate phase (the direct geodesics from every
+// vertex) is most of the work and independent per source, so it splits into
+// vertex ranges built anywhere; merging the parts runs the remaining phases
+// and gives the same graph, bit for bit, as BuildDgg.
+struct DggCandidatePart {
+  DggParams params;
+  uint64_t mesh_fingerprint = 0;
+  uint32_t num_vertices = 0;       // of the whole mesh
+  uint32_t begin = 0, end = 0;     // the sources of this part
+  uint64_t windows_created = 0;    // by this part's propagation
+  std::vector<uint64_t> offsets;   // end - begin + 1 entries into `edges`
+  std::vector<DggHalfEdge> edges;  // per source, sorted by target id
+};
+
+// Part `index` (0-based) of `count` equal vertex ranges.
+absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
+                                                       const DggBuildOptions& options,
+                                                       uint32_t index, uint32_t count);
+
+// Joins parts (in any order) that together cover every vertex exactly once,
+// all built for this mesh with the same parameters; options.params is
+// ignored in favour of theirs. FAILED_PRECONDITION names the part at fault.
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
+                                                              std::vector<DggCandidatePart> parts,
+                                                              const DggBuildOptions& options,
+                                                              DggBuildStats* stats = nullptr);
 
 }  // namespace geodesic
 

@@ -13,6 +13,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "core/atomic_file.h"
 #include "core/dgg_graph_internal.h"
 #include "core/status.h"
 #include "xxhash.h"
@@ -69,29 +70,6 @@ static_assert(std::is_trivially_copyable_v<SurfacePoint>);
 uint64_t HeaderChecksum(Header h) {
   h.header_checksum = 0;
   return XXH3_64bits(&h, sizeof(h));
-}
-
-absl::Status ErrnoStatus(const std::string& what, const std::string& path) {
-  int e = errno;
-  std::string message = absl::StrFormat("%s %s: %s", what, path, std::strerror(e));
-  if (e == ENOENT) return absl::NotFoundError(message);
-  if (e == EACCES || e == EPERM) return absl::PermissionDeniedError(message);
-  if (e == ENOSPC || e == EDQUOT) return absl::ResourceExhaustedError(message);
-  return absl::InternalError(message);
-}
-
-absl::Status WriteAll(int fd, const void* data, size_t bytes, const std::string& path) {
-  const char* p = static_cast<const char*>(data);
-  while (bytes > 0) {
-    ssize_t n = ::write(fd, p, bytes);
-    if (n < 0) {
-      if (errno == EINTR) continue;
-      return ErrnoStatus("cannot write", path);
-    }
-    p += n;
-    bytes -= n;
-  }
-  return absl::OkStatus();
 }
 
 // Validates the header of a mapped file of `size` bytes.
@@ -189,44 +167,17 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   h.file_bytes = offset;
   h.header_checksum = HeaderChecksum(h);
 
-  // Temp file in the same directory, fsync, rename, fsync the directory: a
-  // reader sees the old file or the whole new one, never a partial one.
-  std::filesystem::path target(path);
-  std::filesystem::path dir = target.has_parent_path() ? target.parent_path() : ".";
-  std::string tmp = absl::StrFormat("%s.tmp.%d.%x", path, getpid(), std::random_device{}());
-  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
-  if (fd < 0) return ErrnoStatus("cannot create", tmp);
-  auto fail = [&](absl::Status s) {
-    ::close(fd);
-    ::unlink(tmp.c_str());
-    return s;
-  };
+  auto file = AtomicFileWriter::Create(path);
+  if (!file.ok()) return file.status();
   std::vector<char> header_block(kHeaderBytes, 0);
   std::memcpy(header_block.data(), &h, sizeof(h));
-  absl::Status s = WriteAll(fd, header_block.data(), header_block.size(), tmp);
-  static const char kZeros[kAlignment] = {};
+  absl::Status s = file->Append(header_block.data(), header_block.size());
   for (uint32_t i = 0; i < kSectionCount && s.ok(); ++i) {
-    s = WriteAll(fd, data[i].first, data[i].second, tmp);
-    const uint64_t pad = (kAlignment - data[i].second % kAlignment) % kAlignment;
-    if (s.ok() && pad) s = WriteAll(fd, kZeros, pad, tmp);
+    s = file->Append(data[i].first, data[i].second);
+    if (s.ok()) s = file->PadTo(kAlignment);
   }
-  if (!s.ok()) return fail(s);
-  if (::fsync(fd) != 0) return fail(ErrnoStatus("cannot fsync", tmp));
-  if (::close(fd) != 0) {
-    ::unlink(tmp.c_str());
-    return ErrnoStatus("cannot close", tmp);
-  }
-  if (::rename(tmp.c_str(), path.c_str()) != 0) {
-    absl::Status r = ErrnoStatus("cannot rename into", path);
-    ::unlink(tmp.c_str());
-    return r;
-  }
-  int dfd = ::open(dir.c_str(), O_RDONLY | O_DIRECTORY | O_CLOEXEC);
-  if (dfd >= 0) {
-    ::fsync(dfd);
-    ::close(dfd);
-  }
-  return absl::OkStatus();
+  if (!s.ok()) return s;
+  return std::move(*file).Commit();
 }
 
 namespace {

@@ -16,7 +16,9 @@ constexpr char kUsage[] =
     "                        127.0.0.1:50051)\n"
     "  info MESH|GRAPH.dgg   diagnostics of a mesh, or describe and validate a graph file\n"
     "  exact                 exact geodesic distances from one source (window propagation)\n"
-    "  build MESH            build the discrete geodesic graph of a mesh\n"
+    "  build MESH            build the discrete geodesic graph of a mesh (or, with\n"
+    "                        --part I/N, one part of a distributed build)\n"
+    "  merge MESH PART...    join the parts of a distributed build into the graph\n"
     "  field                 distance field on a graph\n"
     "  distance              point-to-point distance (and path) on a graph\n"
     "\n"
@@ -35,6 +37,7 @@ int main(int argc, char** argv) {
   if (command == "info") return RunInfo(argc - 1, argv + 1);
   if (command == "exact") return RunExact(argc - 1, argv + 1);
   if (command == "build") return RunBuild(argc - 1, argv + 1);
+  if (command == "merge") return RunMerge(argc - 1, argv + 1);
   if (command == "field") return RunField(argc - 1, argv + 1);
   if (command == "distance") return RunDistance(argc - 1, argv + 1);
   std::fprintf(stderr, "geodesicd: unknown command '%s'\n\n%s", argv[1], kUsage);

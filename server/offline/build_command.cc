@@ -2,11 +2,21 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <cstdio>
 #include <filesystem>
+#include <functional>
+#include <string_view>
+#include <vector>
 
 #include "CLI/CLI.hpp"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
+#include "absl/strings/str_split.h"
 #include "core/dgg_build.h"
+#include "core/dgg_part_file.h"
 #include "core/graph_file.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
@@ -20,52 +30,27 @@ uint64_t PeakMemoryBytes() {
   return static_cast<uint64_t>(usage.ru_maxrss) * 1024;
 }
 
-}  // namespace
+// A progress bar on stderr when it is a terminal.
+std::function<bool(std::string_view, double)> ProgressBar(bool enabled) {
+  if (!enabled || !isatty(STDERR_FILENO)) return nullptr;
+  return [](std::string_view phase, double fraction) {
+    const int width = 40, filled = static_cast<int>(fraction * width);
+    std::fprintf(stderr, "\r%-10.*s [%s%s] %5.1f%%", static_cast<int>(phase.size()), phase.data(),
+                 std::string(filled, '#').c_str(), std::string(width - filled, ' ').c_str(),
+                 100 * fraction);
+    return true;
+  };
+}
 
-int RunBuild(int argc, char** argv) {
-  CLI::App app{"Build the discrete geodesic graph (DGG) of a mesh", "geodesicd build"};
-  std::string mesh_path, out_path;
-  double epsilon = 1e-3;
-  int threads = 0;
-  bool json = false, pseudo = false, quiet = false;
-  app.add_option("mesh", mesh_path, "mesh file (obj, off, ply, stl)")->required();
-  app.add_option("--eps", epsilon, "accuracy: relative error of graph distances, in (0, 1)");
-  app.add_option("--out", out_path, "graph file to write (atomically)")->required();
-  app.add_option("--threads", threads, "build threads (0: all cores)");
-  app.add_flag("--pseudo-vertices", pseudo,
-               "add pseudo vertices where edge directions leave gaps (section 4.3; for "
-               "anisotropic meshes)");
-  app.add_flag("--json", json, "print a JSON object");
-  app.add_flag("--quiet", quiet, "no progress bar");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
-  auto mesh = LoadMeshOrError(mesh_path);
-  if (!mesh.ok()) return Fail("build", mesh.status());
-  DggBuildOptions options;
-  options.params.epsilon = epsilon;
-  options.params.pseudo_vertices = pseudo;
-  options.threads = threads;
-  const bool bar = !json && !quiet && isatty(STDERR_FILENO);
-  if (bar) {
-    options.progress = [](std::string_view phase, double fraction) {
-      const int width = 40, filled = static_cast<int>(fraction * width);
-      std::fprintf(stderr, "\r%-10.*s [%s%s] %5.1f%%", static_cast<int>(phase.size()), phase.data(),
-                   std::string(filled, '#').c_str(), std::string(width - filled, ' ').c_str(),
-                   100 * fraction);
-      return true;
-    };
-  }
-  DggBuildStats stats;
-  auto graph = BuildDgg(**mesh, options, &stats);
-  if (bar) std::fprintf(stderr, "\n");
-  if (!graph.ok()) return Fail("build", graph.status());
-  absl::Status written = GraphFile::Write(**graph, out_path);
-  if (!written.ok()) return Fail("build", written);
+// Writes the graph and prints what `build` and `merge` report.
+int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
+                   const DggBuildStats& stats, const std::string& out_path, int threads,
+                   bool json) {
+  absl::Status written = GraphFile::Write(graph, out_path);
+  if (!written.ok()) return Fail(command, written);
   const uint64_t file_bytes = std::filesystem::file_size(out_path);
-  const size_t n = (*mesh)->num_vertices();
+  const size_t n = mesh.num_vertices();
+  const double epsilon = graph.params().epsilon;
   if (json) {
     std::printf(
         "{\"vertices\": %zu, \"nodes\": %u, \"pseudo_vertices\": %u, \"edges\": %llu, "
@@ -73,8 +58,7 @@ int RunBuild(int argc, char** argv) {
         "\"epsilon\": %g, \"threads\": %d, \"build_seconds\": %.4f, \"candidate_seconds\": %.4f, "
         "\"pruning_seconds\": %.4f, \"pseudo_seconds\": %.4f, \"fan_seconds\": %.4f, "
         "\"windows_per_source\": %.2f, \"peak_memory_bytes\": %llu, \"file_bytes\": %llu}\n",
-        n, (*graph)->num_nodes(), stats.pseudo_vertices,
-        static_cast<unsigned long long>(stats.edges),
+        n, graph.num_nodes(), stats.pseudo_vertices, static_cast<unsigned long long>(stats.edges),
         static_cast<unsigned long long>(stats.candidate_edges), stats.average_degree,
         stats.max_degree, epsilon, threads, stats.total_seconds, stats.candidate_seconds,
         stats.pruning_seconds, stats.pseudo_seconds, stats.fan_seconds,
@@ -92,6 +76,123 @@ int RunBuild(int argc, char** argv) {
         static_cast<unsigned long long>(file_bytes));
   }
   return 0;
+}
+
+// `--part I/N`: the candidate edges of the I-th of N vertex ranges.
+int BuildPart(const Mesh& mesh, const DggBuildOptions& options, const std::string& spec,
+              const std::string& out_path, bool json) {
+  uint32_t index = 0, count = 0;
+  std::vector<std::string> fields = absl::StrSplit(spec, '/');
+  if (fields.size() != 2 || !absl::SimpleAtoi(fields[0], &index) ||
+      !absl::SimpleAtoi(fields[1], &count)) {
+    return Fail("build", absl::InvalidArgumentError(absl::StrFormat(
+                             "--part %s: expected I/N with 0 <= I < N, e.g. 0/3", spec)));
+  }
+  const auto start = std::chrono::steady_clock::now();
+  auto part = BuildDggCandidatePart(mesh, options, index, count);
+  if (options.progress) std::fprintf(stderr, "\n");
+  if (!part.ok()) return Fail("build", part.status());
+  if (absl::Status s = WriteDggPart(*part, out_path); !s.ok()) return Fail("build", s);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  const uint32_t sources = part->end - part->begin;
+  if (json) {
+    std::printf(
+        "{\"part\": %u, \"parts\": %u, \"begin\": %u, \"end\": %u, \"epsilon\": %g, "
+        "\"candidate_half_edges\": %zu, \"windows_per_source\": %.2f, \"build_seconds\": %.4f, "
+        "\"file_bytes\": %llu}\n",
+        index, count, part->begin, part->end, part->params.epsilon, part->edges.size(),
+        double(part->windows_created) / std::max<uint32_t>(sources, 1), seconds,
+        static_cast<unsigned long long>(std::filesystem::file_size(out_path)));
+  } else {
+    std::printf("built part %u/%u of %s: vertices %u..%u, %zu candidate half-edges in %.2f s\n",
+                index, count, out_path.c_str(), part->begin, part->end, part->edges.size(),
+                seconds);
+  }
+  return 0;
+}
+
+}  // namespace
+
+int RunBuild(int argc, char** argv) {
+  CLI::App app{"Build the discrete geodesic graph (DGG) of a mesh", "geodesicd build"};
+  std::string mesh_path, out_path, part;
+  double epsilon = 1e-3;
+  int threads = 0;
+  bool json = false, pseudo = false, quiet = false;
+  app.add_option("mesh", mesh_path, "mesh file (obj, off, ply, stl)")->required();
+  app.add_option("--eps", epsilon, "accuracy: relative error of graph distances, in (0, 1)");
+  app.add_option("--out", out_path, "graph file (or part file with --part) to write, atomically")
+      ->required();
+  app.add_option("--threads", threads, "build threads (0: all cores)");
+  app.add_flag("--pseudo-vertices", pseudo,
+               "add pseudo vertices where edge directions leave gaps (section 4.3; for "
+               "anisotropic meshes)");
+  app.add_option("--part", part,
+                 "I/N: only the candidate edges of the I-th (0-based) of N vertex ranges, for "
+                 "'geodesicd merge'");
+  app.add_flag("--json", json, "print a JSON object");
+  app.add_flag("--quiet", quiet, "no progress bar");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  auto mesh = LoadMeshOrError(mesh_path);
+  if (!mesh.ok()) return Fail("build", mesh.status());
+  DggBuildOptions options;
+  options.params.epsilon = epsilon;
+  options.params.pseudo_vertices = pseudo;
+  options.threads = threads;
+  options.progress = ProgressBar(!json && !quiet);
+  if (!part.empty()) return BuildPart(**mesh, options, part, out_path, json);
+  DggBuildStats stats;
+  auto graph = BuildDgg(**mesh, options, &stats);
+  if (options.progress) std::fprintf(stderr, "\n");
+  if (!graph.ok()) return Fail("build", graph.status());
+  return WriteAndReport("build", **mesh, **graph, stats, out_path, threads, json);
+}
+
+int RunMerge(int argc, char** argv) {
+  CLI::App app{"Join the part files of a distributed build into the final graph",
+               "geodesicd merge"};
+  std::string mesh_path, out_path;
+  std::vector<std::string> part_paths;
+  int threads = 0;
+  bool json = false, quiet = false;
+  app.add_option("mesh", mesh_path, "mesh file the parts were built for")->required();
+  app.add_option("parts", part_paths, "part files (geodesicd build --part I/N), any order")
+      ->required();
+  app.add_option("--out", out_path, "graph file to write (atomically)")->required();
+  app.add_option("--threads", threads, "threads (0: all cores)");
+  app.add_flag("--json", json, "print a JSON object (the keys of 'geodesicd build --json')");
+  app.add_flag("--quiet", quiet, "no progress bar");
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  auto mesh = LoadMeshOrError(mesh_path);
+  if (!mesh.ok()) return Fail("merge", mesh.status());
+  std::vector<DggCandidatePart> parts;
+  for (const std::string& path : part_paths) {
+    auto part = ReadDggPart(path);
+    if (!part.ok()) return Fail("merge", part.status());
+    parts.push_back(*std::move(part));
+  }
+  DggBuildOptions options;
+  options.threads = threads;
+  options.progress = ProgressBar(!json && !quiet);
+  DggBuildStats stats;
+  auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);
+  if (options.progress) std::fprintf(stderr, "\n");
+  if (!graph.ok()) {
+    // Core names parts by their position among the files given.
+    return Fail("merge", absl::Status(graph.status().code(),
+                                      absl::StrCat(graph.status().message(), " (parts in order: ",
+                                                   absl::StrJoin(part_paths, ", "), ")")));
+  }
+  return WriteAndReport("merge", **mesh, **graph, stats, out_path, threads, json);
 }
 
 }  // namespace geodesic::offline

@@ -11,7 +11,8 @@ namespace geodesic::offline {
 int RunInfo(int argc, char** argv);                    // geodesicd info MESH|GRAPH.dgg [--json]
 int RunGraphInfo(const std::string& path, bool json);  // info on a .dgg file
 int RunExact(int argc, char** argv);     // geodesicd exact --mesh M --source SPEC --out F.f64
-int RunBuild(int argc, char** argv);     // geodesicd build MESH --eps E --out G.dgg
+int RunBuild(int argc, char** argv);     // geodesicd build MESH --eps E --out G.dgg [--part I/N]
+int RunMerge(int argc, char** argv);     // geodesicd merge MESH PART... --out G.dgg
 int RunField(int argc, char** argv);     // geodesicd field --mesh M --graph G --source SPEC
 int RunDistance(int argc, char** argv);  // geodesicd distance --mesh M --graph G --from A --to B
 

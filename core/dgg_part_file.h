@@ -1,0 +1,24 @@
+// Part files of a distributed build (geodesicd build --part, geodesicd merge):
+// the candidate edges of one vertex range, with the mesh fingerprint and
+// parameters they were built for, checksummed and written atomically.
+#ifndef GEODESIC_CORE_DGG_PART_FILE_H_
+#define GEODESIC_CORE_DGG_PART_FILE_H_
+
+#include <string>
+
+#include "absl/status/statusor.h"
+#include "core/dgg_build.h"
+
+namespace geodesic {
+
+inline constexpr uint32_t kPartFormatVersion = 1;
+
+absl::Status WriteDggPart(const DggCandidatePart& part, const std::string& path);
+
+// DATA_LOSS when the file is truncated or corrupt, FAILED_PRECONDITION for
+// another format version; messages name the path.
+absl::StatusOr<DggCandidatePart> ReadDggPart(const std::string& path);
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_DGG_PART_FILE_H_

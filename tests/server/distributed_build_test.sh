@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# A graph built in parts (geodesicd build --part I/N, on any machines) and
+# merged equals the single-machine build byte for byte; parts that do not fit
+# together are refused with a message naming the problem.
+# Usage: distributed_build_test.sh BUILD_BIN_DIR SOURCE_DIR
+set -uo pipefail
+bin=$1
+mesh=$2/data/spot.obj
+work=$(mktemp -d)
+trap 'rm -rf "$work"' EXIT
+failures=0
+check() {  # check NAME COMMAND...: passes when the command succeeds
+  local name=$1; shift
+  if "$@"; then echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
+}
+geodesicd() { timeout 300 "$bin/geodesicd" "$@"; }
+quietly() { "$@" >/dev/null 2>&1; }
+
+geodesicd build "$mesh" --eps 0.005 --threads 1 --quiet --out "$work/single.dgg" >/dev/null
+for i in 0 1 2; do
+  geodesicd build "$mesh" --eps 0.005 --threads 2 --quiet --part "$i/3" --out "$work/p$i.part" >/dev/null
+done
+geodesicd merge "$mesh" "$work/p2.part" "$work/p0.part" "$work/p1.part" --quiet \
+  --out "$work/merged.dgg" >/dev/null
+check "3 parts merged equal the single build byte for byte" cmp "$work/single.dgg" "$work/merged.dgg"
+check "merged graph passes full validation" quietly geodesicd info "$work/merged.dgg"
+
+geodesicd merge "$mesh" "$work/p0.part" "$work/p2.part" --out "$work/x.dgg" 2>"$work/e1"
+check "a missing part is named" grep -q "no part covers vertices" "$work/e1"
+geodesicd merge "$mesh" "$work/p0.part" "$work/p0.part" "$work/p1.part" "$work/p2.part" \
+  --out "$work/x.dgg" 2>"$work/e2"
+check "an overlapping part is named" grep -q "two parts cover vertex" "$work/e2"
+cp "$work/p1.part" "$work/flipped.part"
+size=$(stat -c %s "$work/flipped.part")
+printf '\x55' | dd of="$work/flipped.part" bs=1 seek=$((size - 7)) conv=notrunc status=none
+geodesicd merge "$mesh" "$work/p0.part" "$work/flipped.part" "$work/p2.part" \
+  --out "$work/x.dgg" 2>"$work/e3"
+check "a corrupt part is detected" grep -q "flipped.part: checksum mismatch" "$work/e3"
+geodesicd build "$mesh" --eps 0.01 --quiet --part 1/3 --out "$work/other_eps.part" >/dev/null
+geodesicd merge "$mesh" "$work/p0.part" "$work/other_eps.part" "$work/p2.part" \
+  --out "$work/x.dgg" 2>"$work/e4"
+check "parts of another epsilon are refused" grep -q "epsilon 0.01" "$work/e4"
+check "no output written by failed merges" test ! -e "$work/x.dgg"
+geodesicd build "$mesh" --eps 0.01 --part 3/3 --out "$work/y" 2>"$work/e5"
+check "part index out of range" grep -q "index must be in" "$work/e5"
+exit $((failures > 0))
