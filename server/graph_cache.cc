@@ -1,6 +1,7 @@
 #include "server/graph_cache.h"
 
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
 
 #include "absl/status/status.h"
@@ -30,8 +31,34 @@ const char* GraphStateName(GraphState s) {
   return "?";
 }
 
+namespace {
+
+// A temporary file is what a writer killed mid-write leaves behind. Replicas
+// may share the directory and be writing right now, so only files too old to
+// belong to a live write are removed.
+constexpr auto kStaleTemporaryAge = std::chrono::hours(1);
+
+void RemoveStaleTemporaries(const std::string& dir) {
+  std::error_code ec;
+  const auto now = std::filesystem::file_time_type::clock::now();
+  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (name.find(".dgg.tmp.") == std::string::npos) continue;
+    auto written = entry.last_write_time(ec);
+    if (ec || now - written < kStaleTemporaryAge) continue;
+    if (std::filesystem::remove(entry.path(), ec)) {
+      std::fprintf(stderr, "geodesicd: removed stale temporary file %s\n", entry.path().c_str());
+    }
+  }
+}
+
+}  // namespace
+
 GraphCache::GraphCache(Options options) : options_(std::move(options)) {
-  if (!options_.graph_dir.empty()) std::filesystem::create_directories(options_.graph_dir);
+  if (!options_.graph_dir.empty()) {
+    std::filesystem::create_directories(options_.graph_dir);
+    RemoveStaleTemporaries(options_.graph_dir);
+  }
   for (int i = 0; i < std::max(1, options_.build_workers); ++i) {
     workers_.emplace_back([this] { Worker(); });
   }

@@ -1,0 +1,119 @@
+#!/usr/bin/env bash
+# Faults: kill -9 during a build and during a graph write, graph files
+# truncated, deleted or replaced under a running daemon, a full disk. After
+# each, nothing untrustworthy is served and the daemon keeps serving.
+# Usage: faults_test.sh BUILD_BIN_DIR SOURCE_DIR
+set -uo pipefail
+bin=$1
+src=$2
+work=$(mktemp -d)
+graphs=$work/graphs
+failures=0
+port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+daemon=
+tmpfs=
+start_daemon() {
+  "$bin/geodesicd" serve --listen "127.0.0.1:$port" --mesh-root "$src/data" --log-level warning \
+    --build-threads 1 --graph-dir "$@" 2>>"$work/daemon.log" &
+  daemon=$!
+  for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && return 0; sleep 0.1; done
+  echo "daemon did not start"; cat "$work/daemon.log"; exit 1
+}
+stop_daemon() { kill -TERM "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; }
+cleanup() {
+  kill -9 "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null
+  [ -n "$tmpfs" ] && umount "$tmpfs" 2>/dev/null
+  rm -rf "$work"
+}
+trap cleanup EXIT
+cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$port" "$@"; }
+check() {  # check NAME COMMAND...: passes when the command succeeds
+  local name=$1; shift
+  if "$@"; then echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
+}
+json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
+graph_field() { cli --json --eps "$1" graph --wait | json "d[\"$2\"]"; }
+offline_distance() {
+  "$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$1" --from v:5 --to v:2500 --json |
+    json 'd["distance"]'
+}
+daemon_distance() { cli --json --eps "$1" distance --from v:5 --to v:2500 | json 'd[0]["distance"]'; }
+
+# kill -9 in the middle of a build: no graph file appears, and a restart
+# builds again rather than trusting anything left behind.
+start_daemon "$graphs"
+cli --eps 0.0002 graph >/dev/null
+for _ in $(seq 100); do
+  [ "$(cli --json --eps 0.0002 graph | json 'd["state"]')" = building ] && break; sleep 0.05
+done
+sleep 0.5
+kill -9 "$daemon"; wait "$daemon" 2>/dev/null
+check "kill -9 during a build leaves no graph file" test -z "$(ls "$graphs" | grep 'eps0.0002')"
+start_daemon "$graphs"
+check "after restart the interrupted graph is built again, not mapped" \
+  test "$(cli --json --eps 0.0002 graph | json 'd["from_file"]')" = False
+cli --eps 0.0002 graph --cancel >/dev/null
+
+# kill -9 in the middle of a graph write leaves a temporary file (simulated
+# here: the first half of a real graph under the writer's temporary name).
+# A restart never maps it, builds the graph again, and removes temporaries
+# too old to belong to a live writer (replicas may share the directory).
+graph_field 0.01 state >/dev/null
+stop_daemon
+good=$(ls "$graphs"/*eps0.01.dgg)
+size=$(stat -c %s "$good")
+head -c $((size / 2)) "$good" > "$good.tmp.4242.beef"
+touch -d '2 hours ago' "$good.tmp.4242.beef"
+head -c $((size / 2)) "$good" > "$good.tmp.4343.cafe"
+mv "$good" "$work/good.dgg"
+start_daemon "$graphs"
+check "a half-written temporary file is not mapped" test "$(graph_field 0.01 from_file)" = False
+check "the rebuilt graph answers like the good one" \
+  test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+check "an old temporary file is removed at start" test ! -e "$good.tmp.4242.beef"
+check "a recent temporary file (a live writer's) is left alone" test -e "$good.tmp.4343.cafe"
+
+# A graph file truncated or bit-flipped by something else is rejected (moved
+# aside for inspection) and rebuilt, never served.
+stop_daemon
+truncate -s $((size - 100)) "$good"
+start_daemon "$graphs"
+check "a truncated graph file is rebuilt, not mapped" test "$(graph_field 0.01 from_file)" = False
+check "the truncated file was moved aside" test -n "$(ls "$graphs" | grep rejected)"
+stop_daemon
+printf '\xff' | dd of="$good" bs=1 seek=$((size / 2)) conv=notrunc status=none
+start_daemon "$graphs"
+check "a bit-flipped graph file is rebuilt, not mapped" test "$(graph_field 0.01 from_file)" = False
+check "and answers like the good one" \
+  test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+
+# Files deleted or replaced (by rename, as every writer here does) under a
+# running daemon: it keeps serving the graph it mapped.
+stop_daemon
+start_daemon "$graphs"
+check "graph mapped from the directory" test "$(graph_field 0.01 from_file)" = True
+before=$(daemon_distance 0.01)
+rm "$good"
+check "graph file deleted under the daemon: still serving" test "$(daemon_distance 0.01)" = "$before"
+head -c 10000 /dev/urandom > "$work/garbage"
+mv "$work/garbage" "$good"
+check "graph file replaced under the daemon: still serving" test "$(daemon_distance 0.01)" = "$before"
+stop_daemon
+
+# A full disk while writing a graph: the write fails cleanly (no partial or
+# temporary file) and the graph is served from memory, saying so.
+mkdir -p "$work/full"
+if mount -t tmpfs -o size=256k tmpfs "$work/full" 2>/dev/null; then
+  tmpfs=$work/full
+  start_daemon "$tmpfs"
+  check "full disk: graph still becomes ready" test "$(graph_field 0.01 state)" = ready
+  check "full disk: the error says it is kept in memory only" \
+    grep -q "kept in memory only" <(cli --json --eps 0.01 graph)
+  check "full disk: no file left behind" test -z "$(ls "$tmpfs")"
+  check "full disk: queries answer" test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+  stop_daemon
+else
+  echo "skip full-disk checks: cannot mount a small tmpfs here (needs root)"
+fi
+[ "$failures" = 0 ] || { echo "--- daemon log"; cat "$work/daemon.log"; }
+exit $((failures > 0))
