@@ -59,10 +59,21 @@ def format_point(p):
 class Client:
     """A connection to one geodesicd (or a proxy in front of several)."""
 
-    def __init__(self, address="127.0.0.1:50051", timeout=600.0):
-        self._channel = grpc.insecure_channel(
-            address, options=[("grpc.max_receive_message_length", 256 << 20)])
+    def __init__(self, address="127.0.0.1:50051", timeout=600.0, token=None,
+                 root_certificates=None, private_key=None, certificate_chain=None):
+        """token: sent as "authorization: Bearer <token>" (geodesicd --auth-token-file).
+        root_certificates: PEM bytes of the CA that signed the server's certificate; turns
+        TLS on. private_key, certificate_chain: PEM bytes of a client certificate, for
+        servers that require one (--tls-client-ca)."""
+        options = [("grpc.max_receive_message_length", 256 << 20)]
+        if root_certificates is not None:
+            credentials = grpc.ssl_channel_credentials(root_certificates, private_key,
+                                                       certificate_chain)
+            self._channel = grpc.secure_channel(address, credentials, options=options)
+        else:
+            self._channel = grpc.insecure_channel(address, options=options)
         self._stub = rpc.GeodesicStub(self._channel)
+        self._auth = [("authorization", f"Bearer {token}")] if token else []
         self.timeout = timeout
 
     def close(self):
@@ -77,7 +88,7 @@ class Client:
     def _meta(self, mesh):
         # Proxies route by this header, so that a mesh's queries reach the
         # replicas that hold its graph.
-        return [("x-geodesic-mesh", mesh)]
+        return [("x-geodesic-mesh", mesh)] + self._auth
 
     def _points(self, mesh, specs):
         parsed = [parse_point(s) if isinstance(s, str) else s for s in specs]
@@ -89,11 +100,17 @@ class Client:
         return parsed
 
     def meshes(self):
-        return list(self._stub.ListMeshes(pb.ListMeshesRequest(), timeout=self.timeout).meshes)
+        return list(self._stub.ListMeshes(pb.ListMeshesRequest(), timeout=self.timeout,
+                                          metadata=self._auth).meshes)
 
     def register_mesh(self, name, path):
         return self._stub.RegisterMesh(pb.RegisterMeshRequest(name=name, path=path),
                                        timeout=self.timeout, metadata=self._meta(name))
+
+    def unload_mesh(self, name):
+        """Forgets a mesh and drops its graphs from memory (their files stay)."""
+        self._stub.UnloadMesh(pb.UnloadMeshRequest(name=name), timeout=self.timeout,
+                              metadata=self._meta(name))
 
     def upload_mesh(self, name, filename, chunk_bytes=1 << 20):
         fmt = filename.rsplit(".", 1)[-1].lower()
@@ -113,20 +130,26 @@ class Client:
 
     def request_graph(self, mesh, epsilon=0.0, wait=True, pseudo_vertices=False):
         """Requests the graph; with wait=True, blocks until it is ready (or raises)."""
-        g = self._stub.RequestGraph(
-            pb.RequestGraphRequest(mesh=mesh, epsilon=epsilon, pseudo_vertices=pseudo_vertices),
-            timeout=self.timeout, metadata=self._meta(mesh))
-        if wait:
+        request = pb.RequestGraphRequest(mesh=mesh, epsilon=epsilon,
+                                         pseudo_vertices=pseudo_vertices)
+        g = self._stub.RequestGraph(request, timeout=self.timeout, metadata=self._meta(mesh))
+        # Under memory pressure a graph can be evicted again before this
+        # client sees it ready; asking again brings it back from its file.
+        for _ in range(10 if wait else 0):
             for g in self._stub.WatchGraph(pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon),
                                            timeout=self.timeout, metadata=self._meta(mesh)):
                 pass
-            if g.state != pb.GRAPH_STATE_READY:
-                raise RuntimeError(f"graph for {mesh} at eps {g.epsilon}: "
-                                   f"{pb.GraphState.Name(g.state)} {g.error}")
+            if g.state != pb.GRAPH_STATE_EVICTED:
+                break
+            g = self._stub.RequestGraph(request, timeout=self.timeout, metadata=self._meta(mesh))
+        if wait and g.state != pb.GRAPH_STATE_READY:
+            raise RuntimeError(f"graph for {mesh} at eps {g.epsilon}: "
+                               f"{pb.GraphState.Name(g.state)} {g.error}")
         return g
 
     def graphs(self):
-        return list(self._stub.ListGraphs(pb.ListGraphsRequest(), timeout=self.timeout).graphs)
+        return list(self._stub.ListGraphs(pb.ListGraphsRequest(), timeout=self.timeout,
+                                          metadata=self._auth).graphs)
 
     def field(self, mesh, sources, epsilon=0.0, max_distance=0.0, targets=(), method="lc",
               nearest_source=False):
