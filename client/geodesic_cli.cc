@@ -3,9 +3,11 @@
 
 #include <algorithm>
 #include <atomic>
+#include <cctype>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <mutex>
 #include <sstream>
@@ -29,18 +31,63 @@ struct Common {
   double epsilon = 0;
   bool json = false;
   double timeout = 600;
+  // Security: TLS when a CA is given; a client certificate for mutual TLS;
+  // a bearer token (from --token-file or $GEODESIC_TOKEN).
+  std::string tls_ca, tls_cert, tls_key, token_file;
+  std::string token;
+  grpc::SslCredentialsOptions tls;
 };
+
+bool ReadWholeFile(const std::string& flag, const std::string& path, std::string* out) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  if (in) text << in.rdbuf();
+  if (!in || text.str().empty()) {
+    std::fprintf(stderr, "geodesic: %s %s: cannot read it or it is empty\n", flag.c_str(),
+                 path.c_str());
+    return false;
+  }
+  *out = text.str();
+  return true;
+}
+
+// Reads the certificate and token files named by the flags.
+bool LoadSecurity(Common& c) {
+  if (!c.tls_ca.empty() && !ReadWholeFile("--tls-ca", c.tls_ca, &c.tls.pem_root_certs)) {
+    return false;
+  }
+  if (c.tls_cert.empty() != c.tls_key.empty() || (!c.tls_cert.empty() && c.tls_ca.empty())) {
+    std::fprintf(stderr, "geodesic: --tls-cert and --tls-key go together, with --tls-ca\n");
+    return false;
+  }
+  if (!c.tls_cert.empty() && (!ReadWholeFile("--tls-cert", c.tls_cert, &c.tls.pem_cert_chain) ||
+                              !ReadWholeFile("--tls-key", c.tls_key, &c.tls.pem_private_key))) {
+    return false;
+  }
+  if (!c.token_file.empty()) {
+    if (!ReadWholeFile("--token-file", c.token_file, &c.token)) return false;
+  } else if (const char* env = std::getenv("GEODESIC_TOKEN")) {
+    c.token = env;
+  }
+  while (!c.token.empty() && std::isspace(static_cast<unsigned char>(c.token.back()))) {
+    c.token.pop_back();
+  }
+  return true;
+}
 
 std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(256 << 20);
-  auto channel = grpc::CreateCustomChannel(c.server, grpc::InsecureChannelCredentials(), args);
+  auto credentials =
+      c.tls_ca.empty() ? grpc::InsecureChannelCredentials() : grpc::SslCredentials(c.tls);
+  auto channel = grpc::CreateCustomChannel(c.server, credentials, args);
   return v1::Geodesic::NewStub(channel);
 }
 
 // Every call carries the mesh name so that a proxy can route by it.
 void Prepare(grpc::ClientContext* ctx, const Common& c) {
   ctx->AddMetadata("x-geodesic-mesh", c.mesh);
+  if (!c.token.empty()) ctx->AddMetadata("authorization", "Bearer " + c.token);
   ctx->set_deadline(std::chrono::system_clock::now() +
                     std::chrono::milliseconds(static_cast<int64_t>(c.timeout * 1000)));
 }
@@ -647,6 +694,14 @@ int main(int argc, char** argv) {
   app.add_option("--eps", c.epsilon, "graph accuracy (0: the server's default)");
   app.add_flag("--json", c.json, "machine-readable output");
   app.add_option("--timeout", c.timeout, "deadline per call, seconds");
+  app.add_option("--tls-ca", c.tls_ca, "PEM CA certificate of the server: connect with TLS")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-cert", c.tls_cert, "PEM client certificate (servers with --tls-client-ca)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-key", c.tls_key, "PEM private key of --tls-cert")->check(CLI::ExistingFile);
+  app.add_option("--token-file", c.token_file,
+                 "file holding the bearer token (default: $GEODESIC_TOKEN)")
+      ->check(CLI::ExistingFile);
   app.require_subcommand(1);
 
   app.add_subcommand("meshes", "list registered meshes");
@@ -702,6 +757,7 @@ int main(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  if (!LoadSecurity(c)) return 2;
   if (app.got_subcommand("meshes")) return CmdMeshes(c);
   if (app.got_subcommand("load")) return CmdLoad(c, load_path, upload);
   if (app.got_subcommand("graph")) return CmdGraph(c, wait, pseudo, cancel);

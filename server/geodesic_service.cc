@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <string_view>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
@@ -45,6 +46,28 @@ absl::Status CheckEpsilon(double eps) {
   return absl::OkStatus();
 }
 
+// Compares in time independent of where the strings differ, so that response
+// times do not leak the token.
+bool ConstantTimeEquals(std::string_view a, std::string_view b) {
+  if (a.size() != b.size()) return false;
+  unsigned char diff = 0;
+  for (size_t i = 0; i < a.size(); ++i) diff |= static_cast<unsigned char>(a[i] ^ b[i]);
+  return diff == 0;
+}
+
+bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
+  constexpr std::string_view kPrefix = "Bearer ";
+  const auto& metadata = ctx.client_metadata();
+  auto [begin, end] = metadata.equal_range("authorization");
+  for (auto it = begin; it != end; ++it) {
+    std::string_view value(it->second.data(), it->second.size());
+    if (value.starts_with(kPrefix) && ConstantTimeEquals(value.substr(kPrefix.size()), token)) {
+      return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 template <typename Body>
@@ -52,7 +75,11 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
                                      const std::string& mesh, bool is_query, Body body) {
   const auto start = std::chrono::steady_clock::now();
   grpc::Status status;
-  if (is_query && inflight_.fetch_add(1) >= limits_.max_inflight) {
+  if (!bearer_token_.empty() && !HasBearerToken(*ctx, bearer_token_)) {
+    status = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                          "missing or wrong bearer token: send metadata "
+                          "'authorization: Bearer <token>'");
+  } else if (is_query && inflight_.fetch_add(1) >= limits_.max_inflight) {
     inflight_.fetch_sub(1);
     status =
         grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,

@@ -4,6 +4,7 @@
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
 #include <atomic>
+#include <string>
 
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "server/graph_cache.h"
@@ -26,6 +27,11 @@ class GeodesicService final : public v1::Geodesic::Service {
  public:
   GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics, ServiceLimits limits)
       : meshes_(meshes), graphs_(graphs), metrics_(metrics), limits_(limits) {}
+
+  // From now on every call must carry the metadata "authorization: Bearer
+  // <token>"; others fail with UNAUTHENTICATED. Health checks and reflection
+  // are separate services and stay open, so that probes need no secret.
+  void RequireBearerToken(std::string token) { bearer_token_ = std::move(token); }
 
   grpc::Status RegisterMesh(grpc::ServerContext*, const v1::RegisterMeshRequest*,
                             v1::Mesh*) override;
@@ -64,6 +70,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   GraphCache* graphs_;
   Metrics* metrics_;
   ServiceLimits limits_;
+  std::string bearer_token_;
   std::atomic<int> inflight_{0};
 };
 

@@ -2,12 +2,15 @@
 #include <signal.h>
 #include <unistd.h>
 
+#include <cctype>
 #include <chrono>
 #include <condition_variable>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <mutex>
+#include <sstream>
 #include <thread>
 
 #include "CLI/CLI.hpp"
@@ -57,6 +60,50 @@ std::string ServiceName(const std::string& mesh, double epsilon) {
   return absl::StrFormat("geodesic.v1.Geodesic/%s@%g", mesh, epsilon);
 }
 
+// Certificates, keys and tokens: small files read once at start.
+bool ReadSecretFile(const std::string& flag, const std::string& path, std::string* out) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream text;
+  if (in) text << in.rdbuf();
+  if (!in || text.str().empty()) {
+    std::fprintf(stderr, "geodesicd serve: %s %s: cannot read it or it is empty\n", flag.c_str(),
+                 path.c_str());
+    return false;
+  }
+  *out = text.str();
+  return true;
+}
+
+struct SecurityFlags {
+  std::string tls_cert, tls_key, tls_client_ca, auth_token_file;
+};
+
+// Plaintext unless a certificate is given; with a client CA, clients must
+// present a certificate it signed (mutual TLS).
+std::shared_ptr<grpc::ServerCredentials> ServerCredentials(const SecurityFlags& flags) {
+  if (flags.tls_cert.empty() && flags.tls_key.empty()) {
+    if (!flags.tls_client_ca.empty()) {
+      std::fprintf(stderr, "geodesicd serve: --tls-client-ca needs --tls-cert and --tls-key\n");
+      return nullptr;
+    }
+    return grpc::InsecureServerCredentials();
+  }
+  grpc::SslServerCredentialsOptions::PemKeyCertPair pair;
+  if (!ReadSecretFile("--tls-cert", flags.tls_cert, &pair.cert_chain) ||
+      !ReadSecretFile("--tls-key", flags.tls_key, &pair.private_key)) {
+    return nullptr;
+  }
+  grpc::SslServerCredentialsOptions options;
+  options.pem_key_cert_pairs.push_back(std::move(pair));
+  if (!flags.tls_client_ca.empty()) {
+    if (!ReadSecretFile("--tls-client-ca", flags.tls_client_ca, &options.pem_root_certs)) {
+      return nullptr;
+    }
+    options.client_certificate_request = GRPC_SSL_REQUEST_AND_REQUIRE_CLIENT_CERTIFICATE_AND_VERIFY;
+  }
+  return grpc::SslServerCredentials(options);
+}
+
 }  // namespace
 
 int RunServe(int argc, char** argv) {
@@ -89,12 +136,42 @@ int RunServe(int argc, char** argv) {
   app.add_option("--sample-mesh", sample, "mesh registered as 'spot' at start (default: bundled)");
   app.add_flag("--no-sample", no_sample, "do not register the bundled sample mesh");
   app.add_option("--drain-seconds", drain_seconds, "grace period for running calls at shutdown");
+  SecurityFlags security;
+  app.add_option("--tls-cert", security.tls_cert, "PEM certificate chain: serve TLS")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-key", security.tls_key, "PEM private key of --tls-cert")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-client-ca", security.tls_client_ca,
+                 "PEM CA: require client certificates signed by it (mutual TLS)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--auth-token-file", security.auth_token_file,
+                 "file holding a bearer token every geodesic.v1 call must send as "
+                 "'authorization: Bearer <token>' (health and reflection stay open)")
+      ->check(CLI::ExistingFile);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
   limits.log_requests = log_level == "info";
+  if (security.tls_cert.empty() != security.tls_key.empty()) {
+    std::fprintf(stderr, "geodesicd serve: --tls-cert and --tls-key go together\n");
+    return 2;
+  }
+  std::shared_ptr<grpc::ServerCredentials> credentials = ServerCredentials(security);
+  if (!credentials) return 2;
+  std::string token;
+  if (!security.auth_token_file.empty()) {
+    if (!ReadSecretFile("--auth-token-file", security.auth_token_file, &token)) return 2;
+    while (!token.empty() && std::isspace(static_cast<unsigned char>(token.back()))) {
+      token.pop_back();
+    }
+    if (token.empty()) {
+      std::fprintf(stderr, "geodesicd serve: --auth-token-file %s holds only whitespace\n",
+                   security.auth_token_file.c_str());
+      return 2;
+    }
+  }
   if (mesh_root.empty() && !no_sample) {
     // With no --mesh-root, clients may register the bundled meshes.
     std::string found = FindSampleMesh(argv[0]);
@@ -128,11 +205,12 @@ int RunServe(int argc, char** argv) {
                    [&] { return double(graphs.misses()); });
 
   GeodesicService service(&meshes, &graphs, &metrics, limits);
+  if (!token.empty()) service.RequireBearerToken(token);
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
   int bound_port = 0;
-  builder.AddListeningPort(listen, grpc::InsecureServerCredentials(), &bound_port);
+  builder.AddListeningPort(listen, credentials, &bound_port);
   builder.RegisterService(&service);
   builder.SetMaxReceiveMessageSize(64 << 20);
   builder.SetMaxSendMessageSize(64 << 20);
@@ -162,8 +240,12 @@ int RunServe(int argc, char** argv) {
       return 1;
     }
   }
-  std::fprintf(stderr, "geodesicd: serving on %s (port %d), graphs in %s, mesh root %s\n",
-               listen.c_str(), bound_port, graph_dir.c_str(),
+  std::fprintf(stderr, "geodesicd: serving on %s (port %d, %s%s), graphs in %s, mesh root %s\n",
+               listen.c_str(), bound_port,
+               security.tls_cert.empty()        ? "plaintext"
+               : security.tls_client_ca.empty() ? "TLS"
+                                                : "mutual TLS",
+               token.empty() ? "" : ", bearer token required", graph_dir.c_str(),
                mesh_root.empty() ? "(none)" : mesh_root.c_str());
   if (!no_sample) {
     std::string path = sample.empty() ? FindSampleMesh(argv[0]) : sample;
