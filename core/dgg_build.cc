@@ -528,6 +528,15 @@ int ThreadCount(const DggBuildOptions& options) {
 
 }  // namespace
 
+uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon) {
+  constexpr double kDegreeTimesSqrtEpsilon = 1.5;
+  // target, weight, angle, fan begin and fan count of each directed edge.
+  constexpr double kBytesPerDirectedEdge = 20;
+  if (!(epsilon > 0)) return UINT64_MAX;
+  return static_cast<uint64_t>(double(vertices) * kDegreeTimesSqrtEpsilon / std::sqrt(epsilon) *
+                               kBytesPerDirectedEdge);
+}
+
 absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
                                                          const DggBuildOptions& options,
                                                          DggBuildStats* stats) {

@@ -44,6 +44,13 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
                                                          const DggBuildOptions& options,
                                                          DggBuildStats* stats = nullptr);
 
+// A lower estimate of the bytes of the graph of a mesh with `vertices`
+// vertices at `epsilon`, to refuse builds that cannot fit a memory budget
+// before spending minutes on them. DGG degree grows like 1/sqrt(epsilon);
+// measured averages are 3.0-3.5/sqrt(epsilon) (BENCHMARKS.md), so half that
+// keeps the estimate below the real size on meshes not measured.
+uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon);
+
 // A graph edge as seen from one end: a direct geodesic from the source to
 // `to`, its length rounded up to float, and its polar angles at both ends.
 struct DggHalfEdge {

@@ -7,6 +7,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
+#include "core/dgg_build.h"
 #include "server/convert.h"
 
 namespace geodesic::server {
@@ -190,6 +191,14 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
     if (!s.ok()) return s;
     auto m = meshes_->Get(req->mesh());
     if (!m.ok()) return m.status();
+    const uint64_t budget = graphs_->memory_limit();
+    const uint64_t estimate = EstimateDggBytesLowerBound((*m)->mesh->num_vertices(), eps);
+    if (budget > 0 && estimate > budget) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "the graph of %s at epsilon %g needs at least %u bytes, over the server's memory "
+          "limit of %u bytes: use a larger epsilon",
+          req->mesh(), eps, estimate, budget));
+    }
     ToProto(graphs_->Request(*m, eps, req->pseudo_vertices()), resp);
     return absl::OkStatus();
   });
@@ -209,6 +218,7 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
                                          grpc::ServerWriter<v1::Graph>* writer) {
   return Handle("WatchGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
     const double eps = Epsilon(req->epsilon());
+    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
     auto g = graphs_->Get(req->mesh(), eps);
     while (g.ok()) {
       v1::Graph out;
@@ -253,6 +263,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
           "%d sources exceed the limit of %d per field", req->sources_size(), limits_.max_sources));
     }
     const double eps = Epsilon(req->epsilon());
+    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
     auto engine = graphs_->Acquire(req->mesh(), eps);
     if (!engine.ok()) return engine.status();
@@ -332,6 +343,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
     }
     const double eps = Epsilon(req->epsilon());
+    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
     auto engine = graphs_->Acquire(req->mesh(), eps);
     if (!engine.ok()) return engine.status();
@@ -367,6 +379,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
           req->targets_size(), limits_.max_sources, limits_.max_pairs));
     }
     const double eps = Epsilon(req->epsilon());
+    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
     auto engine = graphs_->Acquire(req->mesh(), eps);
     if (!engine.ok()) return engine.status();

@@ -62,8 +62,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   template <typename Body>
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
                       bool is_query, Body body);
+  // Zero (unset in proto3) means the server's default; anything else,
+  // negative and NaN included, is checked as given.
   double Epsilon(double requested) const {
-    return requested > 0 ? requested : limits_.default_epsilon;
+    return requested == 0 ? limits_.default_epsilon : requested;
   }
 
   MeshRegistry* meshes_;

@@ -74,6 +74,7 @@ class GraphCache {
                                             uint64_t version, absl::Time deadline) const;
   absl::StatusOr<GraphStatus> Cancel(const std::string& mesh, double epsilon);
   std::vector<GraphStatus> List() const;
+  uint64_t memory_limit() const { return options_.memory_limit; }
   // Drops every graph of a mesh (unload).
   void DropMesh(const std::string& mesh);
 

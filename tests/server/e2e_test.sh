@@ -50,7 +50,12 @@ cli --eps 0.01 distance --from v:999999 --to v:1 2>"$work/e1"; check "vertex id 
 cli --eps 0.01 distance --from f:1:0.5,0.6,0.1 --to v:1 2>"$work/e2"; check "barycentrics not summing to 1" grep -q INVALID_ARGUMENT "$work/e2"
 cli --mesh nosuch distance --from v:1 --to v:2 2>"$work/e3"; check "unknown mesh" grep -q NOT_FOUND "$work/e3"
 cli --mesh evil load ../../../etc/passwd 2>"$work/e4"; check "path outside the mesh root" grep -q PERMISSION_DENIED "$work/e4"
-cli --eps 2 graph 2>"$work/e5"; check "epsilon out of range" grep -q INVALID_ARGUMENT "$work/e5"
+for eps in 2 -0.1 nan 1e-9; do
+  cli --eps "$eps" graph 2>"$work/e5"; check "epsilon $eps refused" grep -q INVALID_ARGUMENT "$work/e5"
+done
+cli --eps 0.01 distance --from f:1:-0.5,1.0,0.5 --to v:1 2>"$work/e8"; check "negative barycentric" grep -q INVALID_ARGUMENT "$work/e8"
+cli --eps 0.01 distance --from f:1:nan,0.5,0.5 --to v:1 2>"$work/e9"; check "NaN barycentric" grep -q INVALID_ARGUMENT "$work/e9"
+cli --eps 0.01 distance --from f:99999:0.2,0.3,0.5 --to v:1 2>"$work/e10"; check "face id too large" grep -q OUT_OF_RANGE "$work/e10"
 printf 'OFF\n3 1 0\n0 0 0\n1 0 0\n' > "$work/broken.off"
 cli --mesh broken load --upload "$work/broken.off" 2>"$work/e6"; check "truncated upload rejected" grep -q INVALID_ARGUMENT "$work/e6"
 check "still serving after bad requests" cli meshes >/dev/null
@@ -79,7 +84,9 @@ check "graph mapped again after restart" test "$from_file" = True
 # Eviction under a small memory budget: the least recently used graph goes,
 # and comes back (mapped from its file) on the next request.
 stop_daemon
-start_daemon --memory-limit 1
+start_daemon --memory-limit 2500000
+cli --eps 0.00001 graph 2>"$work/e11"
+check "epsilon too small for the memory limit" grep -q "over the server's memory limit" "$work/e11"
 cli --eps 0.01 graph --wait >/dev/null
 cli --eps 0.02 graph --wait >/dev/null
 s=$(cli --json status | json '[g["state"] for g in d if g["epsilon"]==0.01][0]')
