@@ -490,7 +490,8 @@ void ExactGeodesic::Propagate(uint32_t index) {
 
 absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, double max_distance,
                                 const std::vector<VertexId>* targets, bool keep_windows,
-                                const std::function<bool()>* cancelled, double epsilon) {
+                                const std::function<bool()>* cancelled, double epsilon,
+                                bool stop_at_corners) {
   RETURN_IF_ERROR(ValidateSurfacePoint(mesh_, raw_source));
   if (targets) {
     for (VertexId t : *targets) {
@@ -505,7 +506,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   mode_ = mode;
   keep_windows_ = keep_windows;
   epsilon_ = epsilon;
-  relays_ = mode == Mode::kDirect && epsilon > 0;
+  relays_ = mode == Mode::kDirect && epsilon > 0 && stop_at_corners;
   max_distance_ = max_distance;
   source_ = CanonicalizeSurfacePoint(mesh_, raw_source);
   have_source_ = true;
@@ -562,7 +563,7 @@ absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint&
 absl::StatusOr<std::vector<DirectHit>> ExactGeodesic::DirectGeodesics(
     const SurfacePoint& source, const DirectOptions& options) {
   RETURN_IF_ERROR(Run(source, Mode::kDirect, options.max_distance, nullptr, options.keep_windows,
-                      nullptr, options.epsilon));
+                      nullptr, options.epsilon, options.stop_at_corners));
   std::vector<DirectHit> hits;
   hits.reserve(touched_.size());
   const bool vertex_source = source_.kind == SurfacePoint::Kind::kVertex;

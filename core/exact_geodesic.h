@@ -68,6 +68,10 @@ struct DirectOptions {
   // not propagated).
   double max_distance = std::numeric_limits<double>::infinity();
   bool keep_windows = false;
+  // With epsilon: also stop rays that a route through a corner of their
+  // window's shadow already serves within 1+epsilon (our FastDGG-style early
+  // stop). Off gives plain Algorithm 1 with Theorem 2 only, for comparison.
+  bool stop_at_corners = true;
 };
 
 // A vertex lit directly by the source.
@@ -130,7 +134,8 @@ class ExactGeodesic {
 
   absl::Status Run(const SurfacePoint& source, Mode mode, double max_distance,
                    const std::vector<VertexId>* targets, bool keep_windows,
-                   const std::function<bool()>* cancelled, double epsilon);
+                   const std::function<bool()>* cancelled, double epsilon,
+                   bool stop_at_corners = false);
   void Reset();
   void SeedSource(const SurfacePoint& source);
   void EmitFromVertex(VertexId v, double sigma, uint32_t provenance_vertex);

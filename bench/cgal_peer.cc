@@ -1,0 +1,106 @@
+// cgal_peer: CGAL's geodesic solvers on the same mesh and source, for the
+// benchmark's side-by-side tables: the heat method (plain and on the
+// intrinsic Delaunay triangulation) and the exact Surface_mesh_shortest_path.
+//
+//   cgal_peer MESH VERTEX OUT_PREFIX
+//
+// Writes OUT_PREFIX.{heat,heat-idt,exact}.f64 (one float64 per vertex, file
+// order) and prints a JSON object of timings. The mesh is read with our own
+// loader and handed to CGAL vertex by vertex, so vertex ids are the file's.
+#include <CGAL/Heat_method_3/Surface_mesh_geodesic_distances_3.h>
+#include <CGAL/Simple_cartesian.h>
+#include <CGAL/Surface_mesh.h>
+#include <CGAL/Surface_mesh_shortest_path.h>
+
+#include <chrono>
+#include <cstdio>
+#include <fstream>
+#include <limits>
+#include <string>
+#include <vector>
+
+#include "core/mesh_io.h"
+
+namespace {
+
+using Kernel = CGAL::Simple_cartesian<double>;
+using SurfaceMesh = CGAL::Surface_mesh<Kernel::Point_3>;
+using VertexIndex = SurfaceMesh::Vertex_index;
+
+double SecondsSince(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+void WriteF64(const std::string& path, const std::vector<double>& values) {
+  std::ofstream(path, std::ios::binary)
+      .write(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
+}
+
+template <typename Method>
+std::vector<double> HeatField(SurfaceMesh& mesh, VertexIndex source, double* setup_s,
+                              double* solve_s) {
+  auto t = std::chrono::steady_clock::now();
+  CGAL::Heat_method_3::Surface_mesh_geodesic_distances_3<SurfaceMesh, Method> heat(mesh);
+  *setup_s = SecondsSince(t);
+  t = std::chrono::steady_clock::now();
+  auto distance = mesh.add_property_map<VertexIndex, double>("v:heat", 0).first;
+  heat.add_source(source);
+  heat.estimate_geodesic_distances(distance);
+  *solve_s = SecondsSince(t);
+  std::vector<double> out;
+  for (VertexIndex v : mesh.vertices()) out.push_back(distance[v]);
+  mesh.remove_property_map(distance);
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc != 4) {
+    std::fprintf(stderr, "usage: cgal_peer MESH VERTEX OUT_PREFIX\n");
+    return 2;
+  }
+  const std::string prefix = argv[3];
+  auto soup = geodesic::ReadTriangleSoup(argv[1]);
+  if (!soup.ok()) {
+    std::fprintf(stderr, "cgal_peer: %s\n", std::string(soup.status().message()).c_str());
+    return 1;
+  }
+  SurfaceMesh mesh;
+  for (const auto& p : soup->positions) mesh.add_vertex(Kernel::Point_3(p.x, p.y, p.z));
+  size_t refused = 0;
+  for (const auto& t : soup->triangles) {
+    if (mesh.add_face(VertexIndex(t[0]), VertexIndex(t[1]), VertexIndex(t[2])) ==
+        SurfaceMesh::null_face()) {
+      ++refused;
+    }
+  }
+  const VertexIndex source(std::stoul(argv[2]));
+  const size_t n = mesh.number_of_vertices();
+
+  double heat_setup, heat_solve, idt_setup, idt_solve;
+  WriteF64(prefix + ".heat.f64",
+           HeatField<CGAL::Heat_method_3::Direct>(mesh, source, &heat_setup, &heat_solve));
+  WriteF64(prefix + ".heat-idt.f64", HeatField<CGAL::Heat_method_3::Intrinsic_Delaunay>(
+                                         mesh, source, &idt_setup, &idt_solve));
+
+  using Traits = CGAL::Surface_mesh_shortest_path_traits<Kernel, SurfaceMesh>;
+  auto t = std::chrono::steady_clock::now();
+  CGAL::Surface_mesh_shortest_path<Traits> exact(mesh);
+  exact.add_source_point(source);
+  exact.build_sequence_tree();
+  std::vector<double> field(n, std::numeric_limits<double>::infinity());
+  for (VertexIndex v : mesh.vertices()) {
+    if (mesh.is_isolated(v)) continue;
+    const double d = exact.shortest_distance_to_source_points(v).first;
+    if (d >= 0) field[v.idx()] = d;
+  }
+  const double exact_s = SecondsSince(t);
+  WriteF64(prefix + ".exact.f64", field);
+  std::printf(
+      "{\"vertices\": %zu, \"refused_faces\": %zu, \"heat_setup_seconds\": %.4f, "
+      "\"heat_solve_seconds\": %.4f, \"heat_idt_setup_seconds\": %.4f, "
+      "\"heat_idt_solve_seconds\": %.4f, \"exact_seconds\": %.4f}\n",
+      n, refused, heat_setup, heat_solve, idt_setup, idt_solve, exact_s);
+  return 0;
+}
