@@ -6,11 +6,12 @@ phase with 1 and 2 threads, peak memory, degree and bytes; field solve time
 (DGG-tailored label-correcting and plain Dijkstra on the same graph) and its
 accuracy against the exact fields in ../shared/truth; point-to-point latency
 percentiles and accuracy against the exact pairs; path time; and our exact
-engine's field time. CGAL's heat-method accuracy is read from the shared
-truth directory (computed by CGAL 5.5 there); its timings are quoted from the
-truth README, since CGAL is not built here.
+engine's field time; the same build with plain Algorithm 1 candidates (no
+corner early stop); and, in the same run, CGAL 5.5's heat method (plain and
+intrinsic Delaunay) and exact Surface_mesh_shortest_path through
+build/bin/cgal_peer. Plots (matplotlib) go to bench/plots/.
 
-Usage: bench/run_benchmarks.py [--quick] [--meshes a,b] [--eps 1e-2,1e-3]
+Usage: bench/run_benchmarks.py [--quick] [--meshes a,b] [--eps 1e-2,1e-3] [--large]
 """
 import argparse
 import csv
@@ -68,18 +69,20 @@ def bench_mesh(name, eps_list, rows, quick):
     exact_field = np.fromfile(f"{work}/exact.f64")
     truth0 = np.fromfile(os.path.join(tdir, f"{name}.exact.s{sources[0]}.f64"))
     exact_err = rel_errors(exact_field, truth0)
-    heat = [rel_errors(np.fromfile(os.path.join(tdir, f"{name}.heat.s{s}.f64")),
-                       np.fromfile(os.path.join(tdir, f"{name}.exact.s{s}.f64")))[0]
-            for s in sources]
-    heat_idt = [rel_errors(np.fromfile(os.path.join(tdir, f"{name}.heat-idt.s{s}.f64")),
-                           np.fromfile(os.path.join(tdir, f"{name}.exact.s{s}.f64")))[0]
-                for s in sources]
+    # CGAL in the same run, same source: heat (plain, IDT) and exact.
+    cgal = {}
+    if os.path.exists(f"{BIN}/cgal_peer"):
+        cgal = run_json([f"{BIN}/cgal_peer", mesh, str(sources[0]), f"{work}/cgal"])
+        for kind in ("heat", "heat-idt", "exact"):
+            cgal[f"{kind}_err"] = rel_errors(np.fromfile(f"{work}/cgal.{kind}.f64"), truth0)
     for eps in eps_list:
         graph = f"{work}/{name}-{eps}.dgg"
         builds = {}
         for threads in (1, 2):
             builds[threads] = run_json([f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps),
                                         "--out", graph, "--threads", str(threads), "--json"])
+        plain = run_json([f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps), "--out",
+                          f"{work}/plain.dgg", "--threads", "1", "--plain-candidates", "--json"])
         b1, b2 = builds[1], builds[2]
         field_lc, field_dj, errs = [], [], []
         for s in sources:
@@ -110,8 +113,24 @@ def bench_mesh(name, eps_list, rows, quick):
             "field_most_under": np.min([e[2] for e in errs]),
             "exact_field_s": ex["solve_seconds"], "exact_windows_per_vertex": ex["windows_per_vertex"],
             "exact_mean_err": exact_err[0], "exact_max_err": exact_err[1],
-            "cgal_heat_mean_err": np.mean(heat), "cgal_heat_idt_mean_err": np.mean(heat_idt),
+            "plain_build_s_1t": plain["build_seconds"],
+            "plain_candidate_s_1t": plain["candidate_seconds"],
+            "plain_pruning_s_1t": plain["pruning_seconds"],
+            "plain_windows_per_source": plain["windows_per_source"],
+            "plain_candidate_edges": plain["candidate_edges"],
+            "plain_peak_mem_mb": plain["peak_memory_bytes"] / 2**20,
         }
+        if cgal:
+            row.update({
+                "cgal_heat_s": cgal["heat_setup_seconds"] + cgal["heat_solve_seconds"],
+                "cgal_heat_solve_s": cgal["heat_solve_seconds"],
+                "cgal_heat_idt_s": cgal["heat_idt_setup_seconds"] + cgal["heat_idt_solve_seconds"],
+                "cgal_exact_s": cgal["exact_seconds"],
+                "cgal_heat_mean_err": cgal["heat_err"][0], "cgal_heat_max_err": cgal["heat_err"][1],
+                "cgal_heat_idt_mean_err": cgal["heat-idt_err"][0],
+                "cgal_heat_idt_max_err": cgal["heat-idt_err"][1],
+                "cgal_exact_max_err": cgal["exact_err"][1],
+            })
         pairs = os.path.join(tdir, f"{name}.p2p.pairs")
         if os.path.exists(pairs):
             lines = open(pairs).read().split("\n")
@@ -151,7 +170,11 @@ def fmt(v, digits=3):
     return str(v)
 
 
-def write_markdown(rows, command, seconds):
+def ratio(a, b):
+    return f"{a / b:.2f}x" if a and b else "–"
+
+
+def machine():
     cpu = "unknown"
     try:
         for line in open("/proc/cpuinfo"):
@@ -160,39 +183,123 @@ def write_markdown(rows, command, seconds):
                 break
     except OSError:
         pass
-    out = []
-    out.append("# Benchmarks\n")
-    out.append(f"Regenerate: `{command}` (took {seconds / 60:.1f} min). Machine: {os.cpu_count()} cores "
-               f"({cpu}), {platform.system()} {platform.release()}. Absolute times are noisy "
-               "(other work shares the machine); compare ratios measured in the same run.\n")
+    mem = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES") / 2**30
+    return f"{os.cpu_count()} cores ({cpu}), {mem:.0f} GiB, {platform.system()} {platform.release()}"
+
+
+def write_plots(rows, plot_dir):
+    """Build time and query time versus n, error versus epsilon; returns file names."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        print("matplotlib not installed (apt-get install python3-matplotlib): no plots")
+        return []
+    os.makedirs(plot_dir, exist_ok=True)
+    eps_values = sorted({r["eps"] for r in rows})
+    files = []
+
+    def versus_n(key, ylabel, fname, extra=None):
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        for eps in eps_values:
+            rs = sorted((r for r in rows if r["eps"] == eps), key=lambda r: r["vertices"])
+            ax.loglog([r["vertices"] for r in rs], [r[key] for r in rs], "o-", label=f"DGG ε={eps:g}")
+            if extra:
+                ax.loglog([r["vertices"] for r in rs], [r[extra[0]] for r in rs], "x--",
+                          label=f"{extra[1]} ε={eps:g}")
+        ax.set_xlabel("vertices")
+        ax.set_ylabel(ylabel)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(os.path.join(plot_dir, fname))
+        plt.close(fig)
+        files.append(fname)
+
+    versus_n("build_s_1t", "build time, 1 thread (s)", "build_time_vs_n.png",
+             ("plain_build_s_1t", "plain Algorithm 1"))
+    versus_n("field_lc_ms", "single-source field (ms)", "field_time_vs_n.png",
+             ("field_dijkstra_ms", "Dijkstra"))
+    if all("p2p_p50_ms" in r for r in rows):
+        versus_n("p2p_p50_ms", "point-to-point p50 (ms)", "p2p_time_vs_n.png")
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    for name in sorted({r["mesh"] for r in rows}):
+        rs = sorted((r for r in rows if r["mesh"] == name), key=lambda r: r["eps"])
+        ax.loglog([r["eps"] for r in rs], [r["field_max_err_eps"] * r["eps"] for r in rs], "o-",
+                  label=f"{name} max")
+    ax.loglog(eps_values, eps_values, "k:", label="ε (the guarantee)")
+    ax.set_xlabel("ε")
+    ax.set_ylabel("max relative error of fields")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(os.path.join(plot_dir, "error_vs_eps.png"))
+    plt.close(fig)
+    files.append("error_vs_eps.png")
+    return files
+
+
+def write_markdown(rows, command, seconds, plots):
+    out = ["# Benchmarks\n"]
+    out.append(f"Regenerate: `{command}` (this run took {seconds / 60:.1f} min). "
+               f"Machine: {machine()}. Absolute times are noisy on this shared machine; the ratios "
+               "compare runs made in the same invocation. Accuracy is measured against the exact "
+               "fields and pairs in `../shared/truth` (an independent exact solver).\n")
     out.append("## Graph construction\n")
-    out.append("| mesh | V | ε | build 1 thread (s) | build 2 threads (s) | speed-up | candidates (s, 1t) | pruning (s, 1t) | windows / source | avg degree | max degree | candidate → kept edges | file (MB) | peak RSS (MB) |")
-    out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
-    for r in rows:
-        out.append(f"| {r['mesh']} | {r['vertices']} | {r['eps']:g} | {fmt(r['build_s_1t'])} | {fmt(r['build_s_2t'])} | "
-                   f"{fmt(r['build_s_1t'] / r['build_s_2t'], 2)}x | {fmt(r['candidate_s_1t'])} | {fmt(r['pruning_s_1t'])} | "
-                   f"{fmt(r['windows_per_source'])} | {fmt(r['avg_degree'])} | {r['max_degree']} | "
-                   f"{r['candidate_edges']} → {r['edges']} | {fmt(r['file_mb'])} | {fmt(r['peak_mem_mb'])} |")
-    out.append("\n## Distance fields (single source, median of the 3 truth sources)\n")
-    out.append("Accuracy is against the exact fields in `../shared/truth` (mean and max relative error, in units of ε). "
-               "CGAL heat columns are CGAL 5.5's heat method (plain / intrinsic Delaunay) from the same truth directory.\n")
-    out.append("| mesh | ε | DGG label-correcting (ms) | Dijkstra on same graph (ms) | LC speed-up | ns / vertex | queue pops / vertex | mean err (ε) | max err (ε) | most below exact | CGAL heat mean err | CGAL heat-IDT mean err | our exact field (s) | exact windows / vertex | exact engine max rel err |")
+    out.append("Ours against plain Algorithm 1 of the DGG paper (the same code with the corner "
+               "early stop off: Theorem 2's d_max only), both on 1 thread.\n")
+    out.append("| mesh | V | ε | build 1t (s) | build 2t (s) | 2t speed-up | plain Alg. 1, 1t (s) | ours vs plain | "
+               "windows / source (ours / plain) | candidate edges (ours / plain) | pruning 1t (s, ours / plain) | "
+               "kept edges | avg / max degree | file (MB) | peak RSS MB (ours / plain) |")
     out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        out.append(f"| {r['mesh']} | {r['eps']:g} | {fmt(r['field_lc_ms'])} | {fmt(r['field_dijkstra_ms'])} | "
-                   f"{fmt(r['field_dijkstra_ms'] / r['field_lc_ms'], 2)}x | {fmt(r['field_ns_per_vertex'])} | {fmt(r['pops_per_vertex'])} | "
-                   f"{fmt(r['field_mean_err_eps'])} | {fmt(r['field_max_err_eps'])} | {fmt(r['field_most_under'])} | "
-                   f"{fmt(r['cgal_heat_mean_err'])} | {fmt(r['cgal_heat_idt_mean_err'])} | {fmt(r['exact_field_s'])} | "
-                   f"{fmt(r['exact_windows_per_vertex'])} | {fmt(r['exact_max_err'])} |")
+        out.append(
+            f"| {r['mesh']} | {r['vertices']} | {r['eps']:g} | {fmt(r['build_s_1t'])} | {fmt(r['build_s_2t'])} | "
+            f"{ratio(r['build_s_1t'], r['build_s_2t'])} | {fmt(r['plain_build_s_1t'])} | "
+            f"{ratio(r['plain_build_s_1t'], r['build_s_1t'])} faster | "
+            f"{fmt(r['windows_per_source'])} / {fmt(r['plain_windows_per_source'])} | "
+            f"{r['candidate_edges']} / {r['plain_candidate_edges']} | "
+            f"{fmt(r['pruning_s_1t'])} / {fmt(r['plain_pruning_s_1t'])} | {r['edges']} | "
+            f"{fmt(r['avg_degree'])} / {r['max_degree']} | {fmt(r['file_mb'])} | "
+            f"{fmt(r['peak_mem_mb'])} / {fmt(r['plain_peak_mem_mb'])} |")
+    out.append("\n## Distance fields, side by side with CGAL\n")
+    out.append("DGG fields: median over the 3 truth sources; errors are mean and max relative error "
+               "in units of ε, and the most negative relative error (graph distances never undercut "
+               "exact ones, up to float rounding). CGAL (5.5, Debian) columns are from "
+               "`build/bin/cgal_peer` on the first truth source in the same run; heat times include "
+               "its precomputation (factorisation), which amortises over sources.\n")
+    out.append("| mesh | ε | DGG LC (ms) | Dijkstra same graph (ms) | LC speed-up | DGG mean / max err (ε) | most below exact | "
+               "CGAL heat (ms) | CGAL heat mean / max err | CGAL heat-IDT (ms) | heat-IDT mean / max err | "
+               "our exact (s) | CGAL exact (s) | exact speed-up | our exact max err |")
+    out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for r in rows:
+        cg = "cgal_exact_s" in r
+        out.append(
+            f"| {r['mesh']} | {r['eps']:g} | {fmt(r['field_lc_ms'])} | {fmt(r['field_dijkstra_ms'])} | "
+            f"{ratio(r['field_dijkstra_ms'], r['field_lc_ms'])} | "
+            f"{fmt(r['field_mean_err_eps'])} / {fmt(r['field_max_err_eps'])} | {fmt(r['field_most_under'])} | "
+            + (f"{fmt(1e3 * r['cgal_heat_s'])} | {fmt(r['cgal_heat_mean_err'])} / {fmt(r['cgal_heat_max_err'])} | "
+               f"{fmt(1e3 * r['cgal_heat_idt_s'])} | {fmt(r['cgal_heat_idt_mean_err'])} / {fmt(r['cgal_heat_idt_max_err'])} | "
+               if cg else "– | – | – | – | ")
+            + f"{fmt(r['exact_field_s'])} | " + (f"{fmt(r['cgal_exact_s'])} | {ratio(r['cgal_exact_s'], r['exact_field_s'])} | "
+                                                 if cg else "– | – | ")
+            + f"{fmt(r['exact_max_err'])} |")
     out.append("\n## Point-to-point (the shared exact pairs: inside faces, on edges, at vertices, same face)\n")
-    out.append("| mesh | ε | p50 (ms) | p90 (ms) | p99 (ms) | mean err (ε) | max err (ε) | nodes settled, A* | nodes settled, bidirectional Dijkstra | path p50 (ms) | graph open (ms) |")
+    out.append("| mesh | ε | p50 (ms) | p90 (ms) | p99 (ms) | mean / max err (ε) | settled, bidirectional A* | "
+               "settled, bidirectional Dijkstra | A* saves | path p50 (ms) | graph open (ms) |")
     out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         if "p2p_p50_ms" not in r:
             continue
-        out.append(f"| {r['mesh']} | {r['eps']:g} | {fmt(r['p2p_p50_ms'])} | {fmt(r['p2p_p90_ms'])} | {fmt(r['p2p_p99_ms'])} | "
-                   f"{fmt(r['p2p_mean_err_eps'])} | {fmt(r['p2p_max_err_eps'])} | {fmt(r['astar_settled'])} | "
-                   f"{fmt(r['dijkstra_settled'])} | {fmt(r['path_p50_ms'])} | {fmt(r['graph_open_ms'])} |")
+        out.append(
+            f"| {r['mesh']} | {r['eps']:g} | {fmt(r['p2p_p50_ms'])} | {fmt(r['p2p_p90_ms'])} | {fmt(r['p2p_p99_ms'])} | "
+            f"{fmt(r['p2p_mean_err_eps'])} / {fmt(r['p2p_max_err_eps'])} | {fmt(r['astar_settled'])} | "
+            f"{fmt(r['dijkstra_settled'])} | {ratio(r['dijkstra_settled'], r['astar_settled'])} fewer | "
+            f"{fmt(r['path_p50_ms'])} | {fmt(r['graph_open_ms'])} |")
+    if plots:
+        out.append("\n## Plots\n")
+        out.extend(f"![{f}](bench/plots/{f})" for f in plots)
     return "\n".join(out) + "\n"
 
 
@@ -213,7 +320,8 @@ def main():
         w.writeheader()
         w.writerows(rows)
     command = "bench/run_benchmarks.py " + " ".join(sys.argv[1:])
-    open(a.markdown, "w").write(write_markdown(rows, command, time.time() - start))
+    plots = write_plots(rows, os.path.join(ROOT, "bench", "plots"))
+    open(a.markdown, "w").write(write_markdown(rows, command.strip(), time.time() - start, plots))
     print(f"wrote {a.out} and {a.markdown}")
 
 

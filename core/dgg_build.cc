@@ -26,9 +26,12 @@ namespace {
 constexpr double kTwoPi = 2 * std::numbers::pi;
 // Fans used when choosing replacement paths, relative to the solver's.
 constexpr double kPruningFanScale = 0.9;
-// Share of the error budget epsilon that pruning may spend; the rest is left
-// to the candidates' early termination and to the fan-restricted solver.
-constexpr double kPruneShare = 0.7;
+// The error budget. Early termination of the candidates (Theorem 2) may
+// lengthen a shortest path by 1 + e_c, and pruning each replaced edge by
+// 1 + e_p; both get e = sqrt(1 + eps) - 1 (about eps / 2), so that
+// (1 + e_c)(1 + e_p) = 1 + eps. Giving the candidates the whole of eps, as
+// Algorithm 1 reads, measured up to 1.36 eps on real meshes (BENCHMARKS.md).
+double HalfBudget(double epsilon) { return std::sqrt(1 + epsilon) - 1; }
 
 // Lengths are rounded up to float so that graph distances never undercut the
 // surface paths they stand for.
@@ -117,8 +120,9 @@ void ParallelFor(uint32_t n, Progress& progress, std::string_view phase, double 
 // stopped at Theorem 2's d_max. Returns, per vertex, candidates sorted by id.
 // Sources [begin, end) only; element i of the result belongs to begin + i.
 std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double epsilon,
-                                                        uint32_t begin, uint32_t end,
-                                                        Progress& progress, double progress_end,
+                                                        bool stop_at_corners, uint32_t begin,
+                                                        uint32_t end, Progress& progress,
+                                                        double progress_end,
                                                         uint64_t* windows_created) {
   std::vector<std::vector<DggHalfEdge>> candidates(end - begin);
   tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
@@ -129,7 +133,8 @@ std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double
     if (mesh.is_isolated(s)) return;
     ExactGeodesic& engine = *engines.local();
     DirectOptions options;
-    options.epsilon = epsilon;
+    options.epsilon = HalfBudget(epsilon);
+    options.stop_at_corners = stop_at_corners;
     auto hits = engine.DirectGeodesics(SurfacePoint::Vertex(s), options);
     if (!hits.ok()) return;  // a validated vertex source cannot fail
     windows.fetch_add(engine.stats().windows_created, std::memory_order_relaxed);
@@ -201,6 +206,7 @@ Adjacency Symmetrize(std::vector<std::vector<DggHalfEdge>> out) {
 std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, double epsilon,
                                    Progress& progress) {
   const uint32_t n = adj.offsets.size() - 1;
+  const double prune_epsilon = HalfBudget(epsilon);
   std::vector<uint8_t> redundant(adj.edges.size(), 0);
   struct Scratch {
     std::vector<uint32_t> stamp, local;
@@ -257,7 +263,7 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
         const EdgeKey own = EdgeKey::Of(nbrs[j].weight, s, e.to);
         EdgeKey b = std::max(sc.bottleneck[i], EdgeKey::Of(e.weight, u, e.to));
         if (!(b < own)) continue;
-        if (through <= (1 + kPruneShare * epsilon) * nbrs[j].weight) redundant[base + j] = 1;
+        if (through <= (1 + prune_epsilon) * nbrs[j].weight) redundant[base + j] = 1;
         if (through < sc.dist[j]) {
           sc.dist[j] = through;
           sc.bottleneck[j] = b;
@@ -549,8 +555,8 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   tbb::task_arena arena(ThreadCount(options));
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
-    auto candidates = ComputeCandidates(mesh, options.params.epsilon, 0, mesh.num_vertices(),
-                                        progress, 0.7, &st.windows_created);
+    auto candidates = ComputeCandidates(mesh, options.params.epsilon, options.stop_at_corners, 0,
+                                        mesh.num_vertices(), progress, 0.7, &st.windows_created);
     st.candidate_seconds = Seconds(start);
     if (progress.cancelled()) return;
     graph = FinishBuild(mesh, std::move(candidates), options.params, progress, st);
@@ -579,8 +585,8 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   tbb::task_arena arena(ThreadCount(options));
   std::vector<std::vector<DggHalfEdge>> candidates;
   arena.execute([&] {
-    candidates = ComputeCandidates(mesh, options.params.epsilon, part.begin, part.end, progress,
-                                   1.0, &part.windows_created);
+    candidates = ComputeCandidates(mesh, options.params.epsilon, options.stop_at_corners,
+                                   part.begin, part.end, progress, 1.0, &part.windows_created);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   part.offsets.assign(1, 0);

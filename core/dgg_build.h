@@ -18,6 +18,10 @@ namespace geodesic {
 struct DggBuildOptions {
   DggParams params;
   int threads = 0;  // 0: all hardware threads
+  // Candidate propagation stops rays that a route through a window's corner
+  // already serves (DirectOptions::stop_at_corners). False: plain Algorithm
+  // 1, for benchmarks; the graph may differ, the accuracy bound does not.
+  bool stop_at_corners = true;
   // Called now and then from any build thread with the current phase
   // ("candidates", "pruning", "pseudo", "fans") and the fraction of the whole
   // build done, in [0, 1]. Returning false cancels the build (CANCELLED).
