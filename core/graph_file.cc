@@ -133,6 +133,11 @@ absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::stri
 
 }  // namespace
 
+std::string GraphFileName(uint64_t mesh_fingerprint, double epsilon, bool pseudo_vertices) {
+  return absl::StrFormat("%016x-eps%.9g%s.dgg", mesh_fingerprint, epsilon,
+                         pseudo_vertices ? "-pseudo" : "");
+}
+
 absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   Header h{};
   std::memcpy(h.magic, kMagic, sizeof(kMagic));

@@ -23,6 +23,11 @@ namespace geodesic {
 
 inline constexpr uint32_t kGraphFormatVersion = 1;
 
+// The name a graph has in a graph directory (geodesicd serve --graph-dir):
+// "<mesh fingerprint, 16 hex digits>-eps<epsilon>[-pseudo].dgg". Offline
+// builds and merges that write into a daemon's directory use the same name.
+std::string GraphFileName(uint64_t mesh_fingerprint, double epsilon, bool pseudo_vertices);
+
 class GraphFile {
  public:
   // Writes atomically (temp + fsync + rename + fsync of the directory).

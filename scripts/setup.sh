@@ -3,29 +3,46 @@
 # then configures and builds geodesicd in Release mode into build/.
 #   scripts/setup.sh            install + build
 #   scripts/setup.sh --deps     install only
+#   scripts/setup.sh --with-nginx  also nginx, for the deploy routing test
+#     (CI only: Debian's package starts a system nginx on port 80, which this
+#     stops again; a developer machine rarely wants that)
 set -euo pipefail
 cd "$(dirname "$0")/.."
+deps_only=false
+with_nginx=false
+for arg in "$@"; do
+  case "$arg" in
+    --deps) deps_only=true ;;
+    --with-nginx) with_nginx=true ;;
+    *) echo "setup: unknown option $arg" >&2; exit 2 ;;
+  esac
+done
 
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
-  python3 python3-grpcio python3-protobuf python3-numpy openssl
+  python3 python3-grpcio python3-protobuf python3-numpy python3-yaml openssl
 )
 
+$with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
 done
+SUDO=""
+[ "$(id -u)" -eq 0 ] || SUDO="sudo"
 if ((${#missing[@]})); then
   echo "setup: installing ${missing[*]}"
-  SUDO=""
-  [ "$(id -u)" -eq 0 ] || SUDO="sudo"
   $SUDO env DEBIAN_FRONTEND=noninteractive apt-get update -qq
   $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
 fi
-[ "${1:-}" = "--deps" ] && exit 0
+if $with_nginx && [[ " ${missing[*]} " == *" nginx-light "* ]]; then
+  # The tests run their own nginx as this user on a free loopback port.
+  $SUDO systemctl disable --now nginx >/dev/null 2>&1 || $SUDO service nginx stop >/dev/null 2>&1 || true
+fi
+$deps_only && exit 0
 
 cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release
 cmake --build build -j"$(nproc)"

@@ -75,8 +75,7 @@ GraphCache::~GraphCache() {
 
 std::string GraphCache::GraphPath(const RegisteredMesh& mesh, double epsilon, bool pseudo) const {
   if (options_.graph_dir.empty()) return "";
-  return absl::StrFormat("%s/%016x-eps%.9g%s.dgg", options_.graph_dir, mesh.fingerprint, epsilon,
-                         pseudo ? "-pseudo" : "");
+  return options_.graph_dir + "/" + GraphFileName(mesh.fingerprint, epsilon, pseudo);
 }
 
 void GraphCache::Bump(Entry& e) { ++e.status.version; }

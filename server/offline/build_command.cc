@@ -44,8 +44,15 @@ std::function<bool(std::string_view, double)> ProgressBar(bool enabled) {
 
 // Writes the graph and prints what `build` and `merge` report.
 int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
-                   const DggBuildStats& stats, const std::string& out_path, int threads,
-                   bool json) {
+                   const DggBuildStats& stats, std::string out_path, const std::string& graph_dir,
+                   int threads, bool json) {
+  if (out_path.empty()) {
+    std::error_code ignored;  // a failure shows up as the write's error
+    std::filesystem::create_directories(graph_dir, ignored);
+    out_path = graph_dir + "/" +
+               GraphFileName(graph.mesh_fingerprint(), graph.params().epsilon,
+                             graph.params().pseudo_vertices);
+  }
   absl::Status written = GraphFile::Write(graph, out_path);
   if (!written.ok()) return Fail(command, written);
   const uint64_t file_bytes = std::filesystem::file_size(out_path);
@@ -122,8 +129,13 @@ int RunBuild(int argc, char** argv) {
   bool json = false, pseudo = false, quiet = false;
   app.add_option("mesh", mesh_path, "mesh file (obj, off, ply, stl)")->required();
   app.add_option("--eps", epsilon, "accuracy: relative error of graph distances, in (0, 1)");
-  app.add_option("--out", out_path, "graph file (or part file with --part) to write, atomically")
-      ->required();
+  std::string graph_dir;
+  auto* out = app.add_option("--out", out_path,
+                             "graph file (or part file with --part) to write, atomically");
+  app.add_option("--graph-dir", graph_dir,
+                 "instead of --out: write the graph under the name geodesicd serve looks for "
+                 "in its --graph-dir")
+      ->excludes(out);
   app.add_option("--threads", threads, "build threads (0: all cores)");
   app.add_flag("--pseudo-vertices", pseudo,
                "add pseudo vertices where edge directions leave gaps (section 4.3; for "
@@ -131,6 +143,10 @@ int RunBuild(int argc, char** argv) {
   app.add_option("--part", part,
                  "I/N: only the candidate edges of the I-th (0-based) of N vertex ranges, for "
                  "'geodesicd merge'");
+  bool plain = false;
+  app.add_flag("--plain-candidates", plain,
+               "benchmarking: plain Algorithm 1 candidates (Theorem 2 only, no corner early "
+               "stop)");
   app.add_flag("--json", json, "print a JSON object");
   app.add_flag("--quiet", quiet, "no progress bar");
   try {
@@ -138,19 +154,24 @@ int RunBuild(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  if (out_path.empty() && (graph_dir.empty() || !part.empty())) {
+    return Fail("build", absl::InvalidArgumentError(
+                             "--out is required (or --graph-dir, for a whole graph)"));
+  }
   auto mesh = LoadMeshOrError(mesh_path);
   if (!mesh.ok()) return Fail("build", mesh.status());
   DggBuildOptions options;
   options.params.epsilon = epsilon;
   options.params.pseudo_vertices = pseudo;
   options.threads = threads;
+  options.stop_at_corners = !plain;
   options.progress = ProgressBar(!json && !quiet);
   if (!part.empty()) return BuildPart(**mesh, options, part, out_path, json);
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("build", graph.status());
-  return WriteAndReport("build", **mesh, **graph, stats, out_path, threads, json);
+  return WriteAndReport("build", **mesh, **graph, stats, out_path, graph_dir, threads, json);
 }
 
 int RunMerge(int argc, char** argv) {
@@ -163,7 +184,12 @@ int RunMerge(int argc, char** argv) {
   app.add_option("mesh", mesh_path, "mesh file the parts were built for")->required();
   app.add_option("parts", part_paths, "part files (geodesicd build --part I/N), any order")
       ->required();
-  app.add_option("--out", out_path, "graph file to write (atomically)")->required();
+  std::string graph_dir;
+  auto* out = app.add_option("--out", out_path, "graph file to write (atomically)");
+  app.add_option("--graph-dir", graph_dir,
+                 "instead of --out: write the graph under the name geodesicd serve looks for "
+                 "in its --graph-dir")
+      ->excludes(out);
   app.add_option("--threads", threads, "threads (0: all cores)");
   app.add_flag("--json", json, "print a JSON object (the keys of 'geodesicd build --json')");
   app.add_flag("--quiet", quiet, "no progress bar");
@@ -171,6 +197,9 @@ int RunMerge(int argc, char** argv) {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  }
+  if (out_path.empty() && graph_dir.empty()) {
+    return Fail("merge", absl::InvalidArgumentError("--out or --graph-dir is required"));
   }
   auto mesh = LoadMeshOrError(mesh_path);
   if (!mesh.ok()) return Fail("merge", mesh.status());
@@ -192,7 +221,7 @@ int RunMerge(int argc, char** argv) {
                                       absl::StrCat(graph.status().message(), " (parts in order: ",
                                                    absl::StrJoin(part_paths, ", "), ")")));
   }
-  return WriteAndReport("merge", **mesh, **graph, stats, out_path, threads, json);
+  return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json);
 }
 
 }  // namespace geodesic::offline

@@ -43,4 +43,21 @@ check "parts of another epsilon are refused" grep -q "epsilon 0.01" "$work/e4"
 check "no output written by failed merges" test ! -e "$work/x.dgg"
 geodesicd build "$mesh" --eps 0.01 --part 3/3 --out "$work/y" 2>"$work/e5"
 check "part index out of range" grep -q "index must be in" "$work/e5"
+
+# A merge written with --graph-dir is what a daemon on that directory maps
+# (the Kubernetes build Job's flow), instead of building.
+geodesicd merge "$mesh" "$work/p0.part" "$work/p1.part" "$work/p2.part" --quiet \
+  --graph-dir "$work/graphs" >/dev/null
+port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+"$bin/geodesicd" serve --listen "127.0.0.1:$port" --graph-dir "$work/graphs" --log-level warning \
+  2>/dev/null &
+daemon=$!
+trap 'kill "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; rm -rf "$work"' EXIT
+from_file=
+for _ in $(seq 50); do
+  from_file=$(timeout 60 "$bin/geodesic" --server "127.0.0.1:$port" --json --eps 0.005 graph --wait 2>/dev/null |
+    python3 -c 'import json,sys; print(json.load(sys.stdin)["from_file"])' 2>/dev/null) && break
+  sleep 0.2
+done
+check "the daemon maps a graph merged into its --graph-dir" test "$from_file" = True
 exit $((failures > 0))

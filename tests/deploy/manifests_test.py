@@ -1,0 +1,122 @@
+#!/usr/bin/python3
+"""Offline checks of the deployment files (no kubectl, docker or hadolint here):
+every Kubernetes YAML document parses and has what its kind needs, the
+kustomizations list files that exist, probes are native gRPC probes on the
+serving port, the Dockerfile is multi-stage with a non-root user and a health
+check, and the nginx configuration routes by the mesh header.
+
+Usage: manifests_test.py SOURCE_DIR
+"""
+import glob
+import os
+import re
+import sys
+
+import yaml
+
+SRC = sys.argv[1]
+DEPLOY = os.path.join(SRC, "deploy")
+errors = []
+
+
+def need(cond, message):
+    if not cond:
+        errors.append(message)
+
+
+def check_pod_spec(where, spec, serving_port=None):
+    need(spec.get("containers"), f"{where}: no containers")
+    for c in spec.get("containers", []):
+        name = f"{where}/{c.get('name')}"
+        need(c.get("image"), f"{name}: no image")
+        need(c.get("resources", {}).get("limits", {}).get("memory"), f"{name}: no memory limit")
+        if serving_port:
+            ports = {p["name"]: p["containerPort"] for p in c.get("ports", [])}
+            need(ports.get("grpc") == serving_port, f"{name}: grpc port is not {serving_port}")
+            for probe in ("livenessProbe", "readinessProbe"):
+                grpc = c.get(probe, {}).get("grpc", {})
+                need(grpc.get("port") == serving_port, f"{name}: {probe} is not a gRPC probe on "
+                                                       f"port {serving_port}")
+            args = " ".join(c.get("args", []))
+            m = re.search(r"--listen=\S+:(\d+)", args)
+            need(m and int(m.group(1)) == serving_port, f"{name}: --listen is not the probed port")
+    sc = spec.get("securityContext", {})
+    need(sc.get("runAsNonRoot") is True, f"{where}: pods must run as non-root")
+
+
+def check_document(path, doc):
+    kind = doc.get("kind")
+    where = f"{os.path.relpath(path, SRC)}:{kind}/{doc.get('metadata', {}).get('name')}"
+    need(doc.get("apiVersion"), f"{where}: no apiVersion")
+    need(kind, f"{where}: no kind")
+    if kind == "Kustomization":
+        base = os.path.dirname(path)
+        for r in doc.get("resources", []):
+            need(os.path.exists(os.path.join(base, r)), f"{where}: lists missing file {r}")
+        return
+    need(doc.get("metadata", {}).get("name"), f"{where}: no metadata.name")
+    spec = doc.get("spec", {})
+    if kind == "StatefulSet":
+        check_pod_spec(where, spec["template"]["spec"], serving_port=50051)
+        labels = spec["template"]["metadata"]["labels"]
+        for k, v in spec["selector"]["matchLabels"].items():
+            need(labels.get(k) == v, f"{where}: selector {k}={v} does not match the pod labels")
+        need(spec.get("serviceName"), f"{where}: no serviceName")
+    elif kind == "Job":
+        check_pod_spec(where, spec["template"]["spec"])
+        if spec.get("completionMode") == "Indexed":
+            args = " ".join(spec["template"]["spec"]["containers"][0].get("args", []))
+            need("JOB_COMPLETION_INDEX" in args and "--part" in args,
+                 f"{where}: an Indexed Job must pass its index to --part")
+    elif kind == "Service":
+        need(spec.get("ports"), f"{where}: no ports")
+    elif kind == "PodDisruptionBudget":
+        need("maxUnavailable" in spec or "minAvailable" in spec, f"{where}: no budget")
+    elif kind not in ("ConfigMap", "PersistentVolumeClaim"):
+        errors.append(f"{where}: unexpected kind")
+
+
+def main():
+    paths = sorted(glob.glob(os.path.join(DEPLOY, "k8s", "**", "*.yaml"), recursive=True))
+    need(paths, "no Kubernetes manifests under deploy/k8s")
+    kinds = set()
+    for path in paths:
+        try:
+            docs = [d for d in yaml.safe_load_all(open(path)) if d]
+        except yaml.YAMLError as e:
+            errors.append(f"{path}: does not parse: {e}")
+            continue
+        for doc in docs:
+            kinds.add(doc.get("kind"))
+            check_document(path, doc)
+    for kind in ("StatefulSet", "Service", "PodDisruptionBudget", "ConfigMap", "Job"):
+        need(kind in kinds, f"no {kind} in deploy/k8s")
+
+    docker = open(os.path.join(DEPLOY, "Dockerfile")).read()
+    stages = re.findall(r"^FROM\s+(\S+)\s+AS\s+(\S+)", docker, re.M | re.I)
+    need(len(stages) >= 2, "Dockerfile: expected a multi-stage build")
+    need(all(image.startswith("debian:12") for image, _ in stages), "Dockerfile: stages must be Debian 12")
+    users = re.findall(r"^USER\s+(\S+)", docker, re.M)
+    need(users and users[-1] not in ("root", "0"), "Dockerfile: the runtime must not run as root")
+    need(re.search(r"^HEALTHCHECK\s", docker, re.M), "Dockerfile: no HEALTHCHECK")
+    need(re.search(r"^VOLUME\s.*graphs", docker, re.M), "Dockerfile: the graph directory is not a volume")
+    need(not re.search(r"apt-get install(?!.*--no-install-recommends)", docker),
+         "Dockerfile: apt-get install without --no-install-recommends")
+
+    nginx = open(os.path.join(DEPLOY, "nginx", "geodesicd.conf")).read()
+    need("hash $http_x_geodesic_mesh consistent" in nginx, "nginx: not hashing the mesh header")
+    need("grpc_pass" in nginx and "http2" in nginx, "nginx: not proxying gRPC over HTTP/2")
+
+    unit = open(os.path.join(DEPLOY, "systemd", "geodesicd.service")).read()
+    for key in ("ExecStart=", "DynamicUser=yes", "ProtectSystem=strict", "StateDirectory="):
+        need(key in unit, f"systemd unit: missing {key}")
+
+    for e in errors:
+        print("FAIL", e)
+    print(f"checked {len(paths)} manifest files, Dockerfile, nginx and systemd: "
+          f"{len(errors)} problems")
+    return 1 if errors else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
