@@ -1,0 +1,120 @@
+// Graph files as untrusted input, beyond checksums: structurally wrong files
+// with valid checksums, other format versions, and failed writes.
+#include "core/graph_file.h"
+
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include "core/dgg_graph_internal.h"
+#include "gtest/gtest.h"
+#include "tests/core/test_util.h"
+
+namespace geodesic {
+namespace {
+
+using testing::TempDir;
+
+// Two triangles sharing an edge, and a hand-made graph on it.
+Mesh Square() {
+  TriangleSoup soup;
+  soup.positions = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}};
+  soup.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return *Mesh::Build(std::move(soup), "square");
+}
+
+// A complete graph on the square's 4 vertices, with one target replaced.
+std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_target) {
+  DggGraphArrays a;
+  a.offsets = {0};
+  for (uint32_t u = 0; u < 4; ++u) {
+    for (uint32_t v = 0; v < 4; ++v) {
+      if (u == v) continue;
+      a.targets.push_back(v);
+      a.weights.push_back(1.5f);
+      a.angles.push_back(0.1f * v);
+      a.fan_begin.push_back(0);
+      a.fan_count.push_back(1);
+    }
+    a.offsets.push_back(a.targets.size());
+  }
+  a.targets[5] = bad_target;
+  DggParams params;
+  params.epsilon = 0.1;
+  return DggGraphBuilder::FromArrays(std::move(a), 4, 4, params, MeshFingerprint(mesh));
+}
+
+TEST(GraphFileTest, OutOfRangeIndexWithValidChecksumsIsRejectedByTheFullCheck) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  const std::string path = dir.File("bad-index.dgg");
+  // Written by our own writer: every checksum matches, only the structure
+  // is wrong, so only validation can catch it.
+  ASSERT_TRUE(GraphFile::Write(*CompleteGraph(mesh, 4000000), path).ok());
+  auto opened = GraphFile::Open(path, mesh, GraphFile::Check::kFull);
+  ASSERT_FALSE(opened.ok());
+  EXPECT_EQ(opened.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_NE(opened.status().message().find(path), std::string::npos) << opened.status();
+  EXPECT_NE(opened.status().message().find("4000000"), std::string::npos) << opened.status();
+  // The same graph with a valid target opens.
+  ASSERT_TRUE(GraphFile::Write(*CompleteGraph(mesh, 2), dir.File("good.dgg")).ok());
+  EXPECT_TRUE(GraphFile::Open(dir.File("good.dgg"), mesh, GraphFile::Check::kFull).ok());
+}
+
+TEST(GraphFileTest, OtherFormatVersionIsFailedPreconditionNamingBoth) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  const std::string path = dir.File("v2.dgg");
+  ASSERT_TRUE(GraphFile::Write(*CompleteGraph(mesh, 2), path).ok());
+  {
+    // The version is the 32-bit word after the 8-byte magic.
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    const uint32_t version = kGraphFormatVersion + 1;
+    f.seekp(8);
+    f.write(reinterpret_cast<const char*>(&version), sizeof(version));
+  }
+  auto opened = GraphFile::Open(path, mesh, GraphFile::Check::kHeader);
+  ASSERT_FALSE(opened.ok());
+  EXPECT_EQ(opened.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(opened.status().message().find("version 2"), std::string::npos) << opened.status();
+}
+
+TEST(GraphFileTest, FailedWritesLeaveNothingAndKeepTheOldFile) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  const std::string path = dir.File("kept.dgg");
+  ASSERT_TRUE(GraphFile::Write(*CompleteGraph(mesh, 2), path).ok());
+  const auto before = std::filesystem::file_size(path);
+
+  // Into a directory that does not exist: NOT_FOUND naming the path.
+  auto missing = GraphFile::Write(*CompleteGraph(mesh, 2), dir.File("no/such/dir/g.dgg"));
+  EXPECT_EQ(missing.code(), absl::StatusCode::kNotFound) << missing;
+
+  // Over an existing file in a directory that turned read-only (root
+  // ignores permissions, so only checked when they apply).
+  chmod(dir.path().c_str(), 0500);
+  const bool enforced = access(dir.path().c_str(), W_OK) != 0;
+  auto refused = GraphFile::Write(*CompleteGraph(mesh, 2), path);
+  chmod(dir.path().c_str(), 0700);
+  if (enforced) {
+    EXPECT_EQ(refused.code(), absl::StatusCode::kPermissionDenied) << refused;
+  }
+  EXPECT_EQ(std::filesystem::file_size(path), before);
+  EXPECT_TRUE(GraphFile::Open(path, mesh, GraphFile::Check::kFull).ok());
+  for (const auto& entry : std::filesystem::directory_iterator(dir.path())) {
+    EXPECT_EQ(entry.path().string().find(".tmp."), std::string::npos) << entry.path();
+  }
+}
+
+TEST(GraphFileTest, DirectoryInsteadOfAFileIsAnError) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  auto opened = GraphFile::Open(dir.path(), mesh, GraphFile::Check::kHeader);
+  EXPECT_FALSE(opened.ok());
+}
+
+}  // namespace
+}  // namespace geodesic
