@@ -242,7 +242,9 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       targets_left = std::count(is_target.begin(), is_target.end(), 1);
     }
     while (!heap.empty()) {
-      auto [d, u] = heap.top();
+      // Not a structured binding: the lambda below captures u.
+      const double d = heap.top().first;
+      const uint32_t u = heap.top().second;
       heap.pop();
       if (settled[u] || d > dist[u]) continue;
       if (d > options.max_distance) break;

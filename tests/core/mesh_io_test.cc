@@ -264,3 +264,32 @@ TEST(SurfaceLocatorTest, SnapsToTheClosestPointLikeBruteForce) {
 
 }  // namespace
 }  // namespace geodesic
+
+namespace geodesic {
+namespace {
+
+// Found by tests/fuzz/mesh_reader_fuzzer: OpenMesh's PLY reader never
+// returned on this header (an unknown line before end_header).
+TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
+  const std::string body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  const std::string start =
+      "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+      "property float z\nelement face 1\nproperty list uchar int vertex_indices\n";
+  for (const std::string& header :
+       {start + std::string("en\x0e\0\0\0ader\n", 10), start, "plx\n" + start.substr(4)}) {
+    auto soup = ReadTriangleSoupFromMemory(header + body, "ply", "bad.ply");
+    ASSERT_FALSE(soup.ok());
+    EXPECT_EQ(soup.status().code(), absl::StatusCode::kInvalidArgument) << soup.status();
+    EXPECT_NE(soup.status().message().find("bad.ply"), std::string::npos) << soup.status();
+  }
+  EXPECT_TRUE(ReadTriangleSoupFromMemory(start + "end_header\n" + body, "ply", "good.ply").ok());
+  // And OpenMesh's OFF reader read vertices without end when the counts
+  // line was garbled.
+  auto off = ReadTriangleSoupFromMemory(
+      "OFF\n555555555555555555555\xff\x14 4 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off", "bad.off");
+  ASSERT_FALSE(off.ok());
+  EXPECT_NE(off.status().message().find("counts"), std::string::npos) << off.status();
+}
+
+}  // namespace
+}  // namespace geodesic
