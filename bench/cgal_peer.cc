@@ -66,37 +66,63 @@ int main(int argc, char** argv) {
     std::fprintf(stderr, "cgal_peer: %s\n", std::string(soup.status().message()).c_str());
     return 1;
   }
+  // CGAL's solvers cannot take vertices no face uses (the heat method's
+  // Laplacian turns singular), so those are left out and reported as +inf.
+  const size_t file_vertices = soup->positions.size();
+  std::vector<int64_t> cgal_id(file_vertices, -1);
+  std::vector<size_t> file_id;
   SurfaceMesh mesh;
-  for (const auto& p : soup->positions) mesh.add_vertex(Kernel::Point_3(p.x, p.y, p.z));
+  for (const auto& t : soup->triangles) {
+    for (auto v : t) {
+      if (cgal_id[v] >= 0) continue;
+      cgal_id[v] = file_id.size();
+      file_id.push_back(v);
+    }
+  }
+  for (size_t v : file_id) {
+    const auto& p = soup->positions[v];
+    mesh.add_vertex(Kernel::Point_3(p.x, p.y, p.z));
+  }
   size_t refused = 0;
   for (const auto& t : soup->triangles) {
-    if (mesh.add_face(VertexIndex(t[0]), VertexIndex(t[1]), VertexIndex(t[2])) ==
-        SurfaceMesh::null_face()) {
+    if (mesh.add_face(VertexIndex(cgal_id[t[0]]), VertexIndex(cgal_id[t[1]]),
+                      VertexIndex(cgal_id[t[2]])) == SurfaceMesh::null_face()) {
       ++refused;
     }
   }
-  const VertexIndex source(std::stoul(argv[2]));
-  const size_t n = mesh.number_of_vertices();
+  const size_t source_file_id = std::stoul(argv[2]);
+  if (source_file_id >= file_vertices || cgal_id[source_file_id] < 0) {
+    std::fprintf(stderr, "cgal_peer: vertex %zu is not on a face\n", source_file_id);
+    return 1;
+  }
+  const VertexIndex source(cgal_id[source_file_id]);
+  const size_t n = file_vertices;
+  // Back to file order, +inf where CGAL had no vertex.
+  auto in_file_order = [&](const std::vector<double>& cgal) {
+    std::vector<double> out(n, std::numeric_limits<double>::infinity());
+    for (size_t i = 0; i < file_id.size(); ++i) out[file_id[i]] = cgal[i];
+    return out;
+  };
 
   double heat_setup, heat_solve, idt_setup, idt_solve;
-  WriteF64(prefix + ".heat.f64",
-           HeatField<CGAL::Heat_method_3::Direct>(mesh, source, &heat_setup, &heat_solve));
-  WriteF64(prefix + ".heat-idt.f64", HeatField<CGAL::Heat_method_3::Intrinsic_Delaunay>(
-                                         mesh, source, &idt_setup, &idt_solve));
+  WriteF64(prefix + ".heat.f64", in_file_order(HeatField<CGAL::Heat_method_3::Direct>(
+                                     mesh, source, &heat_setup, &heat_solve)));
+  WriteF64(prefix + ".heat-idt.f64",
+           in_file_order(HeatField<CGAL::Heat_method_3::Intrinsic_Delaunay>(
+               mesh, source, &idt_setup, &idt_solve)));
 
   using Traits = CGAL::Surface_mesh_shortest_path_traits<Kernel, SurfaceMesh>;
   auto t = std::chrono::steady_clock::now();
   CGAL::Surface_mesh_shortest_path<Traits> exact(mesh);
   exact.add_source_point(source);
   exact.build_sequence_tree();
-  std::vector<double> field(n, std::numeric_limits<double>::infinity());
+  std::vector<double> field(mesh.number_of_vertices(), std::numeric_limits<double>::infinity());
   for (VertexIndex v : mesh.vertices()) {
-    if (mesh.is_isolated(v)) continue;
     const double d = exact.shortest_distance_to_source_points(v).first;
     if (d >= 0) field[v.idx()] = d;
   }
   const double exact_s = SecondsSince(t);
-  WriteF64(prefix + ".exact.f64", field);
+  WriteF64(prefix + ".exact.f64", in_file_order(field));
   std::printf(
       "{\"vertices\": %zu, \"refused_faces\": %zu, \"heat_setup_seconds\": %.4f, "
       "\"heat_solve_seconds\": %.4f, \"heat_idt_setup_seconds\": %.4f, "

@@ -72,8 +72,11 @@ def bench_mesh(name, eps_list, rows, quick):
     # CGAL in the same run, same source: heat (plain, IDT) and exact.
     cgal = {}
     if os.path.exists(f"{BIN}/cgal_peer"):
-        cgal = run_json([f"{BIN}/cgal_peer", mesh, str(sources[0]), f"{work}/cgal"])
-        for kind in ("heat", "heat-idt", "exact"):
+        try:
+            cgal = run_json([f"{BIN}/cgal_peer", mesh, str(sources[0]), f"{work}/cgal"])
+        except subprocess.CalledProcessError as e:
+            print(f"cgal_peer failed on {name}: {e.stderr.strip()[-300:]}", flush=True)
+        for kind in ("heat", "heat-idt", "exact") if cgal else ():
             cgal[f"{kind}_err"] = rel_errors(np.fromfile(f"{work}/cgal.{kind}.f64"), truth0)
     for eps in eps_list:
         graph = f"{work}/{name}-{eps}.dgg"
@@ -300,6 +303,12 @@ def write_markdown(rows, command, seconds, plots):
     if plots:
         out.append("\n## Plots\n")
         out.extend(f"![{f}](bench/plots/{f})" for f in plots)
+    # Hand-written analysis and the figures of other commands live in
+    # bench/notes.md and are carried over verbatim.
+    notes = os.path.join(ROOT, "bench", "notes.md")
+    if os.path.exists(notes):
+        out.append("")
+        out.append(open(notes).read())
     return "\n".join(out) + "\n"
 
 
@@ -308,11 +317,17 @@ def main():
     p.add_argument("--meshes", default="eight,spot,camelhead,fertility,bunny,armadillo")
     p.add_argument("--eps", default="1e-2,1e-3")
     p.add_argument("--quick", action="store_true", help="50 pairs per mesh")
+    p.add_argument("--rows-from", help="start from the JSON rows an earlier run printed "
+                   "(one per line), to add meshes without redoing the others")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results.csv"))
-    p.add_argument("--markdown", default=os.path.join(ROOT, "bench", "results.md"))
+    p.add_argument("--markdown", default=os.path.join(ROOT, "BENCHMARKS.md"))
     a = p.parse_args()
     start = time.time()
     rows = []
+    if a.rows_from:
+        for line in open(a.rows_from):
+            if line.startswith("{"):
+                rows.append(json.loads(line))
     for name in a.meshes.split(","):
         bench_mesh(name, [float(e) for e in a.eps.split(",")], rows, a.quick)
     with open(a.out, "w", newline="") as f:

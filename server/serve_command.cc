@@ -204,6 +204,24 @@ int RunServe(int argc, char** argv) {
   metrics.AddGauge("geodesicd_cache_misses", "Queries whose graph was not ready.",
                    [&] { return double(graphs.misses()); });
 
+  // Registered before the port opens, so that the first answer already lists
+  // it; its graph is requested once health reporting is up.
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> sample_mesh =
+      absl::NotFoundError("no sample mesh");
+  if (!no_sample) {
+    std::string path = sample.empty() ? FindSampleMesh(argv[0]) : sample;
+    if (path.empty()) {
+      std::fprintf(stderr, "geodesicd: bundled sample mesh not found (set GEODESIC_DATA_DIR)\n");
+    } else {
+      sample_mesh = meshes.RegisterTrustedPath("spot", path);
+      if (sample_mesh.ok()) {
+        std::fprintf(stderr, "geodesicd: registered sample mesh 'spot' from %s\n", path.c_str());
+      } else {
+        std::fprintf(stderr, "geodesicd: sample mesh: %s\n",
+                     std::string(sample_mesh.status().message()).c_str());
+      }
+    }
+  }
   GeodesicService service(&meshes, &graphs, &metrics, limits);
   if (!token.empty()) service.RequireBearerToken(token);
   grpc::EnableDefaultHealthCheckService(true);
@@ -247,21 +265,7 @@ int RunServe(int argc, char** argv) {
                                                 : "mutual TLS",
                token.empty() ? "" : ", bearer token required", graph_dir.c_str(),
                mesh_root.empty() ? "(none)" : mesh_root.c_str());
-  if (!no_sample) {
-    std::string path = sample.empty() ? FindSampleMesh(argv[0]) : sample;
-    if (path.empty()) {
-      std::fprintf(stderr, "geodesicd: bundled sample mesh not found (set GEODESIC_DATA_DIR)\n");
-    } else {
-      auto m = meshes.RegisterTrustedPath("spot", path);
-      if (m.ok()) {
-        graphs.Request(*m, limits.default_epsilon, false);
-        std::fprintf(stderr, "geodesicd: registered sample mesh 'spot' from %s\n", path.c_str());
-      } else {
-        std::fprintf(stderr, "geodesicd: sample mesh: %s\n",
-                     std::string(m.status().message()).c_str());
-      }
-    }
-  }
+  if (sample_mesh.ok()) graphs.Request(*sample_mesh, limits.default_epsilon, false);
   signal(SIGTERM, OnSignal);
   signal(SIGINT, OnSignal);
   while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));

@@ -65,6 +65,8 @@ start_daemon --auth-token-file "$work/token"
 check "no token: UNAUTHENTICATED" fails_with UNAUTHENTICATED cli meshes
 check "wrong token: UNAUTHENTICATED" fails_with UNAUTHENTICATED cli --token-file "$work/wrong" meshes
 check "right token (file): served" quietly cli --token-file "$work/token" meshes
+# The queries below need the graph: wait until it is ready rather than race its build.
+check "right token: graph ready" quietly cli --token-file "$work/token" --eps 0.02 graph --wait
 check "right token (GEODESIC_TOKEN): served" quietly env GEODESIC_TOKEN=s3cret-token "$bin/geodesic" \
   --server "127.0.0.1:$port" --eps 0.02 distance --from v:1 --to v:2
 check "health check needs no token" test "$(health)" = SERVING
@@ -103,9 +105,12 @@ check "mTLS: certificate from another CA is refused" fails_with UNAVAILABLE cli 
   --tls-cert "$work/other.crt" --tls-key "$work/other.key" --token-file "$work/token" meshes
 check "mTLS: certificate without the token is UNAUTHENTICATED" fails_with UNAUTHENTICATED cli \
   --tls-ca "$work/ca.crt" --tls-cert "$work/client.crt" --tls-key "$work/client.key" meshes
-check "mTLS: certificate and token are served" quietly cli --tls-ca "$work/ca.crt" \
-  --tls-cert "$work/client.crt" --tls-key "$work/client.key" --token-file "$work/token" \
-  --eps 0.02 distance --from v:1 --to v:2
+mtls_cli() {
+  cli --tls-ca "$work/ca.crt" --tls-cert "$work/client.crt" --tls-key "$work/client.key" \
+    --token-file "$work/token" --eps 0.02 "$@"
+}
+check "mTLS: certificate and token are served" quietly mtls_cli graph --wait
+check "mTLS: and answer queries" quietly mtls_cli distance --from v:1 --to v:2
 check "mTLS: Python client with certificate and token is served" \
   quietly py_client s3cret-token "$work/ca.crt" "$work/client.crt" "$work/client.key"
 stop_daemon

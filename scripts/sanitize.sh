@@ -1,0 +1,27 @@
+#!/usr/bin/env bash
+# The test suite under sanitizers:
+#   ASan+UBSan (build-asan): core unit tests, and the daemon end-to-end,
+#     fault and security tests against an instrumented daemon and CLI;
+#   TSan (build-tsan): the core unit tests (parallel builds, concurrent
+#     queries on one graph).
+# Debian's gRPC, Abseil, OpenMesh and TBB are not instrumented: TSan cannot
+# see their synchronisation, which is why the daemon runs under ASan only.
+#   scripts/sanitize.sh [address|thread]   (default: both)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+kinds=${1:-"address thread"}
+for kind in $kinds; do
+  dir=build-${kind/address/asan}
+  dir=${dir/thread/tsan}
+  cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DGEODESIC_SANITIZE="$kind" \
+    -DGEODESIC_BUILD_BENCH=OFF >/dev/null
+  cmake --build "$dir" -j"$(nproc)"
+  if [ "$kind" = address ]; then
+    export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
+    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core
+    ctest --test-dir "$dir" --output-on-failure --timeout 1800 -R "server_e2e|server_faults|server_security|distributed_build"
+  else
+    export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
+    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core
+  fi
+done
