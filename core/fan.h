@@ -24,6 +24,23 @@ struct FanRange {
   uint32_t count = 0;  // edges, wrapping around the end of the list
 };
 
+// The turns that continue a geodesic, in raw radians of the node's cone:
+// (b - arrival) mod period in [lo, hi].
+struct FanTurns {
+  double lo, hi;
+};
+inline FanTurns ContinuingTurns(double period, double epsilon, double width_scale = 1.0) {
+  const double width = width_scale * kFanWidth * std::sqrt(epsilon);
+  return {std::min(std::numbers::pi, period - std::numbers::pi) - width,
+          std::max(std::numbers::pi, period - std::numbers::pi) + width};
+}
+
+// The fan's angular extent, normalised to a full turn of 2*pi.
+inline double FanSpan(double period, double epsilon) {
+  const FanTurns t = ContinuingTurns(period, epsilon);
+  return (t.hi - t.lo) * (2 * std::numbers::pi / period);
+}
+
 // `angles`: the node's outgoing edge angles, sorted, normalised to [0, 2*pi).
 // `arrival`: normalised angle at the node of the direction back along the
 // arriving edge. `period`: the node's cone angle (2*pi for points inside
@@ -36,13 +53,11 @@ inline FanRange ComputeFan(std::span<const float> angles, double arrival, double
   if (degree == 0 || boundary) return {0, degree};
   // Continuing directions b satisfy (b - arrival) mod period in
   // [min(pi, period - pi) - w, max(pi, period - pi) + w] radians of the cone.
-  const double width = kFanWidth * std::sqrt(epsilon);
-  const double lo_raw = std::min(std::numbers::pi, period - std::numbers::pi) - width;
-  const double hi_raw = std::max(std::numbers::pi, period - std::numbers::pi) + width;
+  const FanTurns turns = ContinuingTurns(period, epsilon);
   const double scale = kTwoPi / period;
-  const double span = (hi_raw - lo_raw) * scale;
+  const double span = (turns.hi - turns.lo) * scale;
   if (span >= kTwoPi) return {0, degree};
-  double lo = std::fmod(arrival + lo_raw * scale, kTwoPi);
+  double lo = std::fmod(arrival + turns.lo * scale, kTwoPi);
   if (lo < 0) lo += kTwoPi;
   const uint32_t begin =
       static_cast<uint32_t>(std::lower_bound(angles.begin(), angles.end(), lo) - angles.begin()) %
@@ -63,13 +78,11 @@ inline bool InFan(double arrival, double departure, double period, bool boundary
                   double width_scale = 1.0) {
   constexpr double kTwoPi = 2 * std::numbers::pi;
   if (boundary) return true;
-  const double width = width_scale * kFanWidth * std::sqrt(epsilon);
-  const double lo_raw = std::min(std::numbers::pi, period - std::numbers::pi) - width;
-  const double hi_raw = std::max(std::numbers::pi, period - std::numbers::pi) + width;
-  if (hi_raw - lo_raw >= period) return true;
+  const FanTurns turns = ContinuingTurns(period, epsilon, width_scale);
+  if (turns.hi - turns.lo >= period) return true;
   double turn = std::fmod((departure - arrival) * (period / kTwoPi), period);
   if (turn < 0) turn += period;
-  return turn >= lo_raw && turn <= hi_raw;
+  return turn >= turns.lo && turn <= turns.hi;
 }
 
 }  // namespace geodesic

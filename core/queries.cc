@@ -70,6 +70,64 @@ Scratch& ThreadScratch() {
   return scratch;
 }
 
+// Counter-clockwise angle from a to b, both normalised, in [0, 2*pi).
+double AngleBetween(double a, double b) {
+  double d = double(b) - double(a);
+  return d < 0 ? d + kTwoPi : d;
+}
+
+double Normalize(double a) {
+  a = std::fmod(a, kTwoPi);
+  return a < 0 ? a + kTwoPi : a;
+}
+// Of two angles at most half a turn before (after) `ref`, the one nearer it.
+double Later(double a, double b, double ref) {
+  return AngleBetween(a, ref) <= AngleBetween(b, ref) ? a : b;
+}
+double Earlier(double a, double b, double ref) {
+  return AngleBetween(ref, a) <= AngleBetween(ref, b) ? a : b;
+}
+
+// The fixed fan (fan.h) holds the continuations of a geodesic within
+// kFanWidth * sqrt(eps) of straight on, which is all a route of comparable
+// edges needs. A route may also bend sharply onto a short edge: turning by
+// delta from a label D onto an edge of length b leaves a chord of
+// D^2 + b^2 + 2 D b cos(delta), and costs at most a factor 1 + eps over it
+// as long as that chord is at least (D + b) / (1 + eps). Candidate edges that
+// a corner served within 1 + eps (exact_geodesic.h) are reached by exactly
+// such bends, so without them the solver can miss a vertex entirely.
+class BendBeyondFan {
+ public:
+  // `label`: the distance of the node; `shortest`: its shortest edge;
+  // `to_raw`: its cone angle over 2*pi, to turn normalised angles into raw
+  // ones; `fan_width`: kFanWidth * sqrt(eps).
+  BendBeyondFan(double label, double shortest, double to_raw, double fan_width, double shrink)
+      : label_(label),
+        shrink_(shrink),
+        to_raw_(to_raw),
+        fan_width_(fan_width),
+        floor_(label > 0 && shortest > 0 ? MinCos(shortest) : 2) {}
+  bool any() const { return !too_far(0); }
+  // `beyond`: normalised angle past the fan's last edge. Past this, not even
+  // the node's shortest edge may be turned onto.
+  bool too_far(double beyond) const { return UpperCos(beyond) < floor_; }
+  bool allows(double beyond, double length) const { return UpperCos(beyond) >= MinCos(length); }
+
+ private:
+  // cos(t) <= 1 - t^2/2 + t^4/24, decreasing up to t = sqrt(6): an
+  // overestimate, so the tests only ever relax more than exact ones would.
+  double UpperCos(double beyond) const {
+    const double t = fan_width_ + beyond * to_raw_, t2 = t * t;
+    return t2 >= 6 ? -1 : 1 - t2 / 2 + t2 * t2 / 24;
+  }
+  // The smallest cos(delta) that keeps the chord long enough.
+  double MinCos(double b) const {
+    const double d = label_;
+    return ((d + b) * (d + b) * shrink_ - d * d - b * b) / (2 * d * b);
+  }
+  double label_, shrink_, to_raw_, fan_width_, floor_;
+};
+
 absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_view what) {
   absl::Status s = ValidateSurfacePoint(mesh, p);
   if (s.ok()) return s;
@@ -80,7 +138,17 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
-    : mesh_(std::move(mesh)), graph_(std::move(graph)) {}
+    : mesh_(std::move(mesh)), graph_(std::move(graph)) {
+  const DggGraph& g = *graph_;
+  auto offsets = g.offsets();
+  auto weights = g.weights();
+  shortest_edge_.assign(g.num_nodes(), std::numeric_limits<float>::infinity());
+  for (uint32_t u = 0; u < g.num_nodes(); ++u) {
+    for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
+      shortest_edge_[u] = std::min(shortest_edge_[u], weights[i]);
+    }
+  }
+}
 
 GeodesicEngine::~GeodesicEngine() = default;
 
@@ -159,22 +227,68 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   uint64_t pops = 0;
   auto cancelled = [&] { return options.cancelled && (pops & 4095) == 0 && options.cancelled(); };
 
+  const double fan_width = kFanWidth * std::sqrt(epsilon);
+  const double bend_shrink = 1 / ((1 + epsilon) * (1 + epsilon));
   // The edges of u to relax: all of them for a source, otherwise the fan of
-  // the edge u was reached by.
+  // the edge u was reached by, plus the short edges beside it that a route
+  // may bend onto (BendBeyondFan).
   auto for_each_relaxed = [&](uint32_t u, auto&& relax) {
     const uint64_t begin = offsets[u], degree = offsets[u + 1] - begin;
     uint64_t first = 0, count = degree;
     if (options.method == FieldMethod::kLabelCorrecting && via[u] != kViaSource) {
+      const bool is_vertex = u < mesh.num_vertices();
+      const double period = is_vertex ? mesh.total_angle(u) : kTwoPi;
       if (via[u] == kViaTemporary) {
         std::span<const float> a(angles.data() + begin, degree);
-        const bool is_vertex = u < mesh.num_vertices();
-        FanRange fan = ComputeFan(a, sc.arrival[u], is_vertex ? mesh.total_angle(u) : kTwoPi,
-                                  is_vertex && mesh.is_boundary(u), epsilon);
+        FanRange fan =
+            ComputeFan(a, sc.arrival[u], period, is_vertex && mesh.is_boundary(u), epsilon);
         first = fan.begin;
         count = fan.count;
       } else {
         first = g.fan_begin()[via[u]];
         count = g.fan_count()[via[u]];
+      }
+      if (count > 0 && count < degree) {
+        const BendBeyondFan bend(dist[u], shortest_edge_[u], period / kTwoPi, fan_width,
+                                 bend_shrink);
+        if (bend.any()) {
+          // Outward from both ends of the fan, until even u's shortest edge
+          // would bend too far. Turns are measured from the fan's ends as far
+          // as its edges pin them down (each end lies between the fan's
+          // outermost edge and the first edge outside it, and the ends are a
+          // fixed span apart): an underestimate, which only relaxes more.
+          const uint64_t last = first + count - 1;
+          const double span = FanSpan(period, epsilon);
+          const double a_first = angles[begin + first], a_last = angles[begin + last % degree];
+          const double left_end = Later(angles[begin + (first + degree - 1) % degree],
+                                        Normalize(a_last - span), a_first);
+          const double right_end =
+              Earlier(angles[begin + (last + 1) % degree], Normalize(a_first + span), a_last);
+          uint64_t left = 0, right = 0;
+          bool left_open = true, right_open = true;
+          while ((left_open || right_open) && count + left + right < degree) {
+            if (left_open) {
+              const uint64_t i = begin + (first + degree - 1 - left) % degree;
+              const double beyond = AngleBetween(angles[i], left_end);
+              if (bend.too_far(beyond)) {
+                left_open = false;
+              } else {
+                ++left;
+                if (bend.allows(beyond, weights[i])) relax(i, targets[i], dist[u] + weights[i]);
+              }
+            }
+            if (right_open && count + left + right < degree) {
+              const uint64_t i = begin + (last + 1 + right) % degree;
+              const double beyond = AngleBetween(right_end, angles[i]);
+              if (bend.too_far(beyond)) {
+                right_open = false;
+              } else {
+                ++right;
+                if (bend.allows(beyond, weights[i])) relax(i, targets[i], dist[u] + weights[i]);
+              }
+            }
+          }
+        }
       }
     }
     for (uint64_t k = 0; k < count; ++k) {

@@ -30,7 +30,10 @@ enum class FieldMethod {
 };
 
 struct FieldOptions {
-  FieldMethod method = FieldMethod::kLabelCorrecting;
+  // Dijkstra by default: the fan-restricted solver can, on rare
+  // configurations, miss the continuation a vertex needs and overshoot by far
+  // more than epsilon (BENCHMARKS.md), which no user should get silently.
+  FieldMethod method = FieldMethod::kDijkstra;
   // Only vertices within this distance are settled; the rest are +inf.
   double max_distance = kInfinity;
   // If non-empty, stop once these vertices are settled (others may be +inf or
@@ -96,6 +99,9 @@ class GeodesicEngine {
  private:
   std::shared_ptr<const Mesh> mesh_;
   std::shared_ptr<const DggGraph> graph_;
+  // Per node, its shortest outgoing edge: bounds how far beyond the stored
+  // fan the label-correcting solver has to look for short edges.
+  std::vector<float> shortest_edge_;
 };
 
 }  // namespace geodesic

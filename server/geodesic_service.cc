@@ -275,8 +275,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
       sources.push_back(*p);
     }
     FieldOptions options;
-    options.method =
-        req->method() == "dijkstra" ? FieldMethod::kDijkstra : FieldMethod::kLabelCorrecting;
+    options.method = req->method() == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
     if (!req->method().empty() && req->method() != "lc" && req->method() != "dijkstra") {
       return absl::InvalidArgumentError("method must be \"lc\" or \"dijkstra\"");
     }
@@ -399,7 +398,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     if (!m.ok()) return m.status();
     resp->mutable_echo()->set_mesh(req->mesh());
     resp->mutable_echo()->set_epsilon(eps);
-    resp->mutable_echo()->set_method("lc");
+    resp->mutable_echo()->set_method("dijkstra");
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
     for (double d : *m) resp->add_distances(d);

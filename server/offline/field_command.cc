@@ -13,7 +13,7 @@ namespace geodesic::offline {
 int RunField(int argc, char** argv) {
   CLI::App app{"Distance field from one or more sources on a discrete geodesic graph",
                "geodesicd field"};
-  std::string mesh_path, graph_path, out_path, method = "lc";
+  std::string mesh_path, graph_path, out_path, method = "dijkstra";
   std::vector<std::string> source_specs;
   double max_distance = kInfinity;
   bool json = false;
@@ -24,7 +24,8 @@ int RunField(int argc, char** argv) {
                  "vertex order of that face) or xyz:X,Y,Z; repeat for several sources")
       ->required();
   app.add_option("--out", out_path, "write one little-endian float64 per vertex (+inf: unreached)");
-  app.add_option("--method", method, "lc (DGG-tailored label-correcting) or dijkstra")
+  app.add_option("--method", method,
+                 "dijkstra (default) or lc (DGG-tailored label-correcting, faster, not guaranteed)")
       ->check(CLI::IsMember({"lc", "dijkstra"}));
   app.add_option("--max-distance", max_distance, "only settle vertices within this distance");
   app.add_flag("--json", json, "print a JSON object");
@@ -48,7 +49,7 @@ int RunField(int argc, char** argv) {
   }
   GeodesicEngine engine(*mesh, *graph);
   FieldOptions options;
-  options.method = method == "dijkstra" ? FieldMethod::kDijkstra : FieldMethod::kLabelCorrecting;
+  options.method = method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
   options.max_distance = max_distance;
   auto t1 = std::chrono::steady_clock::now();
   auto field = engine.Field(sources, options);
