@@ -155,13 +155,7 @@ class TruthTest : public ::testing::TestWithParam<std::string> {};
 TEST_P(TruthTest, MatchesExactFields) {
   if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
   const std::string name = GetParam();
-  std::string mesh_path;
-  for (const char* ext : {".off", ".obj", ".ply"}) {
-    if (std::filesystem::exists(SharedPath("meshes/" + name + ext))) {
-      mesh_path = SharedPath("meshes/" + name + ext);
-    }
-  }
-  auto mesh = LoadMesh(mesh_path);
+  auto mesh = LoadMesh(testing::SharedMeshPath(name));
   ASSERT_OK(mesh);
   ExactGeodesic exact(*mesh);
   const VertexId n = mesh->num_vertices();

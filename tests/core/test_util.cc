@@ -14,6 +14,14 @@ std::string SharedPath(const std::string& relative) {
   return std::string(GEODESIC_SHARED_DIR) + "/" + relative;
 }
 
+std::string SharedMeshPath(const std::string& name) {
+  for (const char* ext : {".off", ".obj", ".ply", ".stl"}) {
+    std::string path = SharedPath("meshes/" + name + ext);
+    if (std::filesystem::exists(path)) return path;
+  }
+  return SharedPath("meshes/" + name);
+}
+
 bool SharedDataAvailable() { return std::filesystem::exists(SharedPath("meshes/MANIFEST.md")); }
 
 std::string SourcePath(const std::string& relative) {

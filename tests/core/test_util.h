@@ -15,6 +15,8 @@ namespace geodesic::testing {
 // ../shared next to the clone (meshes/, truth/).
 std::string SharedPath(const std::string& relative);
 bool SharedDataAvailable();
+// The shared mesh called `name`, whatever its format.
+std::string SharedMeshPath(const std::string& name);
 std::string SourcePath(const std::string& relative);
 
 // Reads a raw little-endian float64 file.
@@ -47,15 +49,15 @@ absl::Status ToStatus(const absl::StatusOr<T>& s) {
 
 }  // namespace geodesic::testing
 
-#define EXPECT_OK(expr)                                                   \
-  do {                                                                    \
+#define EXPECT_OK(expr)                                                               \
+  do {                                                                                \
     const ::absl::Status geodesic_test_status_ = ::geodesic::testing::ToStatus(expr); \
-    EXPECT_TRUE(geodesic_test_status_.ok()) << geodesic_test_status_;     \
+    EXPECT_TRUE(geodesic_test_status_.ok()) << geodesic_test_status_;                 \
   } while (0)
-#define ASSERT_OK(expr)                                                   \
-  do {                                                                    \
+#define ASSERT_OK(expr)                                                               \
+  do {                                                                                \
     const ::absl::Status geodesic_test_status_ = ::geodesic::testing::ToStatus(expr); \
-    ASSERT_TRUE(geodesic_test_status_.ok()) << geodesic_test_status_;     \
+    ASSERT_TRUE(geodesic_test_status_.ok()) << geodesic_test_status_;                 \
   } while (0)
 
 #endif  // GEODESIC_TESTS_CORE_TEST_UTIL_H_
