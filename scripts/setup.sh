@@ -23,7 +23,7 @@ PACKAGES=(
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
-  python3 python3-grpcio python3-protobuf python3-numpy python3-yaml openssl
+  python3 python3-grpcio python3-protobuf python3-numpy python3-yaml python3-matplotlib openssl
 )
 
 $with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)
