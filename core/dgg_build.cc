@@ -48,10 +48,7 @@ float RoundUp(double d) {
 }
 
 float Normalized(double raw, double period) {
-  double a = raw * (kTwoPi / period);
-  a = std::fmod(a, kTwoPi);
-  if (a < 0) a += kTwoPi;
-  float f = static_cast<float>(a);
+  float f = static_cast<float>(WrapAngle(raw * (kTwoPi / period), kTwoPi));
   return f >= static_cast<float>(kTwoPi) ? 0.0f : f;
 }
 

@@ -58,12 +58,6 @@ double HitParameter(const Vec2& from, const Vec2& dir, const Vec2& p, const Vec2
 // Signed angle from a to b (counter-clockwise positive).
 double SignedAngle(const Vec2& a, const Vec2& b) { return std::atan2(Cross(a, b), Dot(a, b)); }
 
-double NormalizeAngle(double a, double period) {
-  a = std::fmod(a, period);
-  if (a < 0) a += period;
-  return a;
-}
-
 // Where, along the edge (0..L), the line from source image (sx, sy) to point
 // (px, py) above the edge crosses it.
 double CrossingX(double sx, double sy, double px, double py) {
@@ -294,7 +288,7 @@ double FacePlaneAngle(const Mesh& mesh, FaceId f, const Vec3& ref, const Vec3& d
   double nn = Norm(n);
   if (nn > 0) n = n * (1 / nn);
   double angle = std::atan2(Dot(n, Cross(ref, d)), Dot(ref, d));
-  return NormalizeAngle(angle, kTwoPi);
+  return WrapAngle(angle, kTwoPi);
 }
 
 // Polar angle at the tail of half-edge `corner` of the direction towards
@@ -598,8 +592,8 @@ absl::StatusOr<std::vector<DirectHit>> ExactGeodesic::DirectGeodesics(
   for (VertexId v : touched_) {
     if (vertex_source && v == source_.id) continue;
     if (!(dist_[v] <= options.max_distance) || excluded_[v]) continue;
-    hits.push_back({v, dist_[v], NormalizeAngle(angle_src_[v], source_period),
-                    NormalizeAngle(angle_vtx_[v], mesh_.total_angle(v))});
+    hits.push_back({v, dist_[v], WrapAngle(angle_src_[v], source_period),
+                    WrapAngle(angle_vtx_[v], mesh_.total_angle(v))});
   }
   std::sort(hits.begin(), hits.end(),
             [](const DirectHit& a, const DirectHit& b) { return a.vertex < b.vertex; });

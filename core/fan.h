@@ -11,6 +11,8 @@
 #include <numbers>
 #include <span>
 
+#include "core/vec.h"
+
 namespace geodesic {
 
 // Half-width of a fan in multiples of sqrt(epsilon). A graph path that
@@ -57,8 +59,7 @@ inline FanRange ComputeFan(std::span<const float> angles, double arrival, double
   const double scale = kTwoPi / period;
   const double span = (turns.hi - turns.lo) * scale;
   if (span >= kTwoPi) return {0, degree};
-  double lo = std::fmod(arrival + turns.lo * scale, kTwoPi);
-  if (lo < 0) lo += kTwoPi;
+  const double lo = WrapAngle(arrival + turns.lo * scale, kTwoPi);
   const uint32_t begin =
       static_cast<uint32_t>(std::lower_bound(angles.begin(), angles.end(), lo) - angles.begin()) %
       degree;
@@ -80,8 +81,7 @@ inline bool InFan(double arrival, double departure, double period, bool boundary
   if (boundary) return true;
   const FanTurns turns = ContinuingTurns(period, epsilon, width_scale);
   if (turns.hi - turns.lo >= period) return true;
-  double turn = std::fmod((departure - arrival) * (period / kTwoPi), period);
-  if (turn < 0) turn += period;
+  const double turn = WrapAngle((departure - arrival) * (period / kTwoPi), period);
   return turn >= turns.lo && turn <= turns.hi;
 }
 

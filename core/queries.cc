@@ -6,6 +6,7 @@
 #include <numbers>
 #include <queue>
 
+#include "absl/base/call_once.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/exact_geodesic.h"
@@ -70,15 +71,11 @@ Scratch& ThreadScratch() {
   return scratch;
 }
 
-// Counter-clockwise angle from a to b, both normalised, in [0, 2*pi).
+// Counter-clockwise angle from a to b, both normalised, in [0, 2*pi). On the
+// solver's hot path, hence one comparison rather than WrapAngle's fmod.
 double AngleBetween(double a, double b) {
-  double d = double(b) - double(a);
+  const double d = b - a;
   return d < 0 ? d + kTwoPi : d;
-}
-
-double Normalize(double a) {
-  a = std::fmod(a, kTwoPi);
-  return a < 0 ? a + kTwoPi : a;
 }
 // Of two angles at most half a turn before (after) `ref`, the one nearer it.
 double Later(double a, double b, double ref) {
@@ -138,16 +135,23 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
-    : mesh_(std::move(mesh)), graph_(std::move(graph)) {
-  const DggGraph& g = *graph_;
-  auto offsets = g.offsets();
-  auto weights = g.weights();
-  shortest_edge_.assign(g.num_nodes(), std::numeric_limits<float>::infinity());
-  for (uint32_t u = 0; u < g.num_nodes(); ++u) {
-    for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
-      shortest_edge_[u] = std::min(shortest_edge_[u], weights[i]);
+    : mesh_(std::move(mesh)), graph_(std::move(graph)) {}
+
+// On first use: it reads every edge weight, which opening a mapped graph for
+// Dijkstra, the default, never needs.
+const std::vector<float>& GeodesicEngine::shortest_edge() const {
+  absl::call_once(shortest_edge_once_, [this] {
+    const DggGraph& g = *graph_;
+    auto offsets = g.offsets();
+    auto weights = g.weights();
+    shortest_edge_.assign(g.num_nodes(), std::numeric_limits<float>::infinity());
+    for (uint32_t u = 0; u < g.num_nodes(); ++u) {
+      for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
+        shortest_edge_[u] = std::min(shortest_edge_[u], weights[i]);
+      }
     }
-  }
+  });
+  return shortest_edge_;
 }
 
 GeodesicEngine::~GeodesicEngine() = default;
@@ -229,6 +233,8 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
 
   const double fan_width = kFanWidth * std::sqrt(epsilon);
   const double bend_shrink = 1 / ((1 + epsilon) * (1 + epsilon));
+  const std::vector<float>* shortest =
+      options.method == FieldMethod::kLabelCorrecting ? &shortest_edge() : nullptr;
   // The edges of u to relax: all of them for a source, otherwise the fan of
   // the edge u was reached by, plus the short edges beside it that a route
   // may bend onto (BendBeyondFan).
@@ -249,8 +255,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
         count = g.fan_count()[via[u]];
       }
       if (count > 0 && count < degree) {
-        const BendBeyondFan bend(dist[u], shortest_edge_[u], period / kTwoPi, fan_width,
-                                 bend_shrink);
+        const BendBeyondFan bend(dist[u], (*shortest)[u], period / kTwoPi, fan_width, bend_shrink);
         if (bend.any()) {
           // Outward from both ends of the fan, until even u's shortest edge
           // would bend too far. Turns are measured from the fan's ends as far
@@ -261,31 +266,28 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
           const double span = FanSpan(period, epsilon);
           const double a_first = angles[begin + first], a_last = angles[begin + last % degree];
           const double left_end = Later(angles[begin + (first + degree - 1) % degree],
-                                        Normalize(a_last - span), a_first);
-          const double right_end =
-              Earlier(angles[begin + (last + 1) % degree], Normalize(a_first + span), a_last);
-          uint64_t left = 0, right = 0;
+                                        WrapAngle(a_last - span, kTwoPi), a_first);
+          const double right_end = Earlier(angles[begin + (last + 1) % degree],
+                                           WrapAngle(a_first + span, kTwoPi), a_last);
+          uint64_t left = 0, right = 0;  // edges taken on each side
           bool left_open = true, right_open = true;
+          // Takes the next edge on one side, or closes that side.
+          auto step = [&](uint64_t i, double beyond, uint64_t& taken, bool& open) {
+            if (bend.too_far(beyond)) {
+              open = false;
+              return;
+            }
+            ++taken;
+            if (bend.allows(beyond, weights[i])) relax(i, targets[i], dist[u] + weights[i]);
+          };
           while ((left_open || right_open) && count + left + right < degree) {
             if (left_open) {
               const uint64_t i = begin + (first + degree - 1 - left) % degree;
-              const double beyond = AngleBetween(angles[i], left_end);
-              if (bend.too_far(beyond)) {
-                left_open = false;
-              } else {
-                ++left;
-                if (bend.allows(beyond, weights[i])) relax(i, targets[i], dist[u] + weights[i]);
-              }
+              step(i, AngleBetween(angles[i], left_end), left, left_open);
             }
             if (right_open && count + left + right < degree) {
               const uint64_t i = begin + (last + 1 + right) % degree;
-              const double beyond = AngleBetween(right_end, angles[i]);
-              if (bend.too_far(beyond)) {
-                right_open = false;
-              } else {
-                ++right;
-                if (bend.allows(beyond, weights[i])) relax(i, targets[i], dist[u] + weights[i]);
-              }
+              step(i, AngleBetween(right_end, angles[i]), right, right_open);
             }
           }
         }

@@ -14,6 +14,7 @@
 #include <optional>
 #include <vector>
 
+#include "absl/base/call_once.h"
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "core/dgg_graph.h"
@@ -91,6 +92,11 @@ class GeodesicEngine {
   absl::StatusOr<PairResult> Distance(const SurfacePoint& a, const SurfacePoint& b,
                                       const PairOptions& options) const;
 
+  // Builds now the per-graph table the label-correcting solver otherwise
+  // builds on its first use (one pass over every edge), so that the first
+  // such query is timed like any other.
+  void PrepareLabelCorrecting() const { shortest_edge(); }
+
   // sources x targets distances, row-major.
   absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
                                              absl::Span<const SurfacePoint> targets,
@@ -101,7 +107,9 @@ class GeodesicEngine {
   std::shared_ptr<const DggGraph> graph_;
   // Per node, its shortest outgoing edge: bounds how far beyond the stored
   // fan the label-correcting solver has to look for short edges.
-  std::vector<float> shortest_edge_;
+  const std::vector<float>& shortest_edge() const;
+  mutable absl::once_flag shortest_edge_once_;
+  mutable std::vector<float> shortest_edge_;
 };
 
 }  // namespace geodesic

@@ -32,6 +32,12 @@ inline double Cross(const Vec2& a, const Vec2& b) { return a.x * b.y - a.y * b.x
 // mesh coordinates are nowhere near the range where x * x overflows.
 inline double Norm(const Vec2& a) { return std::sqrt(Dot(a, a)); }
 
+// An angle taken modulo `period` (a cone angle, or 2*pi), in [0, period).
+inline double WrapAngle(double a, double period) {
+  a = std::fmod(a, period);
+  return a < 0 ? a + period : a;
+}
+
 }  // namespace geodesic
 
 #endif  // GEODESIC_CORE_VEC_H_

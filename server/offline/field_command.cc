@@ -51,6 +51,7 @@ int RunField(int argc, char** argv) {
   FieldOptions options;
   options.method = method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
   options.max_distance = max_distance;
+  if (options.method == FieldMethod::kLabelCorrecting) engine.PrepareLabelCorrecting();
   auto t1 = std::chrono::steady_clock::now();
   auto field = engine.Field(sources, options);
   const double solve_seconds =
