@@ -138,8 +138,12 @@ TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
   auto limited = engine.Field(absl::MakeConstSpan(&sources[0], 1), ball);
   ASSERT_OK(limited);
   for (VertexId v = 0; v < mesh_->num_vertices(); ++v) {
-    if (a->distance[v] <= 0.3) EXPECT_DOUBLE_EQ(limited->distance[v], a->distance[v]);
-    if (limited->distance[v] < kInfinity) EXPECT_LE(limited->distance[v], 0.3);
+    if (a->distance[v] <= 0.3) {
+      EXPECT_DOUBLE_EQ(limited->distance[v], a->distance[v]);
+    }
+    if (limited->distance[v] < kInfinity) {
+      EXPECT_LE(limited->distance[v], 0.3);
+    }
   }
   FieldOptions targeted;
   targeted.method = FieldMethod::kDijkstra;
@@ -325,7 +329,9 @@ TEST_P(SharedAccuracyTest, FieldsWithinEpsilonOfExact) {
     EXPECT_LE(e.max, 1.5 * eps) << name << " source " << s;
     EXPECT_GE(e.most_under, -1e-9) << name << " source " << s;
     for (VertexId v = 0; v < n; ++v) {
-      if (std::isnan(truth[v])) EXPECT_EQ(field->distance[v], kInfinity) << "vertex " << v;
+      if (std::isnan(truth[v])) {
+        EXPECT_EQ(field->distance[v], kInfinity) << "vertex " << v;
+      }
     }
   }
 }
