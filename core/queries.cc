@@ -28,39 +28,59 @@ struct TemporaryEdge {
   double arrival;  // normalised angle at the vertex pointing back to the point
 };
 
-// Per-thread scratch reused by every query on that thread: stamps mean no
-// O(n) clearing per point-to-point query.
+// Per-thread scratch reused by every query on that thread.
 struct Scratch {
-  std::vector<double> dist[2];
-  std::vector<uint32_t> via[2];  // arriving edge index, or kViaSource / kViaTemporary
-  std::vector<uint32_t> pred[2];
-  std::vector<uint32_t> stamp[2];
-  std::vector<uint8_t> done[2];
+  // Field solves, which touch every node anyway and so clear these.
+  std::vector<double> dist;
+  std::vector<uint32_t> via;    // arriving edge index, or kViaSource / kViaTemporary
+  std::vector<uint32_t> label;  // index of the nearest source
+  std::vector<uint8_t> flag;    // in the queue (label-correcting) or settled (Dijkstra)
   std::vector<double> arrival;  // for kViaTemporary: angle of arrival
-  uint32_t current = 0;
-  std::unique_ptr<ExactGeodesic> exact;
-  const Mesh* exact_mesh = nullptr;
 
-  void Prepare(size_t nodes) {
-    for (int s = 0; s < 2; ++s) {
-      if (dist[s].size() < nodes) {
-        dist[s].resize(nodes);
-        via[s].resize(nodes);
-        pred[s].resize(nodes);
-        stamp[s].assign(nodes, 0);
-        done[s].resize(nodes);
-      }
-    }
-    if (arrival.size() < nodes) arrival.resize(nodes);
-    if (++current == 0) {
-      for (auto& st : stamp) std::fill(st.begin(), st.end(), 0);
-      current = 1;
+  // Point-to-point searches touch a few thousand nodes at random: one
+  // 32-byte record per node, so each touch is one cache line, valid only if
+  // its stamp is the query's (no O(n) clearing per query).
+  struct alignas(32) PairNode {
+    double dist[2];
+    uint32_t pred[2];
+    // A* potential, computed on first touch. Its float rounding (~6e-8
+    // relative) can only make an answer longer by as much, never shorter.
+    float potential;
+    uint32_t mark;  // stamp << 2 | settled backward << 1 | settled forward
+    uint32_t stamp() const { return mark >> 2; }
+    bool done(int side) const { return mark >> side & 1; }
+    void set_done(int side) { mark |= 1u << side; }
+  };
+  std::vector<PairNode> pair;
+  uint32_t current = 0;  // below 2^30
+
+  std::unique_ptr<ExactGeodesic> exact;
+  // Weak, not a raw pointer: a mesh freed and another allocated at the same
+  // address must not find the old mesh's engine.
+  std::weak_ptr<const Mesh> exact_mesh;
+
+  void PrepareField(size_t nodes) {
+    if (dist.size() < nodes) {
+      dist.resize(nodes);
+      via.resize(nodes);
+      label.resize(nodes);
+      flag.resize(nodes);
+      arrival.resize(nodes);
     }
   }
-  ExactGeodesic& Exact(const Mesh& mesh) {
-    if (exact_mesh != &mesh || !exact) {
-      exact = std::make_unique<ExactGeodesic>(mesh);
-      exact_mesh = &mesh;
+  // Returns the new query's stamp.
+  uint32_t PreparePair(size_t nodes) {
+    if (pair.size() < nodes) pair.resize(nodes, PairNode{});
+    if (++current == 1u << 30) {
+      for (PairNode& p : pair) p.mark = 0;
+      current = 1;
+    }
+    return current;
+  }
+  ExactGeodesic& Exact(const std::shared_ptr<const Mesh>& mesh) {
+    if (!exact || exact_mesh.lock() != mesh) {
+      exact = std::make_unique<ExactGeodesic>(*mesh);
+      exact_mesh = mesh;
     }
     return *exact;
   }
@@ -156,6 +176,20 @@ const std::vector<float>& GeodesicEngine::shortest_edge() const {
 
 GeodesicEngine::~GeodesicEngine() = default;
 
+absl::Status GeodesicEngine::PrepareLandmarks(int count,
+                                              const std::function<bool()>& cancelled) const {
+  absl::MutexLock lock(&landmarks_mu_);
+  if (landmarks_storage_) return absl::OkStatus();
+  ASSIGN_OR_RETURN(landmarks_storage_, Landmarks::Compute(*graph_, count, cancelled));
+  landmarks_.store(landmarks_storage_.get(), std::memory_order_release);
+  return absl::OkStatus();
+}
+
+uint64_t GeodesicEngine::landmark_bytes() const {
+  const Landmarks* l = landmarks_.load(std::memory_order_acquire);
+  return l ? l->byte_size() : 0;
+}
+
 namespace {
 
 std::vector<TemporaryEdge> TemporaryEdges(const Mesh& mesh, ExactGeodesic& exact,
@@ -192,10 +226,10 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   const uint32_t nodes = g.num_nodes();
   const double epsilon = g.params().epsilon;
   Scratch& sc = ThreadScratch();
-  sc.Prepare(nodes);
-  std::vector<double>& dist = sc.dist[0];
-  std::vector<uint32_t>& via = sc.via[0];
-  std::vector<uint32_t>& label = sc.pred[0];
+  sc.PrepareField(nodes);
+  std::vector<double>& dist = sc.dist;
+  std::vector<uint32_t>& via = sc.via;
+  std::vector<uint32_t>& label = sc.label;
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
   std::fill(label.begin(), label.begin() + nodes, kNone);
   auto offsets = g.offsets();
@@ -214,7 +248,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       seeds.push_back(p.id);
       continue;
     }
-    for (const TemporaryEdge& e : TemporaryEdges(mesh, sc.Exact(mesh), p, epsilon)) {
+    for (const TemporaryEdge& e : TemporaryEdges(mesh, sc.Exact(mesh_), p, epsilon)) {
       if (e.weight < dist[e.vertex]) {
         dist[e.vertex] = e.weight;
         via[e.vertex] = kViaTemporary;
@@ -302,7 +336,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   if (options.method == FieldMethod::kLabelCorrecting) {
     // Algorithm 2: a FIFO queue with Small-Label-First insertion, popping
     // only labels at most the queue's mean (Bertsekas' SLF + threshold).
-    std::vector<uint8_t>& in_queue = sc.done[0];
+    std::vector<uint8_t>& in_queue = sc.flag;
     std::fill(in_queue.begin(), in_queue.begin() + nodes, 0);
     std::deque<uint32_t> queue;
     double sum = 0;
@@ -345,7 +379,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       if (queue.empty()) sum = 0;  // drop accumulated rounding
     }
   } else {
-    std::vector<uint8_t>& settled = sc.done[0];
+    std::vector<uint8_t>& settled = sc.flag;
     std::fill(settled.begin(), settled.begin() + nodes, 0);
     using Entry = std::pair<double, uint32_t>;
     std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap;
@@ -413,6 +447,54 @@ double PolylineLength(const std::vector<PathPoint>& points) {
   return length;
 }
 
+// Lower bound on the graph distance between any node and one endpoint of a
+// query: the straight line (every edge is at least as long as its chord),
+// and per landmark L the triangle inequality. An endpoint joined by
+// temporary edges (w, t) is at graph distance between
+//   lo(L) = min_w d_L(w) + t   and   above   hi(L) = max_w d_L(w) - t
+// from L, so any node v is at least lo(L) - d_L(v) and d_L(v) - hi(L) from
+// it. Both are 1-Lipschitz along edges, so the bound stays consistent.
+class EndpointBound {
+ public:
+  EndpointBound(const Endpoint& end, const Landmarks* landmarks) : xyz_(end.xyz) {
+    if (!landmarks) return;
+    landmarks_ = landmarks;
+    const int k = landmarks->count();
+    lo_.assign(k, kInfinity);
+    hi_.assign(k, -kInfinity);
+    auto add = [&](uint32_t node, double t) {
+      auto d = landmarks->of(node);
+      for (int i = 0; i < k; ++i) {
+        if (d[i] == kInfinity) continue;
+        lo_[i] = std::min(lo_[i], d[i] + t);
+        hi_[i] = std::max(hi_[i], d[i] - t);
+      }
+    };
+    if (end.is_node) {
+      add(end.node, 0);
+    } else {
+      for (const TemporaryEdge& e : end.edges) add(e.vertex, e.weight);
+    }
+  }
+
+  double operator()(uint32_t node, const Vec3& x) const {
+    double bound = geodesic::Distance(x, xyz_);
+    if (!landmarks_) return bound;
+    auto d = landmarks_->of(node);
+    for (size_t i = 0; i < lo_.size(); ++i) {
+      // An unreached landmark (another component) has lo = +inf, hi = -inf.
+      if (d[i] == kInfinity || lo_[i] == kInfinity) continue;
+      bound = std::max(bound, std::max(lo_[i] - d[i], d[i] - hi_[i]));
+    }
+    return bound;
+  }
+
+ private:
+  Vec3 xyz_;
+  const Landmarks* landmarks_ = nullptr;
+  std::vector<double> lo_, hi_;
+};
+
 }  // namespace
 
 absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
@@ -424,7 +506,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   RETURN_IF_ERROR(CheckPoint(mesh, raw_b, "second point"));
   const double epsilon = g.params().epsilon;
   Scratch& sc = ThreadScratch();
-  ExactGeodesic& exact = sc.Exact(mesh);
+  ExactGeodesic& exact = sc.Exact(mesh_);
 
   Endpoint ends[2];
   const SurfacePoint raw[2] = {raw_a, raw_b};
@@ -458,44 +540,47 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   if (!ends[1].is_node) ends[1].edges = TemporaryEdges(mesh, exact, ends[1].point, epsilon);
 
   const uint32_t nodes = g.num_nodes();
-  sc.Prepare(nodes);
-  const uint32_t stamp = sc.current;
+  const uint32_t stamp = sc.PreparePair(nodes);
+  std::vector<Scratch::PairNode>& at = sc.pair;
   auto offsets = g.offsets();
   auto targets = g.targets();
   auto weights = g.weights();
-  // Node positions for the straight-line potential.
+  // Node positions for the straight-line bound.
   auto node_xyz = [&](uint32_t u) -> Vec3 {
     if (u < mesh.num_vertices()) return mesh.position(u);
     return PositionOf(mesh, g.pseudo_points()[u - mesh.num_vertices()]);
   };
-  // Average potential p(v) = (|v - b| - |v - a|) / 2: consistent for both
-  // directions because every edge is at least as long as its chord.
-  auto potential = [&](uint32_t u) {
-    if (!options.use_astar) return 0.0;
-    Vec3 x = node_xyz(u);
-    return 0.5 * (geodesic::Distance(x, ends[1].xyz) - geodesic::Distance(x, ends[0].xyz));
+  // Average potential p(v) = (bound to b - bound to a) / 2: consistent for
+  // both directions because each bound is (EndpointBound).
+  const Landmarks* landmarks = landmarks_.load(std::memory_order_acquire);
+  const EndpointBound to_a(ends[0], landmarks), to_b(ends[1], landmarks);
+  // The record of node u for this query, initialised on first touch.
+  auto node = [&](uint32_t u) -> Scratch::PairNode& {
+    Scratch::PairNode& n = at[u];
+    if (n.stamp() != stamp) {
+      n.mark = stamp << 2;
+      n.dist[0] = n.dist[1] = kInfinity;
+      if (options.use_astar) {
+        const Vec3 x = node_xyz(u);
+        n.potential = static_cast<float>(0.5 * (to_b(u, x) - to_a(u, x)));
+      } else {
+        n.potential = 0;
+      }
+    }
+    return n;
   };
   using Entry = std::pair<double, uint32_t>;
   std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap[2];
-  auto label = [&](int s, uint32_t u) {
-    return sc.stamp[s][u] == stamp ? sc.dist[s][u] : kInfinity;
-  };
   uint32_t meet = kNone;
   double mu = best;
   auto set = [&](int s, uint32_t u, double d, uint32_t from) {
-    if (sc.stamp[s][u] != stamp) {
-      sc.stamp[s][u] = stamp;
-      sc.done[s][u] = 0;
-    } else if (!(d < sc.dist[s][u])) {
-      return;
-    }
-    sc.dist[s][u] = d;
-    sc.pred[s][u] = from;
-    const double sign = s == 0 ? 1 : -1;
-    heap[s].push({d + sign * potential(u), u});
-    const double other = label(1 - s, u);
-    if (d + other < mu) {
-      mu = d + other;
+    Scratch::PairNode& n = node(u);
+    if (!(d < n.dist[s])) return;
+    n.dist[s] = d;
+    n.pred[s] = from;
+    heap[s].push({s == 0 ? d + n.potential : d - n.potential, u});
+    if (d + n.dist[1 - s] < mu) {
+      mu = d + n.dist[1 - s];
       meet = u;
     }
   };
@@ -515,11 +600,22 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     const int s = heap[0].size() <= heap[1].size() ? 0 : 1;
     auto [key, u] = heap[s].top();
     heap[s].pop();
-    if (sc.done[s][u]) continue;
-    sc.done[s][u] = 1;
+    if (at[u].done(s)) continue;
+    at[u].set_done(s);
     ++result.settled;
-    const double du = sc.dist[s][u];
-    for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) set(s, targets[i], du + weights[i], u);
+    const double du = at[u].dist[s];
+    // Memory-bound: each neighbour is a random node. Ask for the records a
+    // few edges ahead so their cache misses overlap.
+    constexpr uint64_t kAhead = 6;
+    const uint64_t end = offsets[u + 1];
+    for (uint64_t i = offsets[u]; i < end; ++i) {
+      if (i + kAhead < end) {
+        const uint32_t ahead = targets[i + kAhead];
+        __builtin_prefetch(&at[ahead]);
+        if (landmarks) __builtin_prefetch(landmarks->of(ahead).data());
+      }
+      set(s, targets[i], du + weights[i], u);
+    }
   }
   result.distance = mu;
   if (!options.want_path || mu == kInfinity) return result;
@@ -535,20 +631,20 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
                                      : g.pseudo_points()[u - mesh.num_vertices()];
     };
     std::vector<uint32_t> chain;
-    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = sc.pred[0][u]) {
+    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = at[u].pred[0]) {
       chain.push_back(u);
     }
     std::reverse(chain.begin(), chain.end());
     for (uint32_t u : chain) {
       if (!(ends[0].is_node && u == ends[0].node)) {
         stops.push_back(as_point(u));
-        along.push_back(sc.dist[0][u]);
+        along.push_back(at[u].dist[0]);
       }
     }
-    for (uint32_t u = sc.pred[1][meet]; u != kViaSource && u != kViaTemporary; u = sc.pred[1][u]) {
+    for (uint32_t u = at[meet].pred[1]; u != kViaSource && u != kViaTemporary; u = at[u].pred[1]) {
       if (ends[1].is_node && u == ends[1].node) break;
       stops.push_back(as_point(u));
-      along.push_back(mu - sc.dist[1][u]);
+      along.push_back(mu - at[u].dist[1]);
     }
   }
   stops.push_back(ends[1].point);
@@ -597,7 +693,7 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   for (size_t j = 0; j < targets.size(); ++j) {
     canon[j] = CanonicalizeSurfacePoint(mesh, targets[j]);
     if (canon[j].kind != SurfacePoint::Kind::kVertex) {
-      target_edges[j] = TemporaryEdges(mesh, sc.Exact(mesh), canon[j], graph_->params().epsilon);
+      target_edges[j] = TemporaryEdges(mesh, sc.Exact(mesh_), canon[j], graph_->params().epsilon);
     }
   }
   std::vector<double> out;

@@ -7,6 +7,7 @@
 #ifndef GEODESIC_CORE_QUERIES_H_
 #define GEODESIC_CORE_QUERIES_H_
 
+#include <atomic>
 #include <cstdint>
 #include <functional>
 #include <limits>
@@ -16,8 +17,10 @@
 
 #include "absl/base/call_once.h"
 #include "absl/status/statusor.h"
+#include "absl/synchronization/mutex.h"
 #include "absl/types/span.h"
 #include "core/dgg_graph.h"
+#include "core/landmarks.h"
 #include "core/mesh.h"
 #include "core/surface_point.h"
 
@@ -64,7 +67,10 @@ struct GeodesicPath {
 
 struct PairOptions {
   bool want_path = false;
-  bool use_astar = true;  // bidirectional A* with the straight-line potential
+  // Bidirectional A* with the straight-line potential, tightened by the
+  // landmark bounds once GeodesicEngine::PrepareLandmarks has run; false:
+  // plain bidirectional Dijkstra.
+  bool use_astar = true;
   std::function<bool()> cancelled;
 };
 
@@ -97,6 +103,17 @@ class GeodesicEngine {
   // such query is timed like any other.
   void PrepareLabelCorrecting() const { shortest_edge(); }
 
+  // Computes the landmark distances that tighten point-to-point A* bounds
+  // (core/landmarks.h): `count` + 1 graph searches. Until it has run, queries
+  // use straight-line bounds alone, which is correct, only slower on long
+  // queries. Safe while queries run; once it has succeeded, later calls
+  // return at once. CANCELLED (and no landmarks) if `cancelled` says so.
+  absl::Status PrepareLandmarks(int count = kDefaultLandmarks,
+                                const std::function<bool()>& cancelled = {}) const;
+  static constexpr int kDefaultLandmarks = 16;
+  // Bytes held by the landmark distances (0 before PrepareLandmarks).
+  uint64_t landmark_bytes() const;
+
   // sources x targets distances, row-major.
   absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
                                              absl::Span<const SurfacePoint> targets,
@@ -110,6 +127,10 @@ class GeodesicEngine {
   const std::vector<float>& shortest_edge() const;
   mutable absl::once_flag shortest_edge_once_;
   mutable std::vector<float> shortest_edge_;
+  // Written once under the mutex, then read lock-free by every query.
+  mutable absl::Mutex landmarks_mu_;
+  mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);
+  mutable std::atomic<const Landmarks*> landmarks_{nullptr};
 };
 
 }  // namespace geodesic

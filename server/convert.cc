@@ -58,6 +58,7 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
   out->set_progress(s.progress);
   out->set_error(s.error);
   out->set_bytes(s.bytes);
+  out->set_landmark_bytes(s.landmark_bytes);
   out->set_mapped(s.mapped);
   out->set_from_file(s.from_file);
   out->set_nodes(s.nodes);

@@ -219,6 +219,7 @@ void GraphCache::Run(const Key& key) {
     e->status.progress = 1;
     e->status.error = note;
     e->status.bytes = graph->byte_size();
+    e->status.landmark_bytes = 0;
     e->status.mapped = graph->is_mapped();
     e->status.from_file = from_file;
     e->status.nodes = graph->num_nodes();
@@ -230,6 +231,15 @@ void GraphCache::Run(const Key& key) {
     EvictOverBudget(key);
   }
   if (options_.on_readiness) options_.on_readiness(key.first, key.second, true);
+  // Landmarks cut the nodes a point-to-point query settles several times;
+  // queries that arrive before they are ready use straight-line bounds.
+  absl::Status landmarks =
+      engine->PrepareLandmarks(GeodesicEngine::kDefaultLandmarks, [e] { return e->cancel.load(); });
+  absl::MutexLock lock(&mu_);
+  if (!landmarks.ok() || e->engine != engine) return;
+  e->status.landmark_bytes = engine->landmark_bytes();
+  Bump(*e);
+  EvictOverBudget(key);
 }
 
 void GraphCache::EvictOverBudget(const Key& keep) {
@@ -240,7 +250,7 @@ void GraphCache::EvictOverBudget(const Key& keep) {
     Key victim_key;
     for (auto& [key, e] : entries_) {
       if (e->status.state != GraphState::kReady) continue;
-      total += e->status.bytes;
+      total += e->status.bytes + e->status.landmark_bytes;
       // Only graphs no query holds; never the one just made ready.
       if (key == keep || e->engine.use_count() > 1) continue;
       if (!victim || e->last_used < victim->last_used) {
@@ -250,6 +260,7 @@ void GraphCache::EvictOverBudget(const Key& keep) {
     }
     if (total <= options_.memory_limit || !victim) return;
     victim->engine.reset();
+    victim->status.landmark_bytes = 0;
     victim->status.state = GraphState::kEvicted;
     victim->status.phase = "evicted";
     Bump(*victim);
@@ -366,7 +377,8 @@ uint64_t GraphCache::resident_bytes() const {
   absl::MutexLock lock(&mu_);
   uint64_t total = 0;
   for (const auto& [key, e] : entries_) {
-    if (e->status.state == GraphState::kReady && !e->status.mapped) total += e->status.bytes;
+    if (e->status.state != GraphState::kReady) continue;
+    total += e->status.landmark_bytes + (e->status.mapped ? 0 : e->status.bytes);
   }
   return total;
 }

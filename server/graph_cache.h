@@ -43,7 +43,10 @@ struct GraphStatus {
   std::string phase;
   double progress = 0;
   std::string error;
-  uint64_t bytes = 0;
+  uint64_t bytes = 0;  // the graph's arrays, resident or mapped
+  // Resident memory for point-to-point bounds (core/landmarks.h), computed in
+  // the background once the graph is ready.
+  uint64_t landmark_bytes = 0;
   bool mapped = false;
   bool from_file = false;
   uint64_t nodes = 0;

@@ -193,7 +193,8 @@ int RunServe(int argc, char** argv) {
   };
   GraphCache graphs(cache_options);
   MeshRegistry meshes(mesh_root);
-  metrics.AddGauge("geodesicd_graph_resident_bytes", "Bytes of graphs built in memory.",
+  metrics.AddGauge("geodesicd_graph_resident_bytes",
+                   "Resident bytes: graphs built in memory and landmark tables.",
                    [&] { return double(graphs.resident_bytes()); });
   metrics.AddGauge("geodesicd_graph_mapped_bytes", "Bytes of memory-mapped graphs.",
                    [&] { return double(graphs.mapped_bytes()); });

@@ -31,6 +31,7 @@ int RunDistance(int argc, char** argv) {
                "geodesicd distance"};
   std::string mesh_path, graph_path, from, to, pairs_path;
   bool json = false, want_path = false, no_astar = false;
+  int landmarks = GeodesicEngine::kDefaultLandmarks;
   app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
   app.add_option("--graph", graph_path, "graph file (geodesicd build)")->required();
   app.add_option("--from", from,
@@ -40,6 +41,11 @@ int RunDistance(int argc, char** argv) {
   app.add_option("--pairs", pairs_path, "file with one pair of points per line");
   app.add_flag("--path", want_path, "also recover the geodesic path");
   app.add_flag("--no-astar", no_astar, "plain bidirectional Dijkstra instead of A*");
+  app.add_option("--landmarks", landmarks,
+                 "landmarks whose graph distances tighten the A* bounds, computed once before "
+                 "the queries (0: straight-line bounds only)")
+      ->check(CLI::Range(0, 64))
+      ->capture_default_str();
   app.add_flag("--json", json, "print JSON");
   try {
     app.parse(argc, argv);
@@ -73,6 +79,10 @@ int RunDistance(int argc, char** argv) {
   auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
   if (!graph.ok()) return Fail("distance", graph.status());
   GeodesicEngine engine(*mesh, *graph);
+  if (landmarks > 0 && !no_astar) {
+    absl::Status prepared = engine.PrepareLandmarks(landmarks);
+    if (!prepared.ok()) return Fail("distance", prepared);
+  }
   PairOptions options;
   options.want_path = want_path;
   options.use_astar = !no_astar;

@@ -100,10 +100,13 @@ TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
   auto graph = BuildDgg(*mesh, options);
   ASSERT_OK(graph);
   GeodesicEngine engine(mesh, *graph);
+  ASSERT_OK(engine.PrepareLandmarks());
+  GeodesicEngine straight_line_only(mesh, *graph);
   auto pairs = ReadPairs(*mesh, name);
   ASSERT_GE(pairs.size(), 100u);
   double sum = 0;
   size_t count = 0;
+  uint64_t settled_landmarks = 0, settled_straight = 0;
   for (size_t i = 0; i < pairs.size(); ++i) {
     const Pair& p = pairs[i];
     PairOptions with_path;
@@ -131,8 +134,16 @@ TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
     ASSERT_OK(d);
     EXPECT_NEAR(d->distance, r->path ? d->distance : r->distance, 1e-9 * d->distance);
     EXPECT_LE(r->settled, d->settled + 1) << "A* settled more than Dijkstra on pair " << i;
+    // Straight-line bounds alone: the same distance, more nodes settled.
+    auto e = straight_line_only.Distance(p.a, p.b, {});
+    ASSERT_OK(e);
+    EXPECT_NEAR(e->distance, d->distance, 1e-9 * d->distance) << "pair " << i;
+    settled_landmarks += r->settled;
+    settled_straight += e->settled;
   }
   EXPECT_LT(sum / count, 0.3 * eps);
+  // On these curved meshes landmarks at least halve the work.
+  EXPECT_LT(2 * settled_landmarks, settled_straight);
 }
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, PairsTest, ::testing::Values("camelhead", "fertility"));
@@ -175,6 +186,8 @@ TEST(QueriesTest, DifferentComponentsAreUnreachable) {
   auto graph = BuildDgg(*mesh, options);
   ASSERT_OK(graph);
   GeodesicEngine engine(mesh, *graph);
+  // One component has no landmark: its nodes get no bound, still no error.
+  ASSERT_OK(engine.PrepareLandmarks(2));
   PairOptions with_path;
   with_path.want_path = true;
   auto r =
@@ -188,6 +201,60 @@ TEST(QueriesTest, DifferentComponentsAreUnreachable) {
   ASSERT_OK(m);
   EXPECT_DOUBLE_EQ((*m)[0], 1.0);
   EXPECT_EQ((*m)[1], kInfinity);
+}
+
+TEST(LandmarksTest, DistancesAreGraphDistancesFromFarApartNodes) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(15, 10, 0.1));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  auto landmarks = Landmarks::Compute(**graph, 4);
+  ASSERT_OK(landmarks);
+  const Landmarks& l = **landmarks;
+  ASSERT_EQ(l.count(), 4);
+  GeodesicEngine engine(mesh, *graph);
+  std::vector<Vec3> where;
+  for (int k = 0; k < l.count(); ++k) {
+    const uint32_t node = l.nodes()[k];
+    ASSERT_LT(node, mesh->num_vertices());
+    where.push_back(mesh->position(node));
+    const SurfacePoint source = SurfacePoint::Vertex(node);
+    auto field = engine.Field(absl::MakeConstSpan(&source, 1), {});
+    ASSERT_OK(field);
+    for (uint32_t v = 0; v < mesh->num_vertices(); ++v) {
+      EXPECT_NEAR(l.of(v)[k], field->distance[v], 1e-6 * field->distance[v]) << k << " " << v;
+    }
+  }
+  // Farthest-point sampling on a 1.5 x 1 rectangle: first two opposite
+  // corners, then points on the border.
+  EXPECT_NEAR(Distance(where[0], where[1]), std::hypot(1.5, 1.0), 1e-9);
+  for (const Vec3& p : where) {
+    const double to_border = std::min({p.x, 1.5 - p.x, p.y, 1.0 - p.y});
+    EXPECT_LT(to_border, 1e-9) << p.x << " " << p.y;
+  }
+  for (int i = 0; i < 4; ++i) {
+    for (int j = 0; j < i; ++j) EXPECT_NE(l.nodes()[i], l.nodes()[j]);
+  }
+}
+
+TEST(LandmarksTest, CancelledPreparationLeavesQueriesWorking) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(10, 10, 0.1));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  EXPECT_EQ(engine.PrepareLandmarks(8, [] { return true; }).code(), absl::StatusCode::kCancelled);
+  EXPECT_EQ(engine.landmark_bytes(), 0u);
+  auto before = engine.Distance(SurfacePoint::Vertex(0), SurfacePoint::Vertex(99), {});
+  ASSERT_OK(before);
+  ASSERT_OK(engine.PrepareLandmarks(8));
+  EXPECT_EQ(engine.landmark_bytes(), 8u * graph.value()->num_nodes() * sizeof(float));
+  auto after = engine.Distance(SurfacePoint::Vertex(0), SurfacePoint::Vertex(99), {});
+  ASSERT_OK(after);
+  EXPECT_DOUBLE_EQ(after->distance, before->distance);
+  EXPECT_LE(after->settled, before->settled);
 }
 
 TEST(QueriesTest, BadPointsGetPreciseCodes) {

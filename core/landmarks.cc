@@ -1,0 +1,85 @@
+#include "core/landmarks.h"
+
+#include <algorithm>
+#include <limits>
+#include <queue>
+#include <utility>
+
+#include "absl/status/status.h"
+
+namespace geodesic {
+namespace {
+
+// Graph distances from `source` to every node; false if cancelled.
+bool ShortestDistances(const DggGraph& graph, uint32_t source,
+                       const std::function<bool()>& cancelled, std::vector<double>& dist) {
+  auto offsets = graph.offsets();
+  auto targets = graph.targets();
+  auto weights = graph.weights();
+  if (cancelled && cancelled()) return false;
+  dist.assign(graph.num_nodes(), std::numeric_limits<double>::infinity());
+  using Entry = std::pair<double, uint32_t>;
+  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap;
+  dist[source] = 0;
+  heap.push({0, source});
+  uint64_t pops = 0;
+  while (!heap.empty()) {
+    auto [d, u] = heap.top();
+    heap.pop();
+    if (d > dist[u]) continue;
+    if (cancelled && (++pops & 4095) == 0 && cancelled()) return false;
+    for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
+      const double dv = d + weights[i];
+      if (dv < dist[targets[i]]) {
+        dist[targets[i]] = dv;
+        heap.push({dv, targets[i]});
+      }
+    }
+  }
+  return true;
+}
+
+// The reached node with the largest value of `key`, or kNone.
+uint32_t Farthest(const std::vector<double>& key) {
+  uint32_t best = kNone;
+  for (uint32_t v = 0; v < key.size(); ++v) {
+    if (key[v] < std::numeric_limits<double>::infinity() && (best == kNone || key[v] > key[best]))
+      best = v;
+  }
+  return best;
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<const Landmarks>> Landmarks::Compute(
+    const DggGraph& graph, int count, const std::function<bool()>& cancelled) {
+  if (count <= 0) return absl::InvalidArgumentError("landmark count must be positive");
+  auto result = std::make_unique<Landmarks>();
+  const uint32_t n = graph.num_nodes();
+  if (n == 0) return std::unique_ptr<const Landmarks>(std::move(result));
+  std::vector<double> dist;
+  // Farthest-point sampling on the graph metric; `nearest` holds each node's
+  // distance to the closest landmark so far.
+  std::vector<double> nearest;
+  if (!ShortestDistances(graph, 0, cancelled, nearest)) {
+    return absl::CancelledError("landmark computation cancelled");
+  }
+  result->count_ = count;
+  result->distance_.assign(static_cast<size_t>(n) * count, std::numeric_limits<float>::infinity());
+  for (int k = 0; k < count; ++k) {
+    uint32_t next = Farthest(nearest);
+    if (next == kNone) next = 0;
+    if (!ShortestDistances(graph, next, cancelled, dist)) {
+      return absl::CancelledError("landmark computation cancelled");
+    }
+    result->nodes_.push_back(next);
+    for (uint32_t v = 0; v < n; ++v) {
+      result->distance_[static_cast<size_t>(v) * count + k] = static_cast<float>(dist[v]);
+      // The first landmark replaces node 0, which only seeded the sampling.
+      nearest[v] = k == 0 ? dist[v] : std::min(nearest[v], dist[v]);
+    }
+  }
+  return std::unique_ptr<const Landmarks>(std::move(result));
+}
+
+}  // namespace geodesic
