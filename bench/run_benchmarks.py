@@ -312,11 +312,13 @@ def write_markdown(rows, command, seconds, plots):
         out.append("\n## Plots\n")
         out.extend(f"![{f}](bench/plots/{f})" for f in plots)
     # Hand-written analysis and the figures of other commands live in
-    # bench/notes.md and are carried over verbatim.
-    notes = os.path.join(ROOT, "bench", "notes.md")
-    if os.path.exists(notes):
-        out.append("")
-        out.append(open(notes).read())
+    # bench/notes.md and bench/daemon.md (bench/daemon_bench.py) and are
+    # carried over verbatim.
+    for name in ("notes.md", "daemon.md"):
+        path = os.path.join(ROOT, "bench", name)
+        if os.path.exists(path):
+            out.append("")
+            out.append(open(path).read())
     return "\n".join(out) + "\n"
 
 

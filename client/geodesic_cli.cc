@@ -224,10 +224,10 @@ std::string GraphJson(const v1::Graph& g) {
   return absl::StrFormat(
       "{\"mesh\": \"%s\", \"epsilon\": %g, \"state\": \"%s\", \"phase\": \"%s\", "
       "\"progress\": %.4f, \"error\": \"%s\", \"bytes\": %u, \"mapped\": %s, \"from_file\": %s, "
-      "\"nodes\": %u, \"edges\": %u, \"build_seconds\": %.4f}",
+      "\"nodes\": %u, \"edges\": %u, \"build_seconds\": %.4f, \"landmark_bytes\": %u}",
       g.mesh(), g.epsilon(), StateName(g.state()), g.phase(), g.progress(), g.error(), g.bytes(),
       g.mapped() ? "true" : "false", g.from_file() ? "true" : "false", g.nodes(), g.edges(),
-      g.build_seconds());
+      g.build_seconds(), g.landmark_bytes());
 }
 
 int CmdMeshes(const Common& c) {
@@ -603,9 +603,10 @@ int CmdSnap(const Common& c, const std::vector<std::string>& positions) {
 // A bounded load: `concurrency` clients issue random point-to-point queries
 // between vertices until `count` queries or `duration` seconds are done.
 int CmdBench(const Common& c, int concurrency, double duration, int count, uint32_t vertices,
-             bool with_path) {
+             bool with_path, bool face_points) {
   auto stub = Connect(c);
-  if (vertices == 0) {
+  uint32_t faces = 0;
+  {
     grpc::ClientContext ctx;
     Prepare(&ctx, c);
     v1::GetMeshRequest req;
@@ -613,7 +614,11 @@ int CmdBench(const Common& c, int concurrency, double duration, int count, uint3
     v1::Mesh m;
     grpc::Status s = stub->GetMesh(&ctx, req, &m);
     if (!s.ok()) return Fail(s);
-    vertices = m.diagnostics().vertices();
+    if (vertices == 0) vertices = m.diagnostics().vertices();
+    faces = m.diagnostics().faces();
+  }
+  if (face_points && faces == 0) {
+    return Fail(grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "the mesh has no faces"));
   }
   std::mutex mu;
   std::vector<double> latencies;
@@ -624,9 +629,23 @@ int CmdBench(const Common& c, int concurrency, double duration, int count, uint3
   for (int w = 0; w < concurrency; ++w) {
     workers.emplace_back([&, w] {
       uint64_t state = 0x9e3779b97f4a7c15ull * (w + 1);
-      auto next = [&] {
+      auto random = [&] {
         state ^= state << 13, state ^= state >> 7, state ^= state << 17;
-        return static_cast<uint32_t>(state % vertices);
+        return state;
+      };
+      // A vertex, or a point inside a face with random barycentrics.
+      auto pick = [&](v1::SurfacePoint* p) {
+        if (!face_points) {
+          p->set_vertex(static_cast<uint32_t>(random() % vertices));
+          return;
+        }
+        const double u = (random() >> 11) * 0x1p-53, v = (random() >> 11) * 0x1p-53;
+        const double b0 = u + v > 1 ? 1 - u : u, b1 = u + v > 1 ? 1 - v : v;
+        auto* f = p->mutable_face();
+        f->set_face(static_cast<uint32_t>(random() % faces));
+        f->set_b0(b0);
+        f->set_b1(b1);
+        f->set_b2(1 - b0 - b1);
       };
       std::vector<double> mine;
       while (std::chrono::steady_clock::now() < stop && issued.fetch_add(1) < count) {
@@ -635,8 +654,8 @@ int CmdBench(const Common& c, int concurrency, double duration, int count, uint3
         req.set_epsilon(c.epsilon);
         req.set_with_path(with_path);
         auto* p = req.add_pairs();
-        p->mutable_from()->set_vertex(next());
-        p->mutable_to()->set_vertex(next());
+        pick(p->mutable_from());
+        pick(p->mutable_to());
         grpc::ClientContext ctx;
         Prepare(&ctx, c);
         v1::DistanceResponse resp;
@@ -752,6 +771,10 @@ int main(int argc, char** argv) {
   bench->add_option("--duration", duration, "stop after this many seconds");
   bench->add_option("--count", count, "stop after this many queries");
   bench->add_flag("--path", with_path, "also request paths");
+  bool face_points = false;
+  bench->add_flag("--face-points", face_points,
+                  "random points inside faces (each end then joined to the graph by its own "
+                  "exact direct geodesics) instead of random vertices");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -768,6 +791,6 @@ int main(int argc, char** argv) {
   if (app.got_subcommand("matrix")) return CmdMatrix(c, sources, targets);
   if (app.got_subcommand("snap")) return CmdSnap(c, positions);
   if (app.got_subcommand("bench"))
-    return CmdBench(c, concurrency, duration, count, bench_vertices, with_path);
+    return CmdBench(c, concurrency, duration, count, bench_vertices, with_path, face_points);
   return 2;
 }

@@ -519,20 +519,22 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     }
   }
   PairResult result;
-  // The direct geodesic between the two points, if the first sees the
-  // second: exact, and the answer whenever it is the shortest.
+  // A point that is not a node joins the graph by its direct geodesics. The
+  // first one also gives the direct geodesic to the second point, if it sees
+  // it: exact, and the answer whenever it is shortest. When either point is
+  // a vertex the other's temporary edges (or the graph's own) already hold
+  // that geodesic up to the candidate budget, so a vertex costs no
+  // propagation at all.
   double best = kInfinity;
-  {
+  if (!ends[0].is_node) {
     DirectOptions options_a;
     options_a.epsilon = epsilon;
     options_a.keep_windows = true;
     auto hits = exact.DirectGeodesics(ends[0].point, options_a);
     if (!hits.ok()) return hits.status();
-    if (!ends[0].is_node) {
-      for (const DirectHit& h : *hits) {
-        ends[0].edges.push_back(
-            {h.vertex, h.distance, h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
-      }
+    for (const DirectHit& h : *hits) {
+      ends[0].edges.push_back(
+          {h.vertex, h.distance, h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
     }
     auto direct = exact.DistanceTo(ends[1].point);
     if (direct.ok()) best = *direct;
