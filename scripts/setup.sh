@@ -6,14 +6,18 @@
 #   scripts/setup.sh --with-nginx  also nginx, for the deploy routing test
 #     (CI only: Debian's package starts a system nginx on port 80, which this
 #     stops again; a developer machine rarely wants that)
+#   scripts/setup.sh --with-fuzz   also clang-14 and its sanitizer/libFuzzer
+#     runtimes, for scripts/fuzz.sh (CI runs the fuzzers briefly)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 deps_only=false
 with_nginx=false
+with_fuzz=false
 for arg in "$@"; do
   case "$arg" in
     --deps) deps_only=true ;;
     --with-nginx) with_nginx=true ;;
+    --with-fuzz) with_fuzz=true ;;
     *) echo "setup: unknown option $arg" >&2; exit 2 ;;
   esac
 done
@@ -27,6 +31,7 @@ PACKAGES=(
 )
 
 $with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)
+$with_fuzz && PACKAGES+=(clang-14 libclang-rt-14-dev)
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")

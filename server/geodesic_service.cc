@@ -207,7 +207,10 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
 grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                        v1::Graph* resp) {
   return Handle("GetGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    auto g = graphs_->Get(req->mesh(), Epsilon(req->epsilon()));
+    // Checked first: a NaN key would break the cache's ordered lookup.
+    const double eps = Epsilon(req->epsilon());
+    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    auto g = graphs_->Get(req->mesh(), eps);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
     return absl::OkStatus();
@@ -238,7 +241,9 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
 grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    auto g = graphs_->Cancel(req->mesh(), Epsilon(req->epsilon()));
+    const double eps = Epsilon(req->epsilon());
+    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    auto g = graphs_->Cancel(req->mesh(), eps);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
     return absl::OkStatus();

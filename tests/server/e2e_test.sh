@@ -52,6 +52,8 @@ cli --mesh nosuch distance --from v:1 --to v:2 2>"$work/e3"; check "unknown mesh
 cli --mesh evil load ../../../etc/passwd 2>"$work/e4"; check "path outside the mesh root" grep -q PERMISSION_DENIED "$work/e4"
 for eps in 2 -0.1 nan 1e-9; do
   cli --eps "$eps" graph 2>"$work/e5"; check "epsilon $eps refused" grep -q INVALID_ARGUMENT "$work/e5"
+  cli --eps "$eps" graph --cancel 2>"$work/e5"
+  check "epsilon $eps refused by CancelGraph" grep -q INVALID_ARGUMENT "$work/e5"
 done
 cli --eps 0.01 distance --from f:1:-0.5,1.0,0.5 --to v:1 2>"$work/e8"; check "negative barycentric" grep -q INVALID_ARGUMENT "$work/e8"
 cli --eps 0.01 distance --from f:1:nan,0.5,0.5 --to v:1 2>"$work/e9"; check "NaN barycentric" grep -q INVALID_ARGUMENT "$work/e9"
@@ -94,6 +96,23 @@ check "least recently used graph evicted" test "$s" = evicted
 cli --eps 0.01 distance --from v:1 --to v:2 2>"$work/e7"; check "evicted graph answers UNAVAILABLE" grep -q UNAVAILABLE "$work/e7"
 state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
 check "evicted graph comes back" test "$state" = ready
+
+# Request limits: each over-limit request is RESOURCE_EXHAUSTED naming the
+# limit, and the daemon keeps serving.
+stop_daemon
+start_daemon --max-pairs 2 --max-sources 1 --max-upload-bytes 1000
+printf 'v:1 v:2\nv:3 v:4\nv:5 v:6\n' > "$work/three_pairs"
+cli --eps 0.01 graph --wait >/dev/null
+cli --eps 0.01 distance --pairs "$work/three_pairs" 2>"$work/e12"
+check "pairs over --max-pairs refused" grep -q "RESOURCE_EXHAUSTED.*3 pairs exceed the limit of 2" "$work/e12"
+cli --eps 0.01 field --source v:1 --source v:2 2>"$work/e13"
+check "sources over --max-sources refused" grep -q "RESOURCE_EXHAUSTED.*2 sources exceed the limit of 1" "$work/e13"
+cli --eps 0.01 matrix --source v:1 --target v:2 --target v:3 --target v:4 2>"$work/e14"
+check "matrix over the limits refused" grep -q RESOURCE_EXHAUSTED "$work/e14"
+cli --mesh toobig load --upload "$src/data/spot.obj" 2>"$work/e15"
+check "upload over --max-upload-bytes refused" grep -q "RESOURCE_EXHAUSTED.*max-upload-bytes" "$work/e15"
+check "within the limits still served" cli --eps 0.01 distance --from v:1 --to v:2
+check "oversized upload left no mesh behind" test "$(cli --json meshes | json 'len(d)')" = 1
 
 echo "$passes passed, $failures failed"
 [ "$failures" = 0 ]

@@ -87,6 +87,19 @@ check "a bit-flipped graph file is rebuilt, not mapped" test "$(graph_field 0.01
 check "and answers like the good one" \
   test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
 
+# A valid graph of another mesh (spot with one vertex nudged: same counts,
+# another fingerprint) under this mesh's file name is refused, not served.
+stop_daemon
+awk '/^v / && !done { $2 = $2 + 0.001; done = 1 } { print }' "$src/data/spot.obj" > "$work/nudged.obj"
+"$bin/geodesicd" build "$work/nudged.obj" --eps 0.01 --out "$work/nudged.dgg" >/dev/null 2>&1
+cp "$work/nudged.dgg" "$good"
+start_daemon "$graphs"
+check "another mesh's graph is rebuilt, not mapped" test "$(graph_field 0.01 from_file)" = False
+check "and the refusal says so, with both fingerprints" \
+  grep -q "built for another mesh (fingerprint" "$work/daemon.log"
+check "and answers like the good one" \
+  test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+
 # Files deleted or replaced (by rename, as every writer here does) under a
 # running daemon: it keeps serving the graph it mapped.
 stop_daemon

@@ -118,6 +118,9 @@ stop_daemon
 # Misconfiguration is refused at start, naming the flag.
 "$bin/geodesicd" serve --listen "127.0.0.1:$port" --tls-cert "$work/server.crt" 2>"$work/e1"
 check "--tls-cert without --tls-key refused" grep -q "go together" "$work/e1"
+"$bin/geodesicd" serve --listen "127.0.0.1:$port" --tls-client-ca "$work/ca.crt" 2>"$work/e3"
+check "--tls-client-ca without a server certificate refused" \
+  grep -q "tls-client-ca needs --tls-cert" "$work/e3"
 : > "$work/empty"
 "$bin/geodesicd" serve --listen "127.0.0.1:$port" --auth-token-file "$work/empty" 2>"$work/e2"
 check "empty token file refused" grep -q "auth-token-file" "$work/e2"
