@@ -1,6 +1,7 @@
 #include "core/mesh_io.h"
 
 #include <sys/stat.h>
+#include <tbb/parallel_sort.h>
 #include <unistd.h>
 
 #include <OpenMesh/Core/IO/IOManager.hh>
@@ -483,32 +484,73 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     d->duplicate_vertices = 0;
     for (size_t i = 1; i < nv; ++i) d->duplicate_vertices += key(order[i]) == key(order[i - 1]);
   }
-  // Edges, their face counts and directed uses.
-  absl::flat_hash_map<uint64_t, uint32_t> edge_faces, directed_uses;
-  edge_faces.reserve(nf * 2);
+  // Every use of an edge by a face, sorted so that the uses of one edge are
+  // adjacent: one linear pass then yields edge counts, boundary and
+  // non-manifold edges, repeated directed edges and the corner fans. (Hash
+  // maps keyed by edge took most of a load on million-face meshes.)
+  struct EdgeUse {
+    uint64_t key;     // min << 32 | max
+    uint32_t corner;  // 3 * face + k: the edge runs from corner k to k + 1
+  };
   auto undirected = [](VertexId a, VertexId b) {
     return (uint64_t{std::min(a, b)} << 32) | std::max(a, b);
   };
+  std::vector<EdgeUse> uses;
+  uses.reserve(3 * nf);
   std::vector<uint8_t> used(nv, 0);
+  for (uint32_t f = 0; f < nf; ++f) {
+    const auto& t = soup.triangles[f];
+    for (int k = 0; k < 3; ++k) {
+      used[t[k]] = 1;
+      if (t[k] != t[(k + 1) % 3]) uses.push_back({undirected(t[k], t[(k + 1) % 3]), 3 * f + k});
+    }
+  }
+  tbb::parallel_sort(uses.begin(), uses.end(), [](const EdgeUse& x, const EdgeUse& y) {
+    return x.key < y.key || (x.key == y.key && x.corner < y.corner);
+  });
+  auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
+  auto corner_of = [&](uint32_t f, VertexId v) {
+    const auto& t = soup.triangles[f];
+    return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
+  };
+  std::vector<uint32_t> edge_of_corner(3 * nf, kNone);
+  DisjointSets boundary_sets(nv), corners(3 * nf);
+  std::vector<uint8_t> on_boundary(nv, 0);
   double edge_sum = 0, edge_min = INFINITY;
-  uint64_t edge_count = 0;
+  uint64_t edge_count = 0, twice_directed = 0;
+  d->non_manifold_edges = 0;
+  for (size_t i = 0, j; i < uses.size(); i = j) {
+    for (j = i + 1; j < uses.size() && uses[j].key == uses[i].key; ++j) {
+    }
+    const VertexId a = uses[i].key >> 32, b = uses[i].key & 0xffffffffu;
+    const double len = Distance(soup.positions[a], soup.positions[b]);
+    edge_sum += len;
+    edge_min = std::min(edge_min, len);
+    int forward = 0;  // uses walking it from a (the smaller id) to b
+    for (size_t u = i; u < j; ++u) {
+      edge_of_corner[uses[u].corner] = static_cast<uint32_t>(edge_count);
+      forward += from_of(uses[u].corner) == a;
+    }
+    ++edge_count;
+    const size_t count = j - i;
+    twice_directed += (forward > 1) + (static_cast<int>(count) - forward > 1);
+    if (count > 2) ++d->non_manifold_edges;
+    if (count == 1) {
+      boundary_sets.Union(a, b);
+      on_boundary[a] = on_boundary[b] = 1;
+    }
+    // Two faces on an edge join their corners at both ends into one fan.
+    if (count == 2) {
+      const uint32_t f0 = uses[i].corner / 3, f1 = uses[i + 1].corner / 3;
+      corners.Union(corner_of(f0, a), corner_of(f1, a));
+      corners.Union(corner_of(f0, b), corner_of(f1, b));
+    }
+  }
   std::vector<double> anisotropy;
   anisotropy.reserve(nf);
   d->zero_area_faces = d->near_degenerate_faces = 0;
   const double area_floor = 1e-12 * d->bbox_diagonal * d->bbox_diagonal;
   for (const auto& t : soup.triangles) {
-    for (int k = 0; k < 3; ++k) {
-      used[t[k]] = 1;
-      VertexId a = t[k], b = t[(k + 1) % 3];
-      if (a == b) continue;
-      if (++edge_faces[undirected(a, b)] == 1) {
-        const double len = Distance(soup.positions[a], soup.positions[b]);
-        edge_sum += len;
-        edge_min = std::min(edge_min, len);
-        ++edge_count;
-      }
-      ++directed_uses[(uint64_t{a} << 32) | b];
-    }
     const Vec3 &a = soup.positions[t[0]], &b = soup.positions[t[1]], &c = soup.positions[t[2]];
     const double area = 0.5 * Norm(Cross(b - a, c - a));
     const bool repeated = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
@@ -534,30 +576,27 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     d->anisotropy_max = anisotropy.back();
   }
   d->isolated_vertices = std::count(used.begin(), used.end(), 0);
-  d->non_manifold_edges = 0;
-  for (const auto& [key, count] : edge_faces) d->non_manifold_edges += count > 2;
-  uint64_t twice_directed = 0;
-  for (const auto& [key, count] : directed_uses) twice_directed += count > 1;
   // Faces OpenMesh's kernel would refuse: the ones that make an edge carry a
   // third face or repeat a directed edge, counted in file order.
   {
-    absl::flat_hash_map<uint64_t, uint32_t> seen_directed, seen_faces;
+    std::vector<uint8_t> faces_on(edge_count, 0), directions_on(edge_count, 0);
     d->faces_refused = 0;
-    for (const auto& t : soup.triangles) {
+    for (uint32_t f = 0; f < nf; ++f) {
+      const auto& t = soup.triangles[f];
       bool refuse = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
       for (int k = 0; k < 3 && !refuse; ++k) {
-        VertexId a = t[k], b = t[(k + 1) % 3];
-        refuse =
-            seen_directed.contains((uint64_t{a} << 32) | b) || seen_faces[undirected(a, b)] >= 2;
+        const uint32_t e = edge_of_corner[3 * f + k];
+        const uint8_t direction = t[k] < t[(k + 1) % 3] ? 1 : 2;
+        refuse = (directions_on[e] & direction) || faces_on[e] >= 2;
       }
       if (refuse) {
         ++d->faces_refused;
         continue;
       }
       for (int k = 0; k < 3; ++k) {
-        VertexId a = t[k], b = t[(k + 1) % 3];
-        seen_directed[(uint64_t{a} << 32) | b] = 1;
-        ++seen_faces[undirected(a, b)];
+        const uint32_t e = edge_of_corner[3 * f + k];
+        directions_on[e] |= t[k] < t[(k + 1) % 3] ? 1 : 2;
+        faces_on[e] = std::min(faces_on[e] + 1, 2);
       }
     }
   }
@@ -578,14 +617,6 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     }
   }
   // Boundary loops: components of the graph of boundary edges.
-  DisjointSets boundary_sets(nv);
-  std::vector<uint8_t> on_boundary(nv, 0);
-  for (const auto& [key, count] : edge_faces) {
-    if (count != 1) continue;
-    VertexId a = key >> 32, b = key & 0xffffffffu;
-    boundary_sets.Union(a, b);
-    on_boundary[a] = on_boundary[b] = 1;
-  }
   std::fill(root_seen.begin(), root_seen.end(), 0);
   d->boundary_loops = 0;
   d->boundary_vertices = 0;
@@ -598,28 +629,9 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
       ++d->boundary_loops;
     }
   }
-  // Non-manifold vertices: corners around a vertex joined across its
-  // two-face edges must form a single fan.
+  // Non-manifold vertices: the corners around a vertex, joined across its
+  // two-face edges, must form a single fan.
   {
-    absl::flat_hash_map<uint64_t, std::vector<uint32_t>> edge_corner_faces;
-    for (uint32_t f = 0; f < nf; ++f) {
-      const auto& t = soup.triangles[f];
-      for (int k = 0; k < 3; ++k) {
-        if (t[k] != t[(k + 1) % 3])
-          edge_corner_faces[undirected(t[k], t[(k + 1) % 3])].push_back(f);
-      }
-    }
-    DisjointSets corners(3 * nf);
-    auto corner_of = [&](uint32_t f, VertexId v) {
-      const auto& t = soup.triangles[f];
-      return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
-    };
-    for (const auto& [key, faces] : edge_corner_faces) {
-      if (faces.size() != 2) continue;
-      VertexId a = key >> 32, b = key & 0xffffffffu;
-      corners.Union(corner_of(faces[0], a), corner_of(faces[1], a));
-      corners.Union(corner_of(faces[0], b), corner_of(faces[1], b));
-    }
     std::vector<uint32_t> first_root(nv, kNone);
     std::vector<uint8_t> pinched(nv, 0);
     for (uint32_t c = 0; c < 3 * nf; ++c) {
