@@ -194,6 +194,36 @@ TEST_F(BrokenFilesTest, PolygonsAreTriangulatedAndIsolatedVerticesKept) {
   EXPECT_TRUE(mesh->is_isolated(4));
 }
 
+TEST(MeshBuildTest, SameDirectionEdgeNamesTheFirstClashInFaceOrder) {
+  TriangleSoup soup;
+  soup.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, -1, 0},
+                    {1, 1, 1}, {2, 0, 0}, {2, 1, 0}, {3, 0, 0}};
+  // Faces 0 and 1 share edge (0, 1) properly; face 2 walks (0, 1) again in
+  // face 0's direction, face 4 walks (5, 6) in face 3's direction.
+  soup.triangles = {{0, 1, 2}, {1, 0, 3}, {0, 1, 4}, {5, 6, 7}, {5, 6, 2}};
+  auto mesh = Mesh::Build(soup, "clash");
+  ASSERT_FALSE(mesh.ok());
+  EXPECT_EQ(mesh.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(mesh.status().message()),
+              HasSubstr("edge (0, 1) is used in the same direction by faces 0 and 2"));
+  // Consistent orientation: twins pair up and edge ids follow first use.
+  soup.triangles = {{0, 1, 2}, {1, 0, 3}, {5, 6, 7}, {6, 5, 4}};
+  auto good = Mesh::Build(soup, "good");
+  ASSERT_OK(good);
+  EXPECT_EQ(good->num_edges(), 10u);
+  for (HalfedgeId h = 0; h < 12; ++h) {
+    const HalfedgeId t = good->twin(h);
+    if (t == kNone) continue;
+    EXPECT_EQ(good->twin(t), h);
+    EXPECT_EQ(good->tail(t), good->head(h));
+    EXPECT_EQ(good->edge(t), good->edge(h));
+  }
+  EXPECT_EQ(good->twin(0), 3u);  // (0 -> 1) and (1 -> 0)
+  EXPECT_EQ(good->edge(0), 0u);
+  EXPECT_EQ(good->edge(1), 1u);
+  EXPECT_EQ(good->edge(3), 0u);
+}
+
 TEST_F(BrokenFilesTest, UploadedBytesLoadLikeFiles) {
   const std::string tri = "OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
   auto soup = ReadTriangleSoupFromMemory(tri, "off", "upload");
