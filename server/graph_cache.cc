@@ -260,6 +260,7 @@ void GraphCache::EvictOverBudget(const Key& keep) {
     }
     if (total <= options_.memory_limit || !victim) return;
     victim->engine.reset();
+    ++evictions_;
     victim->status.landmark_bytes = 0;
     victim->status.state = GraphState::kEvicted;
     victim->status.phase = "evicted";

@@ -91,6 +91,7 @@ class GraphCache {
   uint64_t mapped_bytes() const;
   uint64_t hits() const { return hits_; }
   uint64_t misses() const { return misses_; }
+  uint64_t evictions() const { return evictions_; }
   int builds_running() const { return builds_running_; }
 
   std::string GraphPath(const RegisteredMesh& mesh, double epsilon, bool pseudo) const;
@@ -119,7 +120,7 @@ class GraphCache {
   std::deque<Key> queue_ ABSL_GUARDED_BY(mu_);
   bool stopping_ ABSL_GUARDED_BY(mu_) = false;
   std::vector<std::thread> workers_;
-  std::atomic<uint64_t> hits_{0}, misses_{0};
+  std::atomic<uint64_t> hits_{0}, misses_{0}, evictions_{0};
   std::atomic<int> builds_running_{0};
 };
 

@@ -204,6 +204,9 @@ int RunServe(int argc, char** argv) {
                    [&] { return double(graphs.hits()); });
   metrics.AddGauge("geodesicd_cache_misses", "Queries whose graph was not ready.",
                    [&] { return double(graphs.misses()); });
+  metrics.AddGauge("geodesicd_graph_evictions",
+                   "Ready graphs evicted to stay within --memory-limit.",
+                   [&] { return double(graphs.evictions()); });
 
   // Registered before the port opens, so that the first answer already lists
   // it; its graph is requested once health reporting is up.
