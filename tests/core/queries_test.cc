@@ -59,6 +59,18 @@ void ExpectOnSurface(const Mesh& mesh, const GeodesicPath& path) {
   }
 }
 
+// A planar grid of nx x ny squares of side h, and its graph at eps 1e-2
+// (null, with a test failure, if the build fails).
+std::pair<std::shared_ptr<const Mesh>, std::shared_ptr<const DggGraph>> GridAndGraph(int nx, int ny,
+                                                                                     double h) {
+  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(nx, ny, h));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  EXPECT_OK(graph);
+  return {mesh, graph.ok() ? *graph : nullptr};
+}
+
 struct Pair {
   SurfacePoint a, b;
   double exact;
@@ -149,12 +161,9 @@ TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, PairsTest, ::testing::Values("camelhead", "fertility"));
 
 TEST(QueriesTest, SameFaceAndCornerCasesOnAGrid) {
-  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(20, 20, 0.1));
-  DggBuildOptions options;
-  options.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, options);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = GridAndGraph(20, 20, 0.1);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   const SurfacePoint points[] = {SurfacePoint::Face(5, 0.2, 0.3, 0.5),
                                  SurfacePoint::Face(5, 0.6, 0.3, 0.1),
                                  SurfacePoint::Edge(7, 0.25),
@@ -204,16 +213,13 @@ TEST(QueriesTest, DifferentComponentsAreUnreachable) {
 }
 
 TEST(LandmarksTest, DistancesAreGraphDistancesFromFarApartNodes) {
-  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(15, 10, 0.1));
-  DggBuildOptions options;
-  options.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, options);
-  ASSERT_OK(graph);
-  auto landmarks = Landmarks::Compute(**graph, 4);
+  auto [mesh, graph] = GridAndGraph(15, 10, 0.1);
+  ASSERT_NE(graph, nullptr);
+  auto landmarks = Landmarks::Compute(*graph, 4);
   ASSERT_OK(landmarks);
   const Landmarks& l = **landmarks;
   ASSERT_EQ(l.count(), 4);
-  GeodesicEngine engine(mesh, *graph);
+  GeodesicEngine engine(mesh, graph);
   std::vector<Vec3> where;
   for (int k = 0; k < l.count(); ++k) {
     const uint32_t node = l.nodes()[k];
@@ -239,18 +245,15 @@ TEST(LandmarksTest, DistancesAreGraphDistancesFromFarApartNodes) {
 }
 
 TEST(LandmarksTest, CancelledPreparationLeavesQueriesWorking) {
-  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(10, 10, 0.1));
-  DggBuildOptions options;
-  options.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, options);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = GridAndGraph(10, 10, 0.1);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   EXPECT_EQ(engine.PrepareLandmarks(8, [] { return true; }).code(), absl::StatusCode::kCancelled);
   EXPECT_EQ(engine.landmark_bytes(), 0u);
   auto before = engine.Distance(SurfacePoint::Vertex(0), SurfacePoint::Vertex(99), {});
   ASSERT_OK(before);
   ASSERT_OK(engine.PrepareLandmarks(8));
-  EXPECT_EQ(engine.landmark_bytes(), 8u * graph.value()->num_nodes() * sizeof(float));
+  EXPECT_EQ(engine.landmark_bytes(), 8u * graph->num_nodes() * sizeof(float));
   auto after = engine.Distance(SurfacePoint::Vertex(0), SurfacePoint::Vertex(99), {});
   ASSERT_OK(after);
   EXPECT_DOUBLE_EQ(after->distance, before->distance);
@@ -258,12 +261,9 @@ TEST(LandmarksTest, CancelledPreparationLeavesQueriesWorking) {
 }
 
 TEST(QueriesTest, BadPointsGetPreciseCodes) {
-  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(4, 4, 1.0));
-  DggBuildOptions options;
-  options.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, options);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = GridAndGraph(4, 4, 1.0);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   EXPECT_EQ(engine.Distance(SurfacePoint::Vertex(99), SurfacePoint::Vertex(0), {}).status().code(),
             absl::StatusCode::kOutOfRange);
   EXPECT_EQ(
@@ -276,12 +276,9 @@ TEST(QueriesTest, BadPointsGetPreciseCodes) {
 }
 
 TEST(QueriesTest, MatrixAgreesWithPairs) {
-  auto mesh = std::make_shared<const Mesh>(testing::PlanarGrid(12, 12, 0.2));
-  DggBuildOptions options;
-  options.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, options);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = GridAndGraph(12, 12, 0.2);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   std::vector<SurfacePoint> sources = {SurfacePoint::Vertex(3),
                                        SurfacePoint::Face(40, 0.2, 0.2, 0.6)};
   std::vector<SurfacePoint> targets = {SurfacePoint::Vertex(100),
