@@ -27,15 +27,17 @@ constexpr double kTwoPi = 2 * std::numbers::pi;
 // Fans used when choosing replacement paths, relative to the solver's.
 constexpr double kPruningFanScale = 0.9;
 // The error budget. Early termination of the candidates (Theorem 2 and the
-// corners) may lengthen a shortest path by 1 + e_c, and pruning each replaced
-// edge by 1 + e_p, with (1 + e_c)(1 + e_p) = 1 + 0.9 eps: a route through
-// corners and replacements that are themselves approximations compounds a
-// little, and the tenth held back keeps measured maxima below eps. Pruning
-// gets a tenth: its loss compounds the most, and it removes only about a
-// tenth of the candidates anyway. Measured (BENCHMARKS.md): an even split
-// kept 16% more edges and reached 1.7 eps.
+// corners) may lengthen a shortest path by 1 + e_c, and pruning (when asked
+// for) each replaced edge by 1 + e_p, with (1 + e_c)(1 + e_p) = 1 + 0.9 eps:
+// a route through corners and replacements that are themselves
+// approximations compounds a little, and the tenth held back keeps measured
+// maxima below eps. Pruning gets a tenth: its loss compounds the most. It
+// then removes well under 1% of the candidates for a quarter of the build,
+// so by default it is skipped and the candidates get the whole 0.9 eps,
+// which stops them earlier: fewer edges and a faster build (bench/notes.md).
 double PruningBudget(double epsilon) { return 0.1 * epsilon; }
-double CandidateBudget(double epsilon) {
+double CandidateBudget(double epsilon, bool prune) {
+  if (!prune) return 0.9 * epsilon;
   return (1 + 0.9 * epsilon) / (1 + PruningBudget(epsilon)) - 1;
 }
 
@@ -122,7 +124,7 @@ void ParallelFor(uint32_t n, Progress& progress, std::string_view phase, double 
 // Phase 1 (section 4.2.1): the direct geodesics from every vertex, each window
 // stopped at Theorem 2's d_max. Returns, per vertex, candidates sorted by id.
 // Sources [begin, end) only; element i of the result belongs to begin + i.
-std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double epsilon,
+std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double candidate_epsilon,
                                                         bool stop_at_corners, uint32_t begin,
                                                         uint32_t end, Progress& progress,
                                                         double progress_end,
@@ -136,7 +138,7 @@ std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double
     if (mesh.is_isolated(s)) return;
     ExactGeodesic& engine = *engines.local();
     DirectOptions options;
-    options.epsilon = CandidateBudget(epsilon);
+    options.epsilon = candidate_epsilon;
     options.stop_at_corners = stop_at_corners;
     auto hits = engine.DirectGeodesics(SurfacePoint::Vertex(s), options);
     if (!hits.ok()) return;  // a validated vertex source cannot fail
@@ -492,7 +494,7 @@ absl::Status CheckEpsilon(double epsilon) {
 // fans. Runs inside the caller's arena.
 std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
                                             std::vector<std::vector<DggHalfEdge>> candidates,
-                                            const DggParams& params, Progress& progress,
+                                            const DggParams& params, bool prune, Progress& progress,
                                             DggBuildStats& st) {
   const double epsilon = params.epsilon;
   auto t = std::chrono::steady_clock::now();
@@ -510,11 +512,15 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
   st.pseudo_seconds = Seconds(t);
 
   t = std::chrono::steady_clock::now();
-  auto redundant = FindRedundant(mesh, cand, epsilon, progress);
-  if (progress.cancelled()) return nullptr;
-  Adjacency kept = DropRedundant(cand, redundant);
-  redundant = {};
-  cand = {};
+  Adjacency kept;
+  if (prune) {
+    auto redundant = FindRedundant(mesh, cand, epsilon, progress);
+    if (progress.cancelled()) return nullptr;
+    kept = DropRedundant(cand, redundant);
+    cand = {};
+  } else {
+    kept = std::move(cand);
+  }
   st.pruning_seconds = Seconds(t);
 
   t = std::chrono::steady_clock::now();
@@ -558,11 +564,13 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   tbb::task_arena arena(ThreadCount(options));
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
-    auto candidates = ComputeCandidates(mesh, options.params.epsilon, options.stop_at_corners, 0,
-                                        mesh.num_vertices(), progress, 0.7, &st.windows_created);
+    auto candidates = ComputeCandidates(
+        mesh, CandidateBudget(options.params.epsilon, options.prune_redundant),
+        options.stop_at_corners, 0, mesh.num_vertices(), progress, 0.7, &st.windows_created);
     st.candidate_seconds = Seconds(start);
     if (progress.cancelled()) return;
-    graph = FinishBuild(mesh, std::move(candidates), options.params, progress, st);
+    graph = FinishBuild(mesh, std::move(candidates), options.params, options.prune_redundant,
+                        progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
@@ -588,8 +596,9 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   tbb::task_arena arena(ThreadCount(options));
   std::vector<std::vector<DggHalfEdge>> candidates;
   arena.execute([&] {
-    candidates = ComputeCandidates(mesh, options.params.epsilon, options.stop_at_corners,
-                                   part.begin, part.end, progress, 1.0, &part.windows_created);
+    candidates = ComputeCandidates(
+        mesh, CandidateBudget(options.params.epsilon, options.prune_redundant),
+        options.stop_at_corners, part.begin, part.end, progress, 1.0, &part.windows_created);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   part.offsets.assign(1, 0);
@@ -665,7 +674,9 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   Progress progress(options);
   tbb::task_arena arena(ThreadCount(options));
   std::shared_ptr<const DggGraph> graph;
-  arena.execute([&] { graph = FinishBuild(mesh, std::move(candidates), params, progress, st); });
+  arena.execute([&] {
+    graph = FinishBuild(mesh, std::move(candidates), params, options.prune_redundant, progress, st);
+  });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
   return graph;

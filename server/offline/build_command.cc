@@ -143,6 +143,10 @@ int RunBuild(int argc, char** argv) {
   app.add_option("--part", part,
                  "I/N: only the candidate edges of the I-th (0-based) of N vertex ranges, for "
                  "'geodesicd merge'");
+  bool prune = false;
+  app.add_flag("--prune", prune,
+               "also prune redundant edges (Algorithm 1, phase 2), giving it a tenth of eps: "
+               "slower, and rarely smaller (see bench/notes.md); give it to the merge too");
   bool plain = false;
   app.add_flag("--plain-candidates", plain,
                "benchmarking: plain Algorithm 1 candidates (Theorem 2 only, no corner early "
@@ -165,6 +169,7 @@ int RunBuild(int argc, char** argv) {
   options.params.pseudo_vertices = pseudo;
   options.threads = threads;
   options.stop_at_corners = !plain;
+  options.prune_redundant = prune;
   options.progress = ProgressBar(!json && !quiet);
   if (!part.empty()) return BuildPart(**mesh, options, part, out_path, json);
   DggBuildStats stats;
@@ -193,6 +198,9 @@ int RunMerge(int argc, char** argv) {
   app.add_option("--threads", threads, "threads (0: all cores)");
   app.add_flag("--json", json, "print a JSON object (the keys of 'geodesicd build --json')");
   app.add_flag("--quiet", quiet, "no progress bar");
+  bool prune = false;
+  app.add_flag("--prune", prune,
+               "prune redundant edges: only if the parts were built with --prune");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -211,6 +219,7 @@ int RunMerge(int argc, char** argv) {
   }
   DggBuildOptions options;
   options.threads = threads;
+  options.prune_redundant = prune;
   options.progress = ProgressBar(!json && !quiet);
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);

@@ -63,10 +63,10 @@ std::shared_ptr<const Mesh> SpotGraphTest::mesh_;
 std::shared_ptr<const DggGraph> SpotGraphTest::graph_;
 DggBuildStats SpotGraphTest::stats_;
 
-TEST_F(SpotGraphTest, GraphIsValidAndSmallerThanItsCandidates) {
+TEST_F(SpotGraphTest, GraphIsValidAndSymmetric) {
   EXPECT_OK(graph_->Validate(*mesh_));
   EXPECT_EQ(graph_->num_mesh_vertices(), mesh_->num_vertices());
-  EXPECT_GT(stats_.candidate_edges, stats_.edges);
+  EXPECT_EQ(stats_.candidate_edges, stats_.edges);  // no pruning by default
   EXPECT_GE(stats_.average_degree, 6);  // at least the mesh's own edges, on average
   // Symmetric: every directed edge has its reverse with the same weight.
   auto off = graph_->offsets();
@@ -303,6 +303,33 @@ TEST(DggBuildTest, PlanarGridGraphIsNearlyExact) {
 // solver's fields: mean relative error at most 0.3 eps and max at most
 // 1.5 eps for the default solver; the label-correcting solver is held to the
 // same bounds where it agrees with Dijkstra (see FieldOptions::method).
+TEST_F(SpotGraphTest, PruningRemovesEdgesAndKeepsTheBound) {
+  DggBuildOptions options;
+  options.params.epsilon = graph_->params().epsilon;
+  options.prune_redundant = true;
+  DggBuildStats pruned_stats;
+  auto pruned = BuildDgg(*mesh_, options, &pruned_stats);
+  ASSERT_OK(pruned);
+  EXPECT_OK((*pruned)->Validate(*mesh_));
+  // Pruning takes a tenth of eps from the candidates, which then stop later.
+  EXPECT_GT(pruned_stats.candidate_edges, stats_.candidate_edges);
+  EXPECT_LT(pruned_stats.edges, pruned_stats.candidate_edges);
+  GeodesicEngine engine(mesh_, *pruned);
+  ExactGeodesic exact(*mesh_);
+  const double eps = options.params.epsilon;
+  for (VertexId s : {VertexId{0}, VertexId{976}, VertexId{1953}}) {
+    auto truth = exact.Distances(SurfacePoint::Vertex(s));
+    ASSERT_OK(truth);
+    SurfacePoint source = SurfacePoint::Vertex(s);
+    auto field = engine.Field(absl::MakeConstSpan(&source, 1), {});
+    ASSERT_OK(field);
+    ErrorStats e = Compare(field->distance, *truth);
+    EXPECT_LE(e.mean, 0.25 * eps) << "source " << s;
+    EXPECT_LE(e.max, 1.5 * eps) << "source " << s;
+    EXPECT_GE(e.most_under, -1e-9);
+  }
+}
+
 class SharedAccuracyTest : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
 
 TEST_P(SharedAccuracyTest, FieldsWithinEpsilonOfExact) {
