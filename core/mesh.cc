@@ -1,7 +1,5 @@
 #include "core/mesh.h"
 
-#include <tbb/parallel_sort.h>
-
 #include <algorithm>
 #include <cmath>
 #include <numbers>
@@ -72,7 +70,7 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   for (HalfedgeId h = 0; h < nh; ++h) {
     by_edge[h] = {UndirectedKey(m.tail(h), m.head(h)), h};
   }
-  tbb::parallel_sort(by_edge.begin(), by_edge.end());
+  std::sort(by_edge.begin(), by_edge.end());
   m.twin_.assign(nh, kNone);
   HalfedgeId clash_first = kNone, clash_second = kNone;
   for (size_t i = 0, j; i < nh; i = j) {

@@ -1,7 +1,6 @@
 #include "core/mesh_io.h"
 
 #include <sys/stat.h>
-#include <tbb/parallel_sort.h>
 #include <unistd.h>
 
 #include <OpenMesh/Core/IO/IOManager.hh>
@@ -505,7 +504,7 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
       if (t[k] != t[(k + 1) % 3]) uses.push_back({undirected(t[k], t[(k + 1) % 3]), 3 * f + k});
     }
   }
-  tbb::parallel_sort(uses.begin(), uses.end(), [](const EdgeUse& x, const EdgeUse& y) {
+  std::sort(uses.begin(), uses.end(), [](const EdgeUse& x, const EdgeUse& y) {
     return x.key < y.key || (x.key == y.key && x.corner < y.corner);
   });
   auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
@@ -579,7 +578,9 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
   // Faces OpenMesh's kernel would refuse: the ones that make an edge carry a
   // third face or repeat a directed edge, counted in file order.
   {
-    std::vector<uint8_t> faces_on(edge_count, 0), directions_on(edge_count, 0);
+    // Per edge: bit 0 / 1 set once a kept face walks it from its smaller /
+    // larger end, and how many kept faces it has (at most 2), times 4.
+    std::vector<uint8_t> accepted(edge_count, 0);
     d->faces_refused = 0;
     for (uint32_t f = 0; f < nf; ++f) {
       const auto& t = soup.triangles[f];
@@ -587,7 +588,7 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
       for (int k = 0; k < 3 && !refuse; ++k) {
         const uint32_t e = edge_of_corner[3 * f + k];
         const uint8_t direction = t[k] < t[(k + 1) % 3] ? 1 : 2;
-        refuse = (directions_on[e] & direction) || faces_on[e] >= 2;
+        refuse = (accepted[e] & direction) || accepted[e] >= 8;
       }
       if (refuse) {
         ++d->faces_refused;
@@ -595,8 +596,7 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
       }
       for (int k = 0; k < 3; ++k) {
         const uint32_t e = edge_of_corner[3 * f + k];
-        directions_on[e] |= t[k] < t[(k + 1) % 3] ? 1 : 2;
-        faces_on[e] = std::min(faces_on[e] + 1, 2);
+        accepted[e] = (accepted[e] | (t[k] < t[(k + 1) % 3] ? 1 : 2)) + 4;
       }
     }
   }
