@@ -56,7 +56,7 @@ def truth_sources(name):
                   if f.startswith(name + ".exact.s"))
 
 
-def bench_mesh(name, eps_list, rows, quick):
+def bench_mesh(name, eps_list, rows, quick, plain_max_vertices):
     mesh = os.path.join(SHARED, "meshes", MESHES[name])
     info = run_json([f"{BIN}/geodesicd", "info", mesh, "--json"])
     n = info["vertices"]
@@ -84,8 +84,10 @@ def bench_mesh(name, eps_list, rows, quick):
         for threads in (1, 2):
             builds[threads] = run_json([f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps),
                                         "--out", graph, "--threads", str(threads), "--json"])
-        plain = run_json([f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps), "--out",
-                          f"{work}/plain.dgg", "--threads", "1", "--plain-candidates", "--json"])
+        # Plain Algorithm 1 costs minutes per mesh beyond ~20K vertices at 1e-3.
+        plain = {} if n > plain_max_vertices else run_json(
+            [f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps), "--out", f"{work}/plain.dgg",
+             "--threads", "1", "--plain-candidates", "--json"])
         b1, b2 = builds[1], builds[2]
         field_lc, field_dj, errs, errs_dj = [], [], [], []
         for s in sources:
@@ -122,12 +124,12 @@ def bench_mesh(name, eps_list, rows, quick):
             "field_dj_max_err_eps": np.max([e[1] for e in errs_dj]) / eps,
             "exact_field_s": ex["solve_seconds"], "exact_windows_per_vertex": ex["windows_per_vertex"],
             "exact_mean_err": exact_err[0], "exact_max_err": exact_err[1],
-            "plain_build_s_1t": plain["build_seconds"],
-            "plain_candidate_s_1t": plain["candidate_seconds"],
-            "plain_pruning_s_1t": plain["pruning_seconds"],
-            "plain_windows_per_source": plain["windows_per_source"],
-            "plain_candidate_edges": plain["candidate_edges"],
-            "plain_peak_mem_mb": plain["peak_memory_bytes"] / 2**20,
+            "plain_build_s_1t": plain.get("build_seconds"),
+            "plain_candidate_s_1t": plain.get("candidate_seconds"),
+            "plain_pruning_s_1t": plain.get("pruning_seconds"),
+            "plain_windows_per_source": plain.get("windows_per_source"),
+            "plain_candidate_edges": plain.get("candidate_edges"),
+            "plain_peak_mem_mb": plain["peak_memory_bytes"] / 2**20 if plain else None,
         }
         if cgal:
             row.update({
@@ -154,6 +156,8 @@ def bench_mesh(name, eps_list, rows, quick):
             dist = np.array([r["distance"] if r["distance"] is not None else np.inf for r in res])
             plain = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
                               "--pairs", pf, "--json", "--no-astar"])
+            straight = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
+                                 "--pairs", pf, "--json", "--landmarks", "0"])
             paths = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
                               "--pairs", pf, "--json", "--path"])
             m = np.isfinite(exact) & (exact > 0)
@@ -163,6 +167,8 @@ def bench_mesh(name, eps_list, rows, quick):
                 "p2p_p99_ms": 1e3 * np.percentile(lat, 99),
                 "p2p_mean_err_eps": np.abs(e).mean() / eps, "p2p_max_err_eps": np.abs(e).max() / eps,
                 "astar_settled": np.mean([r["settled"] for r in res]),
+                "straight_settled": np.mean([r["settled"] for r in straight]),
+                "straight_p50_ms": 1e3 * np.percentile([r["seconds"] for r in straight], 50),
                 "dijkstra_settled": np.mean([r["settled"] for r in plain]),
                 "path_p50_ms": 1e3 * np.percentile([r["seconds"] for r in paths], 50),
             })
@@ -266,9 +272,9 @@ def write_markdown(rows, command, seconds, plots):
         out.append(
             f"| {r['mesh']} | {r['vertices']} | {r['eps']:g} | {fmt(r['build_s_1t'])} | {fmt(r['build_s_2t'])} | "
             f"{ratio(r['build_s_1t'], r['build_s_2t'])} | {fmt(r['plain_build_s_1t'])} | "
-            f"{ratio(r['plain_build_s_1t'], r['build_s_1t'])} faster | "
+            f"{ratio(r['plain_build_s_1t'], r['build_s_1t'])}{' faster' if r['plain_build_s_1t'] else ''} | "
             f"{fmt(r['windows_per_source'])} / {fmt(r['plain_windows_per_source'])} | "
-            f"{r['candidate_edges']} / {r['plain_candidate_edges']} | "
+            f"{r['candidate_edges']} / {r['plain_candidate_edges'] or '–'} | "
             f"{fmt(r['pruning_s_1t'])} / {fmt(r['plain_pruning_s_1t'])} | {r['edges']} | "
             f"{fmt(r['avg_degree'])} / {r['max_degree']} | {fmt(r['file_mb'])} | "
             f"{fmt(r['peak_mem_mb'])} / {fmt(r['plain_peak_mem_mb'])} |")
@@ -297,15 +303,17 @@ def write_markdown(rows, command, seconds, plots):
                                                  if cg else "– | – | ")
             + f"{fmt(r['exact_max_err'])} |")
     out.append("\n## Point-to-point (the shared exact pairs: inside faces, on edges, at vertices, same face)\n")
-    out.append("| mesh | ε | p50 (ms) | p90 (ms) | p99 (ms) | mean / max err (ε) | settled, bidirectional A* | "
-               "settled, bidirectional Dijkstra | A* saves | path p50 (ms) | graph open (ms) |")
-    out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    out.append("| mesh | ε | p50 (ms) | p90 (ms) | p99 (ms) | mean / max err (ε) | settled, A* with landmarks | "
+               "settled, A* straight line only (p50 ms) | settled, bidirectional Dijkstra | landmark A* saves "
+               "| path p50 (ms) | graph open (ms) |")
+    out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         if "p2p_p50_ms" not in r:
             continue
         out.append(
             f"| {r['mesh']} | {r['eps']:g} | {fmt(r['p2p_p50_ms'])} | {fmt(r['p2p_p90_ms'])} | {fmt(r['p2p_p99_ms'])} | "
             f"{fmt(r['p2p_mean_err_eps'])} / {fmt(r['p2p_max_err_eps'])} | {fmt(r['astar_settled'])} | "
+            f"{fmt(r.get('straight_settled'))} ({fmt(r.get('straight_p50_ms'))}) | "
             f"{fmt(r['dijkstra_settled'])} | {ratio(r['dijkstra_settled'], r['astar_settled'])} fewer | "
             f"{fmt(r['path_p50_ms'])} | {fmt(r['graph_open_ms'])} |")
     if plots:
@@ -327,6 +335,8 @@ def main():
     p.add_argument("--meshes", default="eight,spot,camelhead,fertility,bunny,armadillo")
     p.add_argument("--eps", default="1e-2,1e-3")
     p.add_argument("--quick", action="store_true", help="50 pairs per mesh")
+    p.add_argument("--plain-max-vertices", type=int, default=20000,
+                   help="skip the plain Algorithm 1 comparison build on larger meshes")
     p.add_argument("--rows-from", help="start from the JSON rows an earlier run printed "
                    "(one per line), to add meshes without redoing the others")
     p.add_argument("--out", default=os.path.join(ROOT, "bench", "results.csv"))
@@ -339,7 +349,7 @@ def main():
             if line.startswith("{"):
                 rows.append(json.loads(line))
     for name in a.meshes.split(","):
-        bench_mesh(name, [float(e) for e in a.eps.split(",")], rows, a.quick)
+        bench_mesh(name, [float(e) for e in a.eps.split(",")], rows, a.quick, a.plain_max_vertices)
     with open(a.out, "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=sorted({k for r in rows for k in r}))
         w.writeheader()
