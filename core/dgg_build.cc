@@ -1,6 +1,7 @@
 #include "core/dgg_build.h"
 
 #include <tbb/enumerable_thread_specific.h>
+#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
 #include <tbb/task_arena.h>
 
@@ -537,9 +538,37 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
                                      MeshFingerprint(mesh));
 }
 
-int ThreadCount(const DggBuildOptions& options) {
+[[maybe_unused]] int ThreadCount(const DggBuildOptions& options) {
   return options.threads > 0 ? options.threads : tbb::info::default_concurrency();
 }
+
+// The arena a build runs in. Debian's libtbb is not built with TSan, which
+// then cannot see how TBB hands split ranges between its threads and reports
+// that bookkeeping as races; TSan builds (GEODESIC_TSAN) therefore keep TBB
+// to the calling thread, and what TSan checks is the concurrency written here
+// (queries and landmarks on shared graphs).
+class BuildArena {
+ public:
+  explicit BuildArena(const DggBuildOptions& options)
+#ifdef GEODESIC_TSAN
+      : one_thread_(tbb::global_control::max_allowed_parallelism, 1),
+        arena_(1)
+#else
+      : arena_(ThreadCount(options))
+#endif
+  {
+  }
+  template <typename F>
+  void execute(F&& f) {
+    arena_.execute(std::forward<F>(f));
+  }
+
+ private:
+#ifdef GEODESIC_TSAN
+  tbb::global_control one_thread_;
+#endif
+  tbb::task_arena arena_;
+};
 
 }  // namespace
 
@@ -561,7 +590,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   st = {};
   const auto start = std::chrono::steady_clock::now();
   Progress progress(options);
-  tbb::task_arena arena(ThreadCount(options));
+  BuildArena arena(options);
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
     auto candidates = ComputeCandidates(
@@ -593,7 +622,7 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   part.begin = n * index / count;
   part.end = n * (index + 1) / count;
   Progress progress(options);
-  tbb::task_arena arena(ThreadCount(options));
+  BuildArena arena(options);
   std::vector<std::vector<DggHalfEdge>> candidates;
   arena.execute([&] {
     candidates = ComputeCandidates(
@@ -672,7 +701,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
     p = {};
   }
   Progress progress(options);
-  tbb::task_arena arena(ThreadCount(options));
+  BuildArena arena(options);
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
     graph = FinishBuild(mesh, std::move(candidates), params, options.prune_redundant, progress, st);

@@ -58,6 +58,15 @@ class SoupImporter : public OpenMesh::IO::BaseImporter {
       }
       return OpenMesh::FaceHandle();
     }
+    // More corners than the file has vertices: a garbled count (found by
+    // tests/fuzz; its fan would be hundreds of millions of triangles).
+    if (v.size() > soup_->positions.size()) {
+      if (first_error_.empty()) {
+        first_error_ = absl::StrFormat("face %u has %u corners but the file has only %u vertices",
+                                       input_faces_ - 1, v.size(), soup_->positions.size());
+      }
+      return OpenMesh::FaceHandle();
+    }
     for (VertexHandle h : v) {
       if (!h.is_valid() || static_cast<size_t>(h.idx()) >= soup_->positions.size()) {
         if (first_error_.empty()) {
@@ -222,6 +231,31 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
     if (!s.ok()) return s;
   }
   out.available = out.positions.size() == nv;
+  // Each face starts with its corner count, and OpenMesh reserves room for
+  // that many before reading them (it reads numbers, not lines), so a
+  // garbled count runs it out of memory (found by tests/fuzz). A face cannot
+  // have more corners than the file has vertices, and no number in the faces
+  // (counts, indices, colours) can be far above that.
+  const unsigned long long largest = std::max<unsigned long long>(nv, 1 << 20);
+  while (out.available && std::getline(in, line)) {
+    ++line_number;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    std::istringstream fields(line);
+    std::string word;
+    for (bool first = true; fields >> word; first = false) {
+      char* end = nullptr;
+      errno = 0;
+      const unsigned long long value = std::strtoull(word.c_str(), &end, 10);
+      // OpenMesh reads a number's leading digits ("22obj" is 22).
+      if (end == word.c_str() || !std::isdigit(static_cast<unsigned char>(word[0]))) continue;
+      if (errno == ERANGE || value > largest || (first && value > nv)) {
+        return absl::InvalidArgumentError(
+            absl::StrFormat("%s line %u: %s%s%s, but the file has %u vertices", name, line_number,
+                            first ? "a face with " : "the number ", word.substr(0, 30),
+                            first ? " corners" : "", nv));
+      }
+    }
+  }
   return out;
 }
 
@@ -238,12 +272,20 @@ DeclaredCounts ReadDeclaredCounts(const std::string& path, const std::string& fo
   if (format == "off") {
     std::string word;
     std::vector<uint64_t> numbers;
+    bool keyword_seen = false;
     while (numbers.size() < 2 && std::getline(in, line)) {
       auto hash = line.find('#');
       if (hash != std::string::npos) line.resize(hash);
       std::istringstream fields(line);
       while (numbers.size() < 2 && fields >> word) {
-        if (word.find("OFF") != std::string::npos) continue;
+        // The keyword ([ST][C][N][4][n]OFF) comes first, once; a token that
+        // merely contains "OFF" later is garbage that OpenMesh would read as
+        // a count (found by tests/fuzz).
+        if (!keyword_seen) {
+          if (word.size() > 6 || !word.ends_with("OFF")) return d;
+          keyword_seen = true;
+          continue;
+        }
         char* end;
         uint64_t v = std::strtoull(word.c_str(), &end, 10);
         if (*end != '\0') return d;
@@ -287,8 +329,10 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
     if (number == 1) {
       ok = line == "ply";
     } else if (number == 2) {
+      // Version 1.0 is the only PLY there is; OpenMesh hangs on some others.
       ok = f.size() == 3 && word == "format" &&
-           (f[1] == "ascii" || f[1] == "binary_little_endian" || f[1] == "binary_big_endian");
+           (f[1] == "ascii" || f[1] == "binary_little_endian" || f[1] == "binary_big_endian") &&
+           f[2] == "1.0";
     } else if (word == "element") {
       ok = f.size() == 3 && absl::SimpleAtoi(f[2], &count);
     } else if (word == "property") {

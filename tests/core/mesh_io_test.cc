@@ -306,7 +306,9 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
       "property float z\nelement face 1\nproperty list uchar int vertex_indices\n";
   for (const std::string& header :
-       {start + std::string("en\x0e\0\0\0ader\n", 10), start, "plx\n" + start.substr(4)}) {
+       {start + std::string("en\x0e\0\0\0ader\n", 10), start, "plx\n" + start.substr(4),
+        // Found by the fuzzer: OpenMesh hung on a version other than 1.0.
+        "ply\nformat ascii '.0" + start.substr(start.find('\n', 4)) + "end_header\n"}) {
     auto soup = ReadTriangleSoupFromMemory(header + body, "ply", "bad.ply");
     ASSERT_FALSE(soup.ok());
     EXPECT_EQ(soup.status().code(), absl::StatusCode::kInvalidArgument) << soup.status();
@@ -319,6 +321,20 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       "OFF\n555555555555555555555\xff\x14 4 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off", "bad.off");
   ASSERT_FALSE(off.ok());
   EXPECT_NE(off.status().message().find("counts"), std::string::npos) << off.status();
+  // Garbage containing "OFF" where the counts belong: OpenMesh read it as
+  // a vertex count of 555555555.
+  auto keyword = ReadTriangleSoupFromMemory(
+      "OFF\xff\n555555555%OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off", "kw.off");
+  ASSERT_FALSE(keyword.ok());
+  EXPECT_NE(keyword.status().message().find("counts"), std::string::npos) << keyword.status();
+  // A face whose corner count is garbled (the fuzzer's had 355555555).
+  auto corners = ReadTriangleSoupFromMemory(
+      "OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n100000 0 1 2\n", "off", "corners.off");
+  ASSERT_FALSE(corners.ok());
+  EXPECT_NE(
+      corners.status().message().find("line 7: a face with 100000 corners, but the file has 4"),
+      std::string::npos)
+      << corners.status();
 }
 
 }  // namespace

@@ -2,11 +2,13 @@
 // solver's pairs (../shared/truth/<mesh>.p2p.*) and our exact engine.
 #include "core/queries.h"
 
+#include <atomic>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <random>
 #include <sstream>
+#include <thread>
 
 #include "core/dgg_build.h"
 #include "core/exact_geodesic.h"
@@ -258,6 +260,57 @@ TEST(LandmarksTest, CancelledPreparationLeavesQueriesWorking) {
   ASSERT_OK(after);
   EXPECT_DOUBLE_EQ(after->distance, before->distance);
   EXPECT_LE(after->settled, before->settled);
+}
+
+// Many threads on one engine, as the daemon runs them, while another thread
+// publishes the landmarks: every answer equals the one-thread answer.
+TEST(QueriesTest, ConcurrentQueriesWhileLandmarksArePrepared) {
+  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(*loaded));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  std::vector<std::pair<SurfacePoint, SurfacePoint>> pairs;
+  std::mt19937 rng(7);
+  std::uniform_int_distribution<uint32_t> vertex(0, mesh->num_vertices() - 1);
+  std::uniform_int_distribution<uint32_t> face(0, mesh->num_faces() - 1);
+  for (int i = 0; i < 24; ++i) {
+    pairs.push_back(
+        {SurfacePoint::Vertex(vertex(rng)),
+         i % 2 ? SurfacePoint::Vertex(vertex(rng)) : SurfacePoint::Face(face(rng), 0.2, 0.3, 0.5)});
+  }
+  const SurfacePoint source = SurfacePoint::Vertex(11);
+  std::vector<double> want;
+  GeodesicEngine reference(mesh, *graph);
+  for (const auto& [a, b] : pairs) {
+    auto r = reference.Distance(a, b, {});
+    ASSERT_OK(r);
+    want.push_back(r->distance);
+  }
+  auto want_field = reference.Field(absl::MakeConstSpan(&source, 1), {});
+  ASSERT_OK(want_field);
+
+  GeodesicEngine shared(mesh, *graph);
+  std::atomic<int> mismatches{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&, t] {
+      for (int round = 0; round < 3; ++round) {
+        for (size_t i = t; i < pairs.size(); i += 2) {
+          auto r = shared.Distance(pairs[i].first, pairs[i].second, {});
+          if (!r.ok() || std::abs(r->distance - want[i]) > 1e-12 * want[i]) ++mismatches;
+        }
+        auto f = shared.Field(absl::MakeConstSpan(&source, 1), {});
+        if (!f.ok() || f->distance != want_field->distance) ++mismatches;
+      }
+    });
+  }
+  threads.emplace_back([&] { EXPECT_OK(shared.PrepareLandmarks()); });
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(mismatches.load(), 0);
+  EXPECT_GT(shared.landmark_bytes(), 0u);
 }
 
 TEST(QueriesTest, BadPointsGetPreciseCodes) {
