@@ -1,9 +1,12 @@
 #!/usr/bin/env python3
-"""Pseudo vertices (section 4.3 of the DGG paper) on and off, and small
-epsilons: build time, graph size and field accuracy against the exact fields
-of ../shared/truth, both builds in the same run on the same threads.
+"""Build variants side by side: the default build, redundant-edge pruning
+(--prune) and pseudo vertices (--pseudo-vertices, section 4.3 of the DGG
+paper), and small epsilons: build time, graph size and field accuracy
+against the exact fields of ../shared/truth, every variant in the same run on
+the same threads.
 
-  bench/pseudo_vertex_bench.py --runs blade_aniso:1e-2,blade_aniso:1e-3,spot:1e-4
+  bench/build_variants_bench.py --runs spot:1e-3,camelhead:1e-3,blade_aniso:1e-2 \
+      --variants default,prune,pseudo
 
 Prints a Markdown table (for bench/notes.md) and the rows as JSON on stderr.
 """
@@ -47,6 +50,8 @@ def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--runs", default="blade_aniso:1e-2,blade_aniso:1e-3,spot:1e-4")
+    ap.add_argument("--variants", default="default,pseudo",
+                    help="comma-separated: default, prune, pseudo")
     ap.add_argument("--threads", type=int, default=1)
     args = ap.parse_args()
     workdir = tempfile.mkdtemp(prefix="pseudo_bench_")
@@ -54,26 +59,26 @@ def main():
     for run in args.runs.split(","):
         name, eps = run.split(":")
         mesh = glob.glob(os.path.join(SHARED, "meshes", name + ".*"))[0]
-        for pseudo in (False, True):
+        for variant in args.variants.split(","):
             graph = os.path.join(workdir, "g.dgg")
-            flags = ["--pseudo-vertices"] if pseudo else []
+            flags = {"default": [], "prune": ["--prune"], "pseudo": ["--pseudo-vertices"]}[variant]
             b = run_json("build", mesh, "--eps", eps, "--out", graph, "--threads",
                          str(args.threads), *flags)
             mean, worst, below = field_errors(mesh, graph, name, workdir)
-            row = {"mesh": name, "eps": float(eps), "pseudo": pseudo, "build": b,
+            row = {"mesh": name, "eps": float(eps), "variant": variant, "build": b,
                    "mean_err_eps": mean / float(eps), "max_err_eps": worst / float(eps),
                    "most_below": below}
             print(json.dumps(row), file=sys.stderr)
             rows.append(row)
-    print("| mesh | ε | pseudo vertices | build 1t (s) | nodes | avg degree | file (MB) "
-          "| mean / max err (ε) | most below exact |")
-    print("|---|---:|---|---:|---:|---:|---:|---:|---:|")
+    print("| mesh | ε | variant | build 1t (s) | candidates (s) | pruning (s) | nodes | avg degree "
+          "| file (MB) | mean / max err (ε) | most below exact |")
+    print("|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         b = r["build"]
-        print("| %s | %g | %s | %.2f | %d | %.1f | %.1f | %.3f / %.3f | %.1e |" % (
-            r["mesh"], r["eps"], "on" if r["pseudo"] else "off", b["build_seconds"],
-            b["nodes"], b["average_degree"], b["file_bytes"] / 1e6, r["mean_err_eps"],
-            r["max_err_eps"], r["most_below"]))
+        print("| %s | %g | %s | %.2f | %.2f | %.2f | %d | %.1f | %.1f | %.3f / %.3f | %.1e |" % (
+            r["mesh"], r["eps"], r["variant"], b["build_seconds"], b["candidate_seconds"],
+            b["pruning_seconds"], b["nodes"], b["average_degree"], b["file_bytes"] / 1e6,
+            r["mean_err_eps"], r["max_err_eps"], r["most_below"]))
 
 
 if __name__ == "__main__":
