@@ -8,6 +8,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
 #include "core/dgg_build.h"
+#include "core/status.h"
 #include "server/convert.h"
 
 namespace geodesic::server {
@@ -40,13 +41,6 @@ std::function<bool()> Cancelled(grpc::ServerContext* ctx) {
   return [ctx] { return ctx->IsCancelled() || ctx->deadline() < std::chrono::system_clock::now(); };
 }
 
-absl::Status CheckEpsilon(double eps) {
-  if (!(eps >= 1e-6 && eps <= 0.5)) {
-    return absl::InvalidArgumentError(absl::StrFormat("epsilon %g is outside [1e-6, 0.5]", eps));
-  }
-  return absl::OkStatus();
-}
-
 // Compares in time independent of where the strings differ, so that response
 // times do not leak the token.
 bool ConstantTimeEquals(std::string_view a, std::string_view b) {
@@ -70,6 +64,14 @@ bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
 }
 
 }  // namespace
+
+absl::StatusOr<double> GeodesicService::Epsilon(double requested) const {
+  const double eps = requested == 0 ? limits_.default_epsilon : requested;
+  if (!(eps >= 1e-6 && eps <= 0.5)) {
+    return absl::InvalidArgumentError(absl::StrFormat("epsilon %g is outside [1e-6, 0.5]", eps));
+  }
+  return eps;
+}
 
 template <typename Body>
 grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ctx,
@@ -186,9 +188,7 @@ grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::Unl
 grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
                                            const v1::RequestGraphRequest* req, v1::Graph* resp) {
   return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    const double eps = Epsilon(req->epsilon());
-    absl::Status s = CheckEpsilon(eps);
-    if (!s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     auto m = meshes_->Get(req->mesh());
     if (!m.ok()) return m.status();
     const uint64_t budget = graphs_->memory_limit();
@@ -207,9 +207,7 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
 grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                        v1::Graph* resp) {
   return Handle("GetGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    // Checked first: a NaN key would break the cache's ordered lookup.
-    const double eps = Epsilon(req->epsilon());
-    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     auto g = graphs_->Get(req->mesh(), eps);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
@@ -220,8 +218,7 @@ grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGr
 grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                          grpc::ServerWriter<v1::Graph>* writer) {
   return Handle("WatchGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    const double eps = Epsilon(req->epsilon());
-    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     auto g = graphs_->Get(req->mesh(), eps);
     while (g.ok()) {
       v1::Graph out;
@@ -241,8 +238,7 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
 grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    const double eps = Epsilon(req->epsilon());
-    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     auto g = graphs_->Cancel(req->mesh(), eps);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
@@ -267,8 +263,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d sources exceed the limit of %d per field", req->sources_size(), limits_.max_sources));
     }
-    const double eps = Epsilon(req->epsilon());
-    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
     auto engine = graphs_->Acquire(req->mesh(), eps);
     if (!engine.ok()) return engine.status();
@@ -346,8 +341,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
     }
-    const double eps = Epsilon(req->epsilon());
-    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
     auto engine = graphs_->Acquire(req->mesh(), eps);
     if (!engine.ok()) return engine.status();
@@ -382,8 +376,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
           "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
           req->targets_size(), limits_.max_sources, limits_.max_pairs));
     }
-    const double eps = Epsilon(req->epsilon());
-    if (absl::Status s = CheckEpsilon(eps); !s.ok()) return s;
+    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
     auto engine = graphs_->Acquire(req->mesh(), eps);
     if (!engine.ok()) return engine.status();

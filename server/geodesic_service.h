@@ -6,6 +6,7 @@
 #include <atomic>
 #include <string>
 
+#include "absl/status/statusor.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "server/graph_cache.h"
 #include "server/mesh_registry.h"
@@ -62,11 +63,11 @@ class GeodesicService final : public v1::Geodesic::Service {
   template <typename Body>
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
                       bool is_query, Body body);
-  // Zero (unset in proto3) means the server's default; anything else,
-  // negative and NaN included, is checked as given.
-  double Epsilon(double requested) const {
-    return requested == 0 ? limits_.default_epsilon : requested;
-  }
+  // The epsilon a request asks for: zero (unset in proto3) means the
+  // server's default; anything else, negative and NaN included, must lie in
+  // [1e-6, 0.5] (INVALID_ARGUMENT otherwise). Every RPC that takes one checks
+  // it here, before it reaches the cache, whose ordered lookup a NaN breaks.
+  absl::StatusOr<double> Epsilon(double requested) const;
 
   MeshRegistry* meshes_;
   GraphCache* graphs_;

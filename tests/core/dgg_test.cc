@@ -67,7 +67,7 @@ TEST_F(SpotGraphTest, GraphIsValidAndSymmetric) {
   EXPECT_OK(graph_->Validate(*mesh_));
   EXPECT_EQ(graph_->num_mesh_vertices(), mesh_->num_vertices());
   EXPECT_EQ(stats_.candidate_edges, stats_.edges);  // no pruning by default
-  EXPECT_GE(stats_.average_degree, 6);  // at least the mesh's own edges, on average
+  EXPECT_GE(stats_.average_degree, 6);              // at least the mesh's own edges, on average
   // Symmetric: every directed edge has its reverse with the same weight.
   auto off = graph_->offsets();
   for (uint32_t u = 0; u < graph_->num_nodes(); u += 97) {
