@@ -449,11 +449,11 @@ double PolylineLength(const std::vector<PathPoint>& points) {
 
 // Lower bound on the graph distance between any node and one endpoint of a
 // query: the straight line (every edge is at least as long as its chord),
-// and per landmark L the triangle inequality. An endpoint joined by
-// temporary edges (w, t) is at graph distance between
-//   lo(L) = min_w d_L(w) + t   and   above   hi(L) = max_w d_L(w) - t
-// from L, so any node v is at least lo(L) - d_L(v) and d_L(v) - hi(L) from
-// it. Both are 1-Lipschitz along edges, so the bound stays consistent.
+// and per landmark L the triangle inequality. For an endpoint joined by
+// temporary edges (w, t), with lo(L) = min_w d_L(w) + t (the endpoint's graph
+// distance from L) and hi(L) = max_w d_L(w) - t, any node v is at least
+// lo(L) - d_L(v) and d_L(v) - hi(L) from it. Both are 1-Lipschitz along
+// edges, so the bound stays consistent.
 class EndpointBound {
  public:
   EndpointBound(const Endpoint& end, const Landmarks* landmarks) : xyz_(end.xyz) {
@@ -554,7 +554,9 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   };
   // Average potential p(v) = (bound to b - bound to a) / 2: consistent for
   // both directions because each bound is (EndpointBound).
-  const Landmarks* landmarks = landmarks_.load(std::memory_order_acquire);
+  // Plain Dijkstra (no A*) needs no bounds, so no landmark work either.
+  const Landmarks* landmarks =
+      options.use_astar ? landmarks_.load(std::memory_order_acquire) : nullptr;
   const EndpointBound to_a(ends[0], landmarks), to_b(ends[1], landmarks);
   // The record of node u for this query, initialised on first touch.
   auto node = [&](uint32_t u) -> Scratch::PairNode& {
