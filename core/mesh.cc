@@ -12,10 +12,6 @@
 namespace geodesic {
 namespace {
 
-uint64_t UndirectedKey(VertexId a, VertexId b) {
-  return (uint64_t{std::min(a, b)} << 32) | std::max(a, b);
-}
-
 // Angle at `a` of triangle (a, b, c) from its side lengths; the law of cosines
 // clamped so that slivers and zero-area faces give 0 or pi, never NaN.
 double AngleFromLengths(double ab, double ac, double bc) {
@@ -68,7 +64,7 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   // first in half-edge order, as a scan in that order would meet it.
   std::vector<std::pair<uint64_t, HalfedgeId>> by_edge(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    by_edge[h] = {UndirectedKey(m.tail(h), m.head(h)), h};
+    by_edge[h] = {UndirectedEdgeKey(m.tail(h), m.head(h)), h};
   }
   std::sort(by_edge.begin(), by_edge.end());
   m.twin_.assign(nh, kNone);

@@ -36,6 +36,12 @@ using HalfedgeId = uint32_t;
 using EdgeId = uint32_t;
 inline constexpr uint32_t kNone = 0xffffffffu;
 
+// The same key for both directions of the edge between a and b: the smaller
+// id in the high half.
+inline uint64_t UndirectedEdgeKey(VertexId a, VertexId b) {
+  return (uint64_t{a < b ? a : b} << 32) | (a < b ? b : a);
+}
+
 // Vertices and triangles exactly as a file lists them.
 struct TriangleSoup {
   std::vector<Vec3> positions;

@@ -460,6 +460,12 @@ struct DisjointSets {
   void Union(uint32_t a, uint32_t b) { parent[Find(a)] = Find(b); }
 };
 
+// The corner of face f at vertex v, as 3 * f + its position in the face.
+uint32_t CornerOf(const TriangleSoup& soup, uint32_t f, VertexId v) {
+  const auto& t = soup.triangles[f];
+  return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
+}
+
 }  // namespace
 
 absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
@@ -535,9 +541,6 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     uint64_t key;     // min << 32 | max
     uint32_t corner;  // 3 * face + k: the edge runs from corner k to k + 1
   };
-  auto undirected = [](VertexId a, VertexId b) {
-    return (uint64_t{std::min(a, b)} << 32) | std::max(a, b);
-  };
   std::vector<EdgeUse> uses;
   uses.reserve(3 * nf);
   std::vector<uint8_t> used(nv, 0);
@@ -545,17 +548,14 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     const auto& t = soup.triangles[f];
     for (int k = 0; k < 3; ++k) {
       used[t[k]] = 1;
-      if (t[k] != t[(k + 1) % 3]) uses.push_back({undirected(t[k], t[(k + 1) % 3]), 3 * f + k});
+      if (t[k] != t[(k + 1) % 3])
+        uses.push_back({UndirectedEdgeKey(t[k], t[(k + 1) % 3]), 3 * f + k});
     }
   }
   std::sort(uses.begin(), uses.end(), [](const EdgeUse& x, const EdgeUse& y) {
     return x.key < y.key || (x.key == y.key && x.corner < y.corner);
   });
   auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
-  auto corner_of = [&](uint32_t f, VertexId v) {
-    const auto& t = soup.triangles[f];
-    return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
-  };
   std::vector<uint32_t> edge_of_corner(3 * nf, kNone);
   DisjointSets boundary_sets(nv), corners(3 * nf);
   std::vector<uint8_t> on_boundary(nv, 0);
@@ -585,8 +585,8 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     // Two faces on an edge join their corners at both ends into one fan.
     if (count == 2) {
       const uint32_t f0 = uses[i].corner / 3, f1 = uses[i + 1].corner / 3;
-      corners.Union(corner_of(f0, a), corner_of(f1, a));
-      corners.Union(corner_of(f0, b), corner_of(f1, b));
+      corners.Union(CornerOf(soup, f0, a), CornerOf(soup, f1, a));
+      corners.Union(CornerOf(soup, f0, b), CornerOf(soup, f1, b));
     }
   }
   std::vector<double> anisotropy;
@@ -719,24 +719,17 @@ namespace {
 // copies are appended after the file's vertices so file ids are unchanged.
 uint64_t SplitNonManifoldVertices(TriangleSoup* soup) {
   const size_t nf = soup->triangles.size();
-  auto undirected = [](VertexId a, VertexId b) {
-    return (uint64_t{std::min(a, b)} << 32) | std::max(a, b);
-  };
   absl::flat_hash_map<uint64_t, std::vector<uint32_t>> edge_faces;
   for (uint32_t f = 0; f < nf; ++f) {
     const auto& t = soup->triangles[f];
-    for (int k = 0; k < 3; ++k) edge_faces[undirected(t[k], t[(k + 1) % 3])].push_back(f);
+    for (int k = 0; k < 3; ++k) edge_faces[UndirectedEdgeKey(t[k], t[(k + 1) % 3])].push_back(f);
   }
   DisjointSets corners(3 * nf);
-  auto corner_of = [&](uint32_t f, VertexId v) {
-    const auto& t = soup->triangles[f];
-    return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
-  };
   for (const auto& [key, faces] : edge_faces) {
     if (faces.size() != 2) continue;
     VertexId a = key >> 32, b = key & 0xffffffffu;
-    corners.Union(corner_of(faces[0], a), corner_of(faces[1], a));
-    corners.Union(corner_of(faces[0], b), corner_of(faces[1], b));
+    corners.Union(CornerOf(*soup, faces[0], a), CornerOf(*soup, faces[1], a));
+    corners.Union(CornerOf(*soup, faces[0], b), CornerOf(*soup, faces[1], b));
   }
   absl::flat_hash_map<uint64_t, VertexId> copy_of;  // (vertex, fan root) -> id
   std::vector<uint32_t> first_root(soup->positions.size(), kNone);
