@@ -165,6 +165,21 @@ std::string Extension(const std::string& path) {
 // tools that read doubles. For the ASCII formats we read the coordinates
 // again in double precision (and check them: OpenMesh silently skips a vertex
 // line it cannot parse, which would shift every later id).
+// OpenMesh's OBJ reader asserts (aborting the process) on a corner without
+// a vertex index ("/2") and reads a stale index after an unparsable one, so
+// face corners are checked against the OBJ grammar first (found by
+// tests/fuzz). Trailing comments on face lines are refused too: OpenMesh
+// would read their numbers as corners.
+bool IsObjFaceCorner(absl::string_view corner) {
+  std::vector<absl::string_view> parts = absl::StrSplit(corner, '/');
+  if (parts.size() > 3) return false;
+  for (size_t k = 0; k < parts.size(); ++k) {
+    int index;
+    if (parts[k].empty() ? k == 0 : !absl::SimpleAtoi(parts[k], &index)) return false;
+  }
+  return true;
+}
+
 struct AsciiVertices {
   bool available = false;
   std::vector<Vec3> positions;
@@ -200,6 +215,16 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
       if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
         absl::Status s = take(line.substr(2));
         if (!s.ok()) return s;
+      }
+      std::istringstream fields(line);
+      std::string word;
+      if (!(fields >> word) || word != "f") continue;
+      while (fields >> word) {
+        if (!IsObjFaceCorner(word)) {
+          return absl::InvalidArgumentError(absl::StrFormat(
+              "%s line %u: face corner '%s' is not v, v/vt, v//vn or v/vt/vn with integer indices",
+              name, line_number, absl::CHexEscape(word.substr(0, 30))));
+        }
       }
     }
     out.available = true;

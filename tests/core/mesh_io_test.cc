@@ -337,5 +337,25 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       << corners.status();
 }
 
+// Found by the fuzzer in CI: OpenMesh's OBJ reader aborts on an assertion
+// when a corner has no vertex index.
+TEST(MeshIoTest, MalformedObjFaceCornersAreRefused) {
+  const std::string vertices = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n";
+  for (const std::string& face :
+       {"f /1 2 3", "f 1 2 3 # comment", "f 1 2 x3", "f 1/1/1/1 2 3", "f 99999999999 2 3"}) {
+    auto soup = ReadTriangleSoupFromMemory(vertices + face + "\n", "obj", "bad.obj");
+    ASSERT_FALSE(soup.ok()) << face;
+    EXPECT_EQ(soup.status().code(), absl::StatusCode::kInvalidArgument) << soup.status();
+    EXPECT_NE(soup.status().message().find("bad.obj line 6: face corner"), std::string::npos)
+        << soup.status();
+  }
+  for (const std::string& face : {"f 1 2 3", "f 1/1 2/1 3/1", "f 1//1 2//1 3//1",
+                                  "f 1/1/1 2/1/1 3/1/1", "f -3 -2 -1", "f 1 2 3 \r"}) {
+    auto soup = ReadTriangleSoupFromMemory(vertices + face + "\n", "obj", "good.obj");
+    ASSERT_TRUE(soup.ok()) << face << ": " << soup.status();
+    EXPECT_EQ(soup->triangles.size(), 1u) << face;
+  }
+}
+
 }  // namespace
 }  // namespace geodesic
