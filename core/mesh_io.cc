@@ -342,6 +342,7 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
   std::ifstream in(path, std::ios::binary);
   std::string line;
   constexpr int kMaxHeaderLines = 100000;
+  bool in_element = false;
   for (int number = 1; number <= kMaxHeaderLines && std::getline(in, line); ++number) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
     const std::vector<absl::string_view> f = absl::StrSplit(line, ' ', absl::SkipEmpty());
@@ -360,9 +361,12 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
            f[2] == "1.0";
     } else if (word == "element") {
       ok = f.size() == 3 && absl::SimpleAtoi(f[2], &count);
+      in_element = true;
     } else if (word == "property") {
-      ok = (f.size() == 3 && kTypes.contains(f[1])) ||
-           (f.size() == 5 && f[1] == "list" && kTypes.contains(f[2]) && kTypes.contains(f[3]));
+      // OpenMesh crashes on a property before any element (found by fuzzing).
+      ok = in_element &&
+           ((f.size() == 3 && kTypes.contains(f[1])) ||
+            (f.size() == 5 && f[1] == "list" && kTypes.contains(f[2]) && kTypes.contains(f[3])));
     } else {
       ok = word == "comment" || word == "obj_info" || (word == "end_header" && f.size() == 1);
     }
