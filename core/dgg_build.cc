@@ -29,17 +29,16 @@ constexpr double kTwoPi = 2 * std::numbers::pi;
 constexpr double kPruningFanScale = 0.9;
 // The error budget. Early termination of the candidates (Theorem 2 and the
 // corners) may lengthen a shortest path by 1 + e_c, and pruning (when asked
-// for) each replaced edge by 1 + e_p, with (1 + e_c)(1 + e_p) = 1 + 0.9 eps:
-// a route through corners and replacements that are themselves
-// approximations compounds a little, and the tenth held back keeps measured
-// maxima below eps. Pruning gets a tenth: its loss compounds the most. It
-// then removes well under 1% of the candidates for a quarter of the build,
-// so by default it is skipped and the candidates get the whole 0.9 eps,
-// which stops them earlier: fewer edges and a faster build (bench/notes.md).
+// for) each replaced edge by 1 + e_p, with (1 + e_c)(1 + e_p) = 1 + eps.
+// Pruning gets a tenth: its loss compounds the most. It then removes well
+// under 1% of the candidates for a quarter of the build, so by default it is
+// skipped and the candidates get the whole eps, the paper's rule. Routes
+// through corners that are themselves approximations compound a little:
+// measured maxima are about 1.0-1.2 eps, means about 0.2 eps (bench/notes.md).
 double PruningBudget(double epsilon) { return 0.1 * epsilon; }
 double CandidateBudget(double epsilon, bool prune) {
-  if (!prune) return 0.9 * epsilon;
-  return (1 + 0.9 * epsilon) / (1 + PruningBudget(epsilon)) - 1;
+  if (!prune) return epsilon;
+  return (1 + epsilon) / (1 + PruningBudget(epsilon)) - 1;
 }
 
 // Lengths are rounded up to float so that graph distances never undercut the
@@ -499,6 +498,7 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
                                             DggBuildStats& st) {
   const double epsilon = params.epsilon;
   auto t = std::chrono::steady_clock::now();
+  for (const auto& c : candidates) st.found_edges += c.size();
   Adjacency cand = Symmetrize(std::move(candidates));
   st.candidate_edges = cand.edges.size() / 2;
   st.candidate_seconds += Seconds(t);

@@ -42,6 +42,12 @@ struct DggBuildStats {
   double fan_seconds = 0;
   double total_seconds = 0;
   uint64_t candidate_edges = 0;  // undirected, before pruning
+  // Edges as each vertex's own propagation found them, before an edge found
+  // from either end becomes one undirected edge. FastDGG keeps exactly
+  // these, as a directed graph, and its "average degree" is their number
+  // per vertex; ours (average_degree) counts the undirected graph the
+  // queries search, which holds both directions of each.
+  uint64_t found_edges = 0;
   uint64_t edges = 0;            // undirected, in the final graph
   uint64_t windows_created = 0;  // by the candidate propagation, all sources
   uint32_t pseudo_vertices = 0;

@@ -62,13 +62,15 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
     std::printf(
         "{\"vertices\": %zu, \"nodes\": %u, \"pseudo_vertices\": %u, \"edges\": %llu, "
         "\"candidate_edges\": %llu, \"average_degree\": %.3f, \"max_degree\": %u, "
+        "\"found_edges\": %llu, \"found_degree\": %.3f, "
         "\"epsilon\": %g, \"threads\": %d, \"build_seconds\": %.4f, \"candidate_seconds\": %.4f, "
         "\"pruning_seconds\": %.4f, \"pseudo_seconds\": %.4f, \"fan_seconds\": %.4f, "
         "\"windows_per_source\": %.2f, \"peak_memory_bytes\": %llu, \"file_bytes\": %llu}\n",
         n, graph.num_nodes(), stats.pseudo_vertices, static_cast<unsigned long long>(stats.edges),
         static_cast<unsigned long long>(stats.candidate_edges), stats.average_degree,
-        stats.max_degree, epsilon, threads, stats.total_seconds, stats.candidate_seconds,
-        stats.pruning_seconds, stats.pseudo_seconds, stats.fan_seconds,
+        stats.max_degree, static_cast<unsigned long long>(stats.found_edges),
+        double(stats.found_edges) / std::max<size_t>(n, 1), epsilon, threads, stats.total_seconds,
+        stats.candidate_seconds, stats.pruning_seconds, stats.pseudo_seconds, stats.fan_seconds,
         double(stats.windows_created) / std::max<size_t>(n, 1),
         static_cast<unsigned long long>(PeakMemoryBytes()),
         static_cast<unsigned long long>(file_bytes));
