@@ -268,12 +268,17 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
     std::istringstream fields(line);
     std::string word;
     for (bool first = true; fields >> word; first = false) {
+      // OpenMesh reads a number's leading digits ("22obj" is 22), after a
+      // sign: "-3" corners is about 2^32 to it (found by fuzzing).
+      const size_t digits = word[0] == '-' || word[0] == '+' ? 1 : 0;
+      if (digits >= word.size() || !std::isdigit(static_cast<unsigned char>(word[digits]))) {
+        continue;
+      }
       char* end = nullptr;
       errno = 0;
-      const unsigned long long value = std::strtoull(word.c_str(), &end, 10);
-      // OpenMesh reads a number's leading digits ("22obj" is 22).
-      if (end == word.c_str() || !std::isdigit(static_cast<unsigned char>(word[0]))) continue;
-      if (errno == ERANGE || value > largest || (first && value > nv)) {
+      const unsigned long long value = std::strtoull(word.c_str() + digits, &end, 10);
+      const bool negative = word[0] == '-' && value != 0;
+      if (negative || errno == ERANGE || value > largest || (first && value > nv)) {
         return absl::InvalidArgumentError(
             absl::StrFormat("%s line %u: %s%s%s, but the file has %u vertices", name, line_number,
                             first ? "a face with " : "the number ", word.substr(0, 30),

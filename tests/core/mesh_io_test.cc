@@ -338,6 +338,12 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       corners.status().message().find("line 7: a face with 100000 corners, but the file has 4"),
       std::string::npos)
       << corners.status();
+  // Or negative, which OpenMesh reads as about 2^32 (found by the fuzzer).
+  auto negative = ReadTriangleSoupFromMemory("OFF\n4 1 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n-3 0 1 2\n",
+                                             "off", "negative.off");
+  ASSERT_FALSE(negative.ok());
+  EXPECT_NE(negative.status().message().find("line 7: a face with -3 corners"), std::string::npos)
+      << negative.status();
 }
 
 // Found by the fuzzer in CI: OpenMesh's OBJ reader aborts on an assertion
