@@ -201,6 +201,10 @@ bool ExactGeodesic::Trim(Window& w) const {
 }
 
 bool ExactGeodesic::TrimAndPush(Window w) {
+  // Rays the corners serve are cut before the window is queued, so windows
+  // served whole are never stored (a window's own corners do not change
+  // while it waits).
+  if (relays_ && !TrimByRelays(w)) return false;
   if (!Trim(w)) return false;
   double key;
   if (w.sx < w.b0) {
@@ -431,8 +435,6 @@ void ExactGeodesic::Propagate(uint32_t index) {
       dmax = std::min(dmax, L * L / (8 * epsilon_ * (dmin - L / 2)) + L / 2 + std::max(d0, d1));
     }
   }
-
-  if (relays_ && !TrimByRelays(w)) return;
 
   const double xc = CrossingX(w.sx, w.sy, C.x, C.y);
   const double tol = kMinWidth * L;
