@@ -200,7 +200,7 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
     for (int k = 0; k < 3; ++k) {
       char* end = nullptr;
       x[k] = std::strtod(t[k].c_str(), &end);
-      if (t[k].empty() || *end != '\0' || !std::isfinite(x[k])) {
+      if (t[k].empty() || end != t[k].c_str() + t[k].size() || !std::isfinite(x[k])) {
         return absl::InvalidArgumentError(
             absl::StrFormat("%s line %u: vertex %u has a bad coordinate '%s'", name, line_number,
                             out.positions.size(), t[k]));
@@ -316,9 +316,15 @@ DeclaredCounts ReadDeclaredCounts(const std::string& path, const std::string& fo
           keyword_seen = true;
           continue;
         }
+        // Digits only, to the token's end: a NUL inside the token would
+        // stop strtoull early and pass garbage off as 0 (found by fuzzing:
+        // OpenMesh then looped on faces it could not read).
         char* end;
         uint64_t v = std::strtoull(word.c_str(), &end, 10);
-        if (*end != '\0') return d;
+        if (!std::isdigit(static_cast<unsigned char>(word[0])) ||
+            end != word.c_str() + word.size()) {
+          return d;
+        }
         numbers.push_back(v);
       }
     }

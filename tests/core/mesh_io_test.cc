@@ -324,6 +324,11 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       "OFF\n555555555555555555555\xff\x14 4 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off", "bad.off");
   ASSERT_FALSE(off.ok());
   EXPECT_NE(off.status().message().find("counts"), std::string::npos) << off.status();
+  // NUL bytes where the counts belong: OpenMesh looped on faces.
+  auto nul =
+      ReadTriangleSoupFromMemory(std::string("OFF\n\0\0\x01 \0]\n0 0 0\n", 16), "off", "nul.off");
+  ASSERT_FALSE(nul.ok());
+  EXPECT_NE(nul.status().message().find("counts"), std::string::npos) << nul.status();
   // Garbage containing "OFF" where the counts belong: OpenMesh read it as
   // a vertex count of 555555555.
   auto keyword = ReadTriangleSoupFromMemory(
