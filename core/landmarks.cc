@@ -2,10 +2,10 @@
 
 #include <algorithm>
 #include <limits>
-#include <queue>
 #include <utility>
 
 #include "absl/status/status.h"
+#include "core/node_heap.h"
 
 namespace geodesic {
 namespace {
@@ -18,21 +18,21 @@ bool ShortestDistances(const DggGraph& graph, uint32_t source,
   auto weights = graph.weights();
   if (cancelled && cancelled()) return false;
   dist.assign(graph.num_nodes(), std::numeric_limits<double>::infinity());
-  using Entry = std::pair<double, uint32_t>;
-  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap;
+  NodeHeap heap;
+  heap.Reset(graph.num_nodes());
   dist[source] = 0;
-  heap.push({0, source});
+  heap.Push(source, 0);
   uint64_t pops = 0;
   while (!heap.empty()) {
-    auto [d, u] = heap.top();
-    heap.pop();
-    if (d > dist[u]) continue;
+    const uint32_t u = heap.top();
+    const double d = heap.top_key();
+    heap.Pop();
     if (cancelled && (++pops & 4095) == 0 && cancelled()) return false;
     for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
       const double dv = d + weights[i];
       if (dv < dist[targets[i]]) {
         dist[targets[i]] = dv;
-        heap.push({dv, targets[i]});
+        heap.Push(targets[i], dv);
       }
     }
   }

@@ -11,6 +11,7 @@
 #include "absl/strings/str_format.h"
 #include "core/exact_geodesic.h"
 #include "core/fan.h"
+#include "core/node_heap.h"
 #include "core/status.h"
 
 namespace geodesic {
@@ -34,8 +35,9 @@ struct Scratch {
   std::vector<double> dist;
   std::vector<uint32_t> via;    // arriving edge index, or kViaSource / kViaTemporary
   std::vector<uint32_t> label;  // index of the nearest source
-  std::vector<uint8_t> flag;    // in the queue (label-correcting) or settled (Dijkstra)
+  std::vector<uint8_t> flag;    // in the label-correcting queue
   std::vector<double> arrival;  // for kViaTemporary: angle of arrival
+  NodeHeap heap;                // Dijkstra's queue
 
   // Point-to-point searches touch a few thousand nodes at random: one
   // 32-byte record per node, so each touch is one cache line, valid only if
@@ -327,9 +329,11 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
         }
       }
     }
-    for (uint64_t k = 0; k < count; ++k) {
-      uint64_t i = begin + (first + k) % degree;
-      relax(i, targets[i], dist[u] + weights[i]);
+    // The fan may wrap past u's last edge; no division per edge.
+    const double du = dist[u];
+    for (uint64_t k = 0, i = begin + first; k < count; ++k) {
+      relax(i, targets[i], du + weights[i]);
+      if (++i == begin + degree) i = begin;
     }
   };
 
@@ -379,11 +383,9 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       if (queue.empty()) sum = 0;  // drop accumulated rounding
     }
   } else {
-    std::vector<uint8_t>& settled = sc.flag;
-    std::fill(settled.begin(), settled.begin() + nodes, 0);
-    using Entry = std::pair<double, uint32_t>;
-    std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap;
-    for (uint32_t s : seeds) heap.push({dist[s], s});
+    NodeHeap& heap = sc.heap;
+    heap.Reset(nodes);
+    for (uint32_t s : seeds) heap.Push(s, dist[s]);
     size_t targets_left = options.targets.size();
     std::vector<uint8_t> is_target;
     if (targets_left) {
@@ -392,14 +394,12 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       targets_left = std::count(is_target.begin(), is_target.end(), 1);
     }
     while (!heap.empty()) {
-      // Not a structured binding: the lambda below captures u.
-      const double d = heap.top().first;
-      const uint32_t u = heap.top().second;
-      heap.pop();
-      if (settled[u] || d > dist[u]) continue;
-      if (d > options.max_distance) break;
+      // A node leaves the heap once, settled: later relaxations cannot
+      // improve it, so none puts it back.
+      const uint32_t u = heap.top();
+      heap.Pop();
+      if (dist[u] > options.max_distance) break;
       if (cancelled()) return absl::CancelledError("field cancelled");
-      settled[u] = 1;
       ++pops;
       if (!is_target.empty() && is_target[u] && --targets_left == 0) break;
       for_each_relaxed(u, [&](uint64_t i, uint32_t v, double nd) {
@@ -407,7 +407,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
           dist[v] = nd;
           via[v] = static_cast<uint32_t>(i);
           label[v] = label[u];
-          heap.push({nd, v});
+          heap.Push(v, nd);
         }
       });
     }

@@ -13,6 +13,7 @@
 #include "core/dgg_build.h"
 #include "core/exact_geodesic.h"
 #include "core/mesh_io.h"
+#include "core/node_heap.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -345,6 +346,37 @@ TEST(QueriesTest, MatrixAgreesWithPairs) {
       EXPECT_GE((*m)[i * 2 + j], straight * (1 - 1e-9));
       EXPECT_LE((*m)[i * 2 + j], straight * 1.02);
     }
+  }
+}
+
+// Dijkstra's heap: nodes come out in key order, each once, with the
+// smallest key it was given, whatever the order of pushes and decreases.
+TEST(NodeHeapTest, PopsEachNodeOnceInKeyOrder) {
+  std::mt19937 rng(3);
+  std::uniform_real_distribution<double> key(0, 100);
+  for (int round = 0; round < 20; ++round) {
+    const uint32_t n = 1 + rng() % 300;
+    NodeHeap heap;
+    heap.Reset(n);
+    std::vector<double> best(n, INFINITY);
+    for (int k = 0; k < 3 * static_cast<int>(n); ++k) {
+      const uint32_t v = rng() % n;
+      const double d = key(rng);
+      heap.Push(v, d);
+      best[v] = std::min(best[v], d);
+    }
+    std::vector<bool> seen(n, false);
+    double last = -1;
+    while (!heap.empty()) {
+      const uint32_t v = heap.top();
+      ASSERT_FALSE(seen[v]) << "node " << v << " popped twice";
+      seen[v] = true;
+      EXPECT_EQ(heap.top_key(), best[v]);
+      EXPECT_GE(heap.top_key(), last);
+      last = heap.top_key();
+      heap.Pop();
+    }
+    for (uint32_t v = 0; v < n; ++v) EXPECT_EQ(seen[v], best[v] < INFINITY) << "node " << v;
   }
 }
 
