@@ -356,7 +356,13 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
   bool in_element = false;
   for (int number = 1; number <= kMaxHeaderLines && std::getline(in, line); ++number) {
     if (!line.empty() && line.back() == '\r') line.pop_back();
-    const std::vector<absl::string_view> f = absl::StrSplit(line, ' ', absl::SkipEmpty());
+    // Words as OpenMesh's stream reads them; other control bytes (a form
+    // feed inside "vertex" hung it, found by fuzzing) are not PLY.
+    const bool plain = std::none_of(line.begin(), line.end(), [](char c) {
+      return c != '\t' && std::iscntrl(static_cast<unsigned char>(c));
+    });
+    const std::vector<absl::string_view> f =
+        absl::StrSplit(line, absl::ByAnyChar(" \t"), absl::SkipEmpty());
     const absl::string_view word = f.empty() ? "" : f[0];
     static const absl::flat_hash_set<absl::string_view> kTypes = {
         "char", "uchar", "short", "ushort", "int",   "uint",   "float",   "double",
@@ -381,7 +387,7 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
     } else {
       ok = word == "comment" || word == "obj_info" || (word == "end_header" && f.size() == 1);
     }
-    if (!ok) {
+    if (!ok || !plain) {
       return absl::InvalidArgumentError(
           absl::StrFormat("%s: PLY header line %d is not a PLY header line: '%s'", name, number,
                           absl::CEscape(line.substr(0, 60))));

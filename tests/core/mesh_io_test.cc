@@ -309,6 +309,8 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
        {start + std::string("en\x0e\0\0\0ader\n", 10), start, "plx\n" + start.substr(4),
         // Found by the fuzzer: OpenMesh hung on a version other than 1.0.
         "ply\nformat ascii '.0" + start.substr(start.find('\n', 4)) + "end_header\n",
+        // Found by the fuzzer: OpenMesh hung on a form feed inside a word.
+        "ply\nformat ascii 1.0\nelement ver\f\ftex 3\n" + start.substr(start.find("property")),
         // Found by the fuzzer: OpenMesh crashed on a property before any element.
         "ply\nformat ascii 1.0\nproperty list uchar int vertex_indices\n" + start.substr(4) +
             "end_header\n"}) {
