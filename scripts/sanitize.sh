@@ -25,6 +25,6 @@ for kind in $kinds; do
   else
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
     ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
-      -E "SharedAccuracyTest|TruthTest|ManifestTest"
+      -E "SharedAccuracyTest|TruthTest|ManifestTest|PseudoVerticesTest"
   fi
 done

@@ -375,5 +375,54 @@ INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedAccuracyTest,
                                   (std::get<1>(info.param) > 5e-3 ? "_eps1e2" : "_eps1e3");
                          });
 
+// Section 4.3 on the anisotropic blade: pseudo vertices fill wide gaps
+// between edge directions that the graph does not already serve, so there
+// are some, far fewer than vertices (the gap rule alone added 7 per vertex
+// here), and the graph stays valid and within the contract.
+TEST(PseudoVerticesTest, FewOnTheAnisotropicBladeAndWithinTheContract) {
+  if (!testing::SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  auto loaded = LoadMesh(testing::SharedMeshPath("blade_aniso"));
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(*loaded));
+  const double eps = 1e-2;
+  DggBuildOptions options;
+  options.params.epsilon = eps;
+  auto plain = BuildDgg(*mesh, options);
+  ASSERT_OK(plain);
+  options.params.pseudo_vertices = true;
+  DggBuildStats stats;
+  auto pseudo = BuildDgg(*mesh, options, &stats);
+  ASSERT_OK(pseudo);
+  EXPECT_OK((*pseudo)->Validate(*mesh));
+  const VertexId n = mesh->num_vertices();
+  EXPECT_GT(stats.pseudo_vertices, 0u);
+  EXPECT_LT(stats.pseudo_vertices, n / 2);
+  EXPECT_EQ((*pseudo)->num_nodes(), n + stats.pseudo_vertices);
+  auto offsets = (*pseudo)->offsets();
+  for (uint32_t u = n; u < (*pseudo)->num_nodes(); ++u) {
+    EXPECT_GT(offsets[u + 1], offsets[u]) << "pseudo vertex " << u << " has no edge";
+  }
+  GeodesicEngine with(mesh, *pseudo), without(mesh, *plain);
+  for (VertexId s : {VertexId{0}, n / 3, 2 * n / 3}) {
+    auto truth = testing::ReadF64(
+        testing::SharedPath("truth/blade_aniso.exact.s" + std::to_string(s) + ".f64"));
+    ASSERT_EQ(truth.size(), n);
+    SurfacePoint source = SurfacePoint::Vertex(s);
+    auto a = with.Field(absl::MakeConstSpan(&source, 1), {});
+    auto b = without.Field(absl::MakeConstSpan(&source, 1), {});
+    ASSERT_OK(a);
+    ASSERT_OK(b);
+    ErrorStats ea = Compare(a->distance, truth), eb = Compare(b->distance, truth);
+    EXPECT_LE(ea.mean, 0.3 * eps) << "source " << s;
+    EXPECT_LE(ea.max, 1.5 * eps) << "source " << s;
+    EXPECT_GE(ea.most_under, -1e-9) << "source " << s;
+    // More paths can only shorten graph distances.
+    for (VertexId v = 0; v < n; ++v) {
+      ASSERT_LE(a->distance[v], b->distance[v] * (1 + 1e-7)) << "vertex " << v;
+    }
+    EXPECT_LE(ea.mean, eb.mean) << "source " << s;
+  }
+}
+
 }  // namespace
 }  // namespace geodesic
