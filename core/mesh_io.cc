@@ -13,6 +13,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <numbers>
 #include <numeric>
 #include <sstream>
@@ -303,11 +304,14 @@ DeclaredCounts ReadDeclaredCounts(const std::string& path, const std::string& fo
     std::string word;
     std::vector<uint64_t> numbers;
     bool keyword_seen = false;
-    while (numbers.size() < 2 && std::getline(in, line)) {
+    // Vertex, face and edge counts: OpenMesh reads all three, and one that
+    // overflows its int fails the stream, after which it looped on faces
+    // (found by fuzzing).
+    while (numbers.size() < 3 && std::getline(in, line)) {
       auto hash = line.find('#');
       if (hash != std::string::npos) line.resize(hash);
       std::istringstream fields(line);
-      while (numbers.size() < 2 && fields >> word) {
+      while (numbers.size() < 3 && fields >> word) {
         // The keyword ([ST][C][N][4][n]OFF) comes first, once; a token that
         // merely contains "OFF" later is garbage that OpenMesh would read as
         // a count (found by tests/fuzz).
@@ -322,13 +326,13 @@ DeclaredCounts ReadDeclaredCounts(const std::string& path, const std::string& fo
         char* end;
         uint64_t v = std::strtoull(word.c_str(), &end, 10);
         if (!std::isdigit(static_cast<unsigned char>(word[0])) ||
-            end != word.c_str() + word.size()) {
+            end != word.c_str() + word.size() || v > std::numeric_limits<int32_t>::max()) {
           return d;
         }
         numbers.push_back(v);
       }
     }
-    if (numbers.size() == 2) d = {true, numbers[0], numbers[1]};
+    if (numbers.size() == 3) d = {true, numbers[0], numbers[1]};
   } else if (format == "ply") {
     while (std::getline(in, line)) {
       if (!line.empty() && line.back() == '\r') line.pop_back();

@@ -331,6 +331,11 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       ReadTriangleSoupFromMemory(std::string("OFF\n\0\0\x01 \0]\n0 0 0\n", 16), "off", "nul.off");
   ASSERT_FALSE(nul.ok());
   EXPECT_NE(nul.status().message().find("counts"), std::string::npos) << nul.status();
+  // An edge count past int: OpenMesh's stream failed and it looped.
+  auto edges = ReadTriangleSoupFromMemory(
+      "OFF 3\n3   " + std::string(40, '2') + " 1 \n0 0 0\n1 0 0\n0 1 0\n", "off", "edges.off");
+  ASSERT_FALSE(edges.ok());
+  EXPECT_NE(edges.status().message().find("counts"), std::string::npos) << edges.status();
   // Garbage containing "OFF" where the counts belong: OpenMesh read it as
   // a vertex count of 555555555.
   auto keyword = ReadTriangleSoupFromMemory(
