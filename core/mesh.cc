@@ -1,6 +1,7 @@
 #include "core/mesh.h"
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <numbers>
 #include <utility>
@@ -21,6 +22,24 @@ double AngleFromLengths(double ab, double ac, double bc) {
 }
 
 }  // namespace
+
+void SortEdgeUses(std::vector<std::pair<uint64_t, uint32_t>>& uses, size_t num_vertices) {
+  // Least significant digit first, each pass stable: the index order among
+  // equal keys survives. Keys are repacked as min << bits | max first.
+  const int bits = std::max(1, static_cast<int>(std::bit_width(num_vertices)));
+  for (auto& u : uses) u.first = (u.first >> 32) << bits | (u.first & 0xffffffffu);
+  constexpr int kDigit = 11;
+  std::vector<std::pair<uint64_t, uint32_t>> buffer(uses.size());
+  for (int shift = 0; shift < 2 * bits; shift += kDigit) {
+    std::vector<size_t> start((1 << kDigit) + 1, 0);
+    for (const auto& u : uses) ++start[(u.first >> shift & ((1 << kDigit) - 1)) + 1];
+    for (size_t i = 1; i < start.size(); ++i) start[i] += start[i - 1];
+    for (const auto& u : uses) buffer[start[u.first >> shift & ((1 << kDigit) - 1)]++] = u;
+    uses.swap(buffer);
+  }
+  const uint64_t low = (uint64_t{1} << bits) - 1;
+  for (auto& u : uses) u.first = (u.first >> bits) << 32 | (u.first & low);
+}
 
 absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   Mesh m;
@@ -62,11 +81,11 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   // half-edges of one edge are found by sorting (a hash map of directed
   // edges took a third of a million-face load); the clash reported is the
   // first in half-edge order, as a scan in that order would meet it.
-  std::vector<std::pair<uint64_t, HalfedgeId>> by_edge(nh);
+  std::vector<std::pair<uint64_t, uint32_t>> by_edge(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
     by_edge[h] = {UndirectedEdgeKey(m.tail(h), m.head(h)), h};
   }
-  std::sort(by_edge.begin(), by_edge.end());
+  SortEdgeUses(by_edge, m.num_vertices());
   m.twin_.assign(nh, kNone);
   HalfedgeId clash_first = kNone, clash_second = kNone;
   for (size_t i = 0, j; i < nh; i = j) {

@@ -42,6 +42,12 @@ inline uint64_t UndirectedEdgeKey(VertexId a, VertexId b) {
   return (uint64_t{a < b ? a : b} << 32) | (a < b ? b : a);
 }
 
+// Sorts (UndirectedEdgeKey, index) pairs, listed in increasing index order,
+// into the order std::sort gives pairs, so the uses of one edge are
+// adjacent. A radix sort on the keys' significant bits: on million-face
+// meshes a comparison sort took a fifth of a load.
+void SortEdgeUses(std::vector<std::pair<uint64_t, uint32_t>>& uses, size_t num_vertices);
+
 // Vertices and triangles exactly as a file lists them.
 struct TriangleSoup {
   std::vector<Vec3> positions;

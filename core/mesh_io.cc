@@ -587,11 +587,8 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
   // adjacent: one linear pass then yields edge counts, boundary and
   // non-manifold edges, repeated directed edges and the corner fans. (Hash
   // maps keyed by edge took most of a load on million-face meshes.)
-  struct EdgeUse {
-    uint64_t key;     // min << 32 | max
-    uint32_t corner;  // 3 * face + k: the edge runs from corner k to k + 1
-  };
-  std::vector<EdgeUse> uses;
+  // (edge key, corner 3 * face + k): the edge runs from corner k to k + 1.
+  std::vector<std::pair<uint64_t, uint32_t>> uses;
   uses.reserve(3 * nf);
   std::vector<uint8_t> used(nv, 0);
   for (uint32_t f = 0; f < nf; ++f) {
@@ -602,9 +599,7 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
         uses.push_back({UndirectedEdgeKey(t[k], t[(k + 1) % 3]), 3 * f + k});
     }
   }
-  std::sort(uses.begin(), uses.end(), [](const EdgeUse& x, const EdgeUse& y) {
-    return x.key < y.key || (x.key == y.key && x.corner < y.corner);
-  });
+  SortEdgeUses(uses, nv);
   auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
   std::vector<uint32_t> edge_of_corner(3 * nf, kNone);
   DisjointSets boundary_sets(nv), corners(3 * nf);
@@ -613,16 +608,16 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
   uint64_t edge_count = 0, twice_directed = 0;
   d->non_manifold_edges = 0;
   for (size_t i = 0, j; i < uses.size(); i = j) {
-    for (j = i + 1; j < uses.size() && uses[j].key == uses[i].key; ++j) {
+    for (j = i + 1; j < uses.size() && uses[j].first == uses[i].first; ++j) {
     }
-    const VertexId a = uses[i].key >> 32, b = uses[i].key & 0xffffffffu;
+    const VertexId a = uses[i].first >> 32, b = uses[i].first & 0xffffffffu;
     const double len = Distance(soup.positions[a], soup.positions[b]);
     edge_sum += len;
     edge_min = std::min(edge_min, len);
     int forward = 0;  // uses walking it from a (the smaller id) to b
     for (size_t u = i; u < j; ++u) {
-      edge_of_corner[uses[u].corner] = static_cast<uint32_t>(edge_count);
-      forward += from_of(uses[u].corner) == a;
+      edge_of_corner[uses[u].second] = static_cast<uint32_t>(edge_count);
+      forward += from_of(uses[u].second) == a;
     }
     ++edge_count;
     const size_t count = j - i;
@@ -634,7 +629,7 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     }
     // Two faces on an edge join their corners at both ends into one fan.
     if (count == 2) {
-      const uint32_t f0 = uses[i].corner / 3, f1 = uses[i + 1].corner / 3;
+      const uint32_t f0 = uses[i].second / 3, f1 = uses[i + 1].second / 3;
       corners.Union(CornerOf(soup, f0, a), CornerOf(soup, f1, a));
       corners.Union(CornerOf(soup, f0, b), CornerOf(soup, f1, b));
     }

@@ -378,5 +378,23 @@ TEST(MeshIoTest, MalformedObjFaceCornersAreRefused) {
   }
 }
 
+// The radix sort of edge uses gives exactly what std::sort gives the same
+// pairs, for small and for 32-bit vertex counts.
+TEST(MeshIoTest, SortEdgeUsesMatchesSortingThePairs) {
+  std::mt19937 rng(5);
+  for (uint64_t nv :
+       {uint64_t{1}, uint64_t{2}, uint64_t{7}, uint64_t{3000}, uint64_t{4000000000}}) {
+    std::vector<std::pair<uint64_t, uint32_t>> uses;
+    for (uint32_t i = 0; i < 5000; ++i) {
+      const VertexId a = rng() % nv, b = rng() % std::min<uint64_t>(nv, 40);
+      uses.push_back({UndirectedEdgeKey(a, b), i});
+    }
+    auto expected = uses;
+    std::sort(expected.begin(), expected.end());
+    SortEdgeUses(uses, nv);
+    EXPECT_EQ(uses, expected) << nv << " vertices";
+  }
+}
+
 }  // namespace
 }  // namespace geodesic
