@@ -256,7 +256,14 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
     absl::Status s = take(line);
     if (!s.ok()) return s;
   }
-  out.available = out.positions.size() == nv;
+  // OpenMesh reads on past a short vertex list into the faces, garbage and
+  // all, and looped there (found by fuzzing).
+  if (out.positions.size() < nv) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: the OFF header declares %u vertices, but %u vertex lines follow", name,
+                        nv, out.positions.size()));
+  }
+  out.available = true;
   // Each face starts with its corner count, and OpenMesh reserves room for
   // that many before reading them (it reads numbers, not lines), so a
   // garbled count runs it out of memory (found by tests/fuzz). A face cannot

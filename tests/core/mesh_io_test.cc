@@ -331,6 +331,12 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       ReadTriangleSoupFromMemory(std::string("OFF\n\0\0\x01 \0]\n0 0 0\n", 16), "off", "nul.off");
   ASSERT_FALSE(nul.ok());
   EXPECT_NE(nul.status().message().find("counts"), std::string::npos) << nul.status();
+  // Fewer vertex lines than declared.
+  auto short_list = ReadTriangleSoupFromMemory("OFF 3 1 0\n0 0 0\n1 0 0\n", "off", "short.off");
+  ASSERT_FALSE(short_list.ok());
+  EXPECT_NE(short_list.status().message().find("declares 3 vertices, but 2 vertex lines follow"),
+            std::string::npos)
+      << short_list.status();
   // An edge count past int: OpenMesh's stream failed and it looped.
   auto edges = ReadTriangleSoupFromMemory(
       "OFF 3\n3   " + std::string(40, '2') + " 1 \n0 0 0\n1 0 0\n0 1 0\n", "off", "edges.off");
