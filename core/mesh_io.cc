@@ -523,6 +523,50 @@ uint32_t CornerOf(const TriangleSoup& soup, uint32_t f, VertexId v) {
   return 3 * f + (t[0] == v ? 0 : t[1] == v ? 1 : 2);
 }
 
+// Every use of an edge by a face, as (UndirectedEdgeKey, corner 3 * face +
+// k for the edge from corner k to k + 1), sorted so that the uses of one
+// edge are adjacent. Degenerate edges (a face repeating a vertex) are left
+// out. One linear pass over them then yields whatever is counted per edge.
+using EdgeUses = std::vector<std::pair<uint64_t, uint32_t>>;
+EdgeUses SortedEdgeUses(const TriangleSoup& soup) {
+  EdgeUses uses;
+  uses.reserve(3 * soup.triangles.size());
+  for (uint32_t f = 0; f < soup.triangles.size(); ++f) {
+    const auto& t = soup.triangles[f];
+    for (int k = 0; k < 3; ++k) {
+      if (t[k] != t[(k + 1) % 3])
+        uses.push_back({UndirectedEdgeKey(t[k], t[(k + 1) % 3]), 3 * f + k});
+    }
+  }
+  SortEdgeUses(uses, soup.positions.size());
+  return uses;
+}
+
+// Calls body(first, last) for each edge's run [first, last) of uses.
+template <typename Body>
+void ForEachEdge(const EdgeUses& uses, Body body) {
+  for (size_t i = 0, j; i < uses.size(); i = j) {
+    for (j = i + 1; j < uses.size() && uses[j].first == uses[i].first; ++j) {
+    }
+    body(i, j);
+  }
+}
+
+// Corners joined across every edge with exactly two faces, at both of its
+// ends: the classes are the fans of faces around each vertex (one per
+// vertex where the mesh is manifold).
+DisjointSets CornerFans(const TriangleSoup& soup, const EdgeUses& uses) {
+  DisjointSets fans(3 * soup.triangles.size());
+  ForEachEdge(uses, [&](size_t i, size_t j) {
+    if (j - i != 2) return;
+    const VertexId a = uses[i].first >> 32, b = uses[i].first & 0xffffffffu;
+    const uint32_t f0 = uses[i].second / 3, f1 = uses[i + 1].second / 3;
+    fans.Union(CornerOf(soup, f0, a), CornerOf(soup, f1, a));
+    fans.Union(CornerOf(soup, f0, b), CornerOf(soup, f1, b));
+  });
+  return fans;
+}
+
 }  // namespace
 
 absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
@@ -590,33 +634,20 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     d->duplicate_vertices = 0;
     for (size_t i = 1; i < nv; ++i) d->duplicate_vertices += key(order[i]) == key(order[i - 1]);
   }
-  // Every use of an edge by a face, sorted so that the uses of one edge are
-  // adjacent: one linear pass then yields edge counts, boundary and
-  // non-manifold edges, repeated directed edges and the corner fans. (Hash
-  // maps keyed by edge took most of a load on million-face meshes.)
-  // (edge key, corner 3 * face + k): the edge runs from corner k to k + 1.
-  std::vector<std::pair<uint64_t, uint32_t>> uses;
-  uses.reserve(3 * nf);
+  // Edge counts, boundary and non-manifold edges and repeated directed
+  // edges from one pass over the sorted edge uses (hash maps keyed by edge
+  // took most of a load on million-face meshes).
+  const EdgeUses uses = SortedEdgeUses(soup);
   std::vector<uint8_t> used(nv, 0);
-  for (uint32_t f = 0; f < nf; ++f) {
-    const auto& t = soup.triangles[f];
-    for (int k = 0; k < 3; ++k) {
-      used[t[k]] = 1;
-      if (t[k] != t[(k + 1) % 3])
-        uses.push_back({UndirectedEdgeKey(t[k], t[(k + 1) % 3]), 3 * f + k});
-    }
-  }
-  SortEdgeUses(uses, nv);
+  for (const auto& t : soup.triangles) used[t[0]] = used[t[1]] = used[t[2]] = 1;
   auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
   std::vector<uint32_t> edge_of_corner(3 * nf, kNone);
-  DisjointSets boundary_sets(nv), corners(3 * nf);
+  DisjointSets boundary_sets(nv);
   std::vector<uint8_t> on_boundary(nv, 0);
   double edge_sum = 0, edge_min = INFINITY;
   uint64_t edge_count = 0, twice_directed = 0;
   d->non_manifold_edges = 0;
-  for (size_t i = 0, j; i < uses.size(); i = j) {
-    for (j = i + 1; j < uses.size() && uses[j].first == uses[i].first; ++j) {
-    }
+  ForEachEdge(uses, [&](size_t i, size_t j) {
     const VertexId a = uses[i].first >> 32, b = uses[i].first & 0xffffffffu;
     const double len = Distance(soup.positions[a], soup.positions[b]);
     edge_sum += len;
@@ -634,13 +665,8 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
       boundary_sets.Union(a, b);
       on_boundary[a] = on_boundary[b] = 1;
     }
-    // Two faces on an edge join their corners at both ends into one fan.
-    if (count == 2) {
-      const uint32_t f0 = uses[i].second / 3, f1 = uses[i + 1].second / 3;
-      corners.Union(CornerOf(soup, f0, a), CornerOf(soup, f1, a));
-      corners.Union(CornerOf(soup, f0, b), CornerOf(soup, f1, b));
-    }
-  }
+  });
+  DisjointSets corners = CornerFans(soup, uses);
   std::vector<double> anisotropy;
   anisotropy.reserve(nf);
   d->zero_area_faces = d->near_degenerate_faces = 0;
@@ -771,18 +797,7 @@ namespace {
 // copies are appended after the file's vertices so file ids are unchanged.
 uint64_t SplitNonManifoldVertices(TriangleSoup* soup) {
   const size_t nf = soup->triangles.size();
-  absl::flat_hash_map<uint64_t, std::vector<uint32_t>> edge_faces;
-  for (uint32_t f = 0; f < nf; ++f) {
-    const auto& t = soup->triangles[f];
-    for (int k = 0; k < 3; ++k) edge_faces[UndirectedEdgeKey(t[k], t[(k + 1) % 3])].push_back(f);
-  }
-  DisjointSets corners(3 * nf);
-  for (const auto& [key, faces] : edge_faces) {
-    if (faces.size() != 2) continue;
-    VertexId a = key >> 32, b = key & 0xffffffffu;
-    corners.Union(CornerOf(*soup, faces[0], a), CornerOf(*soup, faces[1], a));
-    corners.Union(CornerOf(*soup, faces[0], b), CornerOf(*soup, faces[1], b));
-  }
+  DisjointSets corners = CornerFans(*soup, SortedEdgeUses(*soup));
   absl::flat_hash_map<uint64_t, VertexId> copy_of;  // (vertex, fan root) -> id
   std::vector<uint32_t> first_root(soup->positions.size(), kNone);
   uint64_t split = 0;
