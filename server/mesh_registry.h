@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "absl/base/call_once.h"
 #include "absl/base/thread_annotations.h"
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
@@ -16,13 +17,27 @@
 
 namespace geodesic::server {
 
+// Snaps positions to a mesh, building its index on the first snap: the
+// kd-tree over every face takes about a quarter of a large mesh's
+// registration, and many clients never snap.
+class LazySurfaceLocator {
+ public:
+  explicit LazySurfaceLocator(std::shared_ptr<const Mesh> mesh) : mesh_(std::move(mesh)) {}
+  absl::StatusOr<SurfacePoint> Snap(const Vec3& position) const;
+
+ private:
+  std::shared_ptr<const Mesh> mesh_;
+  mutable absl::once_flag built_;
+  mutable absl::StatusOr<SurfaceLocator> locator_;
+};
+
 struct RegisteredMesh {
   std::string name;
   std::string source;  // path, or "upload"
   uint64_t fingerprint = 0;
   std::shared_ptr<const Mesh> mesh;
   MeshDiagnostics diagnostics;
-  std::shared_ptr<const SurfaceLocator> locator;
+  std::shared_ptr<const LazySurfaceLocator> locator;
 };
 
 class MeshRegistry {
