@@ -582,11 +582,16 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     if (!(d < n.dist[s])) return;
     n.dist[s] = d;
     n.pred[s] = from;
-    heap[s].push({s == 0 ? d + n.potential : d - n.potential, u});
     if (d + n.dist[1 - s] < mu) {
       mu = d + n.dist[1 - s];
       meet = u;
     }
+    // A node whose key already reaches the stopping bound would be popped
+    // only after the search stops (the other side's top only grows and mu
+    // only shrinks), so it is not queued at all.
+    const double key = s == 0 ? d + n.potential : d - n.potential;
+    if (!heap[1 - s].empty() && key + heap[1 - s].top().first >= mu) return;
+    heap[s].push({key, u});
   };
   for (int s = 0; s < 2; ++s) {
     if (ends[s].is_node) {
