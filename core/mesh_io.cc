@@ -276,17 +276,19 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
     std::istringstream fields(line);
     std::string word;
     for (bool first = true; fields >> word; first = false) {
-      // OpenMesh reads a number's leading digits ("22obj" is 22), after a
-      // sign: "-3" corners is about 2^32 to it (found by fuzzing).
-      const size_t digits = word[0] == '-' || word[0] == '+' ? 1 : 0;
-      if (digits >= word.size() || !std::isdigit(static_cast<unsigned char>(word[digits]))) {
-        continue;
-      }
+      // Only numbers: OpenMesh reads numbers, not words, so "3-3" is two to
+      // it, the second a corner count of about 2^32, and "-3" corners is
+      // about 2^32 too (both found by fuzzing).
       char* end = nullptr;
-      errno = 0;
-      const unsigned long long value = std::strtoull(word.c_str() + digits, &end, 10);
-      const bool negative = word[0] == '-' && value != 0;
-      if (negative || errno == ERANGE || value > largest || (first && value > nv)) {
+      const double value = std::strtod(word.c_str(), &end);
+      if (word.find_first_not_of("0123456789+-.eE") != std::string::npos ||
+          end != word.c_str() + word.size()) {
+        return absl::InvalidArgumentError(
+            absl::StrFormat("%s line %u: '%s' in the faces is not a number", name, line_number,
+                            absl::CHexEscape(word.substr(0, 30))));
+      }
+      const bool negative = value < 0;
+      if (negative || value > largest || (first && value > nv)) {
         return absl::InvalidArgumentError(
             absl::StrFormat("%s line %u: %s%s%s, but the file has %u vertices", name, line_number,
                             first ? "a face with " : "the number ", word.substr(0, 30),

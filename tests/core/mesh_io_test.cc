@@ -331,6 +331,13 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
       ReadTriangleSoupFromMemory(std::string("OFF\n\0\0\x01 \0]\n0 0 0\n", 16), "off", "nul.off");
   ASSERT_FALSE(nul.ok());
   EXPECT_NE(nul.status().message().find("counts"), std::string::npos) << nul.status();
+  // A word that is two numbers to OpenMesh, the second a negative count.
+  auto glued = ReadTriangleSoupFromMemory(
+      "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n3 0 2 3-3 0 3 1\n", "off", "glued.off");
+  ASSERT_FALSE(glued.ok());
+  EXPECT_NE(glued.status().message().find("line 8: '3-3' in the faces is not a number"),
+            std::string::npos)
+      << glued.status();
   // Fewer vertex lines than declared.
   auto short_list = ReadTriangleSoupFromMemory("OFF 3 1 0\n0 0 0\n1 0 0\n", "off", "short.off");
   ASSERT_FALSE(short_list.ok());
