@@ -23,9 +23,11 @@ cmake --build build-fuzz -j"$(nproc)"
 status=0
 for target in mesh_reader graph_file surface_point; do
   corpus=build-fuzz/corpus/$target
-  seeds=(tests/fuzz/corpus/"$target"/*)
-  inputs=("../$corpus" "${seeds[@]/#/../}")
-  # A replay reads the committed inputs alone, one file at a time.
+  # Seeds, regression-* inputs and merged/ (a -merge=1 minimisation of
+  # hunting corpora). Mutation reads both directories (recursively) and
+  # writes new finds to the first; a replay runs each committed file once.
+  mapfile -t seeds < <(find tests/fuzz/corpus/"$target" -type f | sort)
+  inputs=("../$corpus" "../tests/fuzz/corpus/$target")
   [ "${mode[0]}" = -runs=0 ] && inputs=("${seeds[@]/#/../}")
   mkdir -p "$corpus"
   echo "fuzz: $target (${mode[*]}, ${#seeds[@]} committed inputs)"
