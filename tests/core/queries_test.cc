@@ -207,6 +207,12 @@ TEST(QueriesTest, DifferentComponentsAreUnreachable) {
   ASSERT_OK(r);
   EXPECT_EQ(r->distance, kInfinity);
   EXPECT_FALSE(r->path.has_value());
+  // Within each component, whether or not a landmark is in it.
+  for (VertexId a : {VertexId{0}, VertexId{3}}) {
+    auto within = engine.Distance(SurfacePoint::Vertex(a), SurfacePoint::Vertex(a + 1), {});
+    ASSERT_OK(within);
+    EXPECT_NEAR(within->distance, 1.0, 1e-6) << "from vertex " << a;
+  }
   auto m =
       engine.Matrix(std::vector<SurfacePoint>{SurfacePoint::Vertex(0)},
                     std::vector<SurfacePoint>{SurfacePoint::Vertex(1), SurfacePoint::Vertex(5)});
