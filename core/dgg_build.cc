@@ -313,8 +313,9 @@ Adjacency DropRedundant(const Adjacency& adj, const std::vector<uint8_t>& redund
 // Phase 3 (section 4.3, ADDPSEUDOVERTICESANDEDGES): where the candidate
 // directions at a vertex leave a gap wider than sqrt(2 eps), shoot geodesics
 // into it every sqrt(eps) and, unless the graph already serves the end
-// point, connect it to the vertices it sees directly. Gaps are measured on the candidate edges: a
-// pruned edge's direction is still served by the path that replaced it.
+// point, connect it to the vertices it sees directly. Gaps are measured on
+// the candidate edges: a pruned edge's direction is still served by the path
+// that replaced it.
 struct PseudoVertex {
   SurfacePoint point;
   std::vector<DggHalfEdge> edges;  // to mesh vertices

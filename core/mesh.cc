@@ -23,7 +23,7 @@ double AngleFromLengths(double ab, double ac, double bc) {
 
 }  // namespace
 
-void SortEdgeUses(std::vector<std::pair<uint64_t, uint32_t>>& uses, size_t num_vertices) {
+void SortEdgeUses(EdgeUses& uses, size_t num_vertices) {
   // Least significant digit first, each pass stable: the index order among
   // equal keys survives. Keys are repacked as min << bits | max first.
   const int bits = std::max(1, static_cast<int>(std::bit_width(num_vertices)));
@@ -81,17 +81,17 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   // half-edges of one edge are found by sorting (a hash map of directed
   // edges took a third of a million-face load); the clash reported is the
   // first in half-edge order, as a scan in that order would meet it.
-  std::vector<std::pair<uint64_t, uint32_t>> by_edge(nh);
+  EdgeUses by_edge(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
     by_edge[h] = {UndirectedEdgeKey(m.tail(h), m.head(h)), h};
   }
   SortEdgeUses(by_edge, m.num_vertices());
   m.twin_.assign(nh, kNone);
   HalfedgeId clash_first = kNone, clash_second = kNone;
-  for (size_t i = 0, j; i < nh; i = j) {
+  ForEachEdge(by_edge, [&](size_t i, size_t j) {
     HalfedgeId first[2] = {kNone, kNone};  // per direction, in half-edge order
-    for (j = i; j < nh && by_edge[j].first == by_edge[i].first; ++j) {
-      const HalfedgeId h = by_edge[j].second;
+    for (size_t u = i; u < j; ++u) {
+      const HalfedgeId h = by_edge[u].second;
       const int direction = m.tail(h) < m.head(h);
       if (first[direction] == kNone) {
         first[direction] = h;
@@ -104,7 +104,7 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
       m.twin_[first[0]] = first[1];
       m.twin_[first[1]] = first[0];
     }
-  }
+  });
   if (clash_second != kNone) {
     return absl::InvalidArgumentError(absl::StrFormat(
         "%s: edge (%u, %u) is used in the same direction by faces %u and %u: the mesh is "

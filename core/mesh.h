@@ -23,6 +23,7 @@
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <utility>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -46,7 +47,18 @@ inline uint64_t UndirectedEdgeKey(VertexId a, VertexId b) {
 // into the order std::sort gives pairs, so the uses of one edge are
 // adjacent. A radix sort on the keys' significant bits: on million-face
 // meshes a comparison sort took a fifth of a load.
-void SortEdgeUses(std::vector<std::pair<uint64_t, uint32_t>>& uses, size_t num_vertices);
+using EdgeUses = std::vector<std::pair<uint64_t, uint32_t>>;
+void SortEdgeUses(EdgeUses& uses, size_t num_vertices);
+
+// Calls body(first, last) for each edge's run [first, last) of sorted uses.
+template <typename Body>
+void ForEachEdge(const EdgeUses& uses, Body body) {
+  for (size_t i = 0, j; i < uses.size(); i = j) {
+    for (j = i + 1; j < uses.size() && uses[j].first == uses[i].first; ++j) {
+    }
+    body(i, j);
+  }
+}
 
 // Vertices and triangles exactly as a file lists them.
 struct TriangleSoup {

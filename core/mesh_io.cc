@@ -270,7 +270,7 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
   // have more corners than the file has vertices, and no number in the faces
   // (counts, indices, colours) can be far above that.
   const unsigned long long largest = std::max<unsigned long long>(nv, 1 << 20);
-  while (out.available && std::getline(in, line)) {
+  while (std::getline(in, line)) {
     ++line_number;
     if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
     std::istringstream fields(line);
@@ -529,7 +529,6 @@ uint32_t CornerOf(const TriangleSoup& soup, uint32_t f, VertexId v) {
 // k for the edge from corner k to k + 1), sorted so that the uses of one
 // edge are adjacent. Degenerate edges (a face repeating a vertex) are left
 // out. One linear pass over them then yields whatever is counted per edge.
-using EdgeUses = std::vector<std::pair<uint64_t, uint32_t>>;
 EdgeUses SortedEdgeUses(const TriangleSoup& soup) {
   EdgeUses uses;
   uses.reserve(3 * soup.triangles.size());
@@ -542,16 +541,6 @@ EdgeUses SortedEdgeUses(const TriangleSoup& soup) {
   }
   SortEdgeUses(uses, soup.positions.size());
   return uses;
-}
-
-// Calls body(first, last) for each edge's run [first, last) of uses.
-template <typename Body>
-void ForEachEdge(const EdgeUses& uses, Body body) {
-  for (size_t i = 0, j; i < uses.size(); i = j) {
-    for (j = i + 1; j < uses.size() && uses[j].first == uses[i].first; ++j) {
-    }
-    body(i, j);
-  }
 }
 
 // Corners joined across every edge with exactly two faces, at both of its
