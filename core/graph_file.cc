@@ -15,6 +15,7 @@
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
 #include "core/dgg_graph_internal.h"
+#include "core/file_header.h"
 #include "core/status.h"
 #include "xxhash.h"
 
@@ -22,9 +23,8 @@ namespace geodesic {
 namespace {
 
 constexpr char kMagic[8] = {'G', 'E', 'O', 'D', 'D', 'G', 'G', '\0'};
-constexpr uint32_t kEndianTag = 0x01020304;
 constexpr size_t kHeaderBytes = 4096;
-constexpr size_t kAlignment = 64;
+constexpr size_t kAlignment = kSectionAlignment;
 
 enum Section : uint32_t {
   kOffsets,
@@ -67,11 +67,6 @@ struct Header {
 static_assert(sizeof(Header) <= kHeaderBytes);
 static_assert(std::is_trivially_copyable_v<SurfacePoint>);
 
-uint64_t HeaderChecksum(Header h) {
-  h.header_checksum = 0;
-  return XXH3_64bits(&h, sizeof(h));
-}
-
 // Validates the header of a mapped file of `size` bytes.
 absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::string& path) {
   if (size < kHeaderBytes) {
@@ -80,25 +75,7 @@ absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::stri
   }
   Header h;
   std::memcpy(&h, base, sizeof(h));
-  if (std::memcmp(h.magic, kMagic, sizeof(kMagic)) != 0) {
-    return absl::DataLossError(absl::StrFormat("%s is not a geodesicd graph file", path));
-  }
-  if (h.endian != kEndianTag) {
-    return absl::FailedPreconditionError(
-        absl::StrFormat("%s was written on a machine of other endianness", path));
-  }
-  if (h.version != kGraphFormatVersion) {
-    return absl::FailedPreconditionError(
-        absl::StrFormat("%s has graph format version %u; this build reads version %u", path,
-                        h.version, kGraphFormatVersion));
-  }
-  if (HeaderChecksum(h) != h.header_checksum) {
-    return absl::DataLossError(absl::StrFormat("%s: header checksum mismatch", path));
-  }
-  if (h.file_bytes != size) {
-    return absl::DataLossError(
-        absl::StrFormat("%s: header says %u bytes but the file has %u", path, h.file_bytes, size));
-  }
+  RETURN_IF_ERROR(CheckHeader(h, kMagic, kGraphFormatVersion, size, "graph file", path));
   if (h.section_count != kSectionCount) {
     return absl::DataLossError(
         absl::StrFormat("%s: %u sections, expected %u", path, h.section_count, kSectionCount));
