@@ -56,7 +56,7 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
           "%s: vertex %u has a non-finite coordinate (%g, %g, %g)", source, v, p.x, p.y, p.z));
     }
   }
-  m.corners_.resize(3 * nf);
+  m.a_.corners.resize(3 * nf);
   for (size_t f = 0; f < nf; ++f) {
     const auto& t = soup.triangles[f];
     for (int k = 0; k < 3; ++k) {
@@ -65,14 +65,14 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
             absl::StrFormat("%s: face %u refers to vertex %u, but there are only %u vertices",
                             source, f, t[k], nv));
       }
-      m.corners_[3 * f + k] = t[k];
+      m.a_.corners[3 * f + k] = t[k];
     }
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
       return absl::InvalidArgumentError(
           absl::StrFormat("%s: face %u repeats a vertex (%u %u %u)", source, f, t[0], t[1], t[2]));
     }
   }
-  m.positions_ = std::move(soup.positions);
+  m.a_.positions = std::move(soup.positions);
   soup.triangles.clear();
 
   const size_t nh = 3 * nf;
@@ -86,7 +86,7 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
     by_edge[h] = {UndirectedEdgeKey(m.tail(h), m.head(h)), h};
   }
   SortEdgeUses(by_edge, m.num_vertices());
-  m.twin_.assign(nh, kNone);
+  m.a_.twin.assign(nh, kNone);
   HalfedgeId clash_first = kNone, clash_second = kNone;
   ForEachEdge(by_edge, [&](size_t i, size_t j) {
     HalfedgeId first[2] = {kNone, kNone};  // per direction, in half-edge order
@@ -101,8 +101,8 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
       }
     }
     if (first[0] != kNone && first[1] != kNone) {
-      m.twin_[first[0]] = first[1];
-      m.twin_[first[1]] = first[0];
+      m.a_.twin[first[0]] = first[1];
+      m.a_.twin[first[1]] = first[0];
     }
   });
   if (clash_second != kNone) {
@@ -112,54 +112,55 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
         source, m.tail(clash_second), m.head(clash_second), face(clash_first), face(clash_second)));
   }
   by_edge = {};
-  m.edge_.assign(nh, kNone);
+  m.a_.edge.assign(nh, kNone);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    if (m.edge_[h] == kNone) {
-      EdgeId e = static_cast<EdgeId>(m.edge_halfedge_.size());
-      m.edge_halfedge_.push_back(h);
-      m.edge_[h] = e;
-      if (m.twin_[h] != kNone) m.edge_[m.twin_[h]] = e;
+    if (m.a_.edge[h] == kNone) {
+      EdgeId e = static_cast<EdgeId>(m.a_.edge_halfedge.size());
+      m.a_.edge_halfedge.push_back(h);
+      m.a_.edge[h] = e;
+      if (m.a_.twin[h] != kNone) m.a_.edge[m.a_.twin[h]] = e;
     }
   }
 
   // Lengths and corner angles.
-  m.length_.resize(nh);
+  m.a_.length.resize(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    m.length_[h] = Distance(m.position(m.tail(h)), m.position(m.head(h)));
+    m.a_.length[h] = Distance(m.position(m.tail(h)), m.position(m.head(h)));
   }
-  m.corner_angle_.resize(nh);
+  m.a_.corner_angle.resize(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
     // At tail(h): sides h and prev(h); opposite side next(h).
-    m.corner_angle_[h] = AngleFromLengths(m.length_[h], m.length_[prev(h)], m.length_[next(h)]);
+    m.a_.corner_angle[h] =
+        AngleFromLengths(m.a_.length[h], m.a_.length[prev(h)], m.a_.length[next(h)]);
   }
 
   // Vertex rotation start: an outgoing boundary half-edge if there is one.
-  m.vertex_halfedge_.assign(nv, kNone);
-  m.flags_.assign(nv, 0);
+  m.a_.vertex_halfedge.assign(nv, kNone);
+  m.a_.flags.assign(nv, 0);
   std::vector<uint32_t> outgoing_count(nv, 0);
   for (HalfedgeId h = 0; h < nh; ++h) {
     VertexId v = m.tail(h);
     ++outgoing_count[v];
-    if (m.twin_[h] == kNone) {
-      m.vertex_halfedge_[v] = h;
-      m.flags_[v] |= kBoundary;
-    } else if (m.vertex_halfedge_[v] == kNone) {
-      m.vertex_halfedge_[v] = h;
+    if (m.a_.twin[h] == kNone) {
+      m.a_.vertex_halfedge[v] = h;
+      m.a_.flags[v] |= kBoundary;
+    } else if (m.a_.vertex_halfedge[v] == kNone) {
+      m.a_.vertex_halfedge[v] = h;
     }
   }
   // A boundary vertex can have only one outgoing boundary half-edge in a
   // single fan; walking the fan must reach every outgoing half-edge.
-  m.polar_angle_.assign(nh, 0);
-  m.total_angle_.assign(nv, 0);
+  m.a_.polar_angle.assign(nh, 0);
+  m.a_.total_angle.assign(nv, 0);
   for (VertexId v = 0; v < nv; ++v) {
-    HalfedgeId start = m.vertex_halfedge_[v];
+    HalfedgeId start = m.a_.vertex_halfedge[v];
     if (start == kNone) continue;
     double angle = 0;
     uint32_t visited = 0;
     HalfedgeId h = start;
     do {
-      m.polar_angle_[h] = angle;
-      angle += m.corner_angle_[h];
+      m.a_.polar_angle[h] = angle;
+      angle += m.a_.corner_angle[h];
       ++visited;
       h = m.rotate(h);
     } while (h != kNone && h != start && visited <= outgoing_count[v]);
@@ -169,39 +170,68 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
           "reachable around it)",
           source, v, visited, outgoing_count[v]));
     }
-    m.total_angle_[v] = angle;
-    if (!(m.flags_[v] & kBoundary) && angle > 2 * std::numbers::pi * (1 + 1e-10)) {
-      m.flags_[v] |= kSaddle;
+    m.a_.total_angle[v] = angle;
+    if (!(m.a_.flags[v] & kBoundary) && angle > 2 * std::numbers::pi * (1 + 1e-10)) {
+      m.a_.flags[v] |= kSaddle;
     }
   }
   return m;
 }
 
 absl::Status Mesh::CheckConsistency() const {
-  for (HalfedgeId h = 0; h < num_halfedges(); ++h) {
-    if (next(next(next(h))) != h) return absl::InternalError("next does not cycle in 3");
-    if (prev(next(h)) != h) return absl::InternalError("prev is not the inverse of next");
-    HalfedgeId t = twin_[h];
-    if (t != kNone) {
-      if (twin_[t] != h) {
+  // next and prev are arithmetic on ids, so only the stored arrays can
+  // disagree. Faces are walked corner by corner: no division per half-edge.
+  for (FaceId f = 0; f < num_faces(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const HalfedgeId h = 3 * f + k;
+      const HalfedgeId t = a_.twin[h];
+      if (t == kNone) continue;
+      if (a_.twin[t] != h) {
         return absl::InternalError(
             absl::StrFormat("twin of twin of half-edge %u is not itself", h));
       }
-      if (tail(t) != head(h) || head(t) != tail(h)) {
+      if (tail(t) != a_.corners[3 * f + (k + 1) % 3] || head(t) != a_.corners[h]) {
         return absl::InternalError(absl::StrFormat("half-edge %u and its twin disagree", h));
       }
-      if (edge_[t] != edge_[h]) return absl::InternalError("twins have different edge ids");
+      if (a_.edge[t] != a_.edge[h]) return absl::InternalError("twins have different edge ids");
     }
-  }
-  for (FaceId f = 0; f < num_faces(); ++f) {
     // A face with coincident corners has no meaningful angles.
-    if (length_[3 * f] == 0 || length_[3 * f + 1] == 0 || length_[3 * f + 2] == 0) continue;
-    double sum = corner_angle_[3 * f] + corner_angle_[3 * f + 1] + corner_angle_[3 * f + 2];
+    const double* length = &a_.length[3 * f];
+    if (length[0] == 0 || length[1] == 0 || length[2] == 0) continue;
+    const double* angle = &a_.corner_angle[3 * f];
+    const double sum = angle[0] + angle[1] + angle[2];
     if (std::abs(sum - std::numbers::pi) > 1e-6) {
       return absl::InternalError(absl::StrFormat("angles of face %u sum to %.9f", f, sum));
     }
   }
   return absl::OkStatus();
+}
+
+absl::StatusOr<Mesh> Mesh::FromArrays(Arrays a, std::string_view source) {
+  const size_t nv = a.positions.size(), nh = a.corners.size(), ne = a.edge_halfedge.size();
+  auto damaged = [&](absl::string_view what) {
+    return absl::DataLossError(absl::StrFormat("%s: mesh arrays are damaged: %s", source, what));
+  };
+  if (nv >= kNone || nh >= kNone || nh % 3 != 0) return damaged("element counts");
+  if (a.twin.size() != nh || a.edge.size() != nh || a.length.size() != nh ||
+      a.corner_angle.size() != nh || a.polar_angle.size() != nh || a.vertex_halfedge.size() != nv ||
+      a.total_angle.size() != nv || a.flags.size() != nv) {
+    return damaged("array sizes disagree");
+  }
+  auto in_range = [](const std::vector<uint32_t>& ids, size_t size, bool none_ok) {
+    return std::all_of(ids.begin(), ids.end(),
+                       [&](uint32_t i) { return i < size || (none_ok && i == kNone); });
+  };
+  if (!in_range(a.corners, nv, false)) return damaged("a face corner is out of range");
+  if (!in_range(a.twin, nh, true) || !in_range(a.edge_halfedge, nh, false) ||
+      !in_range(a.vertex_halfedge, nh, true)) {
+    return damaged("a half-edge id is out of range");
+  }
+  if (!in_range(a.edge, ne, false)) return damaged("an edge id is out of range");
+  Mesh m;
+  m.a_ = std::move(a);
+  if (absl::Status s = m.CheckConsistency(); !s.ok()) return damaged(s.message());
+  return m;
 }
 
 }  // namespace geodesic

@@ -76,46 +76,46 @@ class Mesh {
   // inconsistently oriented neighbours. `source` names the input in messages.
   static absl::StatusOr<Mesh> Build(TriangleSoup soup, std::string_view source);
 
-  size_t num_vertices() const { return positions_.size(); }
-  size_t num_faces() const { return corners_.size() / 3; }
-  size_t num_halfedges() const { return corners_.size(); }
-  size_t num_edges() const { return edge_halfedge_.size(); }
+  size_t num_vertices() const { return a_.positions.size(); }
+  size_t num_faces() const { return a_.corners.size() / 3; }
+  size_t num_halfedges() const { return a_.corners.size(); }
+  size_t num_edges() const { return a_.edge_halfedge.size(); }
 
-  const Vec3& position(VertexId v) const { return positions_[v]; }
-  const std::vector<Vec3>& positions() const { return positions_; }
-  VertexId face_vertex(FaceId f, int k) const { return corners_[3 * f + k]; }
-  const std::vector<VertexId>& corners() const { return corners_; }
+  const Vec3& position(VertexId v) const { return a_.positions[v]; }
+  const std::vector<Vec3>& positions() const { return a_.positions; }
+  VertexId face_vertex(FaceId f, int k) const { return a_.corners[3 * f + k]; }
+  const std::vector<VertexId>& corners() const { return a_.corners; }
 
   static HalfedgeId halfedge(FaceId f, int k) { return 3 * f + k; }
   static FaceId face(HalfedgeId h) { return h / 3; }
   static int corner(HalfedgeId h) { return h % 3; }
   static HalfedgeId next(HalfedgeId h) { return h % 3 == 2 ? h - 2 : h + 1; }
   static HalfedgeId prev(HalfedgeId h) { return h % 3 == 0 ? h + 2 : h - 1; }
-  VertexId tail(HalfedgeId h) const { return corners_[h]; }
-  VertexId head(HalfedgeId h) const { return corners_[next(h)]; }
+  VertexId tail(HalfedgeId h) const { return a_.corners[h]; }
+  VertexId head(HalfedgeId h) const { return a_.corners[next(h)]; }
   // The vertex of face(h) not on h.
-  VertexId opposite(HalfedgeId h) const { return corners_[prev(h)]; }
-  HalfedgeId twin(HalfedgeId h) const { return twin_[h]; }
-  EdgeId edge(HalfedgeId h) const { return edge_[h]; }
-  HalfedgeId edge_halfedge(EdgeId e) const { return edge_halfedge_[e]; }
+  VertexId opposite(HalfedgeId h) const { return a_.corners[prev(h)]; }
+  HalfedgeId twin(HalfedgeId h) const { return a_.twin[h]; }
+  EdgeId edge(HalfedgeId h) const { return a_.edge[h]; }
+  HalfedgeId edge_halfedge(EdgeId e) const { return a_.edge_halfedge[e]; }
 
-  double length(HalfedgeId h) const { return length_[h]; }
+  double length(HalfedgeId h) const { return a_.length[h]; }
   // Interior angle of face(h) at tail(h).
-  double corner_angle(HalfedgeId h) const { return corner_angle_[h]; }
+  double corner_angle(HalfedgeId h) const { return a_.corner_angle[h]; }
   // Polar angle of outgoing half-edge h in tail(h)'s tangent frame.
-  double polar_angle(HalfedgeId h) const { return polar_angle_[h]; }
+  double polar_angle(HalfedgeId h) const { return a_.polar_angle[h]; }
 
   // An outgoing half-edge of v that starts the rotation (kNone if isolated).
-  HalfedgeId vertex_halfedge(VertexId v) const { return vertex_halfedge_[v]; }
+  HalfedgeId vertex_halfedge(VertexId v) const { return a_.vertex_halfedge[v]; }
   // Rotation step around tail(h); kNone past the last face of a boundary fan.
-  HalfedgeId rotate(HalfedgeId h) const { return twin_[prev(h)]; }
-  double total_angle(VertexId v) const { return total_angle_[v]; }
-  bool is_boundary(VertexId v) const { return flags_[v] & kBoundary; }
-  bool is_isolated(VertexId v) const { return vertex_halfedge_[v] == kNone; }
+  HalfedgeId rotate(HalfedgeId h) const { return a_.twin[prev(h)]; }
+  double total_angle(VertexId v) const { return a_.total_angle[v]; }
+  bool is_boundary(VertexId v) const { return a_.flags[v] & kBoundary; }
+  bool is_isolated(VertexId v) const { return a_.vertex_halfedge[v] == kNone; }
   // Saddle (cone angle above 2*pi) or boundary: a geodesic may bend here, so
   // exact propagation treats it as a pseudo-source.
-  bool is_saddle_or_boundary(VertexId v) const { return flags_[v] & (kSaddle | kBoundary); }
-  bool is_saddle(VertexId v) const { return flags_[v] & kSaddle; }
+  bool is_saddle_or_boundary(VertexId v) const { return a_.flags[v] & (kSaddle | kBoundary); }
+  bool is_saddle(VertexId v) const { return a_.flags[v] & kSaddle; }
 
   // Position of the point at parameter t along half-edge h.
   Vec3 point_on_halfedge(HalfedgeId h, double t) const {
@@ -125,20 +125,31 @@ class Mesh {
   // sums); used by tests and by graph validation.
   absl::Status CheckConsistency() const;
 
+  // Everything a built mesh holds, for saving it and restoring it without
+  // rebuilding (core/mesh_snapshot.h).
+  struct Arrays {
+    std::vector<Vec3> positions;
+    std::vector<VertexId> corners;
+    std::vector<HalfedgeId> twin;
+    std::vector<EdgeId> edge;
+    std::vector<HalfedgeId> edge_halfedge;
+    std::vector<double> length;
+    std::vector<double> corner_angle;
+    std::vector<double> polar_angle;
+    std::vector<HalfedgeId> vertex_halfedge;
+    std::vector<double> total_angle;
+    std::vector<uint8_t> flags;
+  };
+  const Arrays& arrays() const { return a_; }
+  // Restores a mesh from arrays() of a built one. Checks every size, every
+  // index range and CheckConsistency(), so damaged arrays give DATA_LOSS
+  // naming `source`, never a mesh that reads out of bounds.
+  static absl::StatusOr<Mesh> FromArrays(Arrays arrays, std::string_view source);
+
  private:
   enum Flag : uint8_t { kBoundary = 1, kSaddle = 2 };
 
-  std::vector<Vec3> positions_;
-  std::vector<VertexId> corners_;
-  std::vector<HalfedgeId> twin_;
-  std::vector<EdgeId> edge_;
-  std::vector<HalfedgeId> edge_halfedge_;
-  std::vector<double> length_;
-  std::vector<double> corner_angle_;
-  std::vector<double> polar_angle_;
-  std::vector<HalfedgeId> vertex_halfedge_;
-  std::vector<double> total_angle_;
-  std::vector<uint8_t> flags_;
+  Arrays a_;
 };
 
 }  // namespace geodesic

@@ -155,12 +155,6 @@ void SilenceOpenMesh() {
   (void)done;
 }
 
-std::string Extension(const std::string& path) {
-  std::string ext = std::filesystem::path(path).extension().string();
-  if (!ext.empty()) ext.erase(0, 1);
-  return absl::AsciiStrToLower(ext);
-}
-
 // OpenMesh parses ASCII coordinates as float (24-bit mantissa), moving
 // vertices by up to 6e-8 relative, so exact distances would disagree with
 // tools that read doubles. For the ASCII formats we read the coordinates
@@ -560,11 +554,17 @@ DisjointSets CornerFans(const TriangleSoup& soup, const EdgeUses& uses) {
 
 }  // namespace
 
+std::string MeshFormatOfPath(const std::string& path) {
+  std::string ext = std::filesystem::path(path).extension().string();
+  if (!ext.empty()) ext.erase(0, 1);
+  return absl::AsciiStrToLower(ext);
+}
+
 absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
                                               MeshDiagnostics* diagnostics) {
   const auto start = std::chrono::steady_clock::now();
   RETURN_IF_ERROR(CheckReadable(path));
-  const std::string format = Extension(path);
+  const std::string format = MeshFormatOfPath(path);
   RETURN_IF_ERROR(CheckFormat(format, path));
   ASSIGN_OR_RETURN(TriangleSoup soup, ReadWithOpenMesh(path, path, format, diagnostics));
   if (diagnostics) {

@@ -52,6 +52,9 @@ struct LoadOptions {
   bool repair_non_manifold = false;
 };
 
+// The format a path names by its extension, lower case ("ply" for a.PLY).
+std::string MeshFormatOfPath(const std::string& path);
+
 // Reads the file as it is. NOT_FOUND / PERMISSION_DENIED for a missing or
 // unreadable file; INVALID_ARGUMENT for an unknown format, an empty or
 // truncated file, NaN/Inf coordinates or out-of-range indices, naming the
