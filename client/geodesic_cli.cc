@@ -243,9 +243,9 @@ int CmdMeshes(const Common& c) {
     if (c.json) {
       std::printf(
           "%s{\"name\": \"%s\", \"fingerprint\": \"%s\", \"source\": \"%s\", "
-          "\"diagnostics\": %s}",
+          "\"restored\": %s, \"diagnostics\": %s}",
           i ? ", " : "", m.name().c_str(), m.fingerprint().c_str(), m.source().c_str(),
-          m.diagnostics().json().c_str());
+          m.restored() ? "true" : "false", m.diagnostics().json().c_str());
     } else {
       std::printf("%-16s %8lu vertices %8lu faces  %s  %s\n", m.name().c_str(),
                   m.diagnostics().vertices(), m.diagnostics().faces(), m.fingerprint().c_str(),
@@ -290,12 +290,15 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload)
   }
   if (!s.ok()) return Fail(s);
   if (c.json) {
-    std::printf("{\"name\": \"%s\", \"fingerprint\": \"%s\", \"diagnostics\": %s}\n",
-                resp.name().c_str(), resp.fingerprint().c_str(), resp.diagnostics().json().c_str());
+    std::printf(
+        "{\"name\": \"%s\", \"fingerprint\": \"%s\", \"restored\": %s, \"diagnostics\": "
+        "%s}\n",
+        resp.name().c_str(), resp.fingerprint().c_str(), resp.restored() ? "true" : "false",
+        resp.diagnostics().json().c_str());
   } else {
-    std::printf("registered %s: %lu vertices, %lu faces, fingerprint %s\n", resp.name().c_str(),
+    std::printf("registered %s: %lu vertices, %lu faces, fingerprint %s%s\n", resp.name().c_str(),
                 resp.diagnostics().vertices(), resp.diagnostics().faces(),
-                resp.fingerprint().c_str());
+                resp.fingerprint().c_str(), resp.restored() ? " (restored from its snapshot)" : "");
   }
   return 0;
 }

@@ -110,6 +110,7 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
   out->set_name(m.name);
   out->set_fingerprint(absl::StrFormat("%016x", m.fingerprint));
   out->set_source(m.source);
+  out->set_restored(m.restored);
   auto* d = out->mutable_diagnostics();
   d->set_vertices(m.diagnostics.vertices);
   d->set_faces(m.diagnostics.faces);

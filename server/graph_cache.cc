@@ -43,7 +43,11 @@ void RemoveStaleTemporaries(const std::string& dir) {
   const auto now = std::filesystem::file_time_type::clock::now();
   for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
     const std::string name = entry.path().filename().string();
-    if (name.find(".dgg.tmp.") == std::string::npos) continue;
+    // Graph files and the mesh snapshots the registry keeps beside them.
+    if (name.find(".dgg.tmp.") == std::string::npos &&
+        name.find(".mesh.tmp.") == std::string::npos) {
+      continue;
+    }
     auto written = entry.last_write_time(ec);
     if (ec || now - written < kStaleTemporaryAge) continue;
     if (std::filesystem::remove(entry.path(), ec)) {

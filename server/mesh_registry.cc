@@ -1,15 +1,31 @@
 #include "server/mesh_registry.h"
 
+#include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <future>
 
 #include "absl/status/status.h"
+#include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
 #include "core/dgg_graph.h"
+#include "core/mesh_snapshot.h"
 #include "core/status.h"
 
 namespace geodesic::server {
 namespace {
+
+std::shared_ptr<RegisteredMesh> Wrap(const std::string& name, const std::string& source, Mesh mesh,
+                                     MeshDiagnostics diagnostics) {
+  auto m = std::make_shared<RegisteredMesh>();
+  m->mesh = std::make_shared<const Mesh>(std::move(mesh));
+  m->fingerprint = MeshFingerprint(*m->mesh);
+  m->locator = std::make_shared<const LazySurfaceLocator>(m->mesh);
+  m->name = name;
+  m->source = source;
+  m->diagnostics = std::move(diagnostics);
+  return m;
+}
 
 absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(const std::string& name,
                                                        const std::string& source,
@@ -23,14 +39,7 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(const std::string& name,
   auto mesh = Mesh::Build(*soup, source);
   diagnosed.wait();
   if (!mesh.ok()) return mesh.status();
-  auto m = std::make_shared<RegisteredMesh>();
-  m->mesh = std::make_shared<const Mesh>(std::move(mesh).value());
-  m->fingerprint = MeshFingerprint(*m->mesh);
-  m->locator = std::make_shared<const LazySurfaceLocator>(m->mesh);
-  m->name = name;
-  m->source = source;
-  m->diagnostics = std::move(diagnostics);
-  return m;
+  return Wrap(name, source, std::move(mesh).value(), std::move(diagnostics));
 }
 
 }  // namespace
@@ -77,28 +86,98 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterPath
     return absl::PermissionDeniedError(
         absl::StrFormat("'%s' leads outside the mesh root", relative_path));
   }
-  MeshDiagnostics diagnostics;
-  auto soup = ReadTriangleSoup(resolved.string(), &diagnostics);
-  ASSIGN_OR_RETURN(auto m, Finish(name, relative_path, std::move(soup), std::move(diagnostics)));
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, relative_path, resolved.string()));
   return Insert(std::move(m));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterTrustedPath(
     const std::string& name, const std::string& path) {
   RETURN_IF_ERROR(ValidateName(name));
-  MeshDiagnostics diagnostics;
-  auto soup = ReadTriangleSoup(path, &diagnostics);
-  ASSIGN_OR_RETURN(auto m, Finish(name, path, std::move(soup), std::move(diagnostics)));
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path));
   return Insert(std::move(m));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterBytes(
     const std::string& name, const std::string& format, const std::string& bytes) {
   RETURN_IF_ERROR(ValidateName(name));
+  const uint64_t key = SourceHash(bytes, absl::AsciiStrToLower(format));
+  if (auto m = Restore(key, name, "upload")) {
+    m->diagnostics.path = name;
+    return Insert(std::move(m));
+  }
   MeshDiagnostics diagnostics;
   auto soup = ReadTriangleSoupFromMemory(bytes, format, name, &diagnostics);
   ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics)));
+  SaveInBackground(m, key);
   return Insert(std::move(m));
+}
+
+MeshRegistry::~MeshRegistry() {
+  absl::MutexLock lock(&saves_mu_);
+  for (auto& save : saves_) save.wait();
+}
+
+absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(const std::string& name,
+                                                                       const std::string& source,
+                                                                       const std::string& path) {
+  if (snapshot_dir_.empty()) {
+    MeshDiagnostics diagnostics;
+    auto soup = ReadTriangleSoup(path, &diagnostics);
+    return Finish(name, source, std::move(soup), std::move(diagnostics));
+  }
+  ASSIGN_OR_RETURN(const uint64_t key, SourceHashOfFile(path));
+  if (auto m = Restore(key, name, source)) {
+    m->diagnostics.path = path;
+    return m;
+  }
+  MeshDiagnostics diagnostics;
+  auto soup = ReadTriangleSoup(path, &diagnostics);
+  ASSIGN_OR_RETURN(auto m, Finish(name, source, std::move(soup), std::move(diagnostics)));
+  // A file rewritten while it was read must not be saved under either
+  // version's key.
+  auto after = SourceHashOfFile(path);
+  if (after.ok() && *after == key) SaveInBackground(m, key);
+  return m;
+}
+
+std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::string& name,
+                                                      const std::string& source) const {
+  if (snapshot_dir_.empty()) return nullptr;
+  const auto start = std::chrono::steady_clock::now();
+  const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
+  auto restored = ReadMeshSnapshot(path, key);
+  if (!restored.ok()) {
+    // A missing snapshot is the common case; a damaged one is rebuilt and
+    // replaced, and worth a line in the log.
+    if (!absl::IsNotFound(restored.status())) {
+      std::fprintf(stderr, "geodesicd: ignoring mesh snapshot: %s\n",
+                   restored.status().ToString().c_str());
+    }
+    return nullptr;
+  }
+  restored->diagnostics.load_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  auto m = Wrap(name, source, std::move(restored->mesh), std::move(restored->diagnostics));
+  m->restored = true;
+  return m;
+}
+
+void MeshRegistry::SaveInBackground(std::shared_ptr<const RegisteredMesh> m, uint64_t key) {
+  if (snapshot_dir_.empty()) return;
+  const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
+  absl::MutexLock lock(&saves_mu_);
+  // Finished saves are dropped so the list stays as long as the saves in
+  // flight.
+  std::erase_if(saves_, [](const std::future<void>& f) {
+    return f.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
+  });
+  saves_.push_back(std::async(std::launch::async, [m = std::move(m), key, path] {
+    absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
+    if (!s.ok()) {
+      std::fprintf(stderr, "geodesicd: could not save a snapshot of mesh '%s': %s\n",
+                   m->name.c_str(), s.ToString().c_str());
+    }
+  }));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(

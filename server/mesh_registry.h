@@ -2,6 +2,7 @@
 #ifndef GEODESIC_SERVER_MESH_REGISTRY_H_
 #define GEODESIC_SERVER_MESH_REGISTRY_H_
 
+#include <future>
 #include <map>
 #include <memory>
 #include <string>
@@ -38,11 +39,18 @@ struct RegisteredMesh {
   std::shared_ptr<const Mesh> mesh;
   MeshDiagnostics diagnostics;
   std::shared_ptr<const LazySurfaceLocator> locator;
+  bool restored = false;  // from a snapshot, not parsed and built
 };
 
 class MeshRegistry {
  public:
-  explicit MeshRegistry(std::string mesh_root) : mesh_root_(std::move(mesh_root)) {}
+  // `snapshot_dir`: where built meshes are saved, keyed by their file's
+  // bytes, and restored from when the same bytes are registered again
+  // (core/mesh_snapshot.h); empty for never.
+  explicit MeshRegistry(std::string mesh_root, std::string snapshot_dir = {})
+      : mesh_root_(std::move(mesh_root)), snapshot_dir_(std::move(snapshot_dir)) {}
+  // Waits for snapshots still being written.
+  ~MeshRegistry();
 
   // `relative_path` must stay inside the mesh root once symbolic links are
   // resolved (PERMISSION_DENIED otherwise).
@@ -62,8 +70,19 @@ class MeshRegistry {
 
  private:
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Insert(std::shared_ptr<RegisteredMesh> m);
+  // Loads the file at `path`, restoring it from a snapshot when there is one
+  // and saving one (in the background) when there was not.
+  absl::StatusOr<std::shared_ptr<RegisteredMesh>> LoadFile(const std::string& name,
+                                                           const std::string& source,
+                                                           const std::string& path);
+  std::shared_ptr<RegisteredMesh> Restore(uint64_t key, const std::string& name,
+                                          const std::string& source) const;
+  void SaveInBackground(std::shared_ptr<const RegisteredMesh> m, uint64_t key);
 
   const std::string mesh_root_;
+  const std::string snapshot_dir_;
+  absl::Mutex saves_mu_;
+  std::vector<std::future<void>> saves_ ABSL_GUARDED_BY(saves_mu_);
   mutable absl::Mutex mu_;
   std::map<std::string, std::shared_ptr<const RegisteredMesh>> meshes_ ABSL_GUARDED_BY(mu_);
 };

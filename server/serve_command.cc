@@ -116,7 +116,8 @@ int RunServe(int argc, char** argv) {
   bool no_sample = false;
   double drain_seconds = 10;
   app.add_option("--listen", listen, "address to serve gRPC on (HOST:PORT)");
-  app.add_option("--graph-dir", graph_dir, "where graphs are written and mapped from");
+  app.add_option("--graph-dir", graph_dir,
+                 "where graphs, and snapshots of registered meshes, are written and read back");
   app.add_option("--mesh-root", mesh_root, "RegisterMesh paths must lie under this directory");
   app.add_option("--memory-limit", memory_limit, "bytes of ready graphs to keep (0: no limit)");
   app.add_option("--build-threads", build_threads, "threads per graph build (0: all cores)");
@@ -192,7 +193,9 @@ int RunServe(int argc, char** argv) {
     if (health) health->SetServingStatus(ServiceName(mesh, eps), ready);
   };
   GraphCache graphs(cache_options);
-  MeshRegistry meshes(mesh_root);
+  // Built meshes are saved beside the graphs, so a restarted daemon restores
+  // them rather than parsing and building them again.
+  MeshRegistry meshes(mesh_root, graph_dir);
   metrics.AddGauge("geodesicd_graph_resident_bytes",
                    "Resident bytes: graphs built in memory and landmark tables.",
                    [&] { return double(graphs.resident_bytes()); });

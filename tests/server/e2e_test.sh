@@ -27,6 +27,8 @@ json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
 
 start_daemon
 check "sample mesh registered" test "$(cli --json meshes | json 'd[0]["name"]')" = spot
+check "sample mesh parsed and built the first time" \
+  test "$(cli --json meshes | json 'd[0]["restored"]')" = False
 state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
 check "graph builds to ready" test "$state" = ready
 graph=$(ls "$work"/graphs/*eps0.01.dgg)
@@ -82,6 +84,13 @@ stop_daemon
 start_daemon
 from_file=$(cli --json --eps 0.01 graph --wait | json 'd["from_file"]')
 check "graph mapped again after restart" test "$from_file" = True
+check "mesh restored from its snapshot after restart" \
+  test "$(cli --json meshes | json 'd[0]["restored"]')" = True
+vertices=$(cli --json meshes | json 'd[0]["diagnostics"]["vertices"]')
+check "restored mesh keeps its diagnostics" test "$vertices" = 2930
+cp "$src/data/spot.obj" "$work/spot_copy.obj"
+restored=$(cli --mesh copy --json load --upload "$work/spot_copy.obj" | json 'd["restored"]')
+check "an upload of the same bytes is restored too" test "$restored" = True
 
 # Eviction under a small memory budget: the least recently used graph goes,
 # and comes back (mapped from its file) on the next request.
