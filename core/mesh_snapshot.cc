@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <array>
 #include <cerrno>
 #include <cstring>
 #include <utility>
@@ -14,6 +15,7 @@
 #include "core/dgg_graph.h"
 #include "core/file_header.h"
 #include "core/status.h"
+#include "tbb/task_group.h"
 #include "xxhash.h"
 
 namespace geodesic {
@@ -199,26 +201,36 @@ absl::StatusOr<RestoredMesh> ReadMeshSnapshot(const std::string& path, uint64_t 
   const uint64_t expected[kArrayCount] = {nv, nh, nh, nh, ne, nh, nh, nh, nv, nv, nv};
   RestoredMesh restored;
   Mesh::Arrays arrays;
-  absl::Status status;
+  // Sizes first, so a damaged header never asks for a huge allocation.
   int i = 0;
+  bool sizes_ok = true;
   ForEachArray(arrays, [&](auto& v) {
     const ArrayEntry& e = h.arrays[i];
-    const uint64_t count = expected[i++];
-    if (!status.ok()) return;
-    // Sizes first, so a damaged header never asks for a huge allocation.
-    if (e.bytes != count * sizeof(v[0]) || e.offset % kAlignment != 0 || e.offset > size ||
-        e.bytes > size - e.offset) {
-      status = absl::DataLossError(
-          absl::StrFormat("%s: array %d has the wrong size or lies outside the file", path, i - 1));
-      return;
-    }
-    v.resize(count);
-    status = ReadAt(fd.get(), v.data(), e.bytes, e.offset, path);
-    if (status.ok() && XXH3_64bits(v.data(), e.bytes) != e.checksum) {
-      status = absl::DataLossError(absl::StrFormat("%s: array %d checksum mismatch", path, i - 1));
-    }
+    sizes_ok = sizes_ok && e.bytes == expected[i++] * sizeof(v[0]) && e.offset % kAlignment == 0 &&
+               e.offset <= size && e.bytes <= size - e.offset;
   });
-  RETURN_IF_ERROR(status);
+  if (!sizes_ok) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: an array has the wrong size or lies outside the file", path));
+  }
+  // The arrays are read and summed on every core: the work is page faults
+  // and copies, which spread well.
+  std::array<absl::Status, kArrayCount> statuses;
+  tbb::task_group reads;
+  i = 0;
+  ForEachArray(arrays, [&](auto& v) {
+    reads.run([&, k = i++] {
+      const ArrayEntry& e = h.arrays[k];
+      v.resize(e.bytes / sizeof(v[0]));
+      statuses[k] = ReadAt(fd.get(), v.data(), e.bytes, e.offset, path);
+      if (statuses[k].ok() && XXH3_64bits(v.data(), e.bytes) != e.checksum) {
+        statuses[k] =
+            absl::DataLossError(absl::StrFormat("%s: array %d checksum mismatch", path, k));
+      }
+    });
+  });
+  reads.wait();
+  for (const absl::Status& status : statuses) RETURN_IF_ERROR(status);
   ASSIGN_OR_RETURN(restored.mesh, Mesh::FromArrays(std::move(arrays), path));
   if (MeshFingerprint(restored.mesh) != h.mesh_fingerprint) {
     return absl::DataLossError(
