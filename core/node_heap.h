@@ -1,31 +1,38 @@
-// A min-heap of graph nodes keyed by distance, with decrease-key, for
-// Dijkstra over a whole graph. Each node is in it at most once, so it holds
-// the search frontier rather than every improvement a lazy heap would keep,
-// and it is 4-ary: a sift-down compares four children that share a cache
-// line, over half the levels of a binary heap.
+// A min-heap of graph nodes keyed by distance, with decrease-key. Each node
+// is in it at most once, so it holds the search frontier rather than every
+// improvement a lazy heap would keep, and it is 4-ary: a sift-down compares
+// four children that share a cache line, over half the levels of a binary
+// heap.
 #ifndef GEODESIC_CORE_NODE_HEAP_H_
 #define GEODESIC_CORE_NODE_HEAP_H_
 
 #include <cstdint>
+#include <utility>
 #include <vector>
 
 namespace geodesic {
 
-class NodeHeap {
+inline constexpr uint32_t kNotInHeap = ~0u;
+
+// `SlotOf` maps a node to a uint32_t& where the heap keeps the node's index
+// in it (kNotInHeap when absent); the caller sets it to kNotInHeap before a
+// node is first pushed. Keeping it in the caller's own per-node records lets
+// a search that touches few nodes skip clearing an array over all of them.
+template <typename SlotOf>
+class BasicNodeHeap {
  public:
-  // Empties the heap for nodes 0..nodes-1.
-  void Reset(size_t nodes) {
-    entries_.clear();
-    position_.assign(nodes, kAbsent);
-  }
+  explicit BasicNodeHeap(SlotOf slot_of = SlotOf()) : slot_of_(std::move(slot_of)) {}
+
+  void Clear() { entries_.clear(); }
   bool empty() const { return entries_.empty(); }
+  size_t size() const { return entries_.size(); }
   uint32_t top() const { return entries_.front().node; }
   double top_key() const { return entries_.front().key; }
 
   // Inserts `node`, or lowers its key if it is in the heap with a larger one.
   void Push(uint32_t node, double key) {
-    uint32_t i = position_[node];
-    if (i == kAbsent) {
+    uint32_t i = slot_of_(node);
+    if (i == kNotInHeap) {
       i = static_cast<uint32_t>(entries_.size());
       entries_.push_back({key, node});
     } else if (key < entries_[i].key) {
@@ -37,22 +44,24 @@ class NodeHeap {
   }
 
   void Pop() {
-    position_[entries_.front().node] = kAbsent;
+    slot_of_(entries_.front().node) = kNotInHeap;
     const Entry last = entries_.back();
     entries_.pop_back();
     if (!entries_.empty()) SiftDown(0, last);
   }
+
+ protected:
+  SlotOf& slot_of() { return slot_of_; }
 
  private:
   struct Entry {
     double key;
     uint32_t node;
   };
-  static constexpr uint32_t kAbsent = ~0u;
 
   void Place(uint32_t i, const Entry& e) {
     entries_[i] = e;
-    position_[e.node] = i;
+    slot_of_(e.node) = i;
   }
   void SiftUp(uint32_t i) {
     const Entry e = entries_[i];
@@ -82,8 +91,24 @@ class NodeHeap {
     Place(i, e);
   }
 
+  SlotOf slot_of_;
   std::vector<Entry> entries_;
-  std::vector<uint32_t> position_;
+};
+
+// Slots in an array over all nodes.
+struct SlotArray {
+  std::vector<uint32_t> slots;
+  uint32_t& operator()(uint32_t node) { return slots[node]; }
+};
+
+// For searches that visit the whole graph anyway.
+class NodeHeap : public BasicNodeHeap<SlotArray> {
+ public:
+  // Empties the heap for nodes 0..nodes-1.
+  void Reset(size_t nodes) {
+    Clear();
+    slot_of().slots.assign(nodes, kNotInHeap);
+  }
 };
 
 }  // namespace geodesic

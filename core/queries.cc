@@ -40,11 +40,12 @@ struct Scratch {
   NodeHeap heap;                // Dijkstra's queue
 
   // Point-to-point searches touch a few thousand nodes at random: one
-  // 32-byte record per node, so each touch is one cache line, valid only if
-  // its stamp is the query's (no O(n) clearing per query).
-  struct alignas(32) PairNode {
+  // record per node, one cache line, so each touch is one miss, valid only
+  // if its stamp is the query's (no O(n) clearing per query).
+  struct alignas(64) PairNode {
     double dist[2];
     uint32_t pred[2];
+    uint32_t slot[2];  // places in the two searches' heaps
     // A* potential, computed on first touch. Its float rounding (~6e-8
     // relative) can only make an answer longer by as much, never shorter.
     float potential;
@@ -55,6 +56,15 @@ struct Scratch {
   };
   std::vector<PairNode> pair;
   uint32_t current = 0;  // below 2^30
+  // The forward (0) and backward (1) searches' queues, with their slots in
+  // the records above.
+  struct PairSlot {
+    std::vector<PairNode>* records;
+    int side;
+    uint32_t& operator()(uint32_t node) const { return (*records)[node].slot[side]; }
+  };
+  BasicNodeHeap<PairSlot> pair_heap[2] = {BasicNodeHeap<PairSlot>({&pair, 0}),
+                                          BasicNodeHeap<PairSlot>({&pair, 1})};
 
   std::unique_ptr<ExactGeodesic> exact;
   // Weak, not a raw pointer: a mesh freed and another allocated at the same
@@ -564,6 +574,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     if (n.stamp() != stamp) {
       n.mark = stamp << 2;
       n.dist[0] = n.dist[1] = kInfinity;
+      n.slot[0] = n.slot[1] = kNotInHeap;
       if (options.use_astar) {
         const Vec3 x = node_xyz(u);
         n.potential = static_cast<float>(0.5 * (to_b(u, x) - to_a(u, x)));
@@ -573,8 +584,9 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     }
     return n;
   };
-  using Entry = std::pair<double, uint32_t>;
-  std::priority_queue<Entry, std::vector<Entry>, std::greater<>> heap[2];
+  auto& heap = sc.pair_heap;
+  heap[0].Clear();
+  heap[1].Clear();
   uint32_t meet = kNone;
   double mu = best;
   auto set = [&](int s, uint32_t u, double d, uint32_t from) {
@@ -590,8 +602,9 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     // only after the search stops (the other side's top only grows and mu
     // only shrinks), so it is not queued at all.
     const double key = s == 0 ? d + n.potential : d - n.potential;
-    if (!heap[1 - s].empty() && key + heap[1 - s].top().first >= mu) return;
-    heap[s].push({key, u});
+    if (!heap[1 - s].empty() && key + heap[1 - s].top_key() >= mu) return;
+    heap[s].Push(u, key);
+    ++result.queued;
   };
   for (int s = 0; s < 2; ++s) {
     if (ends[s].is_node) {
@@ -602,13 +615,13 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   }
   uint64_t steps = 0;
   while (!heap[0].empty() && !heap[1].empty()) {
-    if (heap[0].top().first + heap[1].top().first >= mu) break;
+    if (heap[0].top_key() + heap[1].top_key() >= mu) break;
     if (options.cancelled && (++steps & 1023) == 0 && options.cancelled()) {
       return absl::CancelledError("distance query cancelled");
     }
     const int s = heap[0].size() <= heap[1].size() ? 0 : 1;
-    auto [key, u] = heap[s].top();
-    heap[s].pop();
+    const uint32_t u = heap[s].top();
+    heap[s].Pop();
     if (at[u].done(s)) continue;
     at[u].set_done(s);
     ++result.settled;
@@ -617,6 +630,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     // few edges ahead so their cache misses overlap.
     constexpr uint64_t kAhead = 6;
     const uint64_t end = offsets[u + 1];
+    result.relaxed += end - offsets[u];
     for (uint64_t i = offsets[u]; i < end; ++i) {
       if (i + kAhead < end) {
         const uint32_t ahead = targets[i + kAhead];

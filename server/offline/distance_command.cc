@@ -100,9 +100,9 @@ int RunDistance(int argc, char** argv) {
     if (json) {
       out += absl::StrFormat(
           "%s{\"from\": \"%s\", \"to\": \"%s\", \"distance\": %s, \"reachable\": %s, "
-          "\"seconds\": %.9f, \"settled\": %u%s}",
+          "\"seconds\": %.9f, \"settled\": %u, \"queued\": %u, \"relaxed\": %u%s}",
           i ? ", " : "", pairs[i].first, pairs[i].second, JsonNumber(r->distance),
-          r->distance < kInfinity ? "true" : "false", seconds, r->settled,
+          r->distance < kInfinity ? "true" : "false", seconds, r->settled, r->queued, r->relaxed,
           r->path ? ", \"path\": " + PathJson(*r->path) : "");
       if (pairs_path.empty()) out += "\n";
     } else {
