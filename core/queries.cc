@@ -197,6 +197,13 @@ absl::Status GeodesicEngine::PrepareLandmarks(int count,
   return absl::OkStatus();
 }
 
+int GeodesicEngine::DefaultLandmarkCount() const {
+  constexpr uint64_t kMin = 16, kMax = 64;
+  const uint64_t nodes = std::max<uint64_t>(graph_->num_nodes(), 1);
+  return static_cast<int>(
+      std::clamp(graph_->byte_size() / 4 / (sizeof(float) * nodes), kMin, kMax));
+}
+
 uint64_t GeodesicEngine::landmark_bytes() const {
   const Landmarks* l = landmarks_.load(std::memory_order_acquire);
   return l ? l->byte_size() : 0;

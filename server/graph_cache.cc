@@ -238,7 +238,7 @@ void GraphCache::Run(const Key& key) {
   // Landmarks cut the nodes a point-to-point query settles several times;
   // queries that arrive before they are ready use straight-line bounds.
   absl::Status landmarks =
-      engine->PrepareLandmarks(GeodesicEngine::kDefaultLandmarks, [e] { return e->cancel.load(); });
+      engine->PrepareLandmarks(engine->DefaultLandmarkCount(), [e] { return e->cancel.load(); });
   absl::MutexLock lock(&mu_);
   if (!landmarks.ok() || e->engine != engine) return;
   e->status.landmark_bytes = engine->landmark_bytes();

@@ -2,6 +2,7 @@
 #include <chrono>
 #include <cstdio>
 #include <fstream>
+#include <optional>
 #include <sstream>
 
 #include "CLI/CLI.hpp"
@@ -31,7 +32,7 @@ int RunDistance(int argc, char** argv) {
                "geodesicd distance"};
   std::string mesh_path, graph_path, from, to, pairs_path;
   bool json = false, want_path = false, no_astar = false;
-  int landmarks = GeodesicEngine::kDefaultLandmarks;
+  std::optional<int> landmarks;
   app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
   app.add_option("--graph", graph_path, "graph file (geodesicd build)")->required();
   app.add_option("--from", from,
@@ -43,9 +44,9 @@ int RunDistance(int argc, char** argv) {
   app.add_flag("--no-astar", no_astar, "plain bidirectional Dijkstra instead of A*");
   app.add_option("--landmarks", landmarks,
                  "landmarks whose graph distances tighten the A* bounds, computed once before "
-                 "the queries (0: straight-line bounds only)")
-      ->check(CLI::Range(0, 64))
-      ->capture_default_str();
+                 "the queries (0: straight-line bounds only; default: 16 to 64 by the graph's "
+                 "density)")
+      ->check(CLI::Range(0, 64));
   app.add_flag("--json", json, "print JSON");
   try {
     app.parse(argc, argv);
@@ -79,8 +80,9 @@ int RunDistance(int argc, char** argv) {
   auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
   if (!graph.ok()) return Fail("distance", graph.status());
   GeodesicEngine engine(*mesh, *graph);
-  if (landmarks > 0 && !no_astar) {
-    absl::Status prepared = engine.PrepareLandmarks(landmarks);
+  if (landmarks.value_or(1) > 0 && !no_astar) {
+    absl::Status prepared =
+        engine.PrepareLandmarks(landmarks.value_or(engine.DefaultLandmarkCount()));
     if (!prepared.ok()) return Fail("distance", prepared);
   }
   PairOptions options;
