@@ -19,6 +19,11 @@ namespace geodesic {
 inline constexpr uint32_t kEndianTag = 0x01020304;
 inline constexpr size_t kSectionAlignment = 64;
 
+// Where the next section starts after one that ends at `offset`.
+inline uint64_t AlignToSection(uint64_t offset) {
+  return (offset + kSectionAlignment - 1) / kSectionAlignment * kSectionAlignment;
+}
+
 // XXH3-64 of the header with its own checksum field zero. `Header` has the
 // fields magic, version, endian, file_bytes and header_checksum.
 template <typename Header>

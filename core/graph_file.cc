@@ -145,7 +145,7 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
     s.bytes = data[i].second;
     s.element_size = kElementSize[i];
     s.checksum = XXH3_64bits(data[i].first, data[i].second);
-    offset += (s.bytes + kAlignment - 1) / kAlignment * kAlignment;
+    offset = AlignToSection(offset + s.bytes);
   }
   h.file_bytes = offset;
   h.header_checksum = HeaderChecksum(h);

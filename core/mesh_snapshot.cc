@@ -83,8 +83,6 @@ struct Header {
 static_assert(sizeof(Header) <= kHeaderBytes);
 static_assert(std::is_trivially_copyable_v<Vec3> && sizeof(Vec3) == 24);
 
-uint64_t AlignUp(uint64_t x) { return (x + kAlignment - 1) / kAlignment * kAlignment; }
-
 // Reads exactly `bytes` at `offset`, or says why not.
 absl::Status ReadAt(int fd, void* data, size_t bytes, uint64_t offset, const std::string& path) {
   char* p = static_cast<char*>(data);
@@ -161,7 +159,7 @@ absl::Status WriteMeshSnapshot(const Mesh& mesh, const MeshDiagnostics& diagnost
   ForEachArray(mesh.arrays(), [&](const auto& v) {
     const uint64_t bytes = v.size() * sizeof(v[0]);
     h.arrays[i++] = {offset, bytes, XXH3_64bits(v.data(), bytes)};
-    offset = AlignUp(offset + bytes);
+    offset = AlignToSection(offset + bytes);
   });
   h.file_bytes = offset;
   h.header_checksum = HeaderChecksum(h);
@@ -238,7 +236,8 @@ absl::StatusOr<RestoredMesh> ReadMeshSnapshot(const std::string& path, uint64_t 
   RETURN_IF_ERROR(odd.get());
   RETURN_IF_ERROR(even);
   ASSIGN_OR_RETURN(restored.mesh, Mesh::FromArrays(std::move(arrays), path));
-  if (MeshFingerprint(restored.mesh) != h.mesh_fingerprint) {
+  restored.fingerprint = MeshFingerprint(restored.mesh);
+  if (restored.fingerprint != h.mesh_fingerprint) {
     return absl::DataLossError(
         absl::StrFormat("%s: the mesh does not match its fingerprint", path));
   }

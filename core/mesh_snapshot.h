@@ -41,6 +41,7 @@ absl::Status WriteMeshSnapshot(const Mesh& mesh, const MeshDiagnostics& diagnost
 
 struct RestoredMesh {
   Mesh mesh;
+  uint64_t fingerprint = 0;  // MeshFingerprint(mesh), checked against the saved one
   MeshDiagnostics diagnostics;
 };
 // Restores what WriteMeshSnapshot saved, after checking every checksum and

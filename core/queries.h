@@ -77,7 +77,7 @@ struct PairOptions {
 struct PairResult {
   double distance = kInfinity;  // +inf when the points are in different components
   uint64_t settled = 0;         // nodes settled by the bidirectional search
-  uint64_t queued = 0;          // queue insertions (a node may be queued again when improved)
+  uint64_t queued = 0;          // queue insertions and key decreases
   uint64_t relaxed = 0;         // edges relaxed
   std::optional<GeodesicPath> path;
 };

@@ -15,11 +15,12 @@
 namespace geodesic::server {
 namespace {
 
+// `fingerprint`: MeshFingerprint(mesh), which a restore has already taken.
 std::shared_ptr<RegisteredMesh> Wrap(const std::string& name, const std::string& source, Mesh mesh,
-                                     MeshDiagnostics diagnostics) {
+                                     uint64_t fingerprint, MeshDiagnostics diagnostics) {
   auto m = std::make_shared<RegisteredMesh>();
   m->mesh = std::make_shared<const Mesh>(std::move(mesh));
-  m->fingerprint = MeshFingerprint(*m->mesh);
+  m->fingerprint = fingerprint;
   m->locator = std::make_shared<const LazySurfaceLocator>(m->mesh);
   m->name = name;
   m->source = source;
@@ -39,7 +40,8 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(const std::string& name,
   auto mesh = Mesh::Build(*soup, source);
   diagnosed.wait();
   if (!mesh.ok()) return mesh.status();
-  return Wrap(name, source, std::move(mesh).value(), std::move(diagnostics));
+  const uint64_t fingerprint = MeshFingerprint(*mesh);
+  return Wrap(name, source, std::move(mesh).value(), fingerprint, std::move(diagnostics));
 }
 
 }  // namespace
@@ -157,7 +159,8 @@ std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::s
   }
   restored->diagnostics.load_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  auto m = Wrap(name, source, std::move(restored->mesh), std::move(restored->diagnostics));
+  auto m = Wrap(name, source, std::move(restored->mesh), restored->fingerprint,
+                std::move(restored->diagnostics));
   m->restored = true;
   return m;
 }

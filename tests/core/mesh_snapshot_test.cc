@@ -72,6 +72,7 @@ TEST_F(MeshSnapshotTest, RestoresTheMeshAndItsDiagnosticsExactly) {
   ASSERT_TRUE(restored.ok()) << restored.status();
   ExpectSameArrays(mesh_, restored->mesh);
   EXPECT_EQ(MeshFingerprint(restored->mesh), MeshFingerprint(mesh_));
+  EXPECT_EQ(restored->fingerprint, MeshFingerprint(mesh_));
   // Everything but the per-load facts (path, time) comes back.
   MeshDiagnostics expected = diagnostics_;
   expected.path = restored->diagnostics.path;
