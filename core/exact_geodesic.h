@@ -10,8 +10,10 @@
 // d(P) + |Px| (or d(Q) + |Qx|) is already shorter, since every geodesic
 // through x could take that route instead. Because sigma + |I x| - |Px| is
 // monotone along the edge, the useful part is one interval, found in closed
-// form. Saddle and boundary vertices become pseudo-sources once their
-// distance is final.
+// form. The third vertex R of the face the window came through filters the
+// same way (|Rx| is a segment in that face); that test halves the windows of a
+// full solve. Windows are trimmed once, when queued. Saddle and boundary
+// vertices become pseudo-sources once their distance is final.
 //
 // Three uses of one propagation:
 //  1. Distances from a source (vertex, edge point or face point) to all
@@ -146,6 +148,7 @@ class ExactGeodesic {
                     double angle_vertex);
   bool Trim(Window& w) const;
   bool TrimByRelays(Window& w) const;
+  bool TrimByFaceBehind(Window& w) const;
   bool TrimAndPush(Window w);
   uint32_t Allocate(const Window& w);
   void Push(double key, uint32_t item);

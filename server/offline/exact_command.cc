@@ -54,11 +54,13 @@ int RunExact(int argc, char** argv) {
   if (json) {
     std::printf(
         "{\"vertices\": %zu, \"reached\": %zu, \"solve_seconds\": %.6f, \"load_seconds\": %.6f, "
-        "\"windows_created\": %llu, \"windows_per_vertex\": %.3f, \"vertices_per_second\": %.1f, "
+        "\"windows_created\": %llu, \"windows_per_vertex\": %.3f, \"windows_propagated\": %llu, "
+        "\"vertices_per_second\": %.1f, "
         "\"pseudo_sources\": %llu, \"peak_queue\": %llu}\n",
         n, reached, solve_seconds, load_seconds,
         static_cast<unsigned long long>(st.windows_created), double(st.windows_created) / n,
-        n / std::max(solve_seconds, 1e-9), static_cast<unsigned long long>(st.pseudo_sources),
+        static_cast<unsigned long long>(st.windows_propagated), n / std::max(solve_seconds, 1e-9),
+        static_cast<unsigned long long>(st.pseudo_sources),
         static_cast<unsigned long long>(st.peak_queue));
   } else {
     std::printf(
