@@ -120,13 +120,6 @@ struct ExactGeodesic::Window {
   double lg, rg;
 };
 
-struct ExactGeodesic::QueueEntry {
-  double key;
-  uint32_t item;
-  uint32_t is_vertex;
-  bool operator>(const QueueEntry& o) const { return key > o.key; }
-};
-
 struct ExactGeodesic::Candidate {
   double distance = kInf;
   enum class Via { kNone, kWindow, kVertex, kSource } via = Via::kNone;
@@ -161,7 +154,7 @@ void ExactGeodesic::Reset() {
   touched_.clear();
   windows_.clear();
   free_windows_.clear();
-  heap_.clear();
+  heap_.Clear();
   stats_ = {};
 }
 
@@ -178,8 +171,7 @@ uint32_t ExactGeodesic::Allocate(const Window& w) {
 }
 
 void ExactGeodesic::Push(double key, uint32_t item) {
-  heap_.push_back({key, item, 0});
-  std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
+  heap_.Push(key, {item, false});
   stats_.peak_queue = std::max<uint64_t>(stats_.peak_queue, heap_.size());
 }
 
@@ -196,8 +188,7 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
     angle_vtx_[v] = angle_vertex;
   } else if (mesh_.is_saddle_or_boundary(v) && !emitted_[v]) {
     // A geodesic may bend here: once this distance is final, v radiates.
-    heap_.push_back({d, v, 1});
-    std::push_heap(heap_.begin(), heap_.end(), std::greater<>());
+    heap_.Push(d, {v, true});
   }
 }
 
@@ -585,10 +576,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   uint64_t steps = 0;
   size_t settled_scan = 0;  // targets known to be settled, in order
   while (!heap_.empty()) {
-    std::pop_heap(heap_.begin(), heap_.end(), std::greater<>());
-    const QueueEntry top = heap_.back();
-    heap_.pop_back();
-    const double key = top.key;
+    const auto [key, top] = heap_.Pop();
     if (key > max_distance_) break;
     if (targets && !targets->empty()) {
       while (settled_scan < targets->size() && dist_[(*targets)[settled_scan]] <= key) {
@@ -601,7 +589,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
     }
     if (top.is_vertex) {
       const VertexId v = top.item;
-      if (emitted_[v] || top.key > dist_[v]) continue;  // stale
+      if (emitted_[v]) continue;  // an older, longer entry
       emitted_[v] = 1;
       ++stats_.pseudo_sources;
       EmitFromVertex(v, dist_[v], v);
@@ -612,7 +600,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   }
   // Windows past the limit stay unprocessed: vertices they would light are
   // beyond max_distance and reported as +inf by the callers.
-  heap_.clear();
+  heap_.Clear();
   return absl::OkStatus();
 }
 

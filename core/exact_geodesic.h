@@ -46,6 +46,7 @@
 #include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "core/mesh.h"
+#include "core/radix_heap.h"
 #include "core/surface_point.h"
 #include "core/vec.h"
 
@@ -130,7 +131,6 @@ class ExactGeodesic {
 
  private:
   struct Window;
-  struct QueueEntry;
   struct Seed;
   enum class Mode { kFull, kDirect };
 
@@ -179,7 +179,12 @@ class ExactGeodesic {
 
   std::vector<Window> windows_;
   std::vector<uint32_t> free_windows_;
-  std::vector<QueueEntry> heap_;
+  // Queued windows, and saddle or boundary vertices waiting to radiate.
+  struct QueueItem {
+    uint32_t item;
+    bool is_vertex;
+  };
+  RadixHeap<QueueItem> heap_;
 };
 
 }  // namespace geodesic

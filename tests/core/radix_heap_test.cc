@@ -1,0 +1,86 @@
+#include "core/radix_heap.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <map>
+#include <random>
+
+#include "gtest/gtest.h"
+
+namespace geodesic {
+namespace {
+
+// A wavefront-like workload: each pop pushes a few keys at or beyond the
+// popped one. The heap must pop exactly the multiset a sorted reference does.
+TEST(RadixHeapTest, PopsMonotoneWorkloadInKeyOrder) {
+  std::mt19937_64 rng(7);
+  std::uniform_real_distribution<double> step(0.0, 3.0);
+  std::uniform_int_distribution<int> fanout(0, 3);
+  RadixHeap<uint32_t> heap;
+  std::multimap<double, uint32_t> reference;
+  uint32_t next_id = 0;
+  for (int i = 0; i < 8; ++i) {
+    const double key = step(rng);
+    heap.Push(key, next_id);
+    reference.emplace(key, next_id++);
+  }
+  size_t popped = 0;
+  double last = 0;
+  while (!heap.empty()) {
+    ASSERT_EQ(heap.size(), reference.size());
+    const auto [key, id] = heap.Pop();
+    ASSERT_GE(key, last);
+    // Ties may pop in any order: find this id among the smallest keys.
+    auto smallest = reference.begin();
+    ASSERT_EQ(key, smallest->first);
+    auto [lo, hi] = reference.equal_range(key);
+    auto it = std::find_if(lo, hi, [id](const auto& kv) { return kv.second == id; });
+    ASSERT_NE(it, hi) << "popped id " << id << " with key " << key;
+    reference.erase(it);
+    last = key;
+    if (++popped < 20000) {
+      for (int k = fanout(rng); k > 0; --k) {
+        const double child = key + (k == 1 ? 0.0 : step(rng));  // equal keys too
+        heap.Push(child, next_id);
+        reference.emplace(child, next_id++);
+      }
+    }
+  }
+  EXPECT_TRUE(reference.empty());
+  EXPECT_GT(popped, 1000u);
+}
+
+TEST(RadixHeapTest, RaisesKeysBelowTheLastPoppedOne) {
+  RadixHeap<int> heap;
+  heap.Push(2.0, 1);
+  heap.Push(5.0, 2);
+  EXPECT_EQ(heap.Pop(), std::make_pair(2.0, 1));
+  // A key a rounding error below the last popped one keeps the order.
+  heap.Push(std::nextafter(2.0, 0.0), 3);
+  EXPECT_EQ(heap.Pop(), std::make_pair(2.0, 3));
+  EXPECT_EQ(heap.Pop(), std::make_pair(5.0, 2));
+  EXPECT_TRUE(heap.empty());
+}
+
+TEST(RadixHeapTest, InfinityNanAndZeroKeys) {
+  const double inf = std::numeric_limits<double>::infinity();
+  RadixHeap<int> heap;
+  heap.Push(std::numeric_limits<double>::quiet_NaN(), 1);
+  heap.Push(inf, 2);
+  heap.Push(-0.0, 3);
+  heap.Push(1e-300, 4);
+  EXPECT_EQ(heap.Pop(), std::make_pair(0.0, 3));
+  EXPECT_EQ(heap.Pop(), std::make_pair(1e-300, 4));
+  EXPECT_EQ(heap.Pop().first, inf);
+  EXPECT_EQ(heap.Pop().first, inf);
+  EXPECT_TRUE(heap.empty());
+  heap.Push(3.0, 5);
+  heap.Clear();
+  EXPECT_TRUE(heap.empty());
+  heap.Push(1.0, 6);  // after Clear, keys start again from zero
+  EXPECT_EQ(heap.Pop(), std::make_pair(1.0, 6));
+}
+
+}  // namespace
+}  // namespace geodesic
