@@ -4,7 +4,9 @@
 #include <cmath>
 #include <deque>
 #include <numbers>
+#include <numeric>
 #include <queue>
+#include <span>
 
 #include "absl/base/call_once.h"
 #include "absl/status/status.h"
@@ -473,18 +475,21 @@ double PolylineLength(const std::vector<PathPoint>& points) {
 // edges, so the bound stays consistent.
 class EndpointBound {
  public:
-  EndpointBound(const Endpoint& end, const Landmarks* landmarks) : xyz_(end.xyz) {
+  // `active`: the landmarks to use, indices into the landmark set.
+  EndpointBound(const Endpoint& end, const Landmarks* landmarks, std::span<const uint8_t> active)
+      : xyz_(end.xyz) {
     if (!landmarks) return;
     landmarks_ = landmarks;
-    const int k = landmarks->count();
-    lo_.assign(k, kInfinity);
-    hi_.assign(k, -kInfinity);
+    active_.assign(active.begin(), active.end());
+    lo_.assign(active.size(), kInfinity);
+    hi_.assign(active.size(), -kInfinity);
     auto add = [&](uint32_t node, double t) {
       auto d = landmarks->of(node);
-      for (int i = 0; i < k; ++i) {
-        if (d[i] == kInfinity) continue;
-        lo_[i] = std::min(lo_[i], d[i] + t);
-        hi_[i] = std::max(hi_[i], d[i] - t);
+      for (size_t i = 0; i < active_.size(); ++i) {
+        const double di = d[active_[i]];
+        if (di == kInfinity) continue;
+        lo_[i] = std::min(lo_[i], di + t);
+        hi_[i] = std::max(hi_[i], di - t);
       }
     };
     if (end.is_node) {
@@ -494,14 +499,18 @@ class EndpointBound {
     }
   }
 
+  // The endpoint's graph distance from its i-th active landmark.
+  double landmark_distance(size_t i) const { return lo_[i]; }
+
   double operator()(uint32_t node, const Vec3& x) const {
     double bound = geodesic::Distance(x, xyz_);
     if (!landmarks_) return bound;
     auto d = landmarks_->of(node);
-    for (size_t i = 0; i < lo_.size(); ++i) {
+    for (size_t i = 0; i < active_.size(); ++i) {
+      const double di = d[active_[i]];
       // An unreached landmark (another component) has lo = +inf, hi = -inf.
-      if (d[i] == kInfinity || lo_[i] == kInfinity) continue;
-      bound = std::max(bound, std::max(lo_[i] - d[i], d[i] - hi_[i]));
+      if (di == kInfinity || lo_[i] == kInfinity) continue;
+      bound = std::max(bound, std::max(lo_[i] - di, di - hi_[i]));
     }
     return bound;
   }
@@ -509,8 +518,39 @@ class EndpointBound {
  private:
   Vec3 xyz_;
   const Landmarks* landmarks_ = nullptr;
+  std::vector<uint8_t> active_;
   std::vector<double> lo_, hi_;
 };
+
+// Measured on armadillo at eps = 1e-3 (64 landmarks): 8 to 16 active ones
+// search as fast as each other and 15% faster than all 64 or 6.
+constexpr size_t kActiveLandmarks = 12;
+constexpr int kFloatsPerLine = 64 / sizeof(float);
+
+// The landmarks that bound the distance between the two endpoints best
+// (Goldberg and Harrelson's active landmarks): a node's potential costs a
+// lookup per landmark, and a few well-placed ones give nearly the bound of
+// all of them.
+std::vector<uint8_t> ActiveLandmarks(const Endpoint ends[2], const Landmarks& landmarks,
+                                     size_t count) {
+  const std::vector<uint8_t> all = [&] {
+    std::vector<uint8_t> v(landmarks.count());
+    std::iota(v.begin(), v.end(), 0);
+    return v;
+  }();
+  if (all.size() <= count) return all;
+  const EndpointBound a(ends[0], &landmarks, all), b(ends[1], &landmarks, all);
+  std::vector<std::pair<double, uint8_t>> ranked;
+  for (uint8_t i : all) {
+    const double da = a.landmark_distance(i), db = b.landmark_distance(i);
+    ranked.push_back({da < kInfinity && db < kInfinity ? std::abs(da - db) : -1.0, i});
+  }
+  std::partial_sort(ranked.begin(), ranked.begin() + count, ranked.end(), std::greater<>());
+  std::vector<uint8_t> active;
+  for (size_t i = 0; i < count; ++i) active.push_back(ranked[i].second);
+  std::sort(active.begin(), active.end());
+  return active;
+}
 
 }  // namespace
 
@@ -574,7 +614,15 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   // Plain Dijkstra (no A*) needs no bounds, so no landmark work either.
   const Landmarks* landmarks =
       options.use_astar ? landmarks_.load(std::memory_order_acquire) : nullptr;
-  const EndpointBound to_a(ends[0], landmarks), to_b(ends[1], landmarks);
+  const std::vector<uint8_t> active =
+      landmarks ? ActiveLandmarks(ends, *landmarks, kActiveLandmarks) : std::vector<uint8_t>{};
+  const EndpointBound to_a(ends[0], landmarks, active), to_b(ends[1], landmarks, active);
+  // The cache lines of a node's landmark row that hold active landmarks.
+  std::vector<uint8_t> active_lines;
+  for (uint8_t i : active) {
+    const uint8_t line = i / kFloatsPerLine;
+    if (active_lines.empty() || active_lines.back() != line) active_lines.push_back(line);
+  }
   // The record of node u for this query, initialised on first touch.
   auto node = [&](uint32_t u) -> Scratch::PairNode& {
     Scratch::PairNode& n = at[u];
@@ -642,7 +690,13 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
       if (i + kAhead < end) {
         const uint32_t ahead = targets[i + kAhead];
         __builtin_prefetch(&at[ahead]);
-        if (landmarks) __builtin_prefetch(landmarks->of(ahead).data());
+        if (landmarks) {
+          const float* row = landmarks->of(ahead).data();
+          for (uint8_t line : active_lines) __builtin_prefetch(row + kFloatsPerLine * line);
+        }
+        if (options.use_astar && ahead < mesh.num_vertices()) {
+          __builtin_prefetch(&mesh.position(ahead));
+        }
       }
       set(s, targets[i], du + weights[i], u);
     }
