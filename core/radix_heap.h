@@ -32,6 +32,7 @@ class RadixHeap {
 
   void Clear() {
     for (auto& bucket : buckets_) bucket.clear();
+    occupied_ = 0;
     size_ = 0;
     last_ = 0;
   }
@@ -42,7 +43,7 @@ class RadixHeap {
     uint64_t bits = key > 0 ? std::bit_cast<uint64_t>(key) : 0;
     if (key != key) bits = std::bit_cast<uint64_t>(std::numeric_limits<double>::infinity());
     bits = std::max(bits, last_);
-    buckets_[BucketOf(bits)].push_back({bits, value});
+    Place({bits, value});
     ++size_;
   }
 
@@ -65,18 +66,25 @@ class RadixHeap {
     return bits == last_ ? 0 : 64 - std::countl_zero(bits ^ last_);
   }
 
+  void Place(const Entry& e) {
+    const size_t b = BucketOf(e.bits);
+    buckets_[b].push_back(e);
+    if (b > 0) occupied_ |= uint64_t{1} << (b - 1);
+  }
+
   void Refill() {
-    size_t i = 1;
-    while (buckets_[i].empty()) ++i;
+    const size_t i = 1 + std::countr_zero(occupied_);
+    occupied_ &= ~(uint64_t{1} << (i - 1));
     std::vector<Entry>& from = buckets_[i];
     last_ = std::min_element(from.begin(), from.end(), [](const Entry& a, const Entry& b) {
               return a.bits < b.bits;
             })->bits;
-    for (const Entry& e : from) buckets_[BucketOf(e.bits)].push_back(e);
+    for (const Entry& e : from) Place(e);
     from.clear();
   }
 
   std::array<std::vector<Entry>, 65> buckets_;
+  uint64_t occupied_ = 0;  // bit b - 1 set: bucket b (b >= 1) is not empty
   size_t size_ = 0;
   uint64_t last_ = 0;
 };
