@@ -225,6 +225,9 @@ bool ExactGeodesic::TrimByFaceBehind(Window& w) const {
   // window is also reached by d(R) + |R x| (a segment inside that face). Since
   // |I x| - |R x| is not monotone along the edge this needs its own test:
   // where it exceeds d(R) - sigma the window is useless.
+  // In direct mode with corners R is a corner of the window's shadow, whose
+  // cut (TrimByRelays) already covers this (measured: the same windows).
+  if (relays_) return true;
   const HalfedgeId back = mesh_.twin(w.h);
   if (back == kNone) return true;
   const double dR = dist_[mesh_.opposite(back)];
