@@ -9,6 +9,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <limits>
 #include <mutex>
 #include <numbers>
 #include <queue>
@@ -121,6 +122,44 @@ void ParallelFor(uint32_t n, Progress& progress, std::string_view phase, double 
                     });
 }
 
+// Vertices [begin, end) along a Z-order curve through their positions, as
+// offsets from begin. Mesh files often list vertices in no spatial order;
+// propagating from neighbouring sources one after another keeps the mesh data
+// and per-vertex state they share in cache.
+std::vector<uint32_t> SpatialOrder(const Mesh& mesh, uint32_t begin, uint32_t end) {
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  Vec3 lo{kInf, kInf, kInf}, hi{-kInf, -kInf, -kInf};
+  for (uint32_t v = begin; v < end; ++v) {
+    const Vec3& p = mesh.position(v);
+    lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+    hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+  }
+  const double extent = std::max({hi.x - lo.x, hi.y - lo.y, hi.z - lo.z, 1e-300});
+  auto cell = [&](double x, double from) {
+    constexpr double kCells = (1 << 21) - 1;
+    return static_cast<uint64_t>(std::clamp((x - from) / extent * kCells, 0.0, kCells));
+  };
+  auto spread = [](uint64_t x) {  // bit i -> bit 3i, for 21 bits
+    x &= 0x1fffff;
+    x = (x | x << 32) & 0x1f00000000ffff;
+    x = (x | x << 16) & 0x1f0000ff0000ff;
+    x = (x | x << 8) & 0x100f00f00f00f00f;
+    x = (x | x << 4) & 0x10c30c30c30c30c3;
+    x = (x | x << 2) & 0x1249249249249249;
+    return x;
+  };
+  std::vector<std::pair<uint64_t, uint32_t>> keyed(end - begin);
+  for (uint32_t i = 0; i < end - begin; ++i) {
+    const Vec3& p = mesh.position(begin + i);
+    keyed[i] = {
+        spread(cell(p.x, lo.x)) | spread(cell(p.y, lo.y)) << 1 | spread(cell(p.z, lo.z)) << 2, i};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  std::vector<uint32_t> order(end - begin);
+  for (uint32_t i = 0; i < order.size(); ++i) order[i] = keyed[i].second;
+  return order;
+}
+
 // Phase 1 (section 4.2.1): the direct geodesics from every vertex, each window
 // stopped at Theorem 2's d_max. Returns, per vertex, candidates sorted by id.
 // Sources [begin, end) only; element i of the result belongs to begin + i.
@@ -133,7 +172,9 @@ std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double
   tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
       [&] { return std::make_unique<ExactGeodesic>(mesh); });
   std::atomic<uint64_t> windows{0};
-  ParallelFor(end - begin, progress, "candidates", 0.0, progress_end, [&](uint32_t i) {
+  const std::vector<uint32_t> order = SpatialOrder(mesh, begin, end);
+  ParallelFor(end - begin, progress, "candidates", 0.0, progress_end, [&](uint32_t k) {
+    const uint32_t i = order[k];
     const uint32_t s = begin + i;
     if (mesh.is_isolated(s)) return;
     ExactGeodesic& engine = *engines.local();
