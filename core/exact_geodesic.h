@@ -5,7 +5,7 @@
 // (pseudo-)source cross into a face along straight lines of the unfolding
 // (Surazhsky et al. 2005, section 3). Windows are processed in order of their
 // smallest distance (a Dijkstra sweep, as in MMP and ICH's priority-queue
-// variant), and every new window is trimmed by the vertex-distance filter of
+// variant; the keys only grow, so the queue is a radix heap), and every new window is trimmed by the vertex-distance filter of
 // Xin & Wang 2009: a point x of a window on edge (P, Q) is useless when
 // d(P) + |Px| (or d(Q) + |Qx|) is already shorter, since every geodesic
 // through x could take that route instead. Because sigma + |I x| - |Px| is
