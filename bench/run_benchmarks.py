@@ -296,8 +296,8 @@ def write_markdown(rows, command, seconds, plots):
     out.append("| mesh | ε | DGG LC (ms) | Dijkstra same graph (ms) | LC speed-up | LC mean / p99 / max err (ε) | "
                "Dijkstra (default) mean / p99 / max err (ε) | most below exact | "
                "CGAL heat (ms) | CGAL heat mean / p99 / max err | CGAL heat-IDT (ms) | heat-IDT mean / p99 / max err | "
-               "our exact (s) | CGAL exact (s) | exact speed-up | our exact max err |")
-    out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+               "our exact (s) | exact windows / vertex | exact vertices / s | CGAL exact (s) | exact speed-up | our exact max err |")
+    out.append("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         cg = "cgal_exact_s" in r
         out.append(
@@ -308,7 +308,8 @@ def write_markdown(rows, command, seconds, plots):
             + (f"{fmt(1e3 * r['cgal_heat_s'])} | {fmt(r['cgal_heat_mean_err'])} / {fmt(r.get('cgal_heat_p99_err'))} / {fmt(r['cgal_heat_max_err'])} | "
                f"{fmt(1e3 * r['cgal_heat_idt_s'])} | {fmt(r['cgal_heat_idt_mean_err'])} / {fmt(r.get('cgal_heat_idt_p99_err'))} / {fmt(r['cgal_heat_idt_max_err'])} | "
                if cg else "– | – | – | – | ")
-            + f"{fmt(r['exact_field_s'])} | " + (f"{fmt(r['cgal_exact_s'])} | {ratio(r['cgal_exact_s'], r['exact_field_s'])} | "
+            + f"{fmt(r['exact_field_s'])} | {fmt(r.get('exact_windows_per_vertex'))} | "
+            f"{fmt(r['vertices'] / r['exact_field_s'])} | " + (f"{fmt(r['cgal_exact_s'])} | {ratio(r['cgal_exact_s'], r['exact_field_s'])} | "
                                                  if cg else "– | – | ")
             + f"{fmt(r['exact_max_err'])} |")
     out.append("\n## Point-to-point (the shared exact pairs: inside faces, on edges, at vertices, same face)\n")
