@@ -1,5 +1,6 @@
 // Microbenchmarks of the hot loops, on the bundled sample mesh (or the mesh
-// in $GEODESIC_BENCH_MESH) at the epsilon in $GEODESIC_BENCH_EPS (1e-2):
+// in $GEODESIC_BENCH_MESH) at the epsilon in $GEODESIC_BENCH_EPS (1e-2), with
+// its graph built at start or mapped from $GEODESIC_BENCH_GRAPH:
 //   build/bin/micro_benchmarks [--benchmark_filter=...]
 // The end-to-end figures of BENCHMARKS.md come from bench/run_benchmarks.py.
 #include <benchmark/benchmark.h>
@@ -39,9 +40,19 @@ const Fixture& Shared() {
       std::exit(1);
     }
     f->mesh = std::make_shared<const Mesh>(*std::move(mesh));
-    DggBuildOptions options;
-    options.params.epsilon = f->epsilon;
-    f->graph = *BuildDgg(*f->mesh, options);
+    if (const char* graph = std::getenv("GEODESIC_BENCH_GRAPH")) {
+      auto opened = GraphFile::Open(graph, *f->mesh, GraphFile::Check::kFull);
+      if (!opened.ok()) {
+        std::fprintf(stderr, "%s\n", std::string(opened.status().message()).c_str());
+        std::exit(1);
+      }
+      f->graph = *std::move(opened);
+      f->epsilon = f->graph->params().epsilon;
+    } else {
+      DggBuildOptions options;
+      options.params.epsilon = f->epsilon;
+      f->graph = *BuildDgg(*f->mesh, options);
+    }
     f->engine = std::make_unique<GeodesicEngine>(f->mesh, f->graph);
     f->graph_path = (std::filesystem::temp_directory_path() /
                      ("micro_benchmarks." + std::to_string(getpid()) + ".dgg"))
