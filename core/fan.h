@@ -17,8 +17,8 @@ namespace geodesic {
 
 // Half-width of a fan in multiples of sqrt(epsilon). A graph path that
 // approximates a geodesic turns by about arcsin(sqrt(eps)) at a relay; the
-// margin keeps the fan-restricted solver within a small fraction of epsilon of
-// plain Dijkstra (tests/core/dgg_test.cc measures it).
+// margin keeps the labels a fan-restricted search leaves too long (and its
+// final check of every edge must repair) to a few per thousand nodes.
 inline constexpr double kFanWidth = 4.0;
 
 struct FanRange {
@@ -35,12 +35,6 @@ inline FanTurns ContinuingTurns(double period, double epsilon, double width_scal
   const double width = width_scale * kFanWidth * std::sqrt(epsilon);
   return {std::min(std::numbers::pi, period - std::numbers::pi) - width,
           std::max(std::numbers::pi, period - std::numbers::pi) + width};
-}
-
-// The fan's angular extent, normalised to a full turn of 2*pi.
-inline double FanSpan(double period, double epsilon) {
-  const FanTurns t = ContinuingTurns(period, epsilon);
-  return (t.hi - t.lo) * (2 * std::numbers::pi / period);
 }
 
 // `angles`: the node's outgoing edge angles, sorted, normalised to [0, 2*pi).

@@ -2,13 +2,11 @@
 
 #include <algorithm>
 #include <cmath>
-#include <deque>
 #include <numbers>
 #include <numeric>
 #include <queue>
 #include <span>
 
-#include "absl/base/call_once.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/exact_geodesic.h"
@@ -37,7 +35,6 @@ struct Scratch {
   std::vector<double> dist;
   std::vector<uint32_t> via;    // arriving edge index, or kViaSource / kViaTemporary
   std::vector<uint32_t> label;  // index of the nearest source
-  std::vector<uint8_t> flag;    // in the label-correcting queue
   std::vector<double> arrival;  // for kViaTemporary: angle of arrival
   NodeHeap heap;                // Dijkstra's queue
 
@@ -78,7 +75,6 @@ struct Scratch {
       dist.resize(nodes);
       via.resize(nodes);
       label.resize(nodes);
-      flag.resize(nodes);
       arrival.resize(nodes);
     }
   }
@@ -105,60 +101,6 @@ Scratch& ThreadScratch() {
   return scratch;
 }
 
-// Counter-clockwise angle from a to b, both normalised, in [0, 2*pi). On the
-// solver's hot path, hence one comparison rather than WrapAngle's fmod.
-double AngleBetween(double a, double b) {
-  const double d = b - a;
-  return d < 0 ? d + kTwoPi : d;
-}
-// Of two angles at most half a turn before (after) `ref`, the one nearer it.
-double Later(double a, double b, double ref) {
-  return AngleBetween(a, ref) <= AngleBetween(b, ref) ? a : b;
-}
-double Earlier(double a, double b, double ref) {
-  return AngleBetween(ref, a) <= AngleBetween(ref, b) ? a : b;
-}
-
-// The fixed fan (fan.h) holds the continuations of a geodesic within
-// kFanWidth * sqrt(eps) of straight on, which is all a route of comparable
-// edges needs. A route may also bend sharply onto a short edge: turning by
-// delta from a label D onto an edge of length b leaves a chord of
-// D^2 + b^2 + 2 D b cos(delta), and costs at most a factor 1 + eps over it
-// as long as that chord is at least (D + b) / (1 + eps). Candidate edges that
-// a corner served within 1 + eps (exact_geodesic.h) are reached by exactly
-// such bends, so without them the solver can miss a vertex entirely.
-class BendBeyondFan {
- public:
-  // `label`: the distance of the node; `shortest`: its shortest edge;
-  // `to_raw`: its cone angle over 2*pi, to turn normalised angles into raw
-  // ones; `fan_width`: kFanWidth * sqrt(eps).
-  BendBeyondFan(double label, double shortest, double to_raw, double fan_width, double shrink)
-      : label_(label),
-        shrink_(shrink),
-        to_raw_(to_raw),
-        fan_width_(fan_width),
-        floor_(label > 0 && shortest > 0 ? MinCos(shortest) : 2) {}
-  bool any() const { return !too_far(0); }
-  // `beyond`: normalised angle past the fan's last edge. Past this, not even
-  // the node's shortest edge may be turned onto.
-  bool too_far(double beyond) const { return UpperCos(beyond) < floor_; }
-  bool allows(double beyond, double length) const { return UpperCos(beyond) >= MinCos(length); }
-
- private:
-  // cos(t) <= 1 - t^2/2 + t^4/24, decreasing up to t = sqrt(6): an
-  // overestimate, so the tests only ever relax more than exact ones would.
-  double UpperCos(double beyond) const {
-    const double t = fan_width_ + beyond * to_raw_, t2 = t * t;
-    return t2 >= 6 ? -1 : 1 - t2 / 2 + t2 * t2 / 24;
-  }
-  // The smallest cos(delta) that keeps the chord long enough.
-  double MinCos(double b) const {
-    const double d = label_;
-    return ((d + b) * (d + b) * shrink_ - d * d - b * b) / (2 * d * b);
-  }
-  double label_, shrink_, to_raw_, fan_width_, floor_;
-};
-
 absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_view what) {
   absl::Status s = ValidateSurfacePoint(mesh, p);
   if (s.ok()) return s;
@@ -170,23 +112,6 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
     : mesh_(std::move(mesh)), graph_(std::move(graph)) {}
-
-// On first use: it reads every edge weight, which opening a mapped graph for
-// Dijkstra, the default, never needs.
-const std::vector<float>& GeodesicEngine::shortest_edge() const {
-  absl::call_once(shortest_edge_once_, [this] {
-    const DggGraph& g = *graph_;
-    auto offsets = g.offsets();
-    auto weights = g.weights();
-    shortest_edge_.assign(g.num_nodes(), std::numeric_limits<float>::infinity());
-    for (uint32_t u = 0; u < g.num_nodes(); ++u) {
-      for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
-        shortest_edge_[u] = std::min(shortest_edge_[u], weights[i]);
-      }
-    }
-  });
-  return shortest_edge_;
-}
 
 GeodesicEngine::~GeodesicEngine() = default;
 
@@ -286,125 +211,88 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   uint64_t pops = 0;
   auto cancelled = [&] { return options.cancelled && (pops & 4095) == 0 && options.cancelled(); };
 
-  const double fan_width = kFanWidth * std::sqrt(epsilon);
-  const double bend_shrink = 1 / ((1 + epsilon) * (1 + epsilon));
-  const std::vector<float>* shortest =
-      options.method == FieldMethod::kLabelCorrecting ? &shortest_edge() : nullptr;
-  // The edges of u to relax: all of them for a source, otherwise the fan of
-  // the edge u was reached by, plus the short edges beside it that a route
-  // may bend onto (BendBeyondFan).
-  auto for_each_relaxed = [&](uint32_t u, auto&& relax) {
+  const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
+  // The edges a search relaxes from u: all of them for a source or without
+  // fans, otherwise the fan of the edge u was reached by. Returns the first
+  // edge's index and how many follow it, wrapping around u's list.
+  auto relaxed_edges = [&](uint32_t u, bool fans) -> std::pair<uint64_t, uint64_t> {
     const uint64_t begin = offsets[u], degree = offsets[u + 1] - begin;
-    uint64_t first = 0, count = degree;
-    if (options.method == FieldMethod::kLabelCorrecting && via[u] != kViaSource) {
-      const bool is_vertex = u < mesh.num_vertices();
-      const double period = is_vertex ? mesh.total_angle(u) : kTwoPi;
-      if (via[u] == kViaTemporary) {
-        std::span<const float> a(angles.data() + begin, degree);
-        FanRange fan =
-            ComputeFan(a, sc.arrival[u], period, is_vertex && mesh.is_boundary(u), epsilon);
-        first = fan.begin;
-        count = fan.count;
-      } else {
-        first = g.fan_begin()[via[u]];
-        count = g.fan_count()[via[u]];
-      }
-      if (count > 0 && count < degree) {
-        const BendBeyondFan bend(dist[u], (*shortest)[u], period / kTwoPi, fan_width, bend_shrink);
-        if (bend.any()) {
-          // Outward from both ends of the fan, until even u's shortest edge
-          // would bend too far. Turns are measured from the fan's ends as far
-          // as its edges pin them down (each end lies between the fan's
-          // outermost edge and the first edge outside it, and the ends are a
-          // fixed span apart): an underestimate, which only relaxes more.
-          const uint64_t last = first + count - 1;
-          const double span = FanSpan(period, epsilon);
-          const double a_first = angles[begin + first], a_last = angles[begin + last % degree];
-          const double left_end = Later(angles[begin + (first + degree - 1) % degree],
-                                        WrapAngle(a_last - span, kTwoPi), a_first);
-          const double right_end = Earlier(angles[begin + (last + 1) % degree],
-                                           WrapAngle(a_first + span, kTwoPi), a_last);
-          uint64_t left = 0, right = 0;  // edges taken on each side
-          bool left_open = true, right_open = true;
-          // Takes the next edge on one side, or closes that side.
-          auto step = [&](uint64_t i, double beyond, uint64_t& taken, bool& open) {
-            if (bend.too_far(beyond)) {
-              open = false;
-              return;
-            }
-            ++taken;
-            if (bend.allows(beyond, weights[i])) relax(i, targets[i], dist[u] + weights[i]);
-          };
-          while ((left_open || right_open) && count + left + right < degree) {
-            if (left_open) {
-              const uint64_t i = begin + (first + degree - 1 - left) % degree;
-              step(i, AngleBetween(angles[i], left_end), left, left_open);
-            }
-            if (right_open && count + left + right < degree) {
-              const uint64_t i = begin + (last + 1 + right) % degree;
-              step(i, AngleBetween(right_end, angles[i]), right, right_open);
-            }
-          }
-        }
-      }
-    }
-    // The fan may wrap past u's last edge; no division per edge.
-    const double du = dist[u];
-    for (uint64_t k = 0, i = begin + first; k < count; ++k) {
-      relax(i, targets[i], du + weights[i]);
-      if (++i == begin + degree) i = begin;
-    }
+    if (!fans || via[u] == kViaSource) return {begin, degree};
+    if (via[u] != kViaTemporary) return {begin + g.fan_begin()[via[u]], g.fan_count()[via[u]]};
+    const bool is_vertex = u < mesh.num_vertices();
+    const FanRange fan = ComputeFan({angles.data() + begin, degree}, sc.arrival[u],
+                                    is_vertex ? mesh.total_angle(u) : kTwoPi,
+                                    is_vertex && mesh.is_boundary(u), epsilon);
+    return {begin + fan.begin, fan.count};
   };
 
-  if (options.method == FieldMethod::kLabelCorrecting) {
-    // Algorithm 2: a FIFO queue with Small-Label-First insertion, popping
-    // only labels at most the queue's mean (Bertsekas' SLF + threshold).
-    std::vector<uint8_t>& in_queue = sc.flag;
-    std::fill(in_queue.begin(), in_queue.begin() + nodes, 0);
-    std::deque<uint32_t> queue;
-    double sum = 0;
-    for (uint32_t s : seeds) {
-      if (dist[s] > options.max_distance) continue;
-      queue.push_back(s);
-      in_queue[s] = 1;
-      sum += dist[s];
-    }
-    while (!queue.empty()) {
+  // Searches from what `heap` holds, in order of distance. Without fans this
+  // is Dijkstra; with them too a node leaves the heap once, since every
+  // relaxation offers at least the popped distance.
+  NodeHeap& heap = sc.heap;
+  auto search = [&](bool fans, std::vector<uint8_t>* is_target,
+                    size_t targets_left) -> absl::Status {
+    while (!heap.empty()) {
+      const uint32_t u = heap.top();
+      heap.Pop();
+      if (dist[u] > options.max_distance) break;
       if (cancelled()) return absl::CancelledError("field cancelled");
-      const double mean = sum / queue.size();
-      uint32_t u = queue.front();
-      for (size_t spins = 0; dist[u] > mean && spins < queue.size(); ++spins) {
-        queue.pop_front();
-        queue.push_back(u);
-        u = queue.front();
-      }
-      queue.pop_front();
-      in_queue[u] = 0;
-      sum -= dist[u];
       ++pops;
-      for_each_relaxed(u, [&](uint64_t i, uint32_t v, double d) {
-        if (!(d < dist[v]) || d > options.max_distance) return;
-        if (in_queue[v]) {
-          sum += d - dist[v];
-        } else {
-          in_queue[v] = 1;
-          sum += d;
-          if (!queue.empty() && d <= dist[queue.front()]) {
-            queue.push_front(v);
-          } else {
-            queue.push_back(v);
-          }
+      if (is_target && (*is_target)[u] && --targets_left == 0) break;
+      // The graph is too large for the cache and the search visits it in no
+      // order memory likes: start loading the likely next node's edges now.
+      if (!heap.empty()) {
+        const uint64_t next = relaxed_edges(heap.top(), fans).first;
+        __builtin_prefetch(&targets[next]);
+        __builtin_prefetch(&weights[next]);
+      }
+      const auto [first, count] = relaxed_edges(u, fans);
+      const uint64_t begin = offsets[u], end = offsets[u + 1];
+      const double du = dist[u];
+      for (uint64_t k = 0, i = first; k < count; ++k) {
+        const uint32_t v = targets[i];
+        const double nd = du + weights[i];
+        if (nd < dist[v]) {
+          dist[v] = nd;
+          via[v] = static_cast<uint32_t>(i);
+          label[v] = label[u];
+          if (fans) __builtin_prefetch(&g.fan_begin()[i]);  // read when v is popped
+          heap.Push(v, nd);
         }
-        dist[v] = d;
-        via[v] = static_cast<uint32_t>(i);
-        label[v] = label[u];
-      });
-      if (queue.empty()) sum = 0;  // drop accumulated rounding
+        if (++i == end) i = begin;  // fans wrap past u's last edge
+      }
     }
+    return absl::OkStatus();
+  };
+
+  heap.Reset(nodes);
+  for (uint32_t s : seeds) heap.Push(s, dist[s]);
+  if (use_fans) {
+    // Algorithm 2's rule: a node relaxes only the fan of the edge it was
+    // reached by. Fans are a heuristic, though: a route may need a turn no
+    // fan holds (routes that bend onto short edges, past saddles), and then
+    // a node is left too far or unreached. Every label is the length of a
+    // real graph path, so checking every edge once and searching on from the
+    // nodes the check improves leaves exactly the graph's shortest
+    // distances: the fans only save work, never accuracy.
+    RETURN_IF_ERROR(search(/*fans=*/true, nullptr, 0));
+    for (uint32_t u = 0; u < nodes; ++u) {
+      const double du = dist[u];
+      if (!(du <= options.max_distance)) continue;
+      for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
+        const uint32_t v = targets[i];
+        const double nd = du + weights[i];
+        if (nd < dist[v] && nd <= options.max_distance) {
+          dist[v] = nd;
+          via[v] = static_cast<uint32_t>(i);
+          label[v] = label[u];
+          heap.Push(v, nd);
+        }
+      }
+    }
+    result.repaired = heap.size();
+    RETURN_IF_ERROR(search(/*fans=*/false, nullptr, 0));
   } else {
-    NodeHeap& heap = sc.heap;
-    heap.Reset(nodes);
-    for (uint32_t s : seeds) heap.Push(s, dist[s]);
     size_t targets_left = options.targets.size();
     std::vector<uint8_t> is_target;
     if (targets_left) {
@@ -412,24 +300,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       for (VertexId t : options.targets) is_target[t] = 1;
       targets_left = std::count(is_target.begin(), is_target.end(), 1);
     }
-    while (!heap.empty()) {
-      // A node leaves the heap once, settled: later relaxations cannot
-      // improve it, so none puts it back.
-      const uint32_t u = heap.top();
-      heap.Pop();
-      if (dist[u] > options.max_distance) break;
-      if (cancelled()) return absl::CancelledError("field cancelled");
-      ++pops;
-      if (!is_target.empty() && is_target[u] && --targets_left == 0) break;
-      for_each_relaxed(u, [&](uint64_t i, uint32_t v, double nd) {
-        if (nd < dist[v]) {
-          dist[v] = nd;
-          via[v] = static_cast<uint32_t>(i);
-          label[v] = label[u];
-          heap.Push(v, nd);
-        }
-      });
-    }
+    RETURN_IF_ERROR(search(/*fans=*/false, targets_left ? &is_target : nullptr, targets_left));
   }
   const uint32_t n = mesh.num_vertices();
   result.distance.assign(dist.begin(), dist.begin() + n);

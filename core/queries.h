@@ -15,7 +15,6 @@
 #include <optional>
 #include <vector>
 
-#include "absl/base/call_once.h"
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/types/span.h"
@@ -28,15 +27,18 @@ namespace geodesic {
 
 inline constexpr double kInfinity = std::numeric_limits<double>::infinity();
 
+// Both give the graph's shortest distances; they differ in the work done.
 enum class FieldMethod {
-  kLabelCorrecting,  // Algorithm 2: SLF queue, fan-restricted relaxation
-  kDijkstra,         // plain Dijkstra on the same graph, for checking
+  // The DGG-tailored solver (section 5.1.2): each node relaxes only the fan
+  // of the edge it was reached by; then every edge is checked once and the
+  // labels the fans left too long are repaired.
+  kLabelCorrecting,
+  kDijkstra,  // plain Dijkstra over whole adjacency lists
 };
 
 struct FieldOptions {
-  // Dijkstra by default: the fan-restricted solver can, on rare
-  // configurations, miss the continuation a vertex needs and overshoot by far
-  // more than epsilon (BENCHMARKS.md), which no user should get silently.
+  // Dijkstra by default: it is as fast as the fans plus their check on
+  // sparse graphs (BENCHMARKS.md), and it can stop early at targets.
   FieldMethod method = FieldMethod::kDijkstra;
   // Only vertices within this distance are settled; the rest are +inf.
   double max_distance = kInfinity;
@@ -53,6 +55,9 @@ struct FieldResult {
   std::vector<double> distance;          // per mesh vertex; +inf if unreached
   std::vector<uint32_t> nearest_source;  // index into sources; kNone if unreached
   uint64_t queue_pops = 0;               // work measure: pops per vertex ~ 1-2
+  // kLabelCorrecting: nodes the final check of every edge improved, i.e.
+  // labels the fans alone left too long (the repair fixes them).
+  uint64_t repaired = 0;
 };
 
 struct PathPoint {
@@ -100,11 +105,6 @@ class GeodesicEngine {
   absl::StatusOr<PairResult> Distance(const SurfacePoint& a, const SurfacePoint& b,
                                       const PairOptions& options) const;
 
-  // Builds now the per-graph table the label-correcting solver otherwise
-  // builds on its first use (one pass over every edge), so that the first
-  // such query is timed like any other.
-  void PrepareLabelCorrecting() const { shortest_edge(); }
-
   // Computes the landmark distances that tighten point-to-point A* bounds
   // (core/landmarks.h): `count` + 1 graph searches. Until it has run, queries
   // use straight-line bounds alone, which is correct, only slower on long
@@ -129,11 +129,6 @@ class GeodesicEngine {
  private:
   std::shared_ptr<const Mesh> mesh_;
   std::shared_ptr<const DggGraph> graph_;
-  // Per node, its shortest outgoing edge: bounds how far beyond the stored
-  // fan the label-correcting solver has to look for short edges.
-  const std::vector<float>& shortest_edge() const;
-  mutable absl::once_flag shortest_edge_once_;
-  mutable std::vector<float> shortest_edge_;
   // Written once under the mutex, then read lock-free by every query.
   mutable absl::Mutex landmarks_mu_;
   mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);

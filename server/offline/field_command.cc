@@ -25,7 +25,7 @@ int RunField(int argc, char** argv) {
       ->required();
   app.add_option("--out", out_path, "write one little-endian float64 per vertex (+inf: unreached)");
   app.add_option("--method", method,
-                 "dijkstra (default) or lc (DGG-tailored label-correcting, faster, not guaranteed)")
+                 "dijkstra (default) or lc (DGG fans, then a check of every edge; same distances)")
       ->check(CLI::IsMember({"lc", "dijkstra"}));
   app.add_option("--max-distance", max_distance, "only settle vertices within this distance");
   app.add_flag("--json", json, "print a JSON object");
@@ -51,7 +51,6 @@ int RunField(int argc, char** argv) {
   FieldOptions options;
   options.method = method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
   options.max_distance = max_distance;
-  if (options.method == FieldMethod::kLabelCorrecting) engine.PrepareLabelCorrecting();
   auto t1 = std::chrono::steady_clock::now();
   auto field = engine.Field(sources, options);
   const double solve_seconds =
@@ -68,10 +67,10 @@ int RunField(int argc, char** argv) {
     std::printf(
         "{\"vertices\": %zu, \"reached\": %zu, \"method\": \"%s\", \"solve_seconds\": %.6f, "
         "\"ns_per_vertex\": %.2f, \"queue_pops_per_vertex\": %.4f, \"graph_open_seconds\": %.6f, "
-        "\"epsilon\": %g}\n",
+        "\"epsilon\": %g, \"repaired\": %llu}\n",
         n, reached, method.c_str(), solve_seconds, 1e9 * solve_seconds / std::max<size_t>(n, 1),
         double(field->queue_pops) / std::max<size_t>(n, 1), open_seconds,
-        (*graph)->params().epsilon);
+        (*graph)->params().epsilon, static_cast<unsigned long long>(field->repaired));
   } else {
     std::printf("field on %s (eps %g, %s): %zu of %zu vertices reached in %.3f ms\n",
                 graph_path.c_str(), (*graph)->params().epsilon, method.c_str(), reached, n,
