@@ -27,6 +27,17 @@ struct Fixture {
   double epsilon = 1e-2;
 };
 
+// The value, or the error on stderr and exit: a benchmark without its
+// fixture has nothing to measure.
+template <typename T>
+T OrExit(absl::StatusOr<T> value) {
+  if (!value.ok()) {
+    std::fprintf(stderr, "%s\n", std::string(value.status().message()).c_str());
+    std::exit(1);
+  }
+  return *std::move(value);
+}
+
 // Loaded once: every benchmark shares the mesh, its graph and its file.
 const Fixture& Shared() {
   static const Fixture* fixture = [] {
@@ -34,24 +45,15 @@ const Fixture& Shared() {
     const char* path = std::getenv("GEODESIC_BENCH_MESH");
     const char* eps = std::getenv("GEODESIC_BENCH_EPS");
     if (eps) f->epsilon = std::atof(eps);
-    auto mesh = LoadMesh(path ? path : GEODESIC_SOURCE_DIR "/data/spot.obj");
-    if (!mesh.ok()) {
-      std::fprintf(stderr, "%s\n", std::string(mesh.status().message()).c_str());
-      std::exit(1);
-    }
-    f->mesh = std::make_shared<const Mesh>(*std::move(mesh));
+    f->mesh = std::make_shared<const Mesh>(
+        OrExit(LoadMesh(path ? path : GEODESIC_SOURCE_DIR "/data/spot.obj")));
     if (const char* graph = std::getenv("GEODESIC_BENCH_GRAPH")) {
-      auto opened = GraphFile::Open(graph, *f->mesh, GraphFile::Check::kFull);
-      if (!opened.ok()) {
-        std::fprintf(stderr, "%s\n", std::string(opened.status().message()).c_str());
-        std::exit(1);
-      }
-      f->graph = *std::move(opened);
+      f->graph = OrExit(GraphFile::Open(graph, *f->mesh, GraphFile::Check::kFull));
       f->epsilon = f->graph->params().epsilon;
     } else {
       DggBuildOptions options;
       options.params.epsilon = f->epsilon;
-      f->graph = *BuildDgg(*f->mesh, options);
+      f->graph = OrExit(BuildDgg(*f->mesh, options));
     }
     f->engine = std::make_unique<GeodesicEngine>(f->mesh, f->graph);
     f->graph_path = (std::filesystem::temp_directory_path() /

@@ -4,7 +4,6 @@
 #include <cmath>
 #include <numbers>
 #include <numeric>
-#include <queue>
 #include <span>
 
 #include "absl/status/status.h"
@@ -226,10 +225,18 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     return {begin + fan.begin, fan.count};
   };
 
+  NodeHeap& heap = sc.heap;
+  // Node v is now reached by edge i from u, at distance nd.
+  auto improve = [&](uint32_t u, uint64_t i, uint32_t v, double nd) {
+    dist[v] = nd;
+    via[v] = static_cast<uint32_t>(i);
+    label[v] = label[u];
+    heap.Push(v, nd);
+  };
+
   // Searches from what `heap` holds, in order of distance. Without fans this
   // is Dijkstra; with them too a node leaves the heap once, since every
   // relaxation offers at least the popped distance.
-  NodeHeap& heap = sc.heap;
   auto search = [&](bool fans, std::vector<uint8_t>* is_target,
                     size_t targets_left) -> absl::Status {
     while (!heap.empty()) {
@@ -253,11 +260,8 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
         const uint32_t v = targets[i];
         const double nd = du + weights[i];
         if (nd < dist[v]) {
-          dist[v] = nd;
-          via[v] = static_cast<uint32_t>(i);
-          label[v] = label[u];
           if (fans) __builtin_prefetch(&g.fan_begin()[i]);  // read when v is popped
-          heap.Push(v, nd);
+          improve(u, i, v, nd);
         }
         if (++i == end) i = begin;  // fans wrap past u's last edge
       }
@@ -282,12 +286,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
         const uint32_t v = targets[i];
         const double nd = du + weights[i];
-        if (nd < dist[v] && nd <= options.max_distance) {
-          dist[v] = nd;
-          via[v] = static_cast<uint32_t>(i);
-          label[v] = label[u];
-          heap.Push(v, nd);
-        }
+        if (nd < dist[v] && nd <= options.max_distance) improve(u, i, v, nd);
       }
     }
     result.repaired = heap.size();
