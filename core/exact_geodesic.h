@@ -5,15 +5,16 @@
 // (pseudo-)source cross into a face along straight lines of the unfolding
 // (Surazhsky et al. 2005, section 3). Windows are processed in order of their
 // smallest distance (a Dijkstra sweep, as in MMP and ICH's priority-queue
-// variant; the keys only grow, so the queue is a radix heap), and every new window is trimmed by the vertex-distance filter of
-// Xin & Wang 2009: a point x of a window on edge (P, Q) is useless when
-// d(P) + |Px| (or d(Q) + |Qx|) is already shorter, since every geodesic
-// through x could take that route instead. Because sigma + |I x| - |Px| is
-// monotone along the edge, the useful part is one interval, found in closed
-// form. The third vertex R of the face the window came through filters the
-// same way (|Rx| is a segment in that face); that test halves the windows of a
-// full solve. Windows are trimmed once, when queued. Saddle and boundary
-// vertices become pseudo-sources once their distance is final.
+// variant; the keys only grow, so the queue is a radix heap), and every new
+// window is trimmed by the vertex-distance filter of Xin & Wang 2009: a point x
+// of a window on edge (P, Q) is useless when d(P) + |Px| (or d(Q) + |Qx|) is
+// already shorter, since every geodesic through x could take that route
+// instead. Because sigma + |I x| - |Px| is monotone along the edge, the useful
+// part is one interval, found in closed form. The third vertex R of the face
+// the window came through filters the same way (|Rx| is a segment in that
+// face); that test halves the windows of a full solve. Windows are trimmed
+// once, when queued. Saddle and boundary vertices become pseudo-sources once
+// their distance is final.
 //
 // Three uses of one propagation:
 //  1. Distances from a source (vertex, edge point or face point) to all
