@@ -478,25 +478,30 @@ Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVert
   return out;
 }
 
-// Phase 4 (section 5.1.2): sort each node's edges by polar angle and give
-// every directed edge u -> v the range of v's edges that continue a geodesic
-// arriving along it.
+// Phase 4 (section 5.1.2): number the nodes in spatial order (DggGraph), sort
+// each node's edges by polar angle and give every directed edge u -> v the
+// range of v's edges that continue a geodesic arriving along it.
 DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
                         const std::vector<PseudoVertex>& pseudo, double epsilon,
                         Progress& progress) {
   const uint32_t n = mesh.num_vertices();
   const uint32_t nodes = kept.offsets.size() - 1;
+  DggGraphArrays a;
+  a.vertex_of_node = SpatialOrder(mesh, 0, n);
+  a.node_of_vertex.resize(n);
+  for (uint32_t u = 0; u < n; ++u) a.node_of_vertex[a.vertex_of_node[u]] = u;
+  // Pseudo vertices keep their places after the vertices.
+  auto node_of = [&](uint32_t id) { return id < n ? a.node_of_vertex[id] : id; };
+  auto id_of = [&](uint32_t node) { return node < n ? a.vertex_of_node[node] : node; };
   std::vector<std::vector<DggHalfEdge>> lists(nodes);
-  for (uint32_t u = 0; u < nodes; ++u) {
-    auto e = kept.of(u);
-    lists[u].assign(e.begin(), e.end());
-  }
   tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
+    auto e = kept.of(id_of(u));
+    lists[u].assign(e.begin(), e.end());
+    for (DggHalfEdge& h : lists[u]) h.to = node_of(h.to);
     std::sort(lists[u].begin(), lists[u].end(), [](const DggHalfEdge& a, const DggHalfEdge& b) {
       return a.angle_here < b.angle_here || (a.angle_here == b.angle_here && a.to < b.to);
     });
   });
-  DggGraphArrays a;
   a.offsets.assign(nodes + 1, 0);
   for (uint32_t u = 0; u < nodes; ++u) a.offsets[u + 1] = a.offsets[u] + lists[u].size();
   const uint64_t m = a.offsets[nodes];
@@ -521,8 +526,8 @@ DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
       std::span<const float> angles(a.angles.data() + a.offsets[v],
                                     a.angles.data() + a.offsets[v + 1]);
       FanRange fan = ComputeFan(angles, lists[u][i - a.offsets[u]].angle_there,
-                                is_vertex ? mesh.total_angle(v) : kTwoPi,
-                                is_vertex && mesh.is_boundary(v), epsilon);
+                                is_vertex ? mesh.total_angle(id_of(v)) : kTwoPi,
+                                is_vertex && mesh.is_boundary(id_of(v)), epsilon);
       a.fan_begin[i] = fan.begin;
       a.fan_count[i] = fan.count;
     }

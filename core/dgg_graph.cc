@@ -21,7 +21,7 @@ uint64_t DggGraph::byte_size() const {
   if (storage_ && storage_->mapping) return storage_->mapping_bytes;
   return offsets_.size_bytes() + targets_.size_bytes() + weights_.size_bytes() +
          angles_.size_bytes() + fan_begin_.size_bytes() + fan_count_.size_bytes() +
-         pseudo_points_.size_bytes();
+         pseudo_points_.size_bytes() + node_of_vertex_.size_bytes() + vertex_of_node_.size_bytes();
 }
 
 bool DggGraph::is_mapped() const { return storage_ && storage_->mapping; }
@@ -66,6 +66,18 @@ absl::Status DggGraph::Validate(const Mesh& mesh) const {
       }
     }
   }
+  if (node_of_vertex_.size() != num_mesh_vertices_ ||
+      vertex_of_node_.size() != num_mesh_vertices_) {
+    return absl::DataLossError("vertex order tables have the wrong size");
+  }
+  // Each vertex's node is in range and maps back to it: a bijection.
+  for (VertexId v = 0; v < num_mesh_vertices_; ++v) {
+    const uint32_t u = node_of_vertex_[v];
+    if (u >= num_mesh_vertices_ || vertex_of_node_[u] != v) {
+      return absl::DataLossError(
+          absl::StrFormat("vertex %u maps to node %u, which does not map back", v, u));
+    }
+  }
   for (uint32_t i = 0; i < pseudo_points_.size(); ++i) {
     absl::Status s = ValidateSurfacePoint(mesh, pseudo_points_[i]);
     if (!s.ok()) {
@@ -107,6 +119,8 @@ std::shared_ptr<const DggGraph> DggGraphBuilder::FromArrays(DggGraphArrays array
   graph->fan_begin_ = a.fan_begin;
   graph->fan_count_ = a.fan_count;
   graph->pseudo_points_ = a.pseudo_points;
+  graph->node_of_vertex_ = a.node_of_vertex;
+  graph->vertex_of_node_ = a.vertex_of_node;
   graph->storage_ = std::move(storage);
   return graph;
 }

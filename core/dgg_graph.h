@@ -1,8 +1,12 @@
 // The discrete geodesic graph (DGG, Wang et al., CAGD 2017) as an immutable,
 // memory-mappable structure.
 //
-// Nodes 0..n-1 are the mesh vertices (same ids); nodes n.. are pseudo
-// vertices (section 4.3), each a point inside a face. Edges are stored
+// Nodes 0..n-1 are the mesh vertices and nodes n.. are pseudo vertices
+// (section 4.3), each a point inside a face. Vertex nodes are numbered along a
+// Z-order curve through their positions, not in the mesh file's order: a
+// search's next nodes then lie near each other in memory, which took an
+// armadillo field from 21 to 14 ms (BENCHMARKS.md). node_of_vertex and
+// vertex_of_node translate; callers speak mesh vertex ids. Edges are stored
 // directed in compressed adjacency (CSR): every undirected DGG edge appears
 // once from each end. Per node, outgoing edges are sorted by their polar angle
 // at the node (the node's intrinsic tangent frame, core/mesh.h), and each
@@ -61,13 +65,24 @@ class DggGraph {
   std::span<const uint32_t> fan_count() const { return fan_count_; }
   // Where pseudo vertex n + i lies.
   std::span<const SurfacePoint> pseudo_points() const { return pseudo_points_; }
+  // The node of mesh vertex v, and the mesh vertex of node u < n.
+  uint32_t node_of_vertex(VertexId v) const { return node_of_vertex_[v]; }
+  VertexId vertex_of_node(uint32_t u) const { return vertex_of_node_[u]; }
+  std::span<const uint32_t> node_of_vertex() const { return node_of_vertex_; }
+  std::span<const VertexId> vertex_of_node() const { return vertex_of_node_; }
+  // Where node u lies on the surface.
+  SurfacePoint point_of_node(uint32_t u) const {
+    return u < num_mesh_vertices_ ? SurfacePoint::Vertex(vertex_of_node_[u])
+                                  : pseudo_points_[u - num_mesh_vertices_];
+  }
 
   // Bytes of the arrays (resident if built, mapped if opened from a file).
   uint64_t byte_size() const;
   bool is_mapped() const;
 
   // Full validation: every index in range, offsets monotone, fans inside their
-  // target's edge list, weights finite and positive, pseudo points valid.
+  // target's edge list, weights finite and positive, pseudo points valid, the
+  // vertex order a permutation.
   absl::Status Validate(const Mesh& mesh) const;
 
  private:
@@ -85,6 +100,8 @@ class DggGraph {
   std::span<const uint32_t> fan_begin_;
   std::span<const uint32_t> fan_count_;
   std::span<const SurfacePoint> pseudo_points_;
+  std::span<const uint32_t> node_of_vertex_;
+  std::span<const VertexId> vertex_of_node_;
   std::shared_ptr<const Storage> storage_;
 };
 

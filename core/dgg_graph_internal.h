@@ -19,6 +19,8 @@ struct DggGraphArrays {
   std::vector<uint32_t> fan_begin;
   std::vector<uint32_t> fan_count;
   std::vector<SurfacePoint> pseudo_points;
+  std::vector<uint32_t> node_of_vertex;
+  std::vector<VertexId> vertex_of_node;
 };
 
 struct DggGraph::Storage {

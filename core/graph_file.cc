@@ -35,11 +35,14 @@ enum Section : uint32_t {
   kFanBegin,
   kFanCount,
   kPseudoPoints,
+  kNodeOfVertex,
+  kVertexOfNode,
   kSectionCount
 };
 constexpr const char* kSectionNames[kSectionCount] = {
-    "offsets", "targets", "weights", "angles", "fan_begin", "fan_count", "pseudo_points"};
-constexpr uint32_t kElementSize[kSectionCount] = {8, 4, 4, 4, 4, 4, sizeof(SurfacePoint)};
+    "offsets",   "targets",       "weights",        "angles",        "fan_begin",
+    "fan_count", "pseudo_points", "node_of_vertex", "vertex_of_node"};
+constexpr uint32_t kElementSize[kSectionCount] = {8, 4, 4, 4, 4, 4, sizeof(SurfacePoint), 4, 4};
 
 struct SectionEntry {
   char name[16];
@@ -87,7 +90,9 @@ absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::stri
                                                      h.num_directed_edges,
                                                      h.num_directed_edges,
                                                      h.num_directed_edges,
-                                                     uint64_t{h.num_nodes} - h.num_mesh_vertices};
+                                                     uint64_t{h.num_nodes} - h.num_mesh_vertices,
+                                                     h.num_mesh_vertices,
+                                                     h.num_mesh_vertices};
   if (h.num_nodes < h.num_mesh_vertices) {
     return absl::DataLossError(absl::StrFormat("%s: fewer nodes than mesh vertices", path));
   }
@@ -136,6 +141,8 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
       {graph.fan_begin().data(), graph.fan_begin().size_bytes()},
       {graph.fan_count().data(), graph.fan_count().size_bytes()},
       {graph.pseudo_points().data(), graph.pseudo_points().size_bytes()},
+      {graph.node_of_vertex().data(), graph.node_of_vertex().size_bytes()},
+      {graph.vertex_of_node().data(), graph.vertex_of_node().size_bytes()},
   }};
   uint64_t offset = kHeaderBytes;
   for (uint32_t i = 0; i < kSectionCount; ++i) {
@@ -234,6 +241,8 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphFile::Open(const std::strin
   section(kFanBegin, graph->fan_begin_);
   section(kFanCount, graph->fan_count_);
   section(kPseudoPoints, graph->pseudo_points_);
+  section(kNodeOfVertex, graph->node_of_vertex_);
+  section(kVertexOfNode, graph->vertex_of_node_);
   graph->storage_ = std::move(storage);
   if (check == Check::kFull) {
     // Validate reads only within the sizes the header check confirmed, so it

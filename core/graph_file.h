@@ -21,7 +21,9 @@
 
 namespace geodesic {
 
-inline constexpr uint32_t kGraphFormatVersion = 1;
+// 2: vertex nodes in spatial order, with the node_of_vertex and
+// vertex_of_node sections. Files of another version are rejected by name.
+inline constexpr uint32_t kGraphFormatVersion = 2;
 
 // The name a graph has in a graph directory (geodesicd serve --graph-dir):
 // "<mesh fingerprint, 16 hex digits>-eps<epsilon>[-pseudo].dgg". Offline

@@ -24,6 +24,7 @@ constexpr uint32_t kViaTemporary = kNone - 1;  // reached by a temporary edge
 // (Appendix A: the locally augmented graph).
 struct TemporaryEdge {
   VertexId vertex;
+  uint32_t node;  // the vertex's graph node
   double weight;
   double arrival;  // normalised angle at the vertex pointing back to the point
 };
@@ -110,7 +111,12 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
-    : mesh_(std::move(mesh)), graph_(std::move(graph)) {}
+    : mesh_(std::move(mesh)), graph_(std::move(graph)) {
+  node_xyz_.resize(graph_->num_nodes());
+  for (uint32_t u = 0; u < node_xyz_.size(); ++u) {
+    node_xyz_[u] = PositionOf(*mesh_, graph_->point_of_node(u));
+  }
+}
 
 GeodesicEngine::~GeodesicEngine() = default;
 
@@ -137,19 +143,24 @@ uint64_t GeodesicEngine::landmark_bytes() const {
 
 namespace {
 
-std::vector<TemporaryEdge> TemporaryEdges(const Mesh& mesh, ExactGeodesic& exact,
-                                          const SurfacePoint& p, double epsilon) {
-  DirectOptions options;
-  options.epsilon = epsilon;
+std::vector<TemporaryEdge> AsTemporaryEdges(const Mesh& mesh, const DggGraph& graph,
+                                            const std::vector<DirectHit>& hits) {
   std::vector<TemporaryEdge> edges;
-  auto hits = exact.DirectGeodesics(p, options);
-  if (!hits.ok()) return edges;
-  edges.reserve(hits->size());
-  for (const DirectHit& h : *hits) {
-    edges.push_back(
-        {h.vertex, h.distance, h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
+  edges.reserve(hits.size());
+  for (const DirectHit& h : hits) {
+    edges.push_back({h.vertex, graph.node_of_vertex(h.vertex), h.distance,
+                     h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
   }
   return edges;
+}
+
+std::vector<TemporaryEdge> TemporaryEdges(const Mesh& mesh, const DggGraph& graph,
+                                          ExactGeodesic& exact, const SurfacePoint& p) {
+  DirectOptions options;
+  options.epsilon = graph.params().epsilon;
+  auto hits = exact.DirectGeodesics(p, options);
+  if (!hits.ok()) return {};
+  return AsTemporaryEdges(mesh, graph, *hits);
 }
 
 }  // namespace
@@ -187,19 +198,20 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   for (uint32_t i = 0; i < sources.size(); ++i) {
     const SurfacePoint p = CanonicalizeSurfacePoint(mesh, sources[i]);
     if (p.kind == SurfacePoint::Kind::kVertex) {
-      dist[p.id] = 0;
-      via[p.id] = kViaSource;
-      label[p.id] = i;
-      seeds.push_back(p.id);
+      const uint32_t u = g.node_of_vertex(p.id);
+      dist[u] = 0;
+      via[u] = kViaSource;
+      label[u] = i;
+      seeds.push_back(u);
       continue;
     }
-    for (const TemporaryEdge& e : TemporaryEdges(mesh, sc.Exact(mesh_), p, epsilon)) {
-      if (e.weight < dist[e.vertex]) {
-        dist[e.vertex] = e.weight;
-        via[e.vertex] = kViaTemporary;
-        sc.arrival[e.vertex] = e.arrival;
-        label[e.vertex] = i;
-        seeds.push_back(e.vertex);
+    for (const TemporaryEdge& e : TemporaryEdges(mesh, g, sc.Exact(mesh_), p)) {
+      if (e.weight < dist[e.node]) {
+        dist[e.node] = e.weight;
+        via[e.node] = kViaTemporary;
+        sc.arrival[e.node] = e.arrival;
+        label[e.node] = i;
+        seeds.push_back(e.node);
       }
     }
   }
@@ -219,9 +231,10 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     if (!fans || via[u] == kViaSource) return {begin, degree};
     if (via[u] != kViaTemporary) return {begin + g.fan_begin()[via[u]], g.fan_count()[via[u]]};
     const bool is_vertex = u < mesh.num_vertices();
+    const VertexId vertex = is_vertex ? g.vertex_of_node(u) : kNone;
     const FanRange fan = ComputeFan({angles.data() + begin, degree}, sc.arrival[u],
-                                    is_vertex ? mesh.total_angle(u) : kTwoPi,
-                                    is_vertex && mesh.is_boundary(u), epsilon);
+                                    is_vertex ? mesh.total_angle(vertex) : kTwoPi,
+                                    is_vertex && mesh.is_boundary(vertex), epsilon);
     return {begin + fan.begin, fan.count};
   };
 
@@ -296,20 +309,23 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     std::vector<uint8_t> is_target;
     if (targets_left) {
       is_target.assign(nodes, 0);
-      for (VertexId t : options.targets) is_target[t] = 1;
+      for (VertexId t : options.targets) is_target[g.node_of_vertex(t)] = 1;
       targets_left = std::count(is_target.begin(), is_target.end(), 1);
     }
     RETURN_IF_ERROR(search(/*fans=*/false, targets_left ? &is_target : nullptr, targets_left));
   }
+  // Back from node order to the mesh's vertex order.
   const uint32_t n = mesh.num_vertices();
-  result.distance.assign(dist.begin(), dist.begin() + n);
-  for (double& d : result.distance) {
-    if (d > options.max_distance) d = kInfinity;
+  auto node_of_vertex = g.node_of_vertex();
+  result.distance.resize(n);
+  for (VertexId v = 0; v < n; ++v) {
+    const double d = dist[node_of_vertex[v]];
+    result.distance[v] = d > options.max_distance ? kInfinity : d;
   }
   if (options.nearest_source) {
-    result.nearest_source.assign(label.begin(), label.begin() + n);
-    for (uint32_t v = 0; v < n; ++v) {
-      if (result.distance[v] == kInfinity) result.nearest_source[v] = kNone;
+    result.nearest_source.resize(n);
+    for (VertexId v = 0; v < n; ++v) {
+      result.nearest_source[v] = result.distance[v] == kInfinity ? kNone : label[node_of_vertex[v]];
     }
   }
   result.queue_pops = pops;
@@ -365,7 +381,7 @@ class EndpointBound {
     if (end.is_node) {
       add(end.node, 0);
     } else {
-      for (const TemporaryEdge& e : end.edges) add(e.vertex, e.weight);
+      for (const TemporaryEdge& e : end.edges) add(e.node, e.weight);
     }
   }
 
@@ -442,7 +458,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     ends[s].xyz = PositionOf(mesh, ends[s].point);
     if (ends[s].point.kind == SurfacePoint::Kind::kVertex) {
       ends[s].is_node = true;
-      ends[s].node = ends[s].point.id;
+      ends[s].node = g.node_of_vertex(ends[s].point.id);
     }
   }
   PairResult result;
@@ -459,14 +475,11 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     options_a.keep_windows = true;
     auto hits = exact.DirectGeodesics(ends[0].point, options_a);
     if (!hits.ok()) return hits.status();
-    for (const DirectHit& h : *hits) {
-      ends[0].edges.push_back(
-          {h.vertex, h.distance, h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
-    }
+    ends[0].edges = AsTemporaryEdges(mesh, g, *hits);
     auto direct = exact.DistanceTo(ends[1].point);
     if (direct.ok()) best = *direct;
   }
-  if (!ends[1].is_node) ends[1].edges = TemporaryEdges(mesh, exact, ends[1].point, epsilon);
+  if (!ends[1].is_node) ends[1].edges = TemporaryEdges(mesh, g, exact, ends[1].point);
 
   const uint32_t nodes = g.num_nodes();
   const uint32_t stamp = sc.PreparePair(nodes);
@@ -474,11 +487,6 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   auto offsets = g.offsets();
   auto targets = g.targets();
   auto weights = g.weights();
-  // Node positions for the straight-line bound.
-  auto node_xyz = [&](uint32_t u) -> Vec3 {
-    if (u < mesh.num_vertices()) return mesh.position(u);
-    return PositionOf(mesh, g.pseudo_points()[u - mesh.num_vertices()]);
-  };
   // Average potential p(v) = (bound to b - bound to a) / 2: consistent for
   // both directions because each bound is (EndpointBound).
   // Plain Dijkstra (no A*) needs no bounds, so no landmark work either.
@@ -501,7 +509,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
       n.dist[0] = n.dist[1] = kInfinity;
       n.slot[0] = n.slot[1] = kNotInHeap;
       if (options.use_astar) {
-        const Vec3 x = node_xyz(u);
+        const Vec3& x = node_xyz_[u];
         n.potential = static_cast<float>(0.5 * (to_b(u, x) - to_a(u, x)));
       } else {
         n.potential = 0;
@@ -535,7 +543,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     if (ends[s].is_node) {
       set(s, ends[s].node, 0, kViaSource);
     } else {
-      for (const TemporaryEdge& e : ends[s].edges) set(s, e.vertex, e.weight, kViaTemporary);
+      for (const TemporaryEdge& e : ends[s].edges) set(s, e.node, e.weight, kViaTemporary);
     }
   }
   uint64_t steps = 0;
@@ -564,9 +572,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
           const float* row = landmarks->of(ahead).data();
           for (uint8_t line : active_lines) __builtin_prefetch(row + kFloatsPerLine * line);
         }
-        if (options.use_astar && ahead < mesh.num_vertices()) {
-          __builtin_prefetch(&mesh.position(ahead));
-        }
+        if (options.use_astar) __builtin_prefetch(&node_xyz_[ahead]);
       }
       set(s, targets[i], du + weights[i], u);
     }
@@ -580,10 +586,6 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   std::vector<SurfacePoint> stops{ends[0].point};
   std::vector<double> along{0.0};
   if (meet != kNone && mu < best) {
-    auto as_point = [&](uint32_t u) {
-      return u < mesh.num_vertices() ? SurfacePoint::Vertex(u)
-                                     : g.pseudo_points()[u - mesh.num_vertices()];
-    };
     std::vector<uint32_t> chain;
     for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = at[u].pred[0]) {
       chain.push_back(u);
@@ -591,13 +593,13 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     std::reverse(chain.begin(), chain.end());
     for (uint32_t u : chain) {
       if (!(ends[0].is_node && u == ends[0].node)) {
-        stops.push_back(as_point(u));
+        stops.push_back(g.point_of_node(u));
         along.push_back(at[u].dist[0]);
       }
     }
     for (uint32_t u = at[meet].pred[1]; u != kViaSource && u != kViaTemporary; u = at[u].pred[1]) {
       if (ends[1].is_node && u == ends[1].node) break;
-      stops.push_back(as_point(u));
+      stops.push_back(g.point_of_node(u));
       along.push_back(mu - at[u].dist[1]);
     }
   }
@@ -647,7 +649,7 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   for (size_t j = 0; j < targets.size(); ++j) {
     canon[j] = CanonicalizeSurfacePoint(mesh, targets[j]);
     if (canon[j].kind != SurfacePoint::Kind::kVertex) {
-      target_edges[j] = TemporaryEdges(mesh, sc.Exact(mesh_), canon[j], graph_->params().epsilon);
+      target_edges[j] = TemporaryEdges(mesh, *graph_, sc.Exact(mesh_), canon[j]);
     }
   }
   std::vector<double> out;

@@ -129,6 +129,10 @@ class GeodesicEngine {
  private:
   std::shared_ptr<const Mesh> mesh_;
   std::shared_ptr<const DggGraph> graph_;
+  // Where each graph node lies, in node order: point-to-point A* reads the
+  // position of every node it touches, and the mesh's own array is in
+  // vertex order, scattered across the search.
+  std::vector<Vec3> node_xyz_;
   // Written once under the mutex, then read lock-free by every query.
   mutable absl::Mutex landmarks_mu_;
   mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);

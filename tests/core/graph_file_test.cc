@@ -9,6 +9,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "absl/strings/str_cat.h"
 #include "core/dgg_graph_internal.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"
@@ -27,8 +28,12 @@ Mesh Square() {
 }
 
 // A complete graph on the square's 4 vertices, with one target replaced.
-std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_target) {
+std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_target,
+                                              std::vector<uint32_t> node_of_vertex = {2, 0, 3, 1}) {
   DggGraphArrays a;
+  a.vertex_of_node.assign(4, 0);
+  for (uint32_t v = 0; v < 4; ++v) a.vertex_of_node[node_of_vertex[v]] = v;
+  a.node_of_vertex = std::move(node_of_vertex);
   a.offsets = {0};
   for (uint32_t u = 0; u < 4; ++u) {
     for (uint32_t v = 0; v < 4; ++v) {
@@ -64,6 +69,19 @@ TEST(GraphFileTest, OutOfRangeIndexWithValidChecksumsIsRejectedByTheFullCheck) {
   EXPECT_TRUE(GraphFile::Open(dir.File("good.dgg"), mesh, GraphFile::Check::kFull).ok());
 }
 
+TEST(GraphFileTest, VertexOrderThatIsNoPermutationIsRejectedByTheFullCheck) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  const std::string path = dir.File("bad-order.dgg");
+  // Vertices 0 and 2 both claim node 2.
+  ASSERT_TRUE(GraphFile::Write(*CompleteGraph(mesh, 2, {2, 0, 2, 1}), path).ok());
+  auto opened = GraphFile::Open(path, mesh, GraphFile::Check::kFull);
+  ASSERT_FALSE(opened.ok());
+  EXPECT_EQ(opened.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_NE(opened.status().message().find("vertex 0 maps to node 2"), std::string::npos)
+      << opened.status();
+}
+
 TEST(GraphFileTest, OtherFormatVersionIsFailedPreconditionNamingBoth) {
   const Mesh mesh = Square();
   TempDir dir;
@@ -79,7 +97,9 @@ TEST(GraphFileTest, OtherFormatVersionIsFailedPreconditionNamingBoth) {
   auto opened = GraphFile::Open(path, mesh, GraphFile::Check::kHeader);
   ASSERT_FALSE(opened.ok());
   EXPECT_EQ(opened.status().code(), absl::StatusCode::kFailedPrecondition);
-  EXPECT_NE(opened.status().message().find("version 2"), std::string::npos) << opened.status();
+  EXPECT_NE(opened.status().message().find(absl::StrCat("version ", kGraphFormatVersion + 1)),
+            std::string::npos)
+      << opened.status();
 }
 
 TEST(GraphFileTest, FailedWritesLeaveNothingAndKeepTheOldFile) {

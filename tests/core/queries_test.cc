@@ -233,12 +233,14 @@ TEST(LandmarksTest, DistancesAreGraphDistancesFromFarApartNodes) {
   for (int k = 0; k < l.count(); ++k) {
     const uint32_t node = l.nodes()[k];
     ASSERT_LT(node, mesh->num_vertices());
-    where.push_back(mesh->position(node));
-    const SurfacePoint source = SurfacePoint::Vertex(node);
+    const VertexId vertex = graph->vertex_of_node(node);
+    where.push_back(mesh->position(vertex));
+    const SurfacePoint source = SurfacePoint::Vertex(vertex);
     auto field = engine.Field(absl::MakeConstSpan(&source, 1), {});
     ASSERT_OK(field);
-    for (uint32_t v = 0; v < mesh->num_vertices(); ++v) {
-      EXPECT_NEAR(l.of(v)[k], field->distance[v], 1e-6 * field->distance[v]) << k << " " << v;
+    for (VertexId v = 0; v < mesh->num_vertices(); ++v) {
+      EXPECT_NEAR(l.of(graph->node_of_vertex(v))[k], field->distance[v], 1e-6 * field->distance[v])
+          << k << " " << v;
     }
   }
   // Farthest-point sampling on a 1.5 x 1 rectangle: first two opposite
