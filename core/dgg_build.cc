@@ -478,12 +478,80 @@ Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVert
   return out;
 }
 
+// Fans that no shortest path leaves. The turn u -> v -> w is left out of the
+// fan of u -> v only when a path from u to w of at most two edges is strictly
+// shorter than the two edges through v: a shortest path never takes such a
+// turn, since its part from u to w would not be shortest. So a search that
+// relaxes, from each node, only the fan of the edge it was reached by still
+// finds every shortest distance (the induction in queries.cc). A fan is the
+// shortest circular range of v's angle-sorted edges holding every turn kept.
+void ShortcutFreeFans(DggGraphArrays& a) {
+  const uint32_t nodes = a.offsets.size() - 1;
+  constexpr double kInf = std::numeric_limits<double>::infinity();
+  // Only turns at least this much (relative) longer than a shortcut are left
+  // out, so that the rounding of a search's sums cannot make a left-out turn
+  // the only shortest way on.
+  constexpr double kStrictlyShorter = 1 - 1e-9;
+  tbb::enumerable_thread_specific<std::vector<double>> scratch;
+  tbb::parallel_for(
+      tbb::blocked_range<uint32_t>(0, nodes, 64), [&](const tbb::blocked_range<uint32_t>& r) {
+        std::vector<double>& best = scratch.local();
+        if (best.size() < nodes) best.assign(nodes, kInf);
+        std::vector<uint32_t> kept;
+        for (uint32_t u = r.begin(); u != r.end(); ++u) {
+          const uint64_t begin = a.offsets[u], end = a.offsets[u + 1];
+          // best[y]: the shortest path of at most two edges from u to y.
+          for (uint64_t i = begin; i < end; ++i) {
+            best[a.targets[i]] = std::min<double>(best[a.targets[i]], a.weights[i]);
+          }
+          for (uint64_t i = begin; i < end; ++i) {
+            const uint32_t x = a.targets[i];
+            const double wx = a.weights[i];
+            for (uint64_t j = a.offsets[x]; j < a.offsets[x + 1]; ++j) {
+              best[a.targets[j]] = std::min(best[a.targets[j]], wx + a.weights[j]);
+            }
+          }
+          best[u] = 0;
+          for (uint64_t i = begin; i < end; ++i) {
+            const uint32_t v = a.targets[i];
+            const uint64_t vb = a.offsets[v];
+            const uint32_t degree = a.offsets[v + 1] - vb;
+            kept.clear();
+            for (uint32_t k = 0; k < degree; ++k) {
+              const double turn = double{a.weights[i]} + a.weights[vb + k];
+              if (best[a.targets[vb + k]] >= turn * kStrictlyShorter) kept.push_back(k);
+            }
+            // The shortest circular range holding `kept` starts after its
+            // widest gap.
+            FanRange fan;
+            if (!kept.empty()) {
+              uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
+              for (size_t q = 1; q < kept.size(); ++q) {
+                if (kept[q] - kept[q - 1] > widest) {
+                  widest = kept[q] - kept[q - 1];
+                  start = kept[q];
+                }
+              }
+              fan = {start, degree - widest + 1};
+            }
+            a.fan_begin[i] = fan.begin;
+            a.fan_count[i] = fan.count;
+          }
+          for (uint64_t i = begin; i < end; ++i) {
+            const uint32_t x = a.targets[i];
+            best[x] = kInf;
+            for (uint64_t j = a.offsets[x]; j < a.offsets[x + 1]; ++j) best[a.targets[j]] = kInf;
+          }
+          best[u] = kInf;
+        }
+      });
+}
+
 // Phase 4 (section 5.1.2): number the nodes in spatial order (DggGraph), sort
 // each node's edges by polar angle and give every directed edge u -> v the
-// range of v's edges that continue a geodesic arriving along it.
+// range of v's edges that a shortest path arriving along it can continue on.
 DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
-                        const std::vector<PseudoVertex>& pseudo, double epsilon,
-                        Progress& progress) {
+                        const std::vector<PseudoVertex>& pseudo, Progress& progress) {
   const uint32_t n = mesh.num_vertices();
   const uint32_t nodes = kept.offsets.size() - 1;
   DggGraphArrays a;
@@ -519,19 +587,7 @@ DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
       ++i;
     }
   });
-  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
-    for (uint64_t i = a.offsets[u]; i < a.offsets[u + 1]; ++i) {
-      const uint32_t v = a.targets[i];
-      const bool is_vertex = v < n;
-      std::span<const float> angles(a.angles.data() + a.offsets[v],
-                                    a.angles.data() + a.offsets[v + 1]);
-      FanRange fan = ComputeFan(angles, lists[u][i - a.offsets[u]].angle_there,
-                                is_vertex ? mesh.total_angle(id_of(v)) : kTwoPi,
-                                is_vertex && mesh.is_boundary(id_of(v)), epsilon);
-      a.fan_begin[i] = fan.begin;
-      a.fan_count[i] = fan.count;
-    }
-  });
+  ShortcutFreeFans(a);
   a.pseudo_points.reserve(pseudo.size());
   for (const auto& p : pseudo) a.pseudo_points.push_back(p.point);
   progress.Report("fans", 0.95, 1.0, 1, 1);
@@ -591,7 +647,7 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
   st.pruning_seconds = Seconds(t);
 
   t = std::chrono::steady_clock::now();
-  DggGraphArrays arrays = Finalize(mesh, kept, pseudo, epsilon, progress);
+  DggGraphArrays arrays = Finalize(mesh, kept, pseudo, progress);
   st.fan_seconds = Seconds(t);
   const uint32_t nodes = mesh.num_vertices() + pseudo.size();
   st.pseudo_vertices = pseudo.size();

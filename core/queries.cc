@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <numbers>
 #include <numeric>
 #include <span>
 
@@ -16,7 +15,6 @@
 namespace geodesic {
 namespace {
 
-constexpr double kTwoPi = 2 * std::numbers::pi;
 constexpr uint32_t kViaSource = kNone;         // reached from a source node itself
 constexpr uint32_t kViaTemporary = kNone - 1;  // reached by a temporary edge
 
@@ -26,16 +24,17 @@ struct TemporaryEdge {
   VertexId vertex;
   uint32_t node;  // the vertex's graph node
   double weight;
-  double arrival;  // normalised angle at the vertex pointing back to the point
 };
 
 // Per-thread scratch reused by every query on that thread.
 struct Scratch {
   // Field solves, which touch every node anyway and so clear these.
   std::vector<double> dist;
-  std::vector<uint32_t> via;    // arriving edge index, or kViaSource / kViaTemporary
+  // The edges a node relaxes once settled: the fan of the edge it was
+  // reached by, copied when that edge improves it (the edge's fan lies
+  // beside its target and weight; the node's record beside its distance).
+  std::vector<FanRange> fan;
   std::vector<uint32_t> label;  // index of the nearest source
-  std::vector<double> arrival;  // for kViaTemporary: angle of arrival
   NodeHeap heap;                // Dijkstra's queue
 
   // Point-to-point searches touch a few thousand nodes at random: one
@@ -73,9 +72,8 @@ struct Scratch {
   void PrepareField(size_t nodes) {
     if (dist.size() < nodes) {
       dist.resize(nodes);
-      via.resize(nodes);
+      fan.resize(nodes);
       label.resize(nodes);
-      arrival.resize(nodes);
     }
   }
   // Returns the new query's stamp.
@@ -148,8 +146,7 @@ std::vector<TemporaryEdge> AsTemporaryEdges(const Mesh& mesh, const DggGraph& gr
   std::vector<TemporaryEdge> edges;
   edges.reserve(hits.size());
   for (const DirectHit& h : hits) {
-    edges.push_back({h.vertex, graph.node_of_vertex(h.vertex), h.distance,
-                     h.angle_at_vertex * kTwoPi / mesh.total_angle(h.vertex)});
+    edges.push_back({h.vertex, graph.node_of_vertex(h.vertex), h.distance});
   }
   return edges;
 }
@@ -180,39 +177,41 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     }
   }
   const uint32_t nodes = g.num_nodes();
-  const double epsilon = g.params().epsilon;
   Scratch& sc = ThreadScratch();
   sc.PrepareField(nodes);
   std::vector<double>& dist = sc.dist;
-  std::vector<uint32_t>& via = sc.via;
+  std::vector<FanRange>& fan = sc.fan;
   std::vector<uint32_t>& label = sc.label;
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
   std::fill(label.begin(), label.begin() + nodes, kNone);
   auto offsets = g.offsets();
   auto targets = g.targets();
   auto weights = g.weights();
-  auto angles = g.angles();
+  auto fan_begin = g.fan_begin();
+  auto fan_count = g.fan_count();
+  const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
+  // A source, or a node a temporary edge reaches, relaxes all its edges.
+  auto all_edges = [&](uint32_t u) {
+    return FanRange{0, static_cast<uint32_t>(offsets[u + 1] - offsets[u])};
+  };
 
   // Seed: vertex sources at 0; other points through their temporary edges.
   std::vector<uint32_t> seeds;
+  auto seed = [&](uint32_t u, double d, uint32_t source) {
+    if (!(d < dist[u])) return;
+    dist[u] = d;
+    fan[u] = all_edges(u);
+    label[u] = source;
+    seeds.push_back(u);
+  };
   for (uint32_t i = 0; i < sources.size(); ++i) {
     const SurfacePoint p = CanonicalizeSurfacePoint(mesh, sources[i]);
     if (p.kind == SurfacePoint::Kind::kVertex) {
-      const uint32_t u = g.node_of_vertex(p.id);
-      dist[u] = 0;
-      via[u] = kViaSource;
-      label[u] = i;
-      seeds.push_back(u);
+      seed(g.node_of_vertex(p.id), 0, i);
       continue;
     }
     for (const TemporaryEdge& e : TemporaryEdges(mesh, g, sc.Exact(mesh_), p)) {
-      if (e.weight < dist[e.node]) {
-        dist[e.node] = e.weight;
-        via[e.node] = kViaTemporary;
-        sc.arrival[e.node] = e.arrival;
-        label[e.node] = i;
-        seeds.push_back(e.node);
-      }
+      seed(e.node, e.weight, i);
     }
   }
   std::sort(seeds.begin(), seeds.end());
@@ -220,99 +219,60 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
 
   FieldResult result;
   uint64_t pops = 0;
-  auto cancelled = [&] { return options.cancelled && (pops & 4095) == 0 && options.cancelled(); };
+  size_t targets_left = options.targets.size();
+  std::vector<uint8_t> is_target;
+  if (targets_left) {
+    is_target.assign(nodes, 0);
+    for (VertexId t : options.targets) is_target[g.node_of_vertex(t)] = 1;
+    targets_left = std::count(is_target.begin(), is_target.end(), 1);
+  }
 
-  const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
-  // The edges a search relaxes from u: all of them for a source or without
-  // fans, otherwise the fan of the edge u was reached by. Returns the first
-  // edge's index and how many follow it, wrapping around u's list.
-  auto relaxed_edges = [&](uint32_t u, bool fans) -> std::pair<uint64_t, uint64_t> {
-    const uint64_t begin = offsets[u], degree = offsets[u + 1] - begin;
-    if (!fans || via[u] == kViaSource) return {begin, degree};
-    if (via[u] != kViaTemporary) return {begin + g.fan_begin()[via[u]], g.fan_count()[via[u]]};
-    const bool is_vertex = u < mesh.num_vertices();
-    const VertexId vertex = is_vertex ? g.vertex_of_node(u) : kNone;
-    const FanRange fan = ComputeFan({angles.data() + begin, degree}, sc.arrival[u],
-                                    is_vertex ? mesh.total_angle(vertex) : kTwoPi,
-                                    is_vertex && mesh.is_boundary(vertex), epsilon);
-    return {begin + fan.begin, fan.count};
-  };
-
+  // Dijkstra. With fans (Algorithm 2's rule), a node relaxes only the fan of
+  // the edge it was reached by. The graph's fans hold every turn a shortest
+  // path can take (core/dgg_build.cc), so the distances are still exactly
+  // the graph's. Induction over nodes in order of distance: let v -> w be
+  // the last edge of a shortest path to w, and v reached by u -> v with
+  // d(v) = d(u) + |uv|. Were w outside that fan, some path from u to w would
+  // be shorter than |uv| + |vw|, so d(w) < d(v) + |vw| = d(w).
   NodeHeap& heap = sc.heap;
-  // Node v is now reached by edge i from u, at distance nd.
-  auto improve = [&](uint32_t u, uint64_t i, uint32_t v, double nd) {
-    dist[v] = nd;
-    via[v] = static_cast<uint32_t>(i);
-    label[v] = label[u];
-    heap.Push(v, nd);
-  };
-
-  // Searches from what `heap` holds, in order of distance. Without fans this
-  // is Dijkstra; with them too a node leaves the heap once, since every
-  // relaxation offers at least the popped distance.
-  auto search = [&](bool fans, std::vector<uint8_t>* is_target,
-                    size_t targets_left) -> absl::Status {
-    while (!heap.empty()) {
-      const uint32_t u = heap.top();
-      heap.Pop();
-      if (dist[u] > options.max_distance) break;
-      if (cancelled()) return absl::CancelledError("field cancelled");
-      ++pops;
-      if (is_target && (*is_target)[u] && --targets_left == 0) break;
-      // The graph is too large for the cache and the search visits it in no
-      // order memory likes: start loading the likely next node's edges now.
-      if (!heap.empty()) {
-        const uint64_t next = relaxed_edges(heap.top(), fans).first;
-        __builtin_prefetch(&targets[next]);
-        __builtin_prefetch(&weights[next]);
-      }
-      const auto [first, count] = relaxed_edges(u, fans);
-      const uint64_t begin = offsets[u], end = offsets[u + 1];
-      const double du = dist[u];
-      for (uint64_t k = 0, i = first; k < count; ++k) {
-        const uint32_t v = targets[i];
-        const double nd = du + weights[i];
-        if (nd < dist[v]) {
-          if (fans) __builtin_prefetch(&g.fan_begin()[i]);  // read when v is popped
-          improve(u, i, v, nd);
-        }
-        if (++i == end) i = begin;  // fans wrap past u's last edge
-      }
-    }
-    return absl::OkStatus();
-  };
-
   heap.Reset(nodes);
   for (uint32_t s : seeds) heap.Push(s, dist[s]);
-  if (use_fans) {
-    // Algorithm 2's rule: a node relaxes only the fan of the edge it was
-    // reached by. Fans are a heuristic, though: a route may need a turn no
-    // fan holds (routes that bend onto short edges, past saddles), and then
-    // a node is left too far or unreached. Every label is the length of a
-    // real graph path, so checking every edge once and searching on from the
-    // nodes the check improves leaves exactly the graph's shortest
-    // distances: the fans only save work, never accuracy.
-    RETURN_IF_ERROR(search(/*fans=*/true, nullptr, 0));
-    for (uint32_t u = 0; u < nodes; ++u) {
-      const double du = dist[u];
-      if (!(du <= options.max_distance)) continue;
-      for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
-        const uint32_t v = targets[i];
-        const double nd = du + weights[i];
-        if (nd < dist[v] && nd <= options.max_distance) improve(u, i, v, nd);
+  while (!heap.empty()) {
+    const uint32_t u = heap.top();
+    heap.Pop();
+    if (dist[u] > options.max_distance) break;
+    if (options.cancelled && (pops & 4095) == 0 && options.cancelled()) {
+      return absl::CancelledError("field cancelled");
+    }
+    ++pops;
+    if (targets_left && is_target[u] && --targets_left == 0) break;
+    const uint64_t begin = offsets[u], end = offsets[u + 1];
+    const FanRange relaxed = use_fans ? fan[u] : all_edges(u);
+    // The graph is too large for the cache and the search visits it in no
+    // order memory likes: start loading the likely next node's edges now.
+    if (!heap.empty()) {
+      const uint32_t next = heap.top();
+      const uint64_t first = offsets[next] + (use_fans ? fan[next].begin : 0);
+      __builtin_prefetch(&targets[first]);
+      __builtin_prefetch(&weights[first]);
+      if (use_fans) {
+        __builtin_prefetch(&fan_begin[first]);
+        __builtin_prefetch(&fan_count[first]);
       }
     }
-    result.repaired = heap.size();
-    RETURN_IF_ERROR(search(/*fans=*/false, nullptr, 0));
-  } else {
-    size_t targets_left = options.targets.size();
-    std::vector<uint8_t> is_target;
-    if (targets_left) {
-      is_target.assign(nodes, 0);
-      for (VertexId t : options.targets) is_target[g.node_of_vertex(t)] = 1;
-      targets_left = std::count(is_target.begin(), is_target.end(), 1);
+    const double du = dist[u];
+    result.relaxed += relaxed.count;
+    for (uint64_t k = 0, i = begin + relaxed.begin; k < relaxed.count; ++k) {
+      const uint32_t v = targets[i];
+      const double nd = du + weights[i];
+      if (nd < dist[v]) {
+        dist[v] = nd;
+        if (use_fans) fan[v] = {fan_begin[i], fan_count[i]};
+        label[v] = label[u];
+        heap.Push(v, nd);
+      }
+      if (++i == end) i = begin;  // fans wrap past u's last edge
     }
-    RETURN_IF_ERROR(search(/*fans=*/false, targets_left ? &is_target : nullptr, targets_left));
   }
   // Back from node order to the mesh's vertex order.
   const uint32_t n = mesh.num_vertices();

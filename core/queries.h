@@ -30,21 +30,18 @@ inline constexpr double kInfinity = std::numeric_limits<double>::infinity();
 // Both give the graph's shortest distances; they differ in the work done.
 enum class FieldMethod {
   // The DGG-tailored solver (section 5.1.2): each node relaxes only the fan
-  // of the edge it was reached by; then every edge is checked once and the
-  // labels the fans left too long are repaired.
+  // of the edge it was reached by. The graph's fans hold every turn a
+  // shortest path can take, so this is exact on the graph.
   kLabelCorrecting,
-  kDijkstra,  // plain Dijkstra over whole adjacency lists
+  kDijkstra,  // plain Dijkstra over whole adjacency lists, for checking
 };
 
 struct FieldOptions {
-  // Dijkstra by default: it is as fast as the fans plus their check on
-  // sparse graphs (BENCHMARKS.md), and it can stop early at targets.
-  FieldMethod method = FieldMethod::kDijkstra;
+  FieldMethod method = FieldMethod::kLabelCorrecting;
   // Only vertices within this distance are settled; the rest are +inf.
   double max_distance = kInfinity;
   // If non-empty, stop once these vertices are settled (others may be +inf or
-  // upper bounds). Only honoured by kDijkstra, which settles in order; the
-  // label-correcting solver runs to completion (still correct).
+  // upper bounds).
   std::vector<VertexId> targets;
   bool nearest_source = false;  // fill FieldResult::nearest_source
   // Polled during the solve; returning true aborts with CANCELLED.
@@ -55,9 +52,7 @@ struct FieldResult {
   std::vector<double> distance;          // per mesh vertex; +inf if unreached
   std::vector<uint32_t> nearest_source;  // index into sources; kNone if unreached
   uint64_t queue_pops = 0;               // work measure: pops per vertex ~ 1-2
-  // kLabelCorrecting: nodes the final check of every edge improved, i.e.
-  // labels the fans alone left too long (the repair fixes them).
-  uint64_t repaired = 0;
+  uint64_t relaxed = 0;                  // edges relaxed: what the fans save
 };
 
 struct PathPoint {

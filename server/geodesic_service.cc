@@ -276,7 +276,8 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
       sources.push_back(*p);
     }
     FieldOptions options;
-    options.method = req->method() == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
+    options.method =
+        req->method() == "dijkstra" ? FieldMethod::kDijkstra : FieldMethod::kLabelCorrecting;
     if (!req->method().empty() && req->method() != "lc" && req->method() != "dijkstra") {
       return absl::InvalidArgumentError("method must be \"lc\" or \"dijkstra\"");
     }

@@ -151,7 +151,7 @@ class Client:
         return list(self._stub.ListGraphs(pb.ListGraphsRequest(), timeout=self.timeout,
                                           metadata=self._auth).graphs)
 
-    def field(self, mesh, sources, epsilon=0.0, max_distance=0.0, targets=(), method="dijkstra",
+    def field(self, mesh, sources, epsilon=0.0, max_distance=0.0, targets=(), method="lc",
               nearest_source=False):
         """Distances as a float64 numpy array (per vertex, or per target)."""
         req = pb.DistanceFieldRequest(mesh=mesh, epsilon=epsilon, max_distance=max_distance,
