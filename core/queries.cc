@@ -44,6 +44,10 @@ struct Scratch {
     double dist[2];
     uint32_t pred[2];
     uint32_t slot[2];  // places in the two searches' heaps
+    // The edges each search relaxes from the node (Field's fans). The
+    // graph is symmetric, and so are its fans: u -> v -> w is a kept turn
+    // exactly when w -> v -> u is, so the backward search uses them too.
+    FanRange fan[2];
     // A* potential, computed on first touch. Its float rounding (~6e-8
     // relative) can only make an answer longer by as much, never shorter.
     float potential;
@@ -52,6 +56,7 @@ struct Scratch {
     bool done(int side) const { return mark >> side & 1; }
     void set_done(int side) { mark |= 1u << side; }
   };
+  static_assert(sizeof(PairNode) == 64);
   std::vector<PairNode> pair;
   uint32_t current = 0;  // below 2^30
   // The forward (0) and backward (1) searches' queues, with their slots in
@@ -447,6 +452,8 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   auto offsets = g.offsets();
   auto targets = g.targets();
   auto weights = g.weights();
+  auto fan_begin = g.fan_begin();
+  auto fan_count = g.fan_count();
   // Average potential p(v) = (bound to b - bound to a) / 2: consistent for
   // both directions because each bound is (EndpointBound).
   // Plain Dijkstra (no A*) needs no bounds, so no landmark work either.
@@ -482,11 +489,14 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   heap[1].Clear();
   uint32_t meet = kNone;
   double mu = best;
-  auto set = [&](int s, uint32_t u, double d, uint32_t from) {
+  // Side s reaches node u at distance d from node `from` (or from an end
+  // point), to go on along `fan`.
+  auto set = [&](int s, uint32_t u, double d, uint32_t from, FanRange fan) {
     Scratch::PairNode& n = node(u);
     if (!(d < n.dist[s])) return;
     n.dist[s] = d;
     n.pred[s] = from;
+    n.fan[s] = fan;
     if (d + n.dist[1 - s] < mu) {
       mu = d + n.dist[1 - s];
       meet = u;
@@ -499,11 +509,16 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     heap[s].Push(u, key);
     ++result.queued;
   };
+  auto all_edges = [&](uint32_t u) {
+    return FanRange{0, static_cast<uint32_t>(offsets[u + 1] - offsets[u])};
+  };
   for (int s = 0; s < 2; ++s) {
     if (ends[s].is_node) {
-      set(s, ends[s].node, 0, kViaSource);
+      set(s, ends[s].node, 0, kViaSource, all_edges(ends[s].node));
     } else {
-      for (const TemporaryEdge& e : ends[s].edges) set(s, e.node, e.weight, kViaTemporary);
+      for (const TemporaryEdge& e : ends[s].edges) {
+        set(s, e.node, e.weight, kViaTemporary, all_edges(e.node));
+      }
     }
   }
   uint64_t steps = 0;
@@ -519,14 +534,16 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     at[u].set_done(s);
     ++result.settled;
     const double du = at[u].dist[s];
+    const FanRange fan = at[u].fan[s];
     // Memory-bound: each neighbour is a random node. Ask for the records a
     // few edges ahead so their cache misses overlap.
     constexpr uint64_t kAhead = 6;
-    const uint64_t end = offsets[u + 1];
-    result.relaxed += end - offsets[u];
-    for (uint64_t i = offsets[u]; i < end; ++i) {
-      if (i + kAhead < end) {
-        const uint32_t ahead = targets[i + kAhead];
+    const uint64_t begin = offsets[u], end = offsets[u + 1], degree = end - begin;
+    result.relaxed += fan.count;
+    for (uint64_t k = 0, i = begin + fan.begin; k < fan.count; ++k) {
+      if (k + kAhead < fan.count) {
+        const uint64_t j = i + kAhead < end ? i + kAhead : i + kAhead - degree;
+        const uint32_t ahead = targets[j];
         __builtin_prefetch(&at[ahead]);
         if (landmarks) {
           const float* row = landmarks->of(ahead).data();
@@ -534,7 +551,8 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
         }
         if (options.use_astar) __builtin_prefetch(&node_xyz_[ahead]);
       }
-      set(s, targets[i], du + weights[i], u);
+      set(s, targets[i], du + weights[i], u, {fan_begin[i], fan_count[i]});
+      if (++i == end) i = begin;  // fans wrap past u's last edge
     }
   }
   result.distance = mu;

@@ -127,6 +127,34 @@ TEST_F(SpotGraphTest, FieldsAreWithinEpsilonOfExact) {
   }
 }
 
+// Point-to-point searches relax fans too, from both ends: between vertices
+// they find exactly the distances Dijkstra's field does over every edge.
+TEST_F(SpotGraphTest, PairsBetweenVerticesAreTheFieldsGraphDistances) {
+  GeodesicEngine engine(mesh_, graph_);
+  GeodesicEngine with_landmarks(mesh_, graph_);
+  ASSERT_OK(with_landmarks.PrepareLandmarks(16));
+  FieldOptions dijkstra;
+  dijkstra.method = FieldMethod::kDijkstra;
+  const VertexId n = mesh_->num_vertices();
+  for (VertexId s : {VertexId{0}, VertexId{976}, VertexId{1953}}) {
+    const SurfacePoint source = SurfacePoint::Vertex(s);
+    auto field = engine.Field(absl::MakeConstSpan(&source, 1), dijkstra);
+    ASSERT_OK(field);
+    for (VertexId t = 7; t < n; t += 61) {
+      PairOptions plain;
+      plain.use_astar = false;
+      for (const GeodesicEngine* e : {&engine, &with_landmarks}) {
+        for (const PairOptions& options : {PairOptions{}, plain}) {
+          auto pair = e->Distance(source, SurfacePoint::Vertex(t), options);
+          ASSERT_OK(pair);
+          ASSERT_TRUE(SameDistance(pair->distance, field->distance[t]))
+              << s << " -> " << t << ": " << pair->distance << " vs " << field->distance[t];
+        }
+      }
+    }
+  }
+}
+
 TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
   GeodesicEngine engine(mesh_, graph_);
   SurfacePoint sources[] = {SurfacePoint::Vertex(0), SurfacePoint::Vertex(2000)};
