@@ -487,6 +487,10 @@ Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVert
 // shortest circular range of v's angle-sorted edges holding every turn kept.
 void ShortcutFreeFans(DggGraphArrays& a) {
   const uint32_t nodes = a.offsets.size() - 1;
+  std::vector<DggEdge>& edges = a.edges;
+  auto of = [&](uint32_t u) {
+    return std::span<DggEdge>(edges.data() + a.offsets[u], edges.data() + a.offsets[u + 1]);
+  };
   constexpr double kInf = std::numeric_limits<double>::infinity();
   // Only turns at least this much (relative) longer than a shortcut are left
   // out, so that the rounding of a search's sums cannot make a left-out turn
@@ -499,48 +503,39 @@ void ShortcutFreeFans(DggGraphArrays& a) {
         if (best.size() < nodes) best.assign(nodes, kInf);
         std::vector<uint32_t> kept;
         for (uint32_t u = r.begin(); u != r.end(); ++u) {
-          const uint64_t begin = a.offsets[u], end = a.offsets[u + 1];
           // best[y]: the shortest path of at most two edges from u to y.
-          for (uint64_t i = begin; i < end; ++i) {
-            best[a.targets[i]] = std::min<double>(best[a.targets[i]], a.weights[i]);
-          }
-          for (uint64_t i = begin; i < end; ++i) {
-            const uint32_t x = a.targets[i];
-            const double wx = a.weights[i];
-            for (uint64_t j = a.offsets[x]; j < a.offsets[x + 1]; ++j) {
-              best[a.targets[j]] = std::min(best[a.targets[j]], wx + a.weights[j]);
+          for (const DggEdge& e : of(u))
+            best[e.target] = std::min<double>(best[e.target], e.weight);
+          for (const DggEdge& e : of(u)) {
+            for (const DggEdge& f : of(e.target)) {
+              best[f.target] = std::min(best[f.target], double{e.weight} + f.weight);
             }
           }
           best[u] = 0;
-          for (uint64_t i = begin; i < end; ++i) {
-            const uint32_t v = a.targets[i];
-            const uint64_t vb = a.offsets[v];
-            const uint32_t degree = a.offsets[v + 1] - vb;
+          for (DggEdge& e : of(u)) {
+            const auto next = of(e.target);
+            const uint32_t degree = next.size();
             kept.clear();
             for (uint32_t k = 0; k < degree; ++k) {
-              const double turn = double{a.weights[i]} + a.weights[vb + k];
-              if (best[a.targets[vb + k]] >= turn * kStrictlyShorter) kept.push_back(k);
+              const double turn = double{e.weight} + next[k].weight;
+              if (best[next[k].target] >= turn * kStrictlyShorter) kept.push_back(k);
             }
             // The shortest circular range holding `kept` starts after its
             // widest gap.
-            FanRange fan;
-            if (!kept.empty()) {
-              uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
-              for (size_t q = 1; q < kept.size(); ++q) {
-                if (kept[q] - kept[q - 1] > widest) {
-                  widest = kept[q] - kept[q - 1];
-                  start = kept[q];
-                }
+            e.fan = {};
+            if (kept.empty()) continue;
+            uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
+            for (size_t q = 1; q < kept.size(); ++q) {
+              if (kept[q] - kept[q - 1] > widest) {
+                widest = kept[q] - kept[q - 1];
+                start = kept[q];
               }
-              fan = {start, degree - widest + 1};
             }
-            a.fan_begin[i] = fan.begin;
-            a.fan_count[i] = fan.count;
+            e.fan = {start, degree - widest + 1};
           }
-          for (uint64_t i = begin; i < end; ++i) {
-            const uint32_t x = a.targets[i];
-            best[x] = kInf;
-            for (uint64_t j = a.offsets[x]; j < a.offsets[x + 1]; ++j) best[a.targets[j]] = kInf;
+          for (const DggEdge& e : of(u)) {
+            best[e.target] = kInf;
+            for (const DggEdge& f : of(e.target)) best[f.target] = kInf;
           }
           best[u] = kInf;
         }
@@ -573,16 +568,12 @@ DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
   a.offsets.assign(nodes + 1, 0);
   for (uint32_t u = 0; u < nodes; ++u) a.offsets[u + 1] = a.offsets[u] + lists[u].size();
   const uint64_t m = a.offsets[nodes];
-  a.targets.resize(m);
-  a.weights.resize(m);
+  a.edges.resize(m);
   a.angles.resize(m);
-  a.fan_begin.resize(m);
-  a.fan_count.resize(m);
   tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
     uint64_t i = a.offsets[u];
     for (const auto& e : lists[u]) {
-      a.targets[i] = e.to;
-      a.weights[i] = e.weight;
+      a.edges[i] = {e.to, e.weight, {}};
       a.angles[i] = e.angle_here;
       ++i;
     }
@@ -651,11 +642,11 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
   st.fan_seconds = Seconds(t);
   const uint32_t nodes = mesh.num_vertices() + pseudo.size();
   st.pseudo_vertices = pseudo.size();
-  st.edges = arrays.targets.size() / 2;
+  st.edges = arrays.edges.size() / 2;
   for (uint32_t u = 0; u < nodes; ++u) {
     st.max_degree = std::max<uint32_t>(st.max_degree, arrays.offsets[u + 1] - arrays.offsets[u]);
   }
-  st.average_degree = nodes ? double(arrays.targets.size()) / nodes : 0;
+  st.average_degree = nodes ? double(arrays.edges.size()) / nodes : 0;
   return DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
                                      MeshFingerprint(mesh));
 }

@@ -19,8 +19,7 @@ DggGraph::Storage::~Storage() {
 
 uint64_t DggGraph::byte_size() const {
   if (storage_ && storage_->mapping) return storage_->mapping_bytes;
-  return offsets_.size_bytes() + targets_.size_bytes() + weights_.size_bytes() +
-         angles_.size_bytes() + fan_begin_.size_bytes() + fan_count_.size_bytes() +
+  return offsets_.size_bytes() + edges_.size_bytes() + angles_.size_bytes() +
          pseudo_points_.size_bytes() + node_of_vertex_.size_bytes() + vertex_of_node_.size_bytes();
 }
 
@@ -37,9 +36,8 @@ absl::Status DggGraph::Validate(const Mesh& mesh) const {
   if (offsets_.size() != size_t{num_nodes_} + 1 || offsets_[0] != 0) {
     return absl::DataLossError("offsets table has the wrong size or does not start at 0");
   }
-  const uint64_t m = targets_.size();
-  if (weights_.size() != m || angles_.size() != m || fan_begin_.size() != m ||
-      fan_count_.size() != m || offsets_[num_nodes_] != m) {
+  const uint64_t m = edges_.size();
+  if (angles_.size() != m || offsets_[num_nodes_] != m) {
     return absl::DataLossError("edge arrays disagree in length");
   }
   for (uint32_t u = 0; u < num_nodes_; ++u) {
@@ -50,18 +48,19 @@ absl::Status DggGraph::Validate(const Mesh& mesh) const {
   constexpr float kTwoPi = 2 * std::numbers::pi_v<float>;
   for (uint32_t u = 0; u < num_nodes_; ++u) {
     for (uint64_t i = offsets_[u]; i < offsets_[u + 1]; ++i) {
-      const uint32_t v = targets_[i];
+      const DggEdge& e = edges_[i];
+      const uint32_t v = e.target;
       if (v >= num_nodes_ || v == u) {
         return absl::DataLossError(absl::StrFormat("edge %u of node %u points to %u", i, u, v));
       }
-      if (!(weights_[i] > 0) || !std::isfinite(weights_[i])) {
-        return absl::DataLossError(absl::StrFormat("edge %u has weight %g", i, weights_[i]));
+      if (!(e.weight > 0) || !std::isfinite(e.weight)) {
+        return absl::DataLossError(absl::StrFormat("edge %u has weight %g", i, e.weight));
       }
       if (!(angles_[i] >= 0 && angles_[i] <= kTwoPi)) {
         return absl::DataLossError(absl::StrFormat("edge %u has angle %g", i, angles_[i]));
       }
       const uint64_t degree = offsets_[v + 1] - offsets_[v];
-      if (fan_count_[i] > degree || (degree > 0 && fan_begin_[i] >= degree)) {
+      if (e.fan.count > degree || (degree > 0 && e.fan.begin >= degree)) {
         return absl::DataLossError(absl::StrFormat("fan of edge %u leaves node %u's edges", i, v));
       }
     }
@@ -113,11 +112,8 @@ std::shared_ptr<const DggGraph> DggGraphBuilder::FromArrays(DggGraphArrays array
   graph->mesh_fingerprint_ = mesh_fingerprint;
   const DggGraphArrays& a = storage->arrays;
   graph->offsets_ = a.offsets;
-  graph->targets_ = a.targets;
-  graph->weights_ = a.weights;
+  graph->edges_ = a.edges;
   graph->angles_ = a.angles;
-  graph->fan_begin_ = a.fan_begin;
-  graph->fan_count_ = a.fan_count;
   graph->pseudo_points_ = a.pseudo_points;
   graph->node_of_vertex_ = a.node_of_vertex;
   graph->vertex_of_node_ = a.vertex_of_node;

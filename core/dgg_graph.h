@@ -10,9 +10,9 @@
 // directed in compressed adjacency (CSR): every undirected DGG edge appears
 // once from each end. Per node, outgoing edges are sorted by their polar angle
 // at the node (the node's intrinsic tangent frame, core/mesh.h), and each
-// directed edge u->v carries its fan: the range of v's outgoing edges that
-// continue a geodesic arriving along u->v (section 5.1.2), which the
-// DGG-tailored solver scans instead of all of v's edges.
+// directed edge u->v carries its fan: the range of v's outgoing edges that a
+// shortest path arriving along u->v can continue on (section 5.1.2), which
+// the DGG-tailored solver scans instead of all of v's edges.
 //
 // Weights are float32 lengths of real surface paths, rounded up, so graph
 // distances never undercut exact geodesic distances (float32's 6e-8 relative
@@ -30,6 +30,21 @@
 #include "core/surface_point.h"
 
 namespace geodesic {
+
+// A run of a node's angle-sorted outgoing edges.
+struct FanRange {
+  uint32_t begin = 0;  // local index into the node's angle-sorted edges
+  uint32_t count = 0;  // edges, wrapping around the end of the list
+};
+
+// A directed edge u -> v, with everything a search reads of it in one
+// record: a search that reaches v along it relaxes `fan` next.
+struct DggEdge {
+  uint32_t target;  // v
+  float weight;
+  FanRange fan;  // of v's edges
+};
+static_assert(sizeof(DggEdge) == 16);
 
 // Parameters a graph was built with; part of its identity.
 struct DggParams {
@@ -49,20 +64,15 @@ class DggGraph {
   uint32_t num_nodes() const { return num_nodes_; }
   uint32_t num_mesh_vertices() const { return num_mesh_vertices_; }
   uint32_t num_pseudo_vertices() const { return num_nodes_ - num_mesh_vertices_; }
-  uint64_t num_directed_edges() const { return targets_.size(); }
+  uint64_t num_directed_edges() const { return edges_.size(); }
   const DggParams& params() const { return params_; }
   uint64_t mesh_fingerprint() const { return mesh_fingerprint_; }
 
   // Outgoing edges of node u: indices [offsets[u], offsets[u+1]).
   std::span<const uint64_t> offsets() const { return offsets_; }
-  std::span<const uint32_t> targets() const { return targets_; }
-  std::span<const float> weights() const { return weights_; }
+  std::span<const DggEdge> edges() const { return edges_; }
   // Polar angle of each directed edge at its tail, normalised to [0, 2*pi).
   std::span<const float> angles() const { return angles_; }
-  // Fan of directed edge i (u->v): fan_count[i] consecutive edges of v
-  // starting at local index fan_begin[i], wrapping around v's edge list.
-  std::span<const uint32_t> fan_begin() const { return fan_begin_; }
-  std::span<const uint32_t> fan_count() const { return fan_count_; }
   // Where pseudo vertex n + i lies.
   std::span<const SurfacePoint> pseudo_points() const { return pseudo_points_; }
   // The node of mesh vertex v, and the mesh vertex of node u < n.
@@ -94,11 +104,8 @@ class DggGraph {
   DggParams params_;
   uint64_t mesh_fingerprint_ = 0;
   std::span<const uint64_t> offsets_;
-  std::span<const uint32_t> targets_;
-  std::span<const float> weights_;
+  std::span<const DggEdge> edges_;
   std::span<const float> angles_;
-  std::span<const uint32_t> fan_begin_;
-  std::span<const uint32_t> fan_count_;
   std::span<const SurfacePoint> pseudo_points_;
   std::span<const uint32_t> node_of_vertex_;
   std::span<const VertexId> vertex_of_node_;

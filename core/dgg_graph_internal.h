@@ -13,11 +13,8 @@ namespace geodesic {
 
 struct DggGraphArrays {
   std::vector<uint64_t> offsets;
-  std::vector<uint32_t> targets;
-  std::vector<float> weights;
+  std::vector<DggEdge> edges;
   std::vector<float> angles;
-  std::vector<uint32_t> fan_begin;
-  std::vector<uint32_t> fan_count;
   std::vector<SurfacePoint> pseudo_points;
   std::vector<uint32_t> node_of_vertex;
   std::vector<VertexId> vertex_of_node;

@@ -19,11 +19,6 @@ namespace geodesic {
 // approximates a geodesic turns by about arcsin(sqrt(eps)) at a relay.
 inline constexpr double kFanWidth = 4.0;
 
-struct FanRange {
-  uint32_t begin = 0;  // local index into the node's angle-sorted edges
-  uint32_t count = 0;  // edges, wrapping around the end of the list
-};
-
 // The turns that continue a geodesic, in raw radians of the node's cone:
 // (b - arrival) mod period in [lo, hi].
 struct FanTurns {

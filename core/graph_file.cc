@@ -29,20 +29,17 @@ constexpr size_t kAlignment = kSectionAlignment;
 
 enum Section : uint32_t {
   kOffsets,
-  kTargets,
-  kWeights,
+  kEdges,
   kAngles,
-  kFanBegin,
-  kFanCount,
   kPseudoPoints,
   kNodeOfVertex,
   kVertexOfNode,
   kSectionCount
 };
 constexpr const char* kSectionNames[kSectionCount] = {
-    "offsets",   "targets",       "weights",        "angles",        "fan_begin",
-    "fan_count", "pseudo_points", "node_of_vertex", "vertex_of_node"};
-constexpr uint32_t kElementSize[kSectionCount] = {8, 4, 4, 4, 4, 4, sizeof(SurfacePoint), 4, 4};
+    "offsets", "edges", "angles", "pseudo_points", "node_of_vertex", "vertex_of_node"};
+constexpr uint32_t kElementSize[kSectionCount] = {8, sizeof(DggEdge), 4, sizeof(SurfacePoint), 4,
+                                                  4};
 
 struct SectionEntry {
   char name[16];
@@ -84,15 +81,10 @@ absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::stri
     return absl::DataLossError(
         absl::StrFormat("%s: %u sections, expected %u", path, h.section_count, kSectionCount));
   }
-  const uint64_t expected_elements[kSectionCount] = {uint64_t{h.num_nodes} + 1,
-                                                     h.num_directed_edges,
-                                                     h.num_directed_edges,
-                                                     h.num_directed_edges,
-                                                     h.num_directed_edges,
-                                                     h.num_directed_edges,
-                                                     uint64_t{h.num_nodes} - h.num_mesh_vertices,
-                                                     h.num_mesh_vertices,
-                                                     h.num_mesh_vertices};
+  const uint64_t expected_elements[kSectionCount] = {
+      uint64_t{h.num_nodes} + 1, h.num_directed_edges,
+      h.num_directed_edges,      uint64_t{h.num_nodes} - h.num_mesh_vertices,
+      h.num_mesh_vertices,       h.num_mesh_vertices};
   if (h.num_nodes < h.num_mesh_vertices) {
     return absl::DataLossError(absl::StrFormat("%s: fewer nodes than mesh vertices", path));
   }
@@ -135,11 +127,8 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   h.num_directed_edges = graph.num_directed_edges();
   const std::array<std::pair<const void*, uint64_t>, kSectionCount> data = {{
       {graph.offsets().data(), graph.offsets().size_bytes()},
-      {graph.targets().data(), graph.targets().size_bytes()},
-      {graph.weights().data(), graph.weights().size_bytes()},
+      {graph.edges().data(), graph.edges().size_bytes()},
       {graph.angles().data(), graph.angles().size_bytes()},
-      {graph.fan_begin().data(), graph.fan_begin().size_bytes()},
-      {graph.fan_count().data(), graph.fan_count().size_bytes()},
       {graph.pseudo_points().data(), graph.pseudo_points().size_bytes()},
       {graph.node_of_vertex().data(), graph.node_of_vertex().size_bytes()},
       {graph.vertex_of_node().data(), graph.vertex_of_node().size_bytes()},
@@ -235,11 +224,8 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphFile::Open(const std::strin
                              h.sections[i].bytes / sizeof(T));
   };
   section(kOffsets, graph->offsets_);
-  section(kTargets, graph->targets_);
-  section(kWeights, graph->weights_);
+  section(kEdges, graph->edges_);
   section(kAngles, graph->angles_);
-  section(kFanBegin, graph->fan_begin_);
-  section(kFanCount, graph->fan_count_);
   section(kPseudoPoints, graph->pseudo_points_);
   section(kNodeOfVertex, graph->node_of_vertex_);
   section(kVertexOfNode, graph->vertex_of_node_);

@@ -21,8 +21,9 @@
 
 namespace geodesic {
 
-// 2: vertex nodes in spatial order, with the node_of_vertex and
-// vertex_of_node sections. Files of another version are rejected by name.
+// 2: vertex nodes in spatial order (the node_of_vertex and vertex_of_node
+// sections); each edge one record with its fan, and fans that hold every
+// turn a shortest path takes. Files of another version are rejected by name.
 inline constexpr uint32_t kGraphFormatVersion = 2;
 
 // The name a graph has in a graph directory (geodesicd serve --graph-dir):

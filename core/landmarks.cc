@@ -14,8 +14,7 @@ namespace {
 bool ShortestDistances(const DggGraph& graph, uint32_t source,
                        const std::function<bool()>& cancelled, std::vector<double>& dist) {
   auto offsets = graph.offsets();
-  auto targets = graph.targets();
-  auto weights = graph.weights();
+  auto edges = graph.edges();
   if (cancelled && cancelled()) return false;
   dist.assign(graph.num_nodes(), std::numeric_limits<double>::infinity());
   NodeHeap heap;
@@ -29,10 +28,10 @@ bool ShortestDistances(const DggGraph& graph, uint32_t source,
     heap.Pop();
     if (cancelled && (++pops & 4095) == 0 && cancelled()) return false;
     for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
-      const double dv = d + weights[i];
-      if (dv < dist[targets[i]]) {
-        dist[targets[i]] = dv;
-        heap.Push(targets[i], dv);
+      const double dv = d + edges[i].weight;
+      if (dv < dist[edges[i].target]) {
+        dist[edges[i].target] = dv;
+        heap.Push(edges[i].target, dv);
       }
     }
   }

@@ -7,6 +7,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "core/bucket_queue.h"
 #include "core/exact_geodesic.h"
 #include "core/fan.h"
 #include "core/node_heap.h"
@@ -35,7 +36,9 @@ struct Scratch {
   // beside its target and weight; the node's record beside its distance).
   std::vector<FanRange> fan;
   std::vector<uint32_t> label;  // index of the nearest source
-  NodeHeap heap;                // Dijkstra's queue
+  std::vector<uint8_t> handled;
+  NodeHeap heap;  // Dijkstra's queue, for searches that stop at targets
+  BucketQueue buckets;
 
   // Point-to-point searches touch a few thousand nodes at random: one
   // record per node, one cache line, so each touch is one miss, valid only
@@ -79,6 +82,7 @@ struct Scratch {
       dist.resize(nodes);
       fan.resize(nodes);
       label.resize(nodes);
+      handled.resize(nodes);
     }
   }
   // Returns the new query's stamp.
@@ -99,6 +103,19 @@ struct Scratch {
   }
 };
 
+// NodeHeap in the interface Field's search shares with BucketQueue.
+struct HeapQueue {
+  NodeHeap& heap;
+  bool empty() const { return heap.empty(); }
+  void Push(uint32_t node, double key) { heap.Push(node, key); }
+  uint32_t Pop() {
+    const uint32_t node = heap.top();
+    heap.Pop();
+    return node;
+  }
+  uint32_t Peek(uint32_t none) const { return heap.empty() ? none : heap.top(); }
+};
+
 Scratch& ThreadScratch() {
   thread_local Scratch scratch;
   return scratch;
@@ -115,6 +132,13 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
     : mesh_(std::move(mesh)), graph_(std::move(graph)) {
+  double sum = 0;
+  for (const DggEdge& e : graph_->edges()) {
+    sum += e.weight;
+    max_weight_ = std::max<double>(max_weight_, e.weight);
+  }
+  mean_weight_ = graph_->edges().empty() ? 1 : sum / graph_->edges().size();
+  if (max_weight_ == 0) max_weight_ = 1;
   node_xyz_.resize(graph_->num_nodes());
   for (uint32_t u = 0; u < node_xyz_.size(); ++u) {
     node_xyz_[u] = PositionOf(*mesh_, graph_->point_of_node(u));
@@ -190,10 +214,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
   std::fill(label.begin(), label.begin() + nodes, kNone);
   auto offsets = g.offsets();
-  auto targets = g.targets();
-  auto weights = g.weights();
-  auto fan_begin = g.fan_begin();
-  auto fan_count = g.fan_count();
+  const DggEdge* edges = g.edges().data();
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
   // A source, or a node a temporary edge reaches, relaxes all its edges.
   auto all_edges = [&](uint32_t u) {
@@ -239,45 +260,59 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   // the last edge of a shortest path to w, and v reached by u -> v with
   // d(v) = d(u) + |uv|. Were w outside that fan, some path from u to w would
   // be shorter than |uv| + |vw|, so d(w) < d(v) + |vw| = d(w).
-  NodeHeap& heap = sc.heap;
-  heap.Reset(nodes);
-  for (uint32_t s : seeds) heap.Push(s, dist[s]);
-  while (!heap.empty()) {
-    const uint32_t u = heap.top();
-    heap.Pop();
-    if (dist[u] > options.max_distance) break;
-    if (options.cancelled && (pops & 4095) == 0 && options.cancelled()) {
-      return absl::CancelledError("field cancelled");
-    }
-    ++pops;
-    if (targets_left && is_target[u] && --targets_left == 0) break;
-    const uint64_t begin = offsets[u], end = offsets[u + 1];
-    const FanRange relaxed = use_fans ? fan[u] : all_edges(u);
-    // The graph is too large for the cache and the search visits it in no
-    // order memory likes: start loading the likely next node's edges now.
-    if (!heap.empty()) {
-      const uint32_t next = heap.top();
-      const uint64_t first = offsets[next] + (use_fans ? fan[next].begin : 0);
-      __builtin_prefetch(&targets[first]);
-      __builtin_prefetch(&weights[first]);
-      if (use_fans) {
-        __builtin_prefetch(&fan_begin[first]);
-        __builtin_prefetch(&fan_count[first]);
+  std::vector<uint8_t>& handled = sc.handled;  // at the node's current label
+  std::fill(handled.begin(), handled.begin() + nodes, 0);
+  auto run = [&](auto& queue) -> absl::Status {
+    for (uint32_t s : seeds) queue.Push(s, dist[s]);
+    while (!queue.empty()) {
+      const uint32_t u = queue.Pop();
+      if (handled[u] || dist[u] > options.max_distance) continue;
+      handled[u] = 1;
+      if (options.cancelled && (pops & 4095) == 0 && options.cancelled()) {
+        return absl::CancelledError("field cancelled");
+      }
+      ++pops;
+      if (targets_left && is_target[u] && --targets_left == 0) break;
+      const uint64_t begin = offsets[u], end = offsets[u + 1];
+      const FanRange relaxed = use_fans ? fan[u] : all_edges(u);
+      // The graph is too large for the cache and the search visits it in no
+      // order memory likes: start loading the likely next node's edges now.
+      if (const uint32_t next = queue.Peek(kNone); next != kNone) {
+        const uint64_t first = offsets[next] + (use_fans ? fan[next].begin : 0);
+        __builtin_prefetch(&edges[first]);
+        __builtin_prefetch(&edges[first] + 4);
+      }
+      const double du = dist[u];
+      result.relaxed += relaxed.count;
+      for (uint64_t k = 0, i = begin + relaxed.begin; k < relaxed.count; ++k) {
+        const DggEdge& e = edges[i];
+        const uint32_t v = e.target;
+        const double nd = du + e.weight;
+        if (nd < dist[v]) {
+          dist[v] = nd;
+          if (use_fans) fan[v] = e.fan;
+          label[v] = label[u];
+          handled[v] = 0;
+          queue.Push(v, nd);
+        }
+        if (++i == end) i = begin;  // fans wrap past u's last edge
       }
     }
-    const double du = dist[u];
-    result.relaxed += relaxed.count;
-    for (uint64_t k = 0, i = begin + relaxed.begin; k < relaxed.count; ++k) {
-      const uint32_t v = targets[i];
-      const double nd = du + weights[i];
-      if (nd < dist[v]) {
-        dist[v] = nd;
-        if (use_fans) fan[v] = {fan_begin[i], fan_count[i]};
-        label[v] = label[u];
-        heap.Push(v, nd);
-      }
-      if (++i == end) i = begin;  // fans wrap past u's last edge
-    }
+    return absl::OkStatus();
+  };
+  if (targets_left) {
+    // Stopping at targets needs nodes settled in order of distance.
+    HeapQueue heap{sc.heap};
+    heap.heap.Reset(nodes);
+    RETURN_IF_ERROR(run(heap));
+  } else {
+    // Buckets half the mean edge weight wide: armadillo fields at 1e-2 and
+    // 1e-3 took the same time at a quarter, 10% more at one and 30-50% more
+    // at two mean weights (more nodes taken out before they are final).
+    double max_seed = 0;
+    for (uint32_t s : seeds) max_seed = std::max(max_seed, dist[s]);
+    sc.buckets.Reset(0.5 * mean_weight_, std::max(max_weight_, max_seed));
+    RETURN_IF_ERROR(run(sc.buckets));
   }
   // Back from node order to the mesh's vertex order.
   const uint32_t n = mesh.num_vertices();
@@ -450,10 +485,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   const uint32_t stamp = sc.PreparePair(nodes);
   std::vector<Scratch::PairNode>& at = sc.pair;
   auto offsets = g.offsets();
-  auto targets = g.targets();
-  auto weights = g.weights();
-  auto fan_begin = g.fan_begin();
-  auto fan_count = g.fan_count();
+  auto edges = g.edges();
   // Average potential p(v) = (bound to b - bound to a) / 2: consistent for
   // both directions because each bound is (EndpointBound).
   // Plain Dijkstra (no A*) needs no bounds, so no landmark work either.
@@ -543,7 +575,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     for (uint64_t k = 0, i = begin + fan.begin; k < fan.count; ++k) {
       if (k + kAhead < fan.count) {
         const uint64_t j = i + kAhead < end ? i + kAhead : i + kAhead - degree;
-        const uint32_t ahead = targets[j];
+        const uint32_t ahead = edges[j].target;
         __builtin_prefetch(&at[ahead]);
         if (landmarks) {
           const float* row = landmarks->of(ahead).data();
@@ -551,7 +583,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
         }
         if (options.use_astar) __builtin_prefetch(&node_xyz_[ahead]);
       }
-      set(s, targets[i], du + weights[i], u, {fan_begin[i], fan_count[i]});
+      set(s, edges[i].target, du + edges[i].weight, u, edges[i].fan);
       if (++i == end) i = begin;  // fans wrap past u's last edge
     }
   }

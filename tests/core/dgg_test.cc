@@ -79,11 +79,11 @@ TEST_F(SpotGraphTest, GraphIsValidAndSymmetric) {
   auto off = graph_->offsets();
   for (uint32_t u = 0; u < graph_->num_nodes(); u += 97) {
     for (uint64_t i = off[u]; i < off[u + 1]; ++i) {
-      uint32_t v = graph_->targets()[i];
+      uint32_t v = graph_->edges()[i].target;
       bool found = false;
       for (uint64_t j = off[v]; j < off[v + 1]; ++j) {
-        if (graph_->targets()[j] == u) {
-          EXPECT_EQ(graph_->weights()[j], graph_->weights()[i]);
+        if (graph_->edges()[j].target == u) {
+          EXPECT_EQ(graph_->edges()[j].weight, graph_->edges()[i].weight);
           found = true;
         }
       }
@@ -236,10 +236,12 @@ TEST_F(SpotGraphTest, GraphFileRoundTripsAndMapsTheSameGraph) {
   EXPECT_TRUE((*mapped)->is_mapped());
   EXPECT_EQ((*mapped)->num_nodes(), graph_->num_nodes());
   EXPECT_EQ((*mapped)->num_directed_edges(), graph_->num_directed_edges());
-  EXPECT_TRUE(
-      std::equal(graph_->targets().begin(), graph_->targets().end(), (*mapped)->targets().begin()));
-  EXPECT_TRUE(std::equal(graph_->fan_begin().begin(), graph_->fan_begin().end(),
-                         (*mapped)->fan_begin().begin()));
+  EXPECT_EQ(
+      std::memcmp(graph_->edges().data(), (*mapped)->edges().data(), graph_->edges().size_bytes()),
+      0);
+  EXPECT_EQ(std::memcmp(graph_->node_of_vertex().data(), (*mapped)->node_of_vertex().data(),
+                        graph_->node_of_vertex().size_bytes()),
+            0);
   auto info = GraphFile::Inspect(path);
   ASSERT_OK(info);
   EXPECT_EQ(info->params.epsilon, graph_->params().epsilon);

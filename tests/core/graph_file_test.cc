@@ -38,15 +38,12 @@ std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_tar
   for (uint32_t u = 0; u < 4; ++u) {
     for (uint32_t v = 0; v < 4; ++v) {
       if (u == v) continue;
-      a.targets.push_back(v);
-      a.weights.push_back(1.5f);
+      a.edges.push_back({v, 1.5f, {0, 1}});
       a.angles.push_back(0.1f * v);
-      a.fan_begin.push_back(0);
-      a.fan_count.push_back(1);
     }
-    a.offsets.push_back(a.targets.size());
+    a.offsets.push_back(a.edges.size());
   }
-  a.targets[5] = bad_target;
+  a.edges[5].target = bad_target;
   DggParams params;
   params.epsilon = 0.1;
   return DggGraphBuilder::FromArrays(std::move(a), 4, 4, params, MeshFingerprint(mesh));
