@@ -36,8 +36,7 @@ struct Scratch {
   // beside its target and weight; the node's record beside its distance).
   std::vector<FanRange> fan;
   std::vector<uint32_t> label;  // index of the nearest source
-  std::vector<uint8_t> handled;
-  NodeHeap heap;  // Dijkstra's queue, for searches that stop at targets
+  NodeHeap heap;                // Dijkstra's queue, for searches that stop at targets
   BucketQueue buckets;
 
   // Point-to-point searches touch a few thousand nodes at random: one
@@ -82,7 +81,6 @@ struct Scratch {
       dist.resize(nodes);
       fan.resize(nodes);
       label.resize(nodes);
-      handled.resize(nodes);
     }
   }
   // Returns the new query's stamp.
@@ -113,7 +111,7 @@ struct HeapQueue {
     heap.Pop();
     return node;
   }
-  uint32_t Peek(uint32_t none) const { return heap.empty() ? none : heap.top(); }
+  uint32_t Peek(uint32_t none, size_t) const { return heap.empty() ? none : heap.top(); }
 };
 
 Scratch& ThreadScratch() {
@@ -260,14 +258,11 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   // the last edge of a shortest path to w, and v reached by u -> v with
   // d(v) = d(u) + |uv|. Were w outside that fan, some path from u to w would
   // be shorter than |uv| + |vw|, so d(w) < d(v) + |vw| = d(w).
-  std::vector<uint8_t>& handled = sc.handled;  // at the node's current label
-  std::fill(handled.begin(), handled.begin() + nodes, 0);
   auto run = [&](auto& queue) -> absl::Status {
     for (uint32_t s : seeds) queue.Push(s, dist[s]);
     while (!queue.empty()) {
       const uint32_t u = queue.Pop();
-      if (handled[u] || dist[u] > options.max_distance) continue;
-      handled[u] = 1;
+      if (dist[u] > options.max_distance) continue;
       if (options.cancelled && (pops & 4095) == 0 && options.cancelled()) {
         return absl::CancelledError("field cancelled");
       }
@@ -276,8 +271,10 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       const uint64_t begin = offsets[u], end = offsets[u + 1];
       const FanRange relaxed = use_fans ? fan[u] : all_edges(u);
       // The graph is too large for the cache and the search visits it in no
-      // order memory likes: start loading the likely next node's edges now.
-      if (const uint32_t next = queue.Peek(kNone); next != kNone) {
+      // order memory likes: start loading a coming node's edges now.
+      // With buckets the next few are known, and one ahead is too close.
+      constexpr size_t kAhead = 4;
+      if (const uint32_t next = queue.Peek(kNone, kAhead); next != kNone) {
         const uint64_t first = offsets[next] + (use_fans ? fan[next].begin : 0);
         __builtin_prefetch(&edges[first]);
         __builtin_prefetch(&edges[first] + 4);
@@ -292,7 +289,6 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
           dist[v] = nd;
           if (use_fans) fan[v] = e.fan;
           label[v] = label[u];
-          handled[v] = 0;
           queue.Push(v, nd);
         }
         if (++i == end) i = begin;  // fans wrap past u's last edge
@@ -311,7 +307,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     // at two mean weights (more nodes taken out before they are final).
     double max_seed = 0;
     for (uint32_t s : seeds) max_seed = std::max(max_seed, dist[s]);
-    sc.buckets.Reset(0.5 * mean_weight_, std::max(max_weight_, max_seed));
+    sc.buckets.Reset(nodes, 0.5 * mean_weight_, std::max(max_weight_, max_seed));
     RETURN_IF_ERROR(run(sc.buckets));
   }
   // Back from node order to the mesh's vertex order.

@@ -21,7 +21,7 @@ TEST(BucketQueueTest, TakesOutBucketByBucketAcrossManyTurnsOfTheRing) {
   const double width = 0.25, max_step = 3.0;
   std::uniform_real_distribution<double> step(0.0, max_step);
   BucketQueue queue;
-  queue.Reset(width, max_step);
+  queue.Reset(20000, width, max_step);
   std::vector<double> key;
   for (int i = 0; i < 50; ++i) {
     key.push_back(step(rng));
@@ -99,7 +99,7 @@ TEST(BucketQueueTest, LabelCorrectingSearchGivesDijkstrasDistances) {
                                          [&] { return heap.empty(); });
   for (double width : {0.05, 0.5, 3.0}) {
     BucketQueue queue;
-    queue.Reset(width, max_weight);
+    queue.Reset(n, width, max_weight);
     const std::vector<double> got =
         solve([&](uint32_t u, double d) { queue.Push(u, d); }, [&] { return queue.Pop(); },
               [&] { return queue.empty(); });
