@@ -5,37 +5,32 @@
 #include <utility>
 
 #include "absl/status/status.h"
-#include "core/node_heap.h"
+#include "core/graph_search.h"
 
 namespace geodesic {
 namespace {
 
 // Graph distances from `source` to every node; false if cancelled.
-bool ShortestDistances(const DggGraph& graph, uint32_t source,
+bool ShortestDistances(const DggGraph& graph, const BucketShape& shape, uint32_t source,
                        const std::function<bool()>& cancelled, std::vector<double>& dist) {
-  auto offsets = graph.offsets();
-  auto edges = graph.edges();
   if (cancelled && cancelled()) return false;
   dist.assign(graph.num_nodes(), std::numeric_limits<double>::infinity());
-  NodeHeap heap;
-  heap.Reset(graph.num_nodes());
+  std::vector<FanRange> fan(graph.num_nodes());
+  BucketQueue queue;
+  queue.Reset(graph.num_nodes(), shape.width, shape.max_step);
   dist[source] = 0;
-  heap.Push(source, 0);
+  fan[source] = AllEdges(graph, source);
+  queue.Push(source, 0);
   uint64_t pops = 0;
-  while (!heap.empty()) {
-    const uint32_t u = heap.top();
-    const double d = heap.top_key();
-    heap.Pop();
-    if (cancelled && (++pops & 4095) == 0 && cancelled()) return false;
-    for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
-      const double dv = d + edges[i].weight;
-      if (dv < dist[edges[i].target]) {
-        dist[edges[i].target] = dv;
-        heap.Push(edges[i].target, dv);
-      }
-    }
-  }
-  return true;
+  bool stopped = false;
+  SearchGraph(
+      graph, queue, /*use_fans=*/true, dist.data(), fan.data(),
+      [&](uint32_t) {
+        stopped = cancelled && (++pops & 4095) == 0 && cancelled();
+        return stopped ? Visit::kStop : Visit::kRelax;
+      },
+      [](uint32_t, uint32_t) {});
+  return !stopped;
 }
 
 // The reached node with the largest value of `key`, or kNone.
@@ -60,7 +55,8 @@ absl::StatusOr<std::unique_ptr<const Landmarks>> Landmarks::Compute(
   // Farthest-point sampling on the graph metric; `nearest` holds each node's
   // distance to the closest landmark so far.
   std::vector<double> nearest;
-  if (!ShortestDistances(graph, 0, cancelled, nearest)) {
+  const BucketShape shape = BucketShapeOf(graph);
+  if (!ShortestDistances(graph, shape, 0, cancelled, nearest)) {
     return absl::CancelledError("landmark computation cancelled");
   }
   result->count_ = count;
@@ -68,7 +64,7 @@ absl::StatusOr<std::unique_ptr<const Landmarks>> Landmarks::Compute(
   for (int k = 0; k < count; ++k) {
     uint32_t next = Farthest(nearest);
     if (next == kNone) next = 0;
-    if (!ShortestDistances(graph, next, cancelled, dist)) {
+    if (!ShortestDistances(graph, shape, next, cancelled, dist)) {
       return absl::CancelledError("landmark computation cancelled");
     }
     result->nodes_.push_back(next);

@@ -7,9 +7,8 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
-#include "core/bucket_queue.h"
 #include "core/exact_geodesic.h"
-#include "core/fan.h"
+#include "core/graph_search.h"
 #include "core/node_heap.h"
 #include "core/status.h"
 
@@ -101,19 +100,6 @@ struct Scratch {
   }
 };
 
-// NodeHeap in the interface Field's search shares with BucketQueue.
-struct HeapQueue {
-  NodeHeap& heap;
-  bool empty() const { return heap.empty(); }
-  void Push(uint32_t node, double key) { heap.Push(node, key); }
-  uint32_t Pop() {
-    const uint32_t node = heap.top();
-    heap.Pop();
-    return node;
-  }
-  uint32_t Peek(uint32_t none, size_t) const { return heap.empty() ? none : heap.top(); }
-};
-
 Scratch& ThreadScratch() {
   thread_local Scratch scratch;
   return scratch;
@@ -130,13 +116,7 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
     : mesh_(std::move(mesh)), graph_(std::move(graph)) {
-  double sum = 0;
-  for (const DggEdge& e : graph_->edges()) {
-    sum += e.weight;
-    max_weight_ = std::max<double>(max_weight_, e.weight);
-  }
-  mean_weight_ = graph_->edges().empty() ? 1 : sum / graph_->edges().size();
-  if (max_weight_ == 0) max_weight_ = 1;
+  buckets_ = BucketShapeOf(*graph_);
   node_xyz_.resize(graph_->num_nodes());
   for (uint32_t u = 0; u < node_xyz_.size(); ++u) {
     node_xyz_[u] = PositionOf(*mesh_, graph_->point_of_node(u));
@@ -211,20 +191,15 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   std::vector<uint32_t>& label = sc.label;
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
   std::fill(label.begin(), label.begin() + nodes, kNone);
-  auto offsets = g.offsets();
-  const DggEdge* edges = g.edges().data();
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
-  // A source, or a node a temporary edge reaches, relaxes all its edges.
-  auto all_edges = [&](uint32_t u) {
-    return FanRange{0, static_cast<uint32_t>(offsets[u + 1] - offsets[u])};
-  };
 
   // Seed: vertex sources at 0; other points through their temporary edges.
+  // A seed relaxes all its edges.
   std::vector<uint32_t> seeds;
   auto seed = [&](uint32_t u, double d, uint32_t source) {
     if (!(d < dist[u])) return;
     dist[u] = d;
-    fan[u] = all_edges(u);
+    fan[u] = AllEdges(g, u);
     label[u] = source;
     seeds.push_back(u);
   };
@@ -242,7 +217,6 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
 
   FieldResult result;
-  uint64_t pops = 0;
   size_t targets_left = options.targets.size();
   std::vector<uint8_t> is_target;
   if (targets_left) {
@@ -250,66 +224,34 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     for (VertexId t : options.targets) is_target[g.node_of_vertex(t)] = 1;
     targets_left = std::count(is_target.begin(), is_target.end(), 1);
   }
-
-  // Dijkstra. With fans (Algorithm 2's rule), a node relaxes only the fan of
-  // the edge it was reached by. The graph's fans hold every turn a shortest
-  // path can take (core/dgg_build.cc), so the distances are still exactly
-  // the graph's. Induction over nodes in order of distance: let v -> w be
-  // the last edge of a shortest path to w, and v reached by u -> v with
-  // d(v) = d(u) + |uv|. Were w outside that fan, some path from u to w would
-  // be shorter than |uv| + |vw|, so d(w) < d(v) + |vw| = d(w).
-  auto run = [&](auto& queue) -> absl::Status {
-    for (uint32_t s : seeds) queue.Push(s, dist[s]);
-    while (!queue.empty()) {
-      const uint32_t u = queue.Pop();
-      if (dist[u] > options.max_distance) continue;
-      if (options.cancelled && (pops & 4095) == 0 && options.cancelled()) {
-        return absl::CancelledError("field cancelled");
-      }
-      ++pops;
-      if (targets_left && is_target[u] && --targets_left == 0) break;
-      const uint64_t begin = offsets[u], end = offsets[u + 1];
-      const FanRange relaxed = use_fans ? fan[u] : all_edges(u);
-      // The graph is too large for the cache and the search visits it in no
-      // order memory likes: start loading a coming node's edges now.
-      // With buckets the next few are known, and one ahead is too close.
-      constexpr size_t kAhead = 4;
-      if (const uint32_t next = queue.Peek(kNone, kAhead); next != kNone) {
-        const uint64_t first = offsets[next] + (use_fans ? fan[next].begin : 0);
-        __builtin_prefetch(&edges[first]);
-        __builtin_prefetch(&edges[first] + 4);
-      }
-      const double du = dist[u];
-      result.relaxed += relaxed.count;
-      for (uint64_t k = 0, i = begin + relaxed.begin; k < relaxed.count; ++k) {
-        const DggEdge& e = edges[i];
-        const uint32_t v = e.target;
-        const double nd = du + e.weight;
-        if (nd < dist[v]) {
-          dist[v] = nd;
-          if (use_fans) fan[v] = e.fan;
-          label[v] = label[u];
-          queue.Push(v, nd);
-        }
-        if (++i == end) i = begin;  // fans wrap past u's last edge
-      }
+  bool cancelled = false;
+  auto visit = [&](uint32_t u) {
+    if (dist[u] > options.max_distance) return Visit::kSkip;
+    if (options.cancelled && (result.queue_pops & 4095) == 0 && options.cancelled()) {
+      cancelled = true;
+      return Visit::kStop;
     }
-    return absl::OkStatus();
+    ++result.queue_pops;
+    if (targets_left && is_target[u] && --targets_left == 0) return Visit::kStop;
+    return Visit::kRelax;
+  };
+  auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
+  auto run = [&](auto& queue) {
+    for (uint32_t s : seeds) queue.Push(s, dist[s]);
+    result.relaxed = SearchGraph(g, queue, use_fans, dist.data(), fan.data(), visit, improved);
   };
   if (targets_left) {
     // Stopping at targets needs nodes settled in order of distance.
     HeapQueue heap{sc.heap};
     heap.heap.Reset(nodes);
-    RETURN_IF_ERROR(run(heap));
+    run(heap);
   } else {
-    // Buckets half the mean edge weight wide: armadillo fields at 1e-2 and
-    // 1e-3 took the same time at a quarter, 10% more at one and 30-50% more
-    // at two mean weights (more nodes taken out before they are final).
     double max_seed = 0;
     for (uint32_t s : seeds) max_seed = std::max(max_seed, dist[s]);
-    sc.buckets.Reset(nodes, 0.5 * mean_weight_, std::max(max_weight_, max_seed));
-    RETURN_IF_ERROR(run(sc.buckets));
+    sc.buckets.Reset(nodes, buckets_.width, std::max(buckets_.max_step, max_seed));
+    run(sc.buckets);
   }
+  if (cancelled) return absl::CancelledError("field cancelled");
   // Back from node order to the mesh's vertex order.
   const uint32_t n = mesh.num_vertices();
   auto node_of_vertex = g.node_of_vertex();
@@ -324,7 +266,6 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       result.nearest_source[v] = result.distance[v] == kInfinity ? kNone : label[node_of_vertex[v]];
     }
   }
-  result.queue_pops = pops;
   return result;
 }
 
@@ -537,15 +478,12 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     heap[s].Push(u, key);
     ++result.queued;
   };
-  auto all_edges = [&](uint32_t u) {
-    return FanRange{0, static_cast<uint32_t>(offsets[u + 1] - offsets[u])};
-  };
   for (int s = 0; s < 2; ++s) {
     if (ends[s].is_node) {
-      set(s, ends[s].node, 0, kViaSource, all_edges(ends[s].node));
+      set(s, ends[s].node, 0, kViaSource, AllEdges(g, ends[s].node));
     } else {
       for (const TemporaryEdge& e : ends[s].edges) {
-        set(s, e.node, e.weight, kViaTemporary, all_edges(e.node));
+        set(s, e.node, e.weight, kViaTemporary, AllEdges(g, e.node));
       }
     }
   }

@@ -19,6 +19,7 @@
 #include "absl/synchronization/mutex.h"
 #include "absl/types/span.h"
 #include "core/dgg_graph.h"
+#include "core/graph_search.h"
 #include "core/landmarks.h"
 #include "core/mesh.h"
 #include "core/surface_point.h"
@@ -128,7 +129,7 @@ class GeodesicEngine {
   // position of every node it touches, and the mesh's own array is in
   // vertex order, scattered across the search.
   std::vector<Vec3> node_xyz_;
-  double mean_weight_ = 0, max_weight_ = 0;  // of the graph's edges
+  BucketShape buckets_;
   // Written once under the mutex, then read lock-free by every query.
   mutable absl::Mutex landmarks_mu_;
   mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);
