@@ -75,12 +75,20 @@ bool LoadSecurity(Common& c) {
   return true;
 }
 
-std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c) {
+// `connected`: wait (up to the call timeout) until the connection is up, so
+// that a call timed after it measures the call, not the handshake.
+std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = false) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(256 << 20);
   auto credentials =
       c.tls_ca.empty() ? grpc::InsecureChannelCredentials() : grpc::SslCredentials(c.tls);
   auto channel = grpc::CreateCustomChannel(c.server, credentials, args);
+  if (connected) {
+    // A failure shows up, with its reason, in the call that follows.
+    (void)channel->WaitForConnected(
+        std::chrono::system_clock::now() +
+        std::chrono::milliseconds(static_cast<int64_t>(c.timeout * 1000)));
+  }
   return v1::Geodesic::NewStub(channel);
 }
 
@@ -432,7 +440,7 @@ int WriteColouredPly(const std::string& mesh_file, const std::string& out,
 
 int CmdField(const Common& c, const std::vector<std::string>& sources, const std::string& out,
              double radius, const std::string& method, bool f32, const std::string& mesh_file) {
-  auto stub = Connect(c);
+  auto stub = Connect(c, /*connected=*/true);
   v1::DistanceFieldRequest req;
   req.set_mesh(c.mesh);
   req.set_epsilon(c.epsilon);
