@@ -748,14 +748,16 @@ int main(int argc, char** argv) {
   app.add_subcommand("status", "list graphs and their state");
   auto* field = app.add_subcommand("field", "distance field");
   std::vector<std::string> sources;
-  std::string out, method = "dijkstra", mesh_file;
+  std::string out, method = "lc", mesh_file;
   double radius = 0;
   bool f32 = false;
   field->add_option("--source", sources, "source point(s)")->required();
   field->add_option("--out", out, "write .f64 (float64 per vertex), .csv, or .ply (colours)");
   field->add_option("--mesh-file", mesh_file, "local copy of the mesh, for .ply output");
   field->add_option("--radius", radius, "only vertices within this distance");
-  field->add_option("--method", method, "dijkstra (default) or lc (faster, not guaranteed)");
+  field->add_option("--method", method,
+                    "lc (default: each vertex relaxes only the fan of the edge it was reached by) "
+                    "or dijkstra (every edge); both give the graph's shortest distances");
   field->add_flag("--float32", f32, "transfer float32 values");
   auto* distance = app.add_subcommand("distance", "point-to-point distance");
   std::string from, to, pairs;
