@@ -60,6 +60,16 @@ inline FanRange AllEdges(const DggGraph& g, uint32_t u) {
 
 enum class Visit { kRelax, kSkip, kStop };
 
+// Asks for the cache lines of edges [begin, end), begin < end.
+inline void PrefetchEdges(const DggEdge* edges, uint64_t begin, uint64_t end) {
+  constexpr uint64_t kPerLine = 64 / sizeof(DggEdge);
+  // Steps of a line from begin, the last one moved back to end - 1: that
+  // covers the last line when begin is not aligned.
+  for (uint64_t i = begin; i < end + kPerLine - 1; i += kPerLine) {
+    __builtin_prefetch(&edges[std::min(i, end - 1)]);
+  }
+}
+
 // Runs the search from what `queue` holds (the caller has set each seed's
 // dist and fan). `visit(u)` is asked about each node taken out; after
 // `dist[v]` improved through u, `improved(u, v)` is called. Without fans
@@ -79,13 +89,16 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, bool use_fans, double* dis
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = use_fans ? fan[u] : AllEdges(g, u);
     // The graph is too large for the cache and the search visits it in no
-    // order memory likes: start loading a coming node's edges now. With
-    // buckets the next few are known, and the very next is too close.
+    // order memory likes: start loading a coming node's fan now, every line
+    // of it (a fan may wrap past the end of the node's list). With buckets
+    // the next few nodes are known, and the very next is too close.
     constexpr size_t kAhead = 4;
     if (const uint32_t next = queue.Peek(kNone, kAhead); next != kNone) {
-      const uint64_t first = offsets[next] + (use_fans ? fan[next].begin : 0);
-      __builtin_prefetch(&edges[first]);
-      __builtin_prefetch(&edges[first] + 4);
+      const uint64_t list = offsets[next], list_end = offsets[next + 1];
+      const FanRange r = use_fans ? fan[next] : AllEdges(g, next);
+      const uint64_t first = list + r.begin, last = first + r.count;
+      if (r.count > 0) PrefetchEdges(edges, first, std::min(last, list_end));
+      if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
     }
     const double du = dist[u];
     relaxed += run.count;
