@@ -209,6 +209,48 @@ TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
   EXPECT_DOUBLE_EQ(t->distance[17], full->distance[17]);
   EXPECT_DOUBLE_EQ(t->distance[42], full->distance[42]);
   EXPECT_LT(t->queue_pops, full->queue_pops);
+  // The fan solver stops at targets too (on the heap, which settles in order).
+  targeted.method = FieldMethod::kLabelCorrecting;
+  auto t_fans = engine.Field(absl::MakeConstSpan(&sources[0], 1), targeted);
+  ASSERT_OK(t_fans);
+  EXPECT_TRUE(SameDistance(t_fans->distance[17], full->distance[17]));
+  EXPECT_TRUE(SameDistance(t_fans->distance[42], full->distance[42]));
+  EXPECT_LT(t_fans->queue_pops, full->queue_pops);
+}
+
+// Sources inside faces and on edges join the graph by temporary edges, whose
+// ends relax every edge; the fans take over from there.
+TEST_F(SpotGraphTest, PointSourcesGiveDijkstrasDistances) {
+  GeodesicEngine engine(mesh_, graph_);
+  FieldOptions fans, dijkstra;
+  fans.method = FieldMethod::kLabelCorrecting;
+  dijkstra.method = FieldMethod::kDijkstra;
+  const std::vector<SurfacePoint> sources = {SurfacePoint::Face(100, 0.2, 0.3, 0.5),
+                                             SurfacePoint::Edge(500, 0.25),
+                                             SurfacePoint::Face(4000, 0.6, 0.2, 0.2)};
+  for (const auto& set :
+       {std::vector<SurfacePoint>{sources[0]}, std::vector<SurfacePoint>{sources[1]}, sources}) {
+    auto a = engine.Field(set, fans);
+    auto b = engine.Field(set, dijkstra);
+    ASSERT_OK(a);
+    ASSERT_OK(b);
+    for (VertexId v = 0; v < mesh_->num_vertices(); ++v) {
+      ASSERT_TRUE(SameDistance(a->distance[v], b->distance[v]))
+          << set.size() << " sources, vertex " << v;
+    }
+  }
+}
+
+TEST_F(SpotGraphTest, CancelledFieldSaysSo) {
+  GeodesicEngine engine(mesh_, graph_);
+  const SurfacePoint source = SurfacePoint::Vertex(0);
+  for (FieldMethod method : {FieldMethod::kLabelCorrecting, FieldMethod::kDijkstra}) {
+    FieldOptions options;
+    options.method = method;
+    options.cancelled = [] { return true; };
+    auto field = engine.Field(absl::MakeConstSpan(&source, 1), options);
+    EXPECT_EQ(field.status().code(), absl::StatusCode::kCancelled) << field.status();
+  }
 }
 
 TEST_F(SpotGraphTest, BuildIsIdenticalWhateverTheThreadCount) {
