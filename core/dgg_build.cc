@@ -261,6 +261,7 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
     std::vector<EdgeKey> bottleneck;
     std::vector<float> arrival;
     std::vector<std::pair<double, uint32_t>> heap;
+    std::vector<uint8_t> in;
   };
   tbb::enumerable_thread_specific<Scratch> scratch([n] {
     Scratch s;
@@ -479,74 +480,179 @@ Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVert
 }
 
 // Fans that no shortest path leaves. The turn u -> v -> w is left out of the
-// fan of u -> v only when a path from u to w of at most two edges is strictly
-// shorter than the two edges through v: a shortest path never takes such a
-// turn, since its part from u to w would not be shortest. So a search that
-// relaxes, from each node, only the fan of the edge it was reached by still
-// finds every shortest distance (the induction in queries.cc). A fan is the
-// shortest circular range of v's angle-sorted edges holding every turn kept.
-void ShortcutFreeFans(DggGraphArrays& a) {
-  const uint32_t nodes = a.offsets.size() - 1;
-  std::vector<DggEdge>& edges = a.edges;
-  auto of = [&](uint32_t u) {
-    return std::span<DggEdge>(edges.data() + a.offsets[u], edges.data() + a.offsets[u + 1]);
-  };
-  constexpr double kInf = std::numeric_limits<double>::infinity();
-  // Only turns at least this much (relative) longer than a shortcut are left
-  // out, so that the rounding of a search's sums cannot make a left-out turn
-  // the only shortest way on.
-  constexpr double kStrictlyShorter = 1 - 1e-9;
-  tbb::enumerable_thread_specific<std::vector<double>> scratch;
-  tbb::parallel_for(
-      tbb::blocked_range<uint32_t>(0, nodes, 64), [&](const tbb::blocked_range<uint32_t>& r) {
-        std::vector<double>& best = scratch.local();
-        if (best.size() < nodes) best.assign(nodes, kInf);
-        std::vector<uint32_t> kept;
-        for (uint32_t u = r.begin(); u != r.end(); ++u) {
-          // best[y]: the shortest path of at most two edges from u to y.
-          for (const DggEdge& e : of(u))
-            best[e.target] = std::min<double>(best[e.target], e.weight);
-          for (const DggEdge& e : of(u)) {
-            for (const DggEdge& f : of(e.target)) {
-              best[f.target] = std::min(best[f.target], double{e.weight} + f.weight);
+// fan of u -> v only when some path from u to w is strictly shorter than
+// |uv| + |vw|: a shortest path never takes such a turn, since its part from
+// u to w would not be shortest. So a search that relaxes, from each node,
+// only the fan of the edge it was reached by still finds every shortest
+// distance (core/graph_search.h). A fan is the shortest circular range of
+// v's angle-sorted edges holding every turn kept.
+//
+// The first pass tries the paths of at most two edges: a scan of each
+// node's two-edge neighbourhood. The optional second (exact_fans) searches
+// from each node, along the first pass's fans (already sound), to its exact
+// distances inside that neighbourhood, and keeps only the turns nothing
+// there beats.
+
+// Only turns at least this much (relative) longer than a shortcut are left
+// out, so that the rounding of a search's sums cannot make a left-out turn
+// the only shortest way on.
+constexpr double kStrictlyShorter = 1 - 1e-9;
+
+// The shortest circular range of `degree` indices holding every index in
+// `kept` (sorted): it starts after the widest gap.
+FanRange CircularHull(const std::vector<uint32_t>& kept, uint32_t degree) {
+  if (kept.empty()) return {};
+  uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
+  for (size_t q = 1; q < kept.size(); ++q) {
+    if (kept[q] - kept[q - 1] > widest) {
+      widest = kept[q] - kept[q - 1];
+      start = kept[q];
+    }
+  }
+  return {start, degree - widest + 1};
+}
+
+class FanBuilder {
+ public:
+  explicit FanBuilder(const DggGraphArrays& a)
+      : a_(a), nodes_(a.offsets.size() - 1), fans_(a.edges.size()) {}
+
+  // Fans from paths of at most two edges.
+  void TwoEdgePass() {
+    tbb::parallel_for(
+        tbb::blocked_range<uint32_t>(0, nodes_, 64), [&](const tbb::blocked_range<uint32_t>& r) {
+          Scratch& sc = Local();
+          std::vector<double>& best = sc.dist;
+          for (uint32_t u = r.begin(); u != r.end(); ++u) {
+            for (const DggEdge& e : of(u)) {
+              best[e.target] = std::min<double>(best[e.target], e.weight);
             }
-          }
-          best[u] = 0;
-          for (DggEdge& e : of(u)) {
-            const auto next = of(e.target);
-            const uint32_t degree = next.size();
-            kept.clear();
-            for (uint32_t k = 0; k < degree; ++k) {
-              const double turn = double{e.weight} + next[k].weight;
-              if (best[next[k].target] >= turn * kStrictlyShorter) kept.push_back(k);
-            }
-            // The shortest circular range holding `kept` starts after its
-            // widest gap.
-            e.fan = {};
-            if (kept.empty()) continue;
-            uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
-            for (size_t q = 1; q < kept.size(); ++q) {
-              if (kept[q] - kept[q - 1] > widest) {
-                widest = kept[q] - kept[q - 1];
-                start = kept[q];
+            for (const DggEdge& e : of(u)) {
+              for (const DggEdge& f : of(e.target)) {
+                best[f.target] = std::min(best[f.target], double{e.weight} + f.weight);
               }
             }
-            e.fan = {start, degree - widest + 1};
+            best[u] = 0;
+            KeepTurns(sc, u);
+            // Cheaper than a list of the nodes touched.
+            for (const DggEdge& e : of(u)) {
+              best[e.target] = kUnknown;
+              for (const DggEdge& f : of(e.target)) best[f.target] = kUnknown;
+            }
+            best[u] = kUnknown;
           }
-          for (const DggEdge& e : of(u)) {
-            best[e.target] = kInf;
-            for (const DggEdge& f : of(e.target)) best[f.target] = kInf;
-          }
-          best[u] = kInf;
+        });
+  }
+
+  // Fans from exact distances inside each node's two-edge neighbourhood,
+  // searched along the fans in `a` (sound ones: the first pass's).
+  void ExactPass(Progress& progress) {
+    ParallelFor(nodes_, progress, "fans", 0.95, 1.0, [&](uint32_t u) {
+      Scratch& sc = Local();
+      for (const DggEdge& e : of(u)) {
+        sc.inside[e.target] = 1;
+        for (const DggEdge& f : of(e.target)) sc.inside[f.target] = 1;
+      }
+      auto later = std::greater<std::pair<double, uint32_t>>();
+      auto reach = [&](uint32_t y, double d, FanRange fan) {
+        if (sc.dist[y] == kUnknown) sc.touched.push_back(y);
+        sc.dist[y] = d;
+        sc.fan[y] = fan;
+        sc.heap.push_back({d, y});
+        std::push_heap(sc.heap.begin(), sc.heap.end(), later);
+      };
+      reach(u, 0, {0, static_cast<uint32_t>(of(u).size())});
+      while (!sc.heap.empty()) {
+        std::pop_heap(sc.heap.begin(), sc.heap.end(), later);
+        const auto [d, x] = sc.heap.back();
+        sc.heap.pop_back();
+        if (d > sc.dist[x]) continue;
+        const auto list = of(x);
+        const FanRange fan = sc.fan[x];
+        for (uint32_t k = 0, j = fan.begin; k < fan.count; ++k) {
+          const DggEdge& e = list[j];
+          const double nd = d + e.weight;
+          if (sc.inside[e.target] && nd < sc.dist[e.target]) reach(e.target, nd, e.fan);
+          if (++j == list.size()) j = 0;
         }
-      });
+      }
+      for (const DggEdge& e : of(u)) {
+        sc.inside[e.target] = 0;
+        for (const DggEdge& f : of(e.target)) sc.inside[f.target] = 0;
+      }
+      KeepTurns(sc, u);
+      for (uint32_t y : sc.touched) sc.dist[y] = kUnknown;
+      sc.touched.clear();
+    });
+  }
+
+  // The fans found, indexed like the edges.
+  const std::vector<FanRange>& fans() const { return fans_; }
+
+ private:
+  struct Scratch {
+    std::vector<double> dist;  // from the current node, or kUnknown
+    std::vector<uint32_t> touched;
+    std::vector<FanRange> fan;
+    std::vector<uint8_t> inside;
+    std::vector<uint32_t> kept;
+    std::vector<std::pair<double, uint32_t>> heap;
+  };
+
+  std::span<const DggEdge> of(uint32_t u) const {
+    return {a_.edges.data() + a_.offsets[u], a_.edges.data() + a_.offsets[u + 1]};
+  }
+
+  static constexpr double kUnknown = std::numeric_limits<double>::infinity();
+
+  Scratch& Local() {
+    Scratch& sc = scratch_.local();
+    if (sc.dist.size() < nodes_) {
+      sc.dist.assign(nodes_, kUnknown);
+      sc.fan.resize(nodes_);
+      sc.inside.assign(nodes_, 0);
+    }
+    return sc;
+  }
+
+  // The fans of u's edges from the distances from u in `sc.dist`.
+  void KeepTurns(Scratch& sc, uint32_t u) {
+    uint64_t i = a_.offsets[u];
+    for (const DggEdge& e : of(u)) {
+      const auto next = of(e.target);
+      sc.kept.clear();
+      for (uint32_t k = 0; k < next.size(); ++k) {
+        const double turn = double{e.weight} + next[k].weight;
+        if (sc.dist[next[k].target] >= turn * kStrictlyShorter) sc.kept.push_back(k);
+      }
+      fans_[i++] = CircularHull(sc.kept, next.size());
+    }
+  }
+
+  const DggGraphArrays& a_;
+  const uint32_t nodes_;
+  std::vector<FanRange> fans_;
+  tbb::enumerable_thread_specific<Scratch> scratch_;
+};
+
+void ShortcutFreeFans(DggGraphArrays& a, bool exact, Progress& progress) {
+  FanBuilder builder(a);
+  auto store = [&] {
+    for (uint64_t i = 0; i < a.edges.size(); ++i) a.edges[i].fan = builder.fans()[i];
+  };
+  builder.TwoEdgePass();
+  store();
+  if (!exact) return;
+  builder.ExactPass(progress);
+  if (!progress.cancelled()) store();
 }
 
 // Phase 4 (section 5.1.2): number the nodes in spatial order (DggGraph), sort
 // each node's edges by polar angle and give every directed edge u -> v the
 // range of v's edges that a shortest path arriving along it can continue on.
 DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
-                        const std::vector<PseudoVertex>& pseudo, Progress& progress) {
+                        const std::vector<PseudoVertex>& pseudo, bool exact_fans,
+                        Progress& progress) {
   const uint32_t n = mesh.num_vertices();
   const uint32_t nodes = kept.offsets.size() - 1;
   DggGraphArrays a;
@@ -578,10 +684,10 @@ DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
       ++i;
     }
   });
-  ShortcutFreeFans(a);
+  ShortcutFreeFans(a, exact_fans, progress);
   a.pseudo_points.reserve(pseudo.size());
   for (const auto& p : pseudo) a.pseudo_points.push_back(p.point);
-  progress.Report("fans", 0.95, 1.0, 1, 1);
+  if (!progress.cancelled()) progress.Report("fans", 0.95, 1.0, 1, 1);
   return a;
 }
 
@@ -607,8 +713,8 @@ absl::Status CheckEpsilon(double epsilon) {
 // fans. Runs inside the caller's arena.
 std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
                                             std::vector<std::vector<DggHalfEdge>> candidates,
-                                            const DggParams& params, bool prune, Progress& progress,
-                                            DggBuildStats& st) {
+                                            const DggParams& params, bool prune, bool exact_fans,
+                                            Progress& progress, DggBuildStats& st) {
   const double epsilon = params.epsilon;
   auto t = std::chrono::steady_clock::now();
   for (const auto& c : candidates) st.found_edges += c.size();
@@ -638,7 +744,8 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
   st.pruning_seconds = Seconds(t);
 
   t = std::chrono::steady_clock::now();
-  DggGraphArrays arrays = Finalize(mesh, kept, pseudo, progress);
+  DggGraphArrays arrays = Finalize(mesh, kept, pseudo, exact_fans, progress);
+  if (progress.cancelled()) return nullptr;
   st.fan_seconds = Seconds(t);
   const uint32_t nodes = mesh.num_vertices() + pseudo.size();
   st.pseudo_vertices = pseudo.size();
@@ -647,6 +754,9 @@ std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
     st.max_degree = std::max<uint32_t>(st.max_degree, arrays.offsets[u + 1] - arrays.offsets[u]);
   }
   st.average_degree = nodes ? double(arrays.edges.size()) / nodes : 0;
+  uint64_t fans = 0;
+  for (const DggEdge& e : arrays.edges) fans += e.fan.count;
+  st.average_fan = arrays.edges.empty() ? 0 : double(fans) / arrays.edges.size();
   return DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
                                      MeshFingerprint(mesh));
 }
@@ -712,7 +822,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
     st.candidate_seconds = Seconds(start);
     if (progress.cancelled()) return;
     graph = FinishBuild(mesh, std::move(candidates), options.params, options.prune_redundant,
-                        progress, st);
+                        options.exact_fans, progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
@@ -817,7 +927,8 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   BuildArena arena(options);
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
-    graph = FinishBuild(mesh, std::move(candidates), params, options.prune_redundant, progress, st);
+    graph = FinishBuild(mesh, std::move(candidates), params, options.prune_redundant,
+                        options.exact_fans, progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);

@@ -29,6 +29,11 @@ struct DggBuildOptions {
   // earlier, for 4-6% fewer edges (bench/notes.md). Parts and their merge
   // must agree on it.
   bool prune_redundant = false;
+  // Fans from each node's exact local distances, not only its paths of at
+  // most two edges (core/dgg_build.cc): armadillo fans of 2.1 edges instead
+  // of 7.4 (1e-2) and 16.7 (1e-3), fields 2.4x and 3.1x faster, for builds
+  // 1.6x and 2.2x longer on one thread. Distances are the same either way.
+  bool exact_fans = false;
   // Called now and then from any build thread with the current phase
   // ("candidates", "pruning", "pseudo", "fans") and the fraction of the whole
   // build done, in [0, 1]. Returning false cancels the build (CANCELLED).
@@ -53,6 +58,7 @@ struct DggBuildStats {
   uint32_t pseudo_vertices = 0;
   uint32_t max_degree = 0;
   double average_degree = 0;
+  double average_fan = 0;  // edges a node reached along an edge relaxes
 };
 
 // Fails with INVALID_ARGUMENT for epsilon outside (0, 1) or NaN, and with

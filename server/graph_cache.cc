@@ -179,6 +179,7 @@ void GraphCache::Run(const Key& key) {
     options.params.epsilon = key.second;
     options.params.pseudo_vertices = e->pseudo_vertices;
     options.threads = options_.build_threads;
+    options.exact_fans = options_.exact_fans;
     options.progress = [&](std::string_view phase, double fraction) {
       absl::MutexLock lock(&mu_);
       if (e->status.phase != phase || fraction - e->status.progress >= 0.01 || fraction >= 1) {

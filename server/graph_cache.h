@@ -63,6 +63,7 @@ class GraphCache {
     uint64_t memory_limit = 0;  // bytes of ready graphs; 0: no limit
     int build_workers = 1;      // graphs built at once
     int build_threads = 0;      // threads per build (0: all cores)
+    bool exact_fans = false;    // DggBuildOptions::exact_fans
     // Called with (mesh, epsilon, ready) whenever a graph becomes ready or stops being.
     std::function<void(const std::string&, double, bool)> on_readiness;
   };

@@ -112,6 +112,7 @@ int RunServe(int argc, char** argv) {
               log_level = "info", sample;
   uint64_t memory_limit = 0;
   int build_threads = 0, build_workers = 1, query_threads = 0;
+  bool exact_fans = false;
   ServiceLimits limits;
   bool no_sample = false;
   double drain_seconds = 10;
@@ -122,6 +123,9 @@ int RunServe(int argc, char** argv) {
   app.add_option("--memory-limit", memory_limit, "bytes of ready graphs to keep (0: no limit)");
   app.add_option("--build-threads", build_threads, "threads per graph build (0: all cores)");
   app.add_option("--build-workers", build_workers, "graphs built at once");
+  app.add_flag("--exact-fans", exact_fans,
+               "build graphs with fans from exact local distances: 2-3x faster fields, longer "
+               "builds (graphs found in --graph-dir are used as they are)");
   app.add_option("--query-threads", query_threads,
                  "gRPC worker threads (0: max(16, 4 x cores)); beyond them calls get "
                  "RESOURCE_EXHAUSTED");
@@ -185,6 +189,7 @@ int RunServe(int argc, char** argv) {
   std::mutex health_mu;
   GraphCache::Options cache_options;
   cache_options.graph_dir = graph_dir;
+  cache_options.exact_fans = exact_fans;
   cache_options.memory_limit = memory_limit;
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;

@@ -220,6 +220,44 @@ TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
 
 // Sources inside faces and on edges join the graph by temporary edges, whose
 // ends relax every edge; the fans take over from there.
+// Exact fans: the same graph, smaller fans, and the fan solver still gives
+// Dijkstra's distances, for fields and for pairs.
+TEST_F(SpotGraphTest, ExactFansAreSmallerAndKeepEveryShortestPath) {
+  DggBuildOptions options;
+  options.params.epsilon = graph_->params().epsilon;
+  options.exact_fans = true;
+  DggBuildStats stats;
+  auto exact = BuildDgg(*mesh_, options, &stats);
+  ASSERT_OK(exact);
+  EXPECT_OK((*exact)->Validate(*mesh_));
+  ASSERT_EQ((*exact)->num_directed_edges(), graph_->num_directed_edges());
+  for (uint64_t i = 0; i < graph_->num_directed_edges(); ++i) {
+    ASSERT_EQ((*exact)->edges()[i].target, graph_->edges()[i].target);
+    ASSERT_LE((*exact)->edges()[i].fan.count, graph_->edges()[i].fan.count) << "edge " << i;
+  }
+  EXPECT_LT(stats.average_fan, 0.8 * stats_.average_fan);
+  GeodesicEngine engine(mesh_, *exact);
+  FieldOptions fans, dijkstra;
+  fans.method = FieldMethod::kLabelCorrecting;
+  dijkstra.method = FieldMethod::kDijkstra;
+  for (const SurfacePoint& source : {SurfacePoint::Vertex(0), SurfacePoint::Vertex(1500),
+                                     SurfacePoint::Face(77, 0.3, 0.3, 0.4)}) {
+    auto a = engine.Field(absl::MakeConstSpan(&source, 1), fans);
+    auto b = engine.Field(absl::MakeConstSpan(&source, 1), dijkstra);
+    ASSERT_OK(a);
+    ASSERT_OK(b);
+    for (VertexId v = 0; v < mesh_->num_vertices(); ++v) {
+      ASSERT_TRUE(SameDistance(a->distance[v], b->distance[v])) << "vertex " << v;
+      if (v % 97 == 0 && source.kind == SurfacePoint::Kind::kVertex) {
+        auto pair = engine.Distance(source, SurfacePoint::Vertex(v), {});
+        ASSERT_OK(pair);
+        ASSERT_TRUE(SameDistance(pair->distance, b->distance[v])) << "pair to " << v;
+      }
+    }
+    EXPECT_LT(a->relaxed, b->relaxed / 4);
+  }
+}
+
 TEST_F(SpotGraphTest, PointSourcesGiveDijkstrasDistances) {
   GeodesicEngine engine(mesh_, graph_);
   FieldOptions fans, dijkstra;
@@ -439,13 +477,23 @@ TEST_P(SharedAccuracyTest, FieldsWithinEpsilonOfExact) {
   auto graph = BuildDgg(*mesh, options);
   ASSERT_OK(graph);
   GeodesicEngine engine(mesh, *graph);
+  // Exact fans at the coarser epsilon, where their build is cheap.
+  std::unique_ptr<GeodesicEngine> exact_fans;
+  if (eps == 1e-2) {
+    options.exact_fans = true;
+    auto tight = BuildDgg(*mesh, options);
+    ASSERT_OK(tight);
+    exact_fans = std::make_unique<GeodesicEngine>(mesh, *tight);
+  }
+  FieldOptions dijkstra;
+  dijkstra.method = FieldMethod::kDijkstra;
   const VertexId n = mesh->num_vertices();
   for (VertexId s : {VertexId{0}, n / 3, 2 * n / 3}) {
     auto truth = testing::ReadF64(
         testing::SharedPath("truth/" + name + ".exact.s" + std::to_string(s) + ".f64"));
     ASSERT_EQ(truth.size(), n);
     SurfacePoint source = SurfacePoint::Vertex(s);
-    auto field = engine.Field(absl::MakeConstSpan(&source, 1), {});
+    auto field = engine.Field(absl::MakeConstSpan(&source, 1), dijkstra);
     ASSERT_OK(field);
     ErrorStats e = Compare(field->distance, truth);
     EXPECT_LE(e.mean, 0.3 * eps) << name << " source " << s;
@@ -456,15 +504,19 @@ TEST_P(SharedAccuracyTest, FieldsWithinEpsilonOfExact) {
         EXPECT_EQ(field->distance[v], kInfinity) << "vertex " << v;
       }
     }
-    // The fan-restricted solver: fans alone have left vertices unreached
-    // or far too long on some of these meshes; its check must repair them.
+    // The fan solver (the default): fans built from angles alone left
+    // vertices unreached or far too long on some of these meshes; the
+    // graph's fans keep every shortest path, so it gives Dijkstra's.
     FieldOptions lc;
     lc.method = FieldMethod::kLabelCorrecting;
-    auto fans = engine.Field(absl::MakeConstSpan(&source, 1), lc);
-    ASSERT_OK(fans);
-    for (VertexId v = 0; v < n; ++v) {
-      ASSERT_TRUE(SameDistance(fans->distance[v], field->distance[v]))
-          << name << " source " << s << " vertex " << v;
+    for (const GeodesicEngine* e : {&engine, exact_fans.get()}) {
+      if (e == nullptr) continue;
+      auto fans = e->Field(absl::MakeConstSpan(&source, 1), lc);
+      ASSERT_OK(fans);
+      for (VertexId v = 0; v < n; ++v) {
+        ASSERT_TRUE(SameDistance(fans->distance[v], field->distance[v]))
+            << name << " source " << s << " vertex " << v << (e == &engine ? "" : " (exact fans)");
+      }
     }
   }
 }
