@@ -31,7 +31,7 @@ struct DggBuildOptions {
   bool prune_redundant = false;
   // Fans from each node's exact local distances, not only its paths of at
   // most two edges (core/dgg_build.cc): armadillo fans of 2.1 edges instead
-  // of 7.4 (1e-2) and 16.7 (1e-3), fields 2.4x and 3.1x faster, for builds
+  // of 7.4 (1e-2) and 16.7 (1e-3), fields 1.9x and 3.1x faster, for builds
   // 1.6x and 2.2x longer on one thread. Distances are the same either way.
   bool exact_fans = false;
   // Called now and then from any build thread with the current phase
