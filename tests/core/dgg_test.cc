@@ -4,6 +4,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <functional>
 
 #include "core/dgg_build.h"
 #include "core/exact_geodesic.h"
@@ -58,6 +59,18 @@ class SpotGraphTest : public ::testing::Test {
   static void TearDownTestSuite() {
     graph_.reset();
     mesh_.reset();
+  }
+  // The spot graph built again with `change` made to its options, checked.
+  static std::shared_ptr<const DggGraph> Variant(
+      const std::function<void(DggBuildOptions&)>& change, DggBuildStats* stats) {
+    DggBuildOptions options;
+    options.params.epsilon = graph_->params().epsilon;
+    change(options);
+    auto graph = BuildDgg(*mesh_, options, stats);
+    EXPECT_OK(graph);
+    if (!graph.ok()) return nullptr;
+    EXPECT_OK((*graph)->Validate(*mesh_));
+    return *graph;
   }
   static std::shared_ptr<const Mesh> mesh_;
   static std::shared_ptr<const DggGraph> graph_;
@@ -218,25 +231,19 @@ TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
   EXPECT_LT(t_fans->queue_pops, full->queue_pops);
 }
 
-// Sources inside faces and on edges join the graph by temporary edges, whose
-// ends relax every edge; the fans take over from there.
 // Exact fans: the same graph, smaller fans, and the fan solver still gives
 // Dijkstra's distances, for fields and for pairs.
 TEST_F(SpotGraphTest, ExactFansAreSmallerAndKeepEveryShortestPath) {
-  DggBuildOptions options;
-  options.params.epsilon = graph_->params().epsilon;
-  options.exact_fans = true;
   DggBuildStats stats;
-  auto exact = BuildDgg(*mesh_, options, &stats);
-  ASSERT_OK(exact);
-  EXPECT_OK((*exact)->Validate(*mesh_));
-  ASSERT_EQ((*exact)->num_directed_edges(), graph_->num_directed_edges());
+  auto exact = Variant([](DggBuildOptions& o) { o.exact_fans = true; }, &stats);
+  ASSERT_NE(exact, nullptr);
+  ASSERT_EQ(exact->num_directed_edges(), graph_->num_directed_edges());
   for (uint64_t i = 0; i < graph_->num_directed_edges(); ++i) {
-    ASSERT_EQ((*exact)->edges()[i].target, graph_->edges()[i].target);
-    ASSERT_LE((*exact)->edges()[i].fan.count, graph_->edges()[i].fan.count) << "edge " << i;
+    ASSERT_EQ(exact->edges()[i].target, graph_->edges()[i].target);
+    ASSERT_LE(exact->edges()[i].fan.count, graph_->edges()[i].fan.count) << "edge " << i;
   }
   EXPECT_LT(stats.average_fan, 0.8 * stats_.average_fan);
-  GeodesicEngine engine(mesh_, *exact);
+  GeodesicEngine engine(mesh_, exact);
   FieldOptions fans, dijkstra;
   fans.method = FieldMethod::kLabelCorrecting;
   dijkstra.method = FieldMethod::kDijkstra;
@@ -258,6 +265,8 @@ TEST_F(SpotGraphTest, ExactFansAreSmallerAndKeepEveryShortestPath) {
   }
 }
 
+// Sources inside faces and on edges join the graph by temporary edges, whose
+// ends relax every edge; the fans take over from there.
 TEST_F(SpotGraphTest, PointSourcesGiveDijkstrasDistances) {
   GeodesicEngine engine(mesh_, graph_);
   FieldOptions fans, dijkstra;
@@ -433,24 +442,16 @@ TEST(DggBuildTest, PlanarGridGraphIsNearlyExact) {
   }
 }
 
-// The accuracy contract on real meshes, against the independent exact
-// solver's fields: mean relative error at most 0.3 eps and max at most
-// 1.5 eps for the default solver; the label-correcting solver is held to the
-// same bounds where it agrees with Dijkstra (see FieldOptions::method).
 TEST_F(SpotGraphTest, PruningRemovesEdgesAndKeepsTheBound) {
-  DggBuildOptions options;
-  options.params.epsilon = graph_->params().epsilon;
-  options.prune_redundant = true;
   DggBuildStats pruned_stats;
-  auto pruned = BuildDgg(*mesh_, options, &pruned_stats);
-  ASSERT_OK(pruned);
-  EXPECT_OK((*pruned)->Validate(*mesh_));
+  auto pruned = Variant([](DggBuildOptions& o) { o.prune_redundant = true; }, &pruned_stats);
+  ASSERT_NE(pruned, nullptr);
   // Pruning takes a tenth of eps from the candidates, which then stop later.
   EXPECT_GT(pruned_stats.candidate_edges, stats_.candidate_edges);
   EXPECT_LT(pruned_stats.edges, pruned_stats.candidate_edges);
-  GeodesicEngine engine(mesh_, *pruned);
+  GeodesicEngine engine(mesh_, pruned);
   ExactGeodesic exact(*mesh_);
-  const double eps = options.params.epsilon;
+  const double eps = pruned->params().epsilon;
   for (VertexId s : {VertexId{0}, VertexId{976}, VertexId{1953}}) {
     auto truth = exact.Distances(SurfacePoint::Vertex(s));
     ASSERT_OK(truth);
@@ -464,6 +465,9 @@ TEST_F(SpotGraphTest, PruningRemovesEdgesAndKeepsTheBound) {
   }
 }
 
+// The accuracy contract on real meshes, against the independent exact
+// solver's fields: mean relative error at most 0.3 eps and max at most
+// 1.5 eps, never below exact; and the fan solver gives Dijkstra's distances.
 class SharedAccuracyTest : public ::testing::TestWithParam<std::tuple<std::string, double>> {};
 
 TEST_P(SharedAccuracyTest, FieldsWithinEpsilonOfExact) {
