@@ -148,7 +148,7 @@ uint64_t GeodesicEngine::landmark_bytes() const {
 
 namespace {
 
-std::vector<TemporaryEdge> AsTemporaryEdges(const Mesh& mesh, const DggGraph& graph,
+std::vector<TemporaryEdge> AsTemporaryEdges(const DggGraph& graph,
                                             const std::vector<DirectHit>& hits) {
   std::vector<TemporaryEdge> edges;
   edges.reserve(hits.size());
@@ -158,13 +158,13 @@ std::vector<TemporaryEdge> AsTemporaryEdges(const Mesh& mesh, const DggGraph& gr
   return edges;
 }
 
-std::vector<TemporaryEdge> TemporaryEdges(const Mesh& mesh, const DggGraph& graph,
-                                          ExactGeodesic& exact, const SurfacePoint& p) {
+std::vector<TemporaryEdge> TemporaryEdges(const DggGraph& graph, ExactGeodesic& exact,
+                                          const SurfacePoint& p) {
   DirectOptions options;
   options.epsilon = graph.params().epsilon;
   auto hits = exact.DirectGeodesics(p, options);
   if (!hits.ok()) return {};
-  return AsTemporaryEdges(mesh, graph, *hits);
+  return AsTemporaryEdges(graph, *hits);
 }
 
 }  // namespace
@@ -209,7 +209,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
       seed(g.node_of_vertex(p.id), 0, i);
       continue;
     }
-    for (const TemporaryEdge& e : TemporaryEdges(mesh, g, sc.Exact(mesh_), p)) {
+    for (const TemporaryEdge& e : TemporaryEdges(g, sc.Exact(mesh_), p)) {
       seed(e.node, e.weight, i);
     }
   }
@@ -412,11 +412,11 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     options_a.keep_windows = true;
     auto hits = exact.DirectGeodesics(ends[0].point, options_a);
     if (!hits.ok()) return hits.status();
-    ends[0].edges = AsTemporaryEdges(mesh, g, *hits);
+    ends[0].edges = AsTemporaryEdges(g, *hits);
     auto direct = exact.DistanceTo(ends[1].point);
     if (direct.ok()) best = *direct;
   }
-  if (!ends[1].is_node) ends[1].edges = TemporaryEdges(mesh, g, exact, ends[1].point);
+  if (!ends[1].is_node) ends[1].edges = TemporaryEdges(g, exact, ends[1].point);
 
   const uint32_t nodes = g.num_nodes();
   const uint32_t stamp = sc.PreparePair(nodes);
@@ -593,7 +593,7 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   for (size_t j = 0; j < targets.size(); ++j) {
     canon[j] = CanonicalizeSurfacePoint(mesh, targets[j]);
     if (canon[j].kind != SurfacePoint::Kind::kVertex) {
-      target_edges[j] = TemporaryEdges(mesh, *graph_, sc.Exact(mesh_), canon[j]);
+      target_edges[j] = TemporaryEdges(*graph_, sc.Exact(mesh_), canon[j]);
     }
   }
   std::vector<double> out;
