@@ -261,7 +261,6 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
     std::vector<EdgeKey> bottleneck;
     std::vector<float> arrival;
     std::vector<std::pair<double, uint32_t>> heap;
-    std::vector<uint8_t> in;
   };
   tbb::enumerable_thread_specific<Scratch> scratch([n] {
     Scratch s;
@@ -524,21 +523,12 @@ class FanBuilder {
           Scratch& sc = Local();
           std::vector<double>& best = sc.dist;
           for (uint32_t u = r.begin(); u != r.end(); ++u) {
-            for (const DggEdge& e : of(u)) {
-              best[e.target] = std::min<double>(best[e.target], e.weight);
-            }
-            for (const DggEdge& e : of(u)) {
-              for (const DggEdge& f : of(e.target)) {
-                best[f.target] = std::min(best[f.target], double{e.weight} + f.weight);
-              }
-            }
+            WithinTwoEdges(u,
+                           [&](uint32_t y, double length) { best[y] = std::min(best[y], length); });
             best[u] = 0;
             KeepTurns(sc, u);
             // Cheaper than a list of the nodes touched.
-            for (const DggEdge& e : of(u)) {
-              best[e.target] = kUnknown;
-              for (const DggEdge& f : of(e.target)) best[f.target] = kUnknown;
-            }
+            WithinTwoEdges(u, [&](uint32_t y, double) { best[y] = kUnknown; });
             best[u] = kUnknown;
           }
         });
@@ -549,10 +539,11 @@ class FanBuilder {
   void ExactPass(Progress& progress) {
     ParallelFor(nodes_, progress, "fans", 0.95, 1.0, [&](uint32_t u) {
       Scratch& sc = Local();
-      for (const DggEdge& e : of(u)) {
-        sc.inside[e.target] = 1;
-        for (const DggEdge& f : of(e.target)) sc.inside[f.target] = 1;
+      if (sc.inside.size() < nodes_) {
+        sc.inside.assign(nodes_, 0);
+        sc.fan.resize(nodes_);
       }
+      WithinTwoEdges(u, [&](uint32_t y, double) { sc.inside[y] = 1; });
       auto later = std::greater<std::pair<double, uint32_t>>();
       auto reach = [&](uint32_t y, double d, FanRange fan) {
         if (sc.dist[y] == kUnknown) sc.touched.push_back(y);
@@ -576,10 +567,7 @@ class FanBuilder {
           if (++j == list.size()) j = 0;
         }
       }
-      for (const DggEdge& e : of(u)) {
-        sc.inside[e.target] = 0;
-        for (const DggEdge& f : of(e.target)) sc.inside[f.target] = 0;
-      }
+      WithinTwoEdges(u, [&](uint32_t y, double) { sc.inside[y] = 0; });
       KeepTurns(sc, u);
       for (uint32_t y : sc.touched) sc.dist[y] = kUnknown;
       sc.touched.clear();
@@ -593,8 +581,8 @@ class FanBuilder {
   struct Scratch {
     std::vector<double> dist;  // from the current node, or kUnknown
     std::vector<uint32_t> touched;
-    std::vector<FanRange> fan;
-    std::vector<uint8_t> inside;
+    std::vector<FanRange> fan;    // the exact pass only
+    std::vector<uint8_t> inside;  // the exact pass only
     std::vector<uint32_t> kept;
     std::vector<std::pair<double, uint32_t>> heap;
   };
@@ -603,15 +591,20 @@ class FanBuilder {
     return {a_.edges.data() + a_.offsets[u], a_.edges.data() + a_.offsets[u + 1]};
   }
 
+  // Calls f(y, length) for every path of one or two edges from u to y.
+  template <typename F>
+  void WithinTwoEdges(uint32_t u, F f) const {
+    for (const DggEdge& e : of(u)) {
+      f(e.target, e.weight);
+      for (const DggEdge& g : of(e.target)) f(g.target, double{e.weight} + g.weight);
+    }
+  }
+
   static constexpr double kUnknown = std::numeric_limits<double>::infinity();
 
   Scratch& Local() {
     Scratch& sc = scratch_.local();
-    if (sc.dist.size() < nodes_) {
-      sc.dist.assign(nodes_, kUnknown);
-      sc.fan.resize(nodes_);
-      sc.inside.assign(nodes_, 0);
-    }
+    if (sc.dist.size() < nodes_) sc.dist.assign(nodes_, kUnknown);
     return sc;
   }
 

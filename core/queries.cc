@@ -30,9 +30,8 @@ struct TemporaryEdge {
 struct Scratch {
   // Field solves, which touch every node anyway and so clear these.
   std::vector<double> dist;
-  // The edges a node relaxes once settled: the fan of the edge it was
-  // reached by, copied when that edge improves it (the edge's fan lies
-  // beside its target and weight; the node's record beside its distance).
+  // The edges a node relaxes once taken out: the fan of the edge that set
+  // its label, copied from that edge's record when it improves the label.
   std::vector<FanRange> fan;
   std::vector<uint32_t> label;  // index of the nearest source
   NodeHeap heap;                // Dijkstra's queue, for searches that stop at targets
