@@ -75,10 +75,11 @@ inline void PrefetchEdges(const DggEdge* edges, uint64_t begin, uint64_t end) {
 // dist and fan). `visit(u)` is asked about each node taken out; after
 // `dist[v]` improved through u, `improved(u, v)` is called. Without fans
 // every node relaxes all its edges (Dijkstra's rule, for checking). Returns
-// the number of edges relaxed.
-template <typename Queue, typename VisitFn, typename ImprovedFn>
-uint64_t SearchGraph(const DggGraph& g, Queue& queue, bool use_fans, double* dist, FanRange* fan,
-                     VisitFn visit, ImprovedFn improved) {
+// the number of edges relaxed. The choice is a template argument so that the
+// inner loop carries no test for it.
+template <bool kUseFans, typename Queue, typename VisitFn, typename ImprovedFn>
+uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fan, VisitFn visit,
+                     ImprovedFn improved) {
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
   uint64_t relaxed = 0;
@@ -88,7 +89,7 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, bool use_fans, double* dis
     if (what == Visit::kSkip) continue;
     if (what == Visit::kStop) break;
     const uint64_t begin = offsets[u], end = offsets[u + 1];
-    const FanRange run = use_fans ? fan[u] : AllEdges(g, u);
+    const FanRange run = kUseFans ? fan[u] : AllEdges(g, u);
     // The graph is too large for the cache and the search visits it in no
     // order memory likes: start loading a coming node's fan now, every line
     // of it (a fan may wrap past the end of the node's list). With buckets
@@ -96,7 +97,7 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, bool use_fans, double* dis
     constexpr size_t kAhead = 4;
     if (const uint32_t next = queue.Peek(kNone, kAhead); next != kNone) {
       const uint64_t list = offsets[next], list_end = offsets[next + 1];
-      const FanRange r = use_fans ? fan[next] : AllEdges(g, next);
+      const FanRange r = kUseFans ? fan[next] : AllEdges(g, next);
       const uint64_t first = list + r.begin, last = first + r.count;
       if (r.count > 0) PrefetchEdges(edges, first, std::min(last, list_end));
       if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
@@ -108,7 +109,7 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, bool use_fans, double* dis
       const double nd = du + e.weight;
       if (nd < dist[e.target]) {
         dist[e.target] = nd;
-        if (use_fans) fan[e.target] = e.fan;
+        if constexpr (kUseFans) fan[e.target] = e.fan;
         improved(u, e.target);
         queue.Push(e.target, nd);
       }

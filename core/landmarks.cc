@@ -23,8 +23,8 @@ bool ShortestDistances(const DggGraph& graph, const BucketShape& shape, uint32_t
   queue.Push(source, 0);
   uint64_t pops = 0;
   bool stopped = false;
-  SearchGraph(
-      graph, queue, /*use_fans=*/true, dist.data(), fan.data(),
+  SearchGraph</*kUseFans=*/true>(
+      graph, queue, dist.data(), fan.data(),
       [&](uint32_t) {
         stopped = cancelled && (++pops & 4095) == 0 && cancelled();
         return stopped ? Visit::kStop : Visit::kRelax;

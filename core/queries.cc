@@ -189,7 +189,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   std::vector<FanRange>& fan = sc.fan;
   std::vector<uint32_t>& label = sc.label;
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
-  std::fill(label.begin(), label.begin() + nodes, kNone);
+  if (options.nearest_source) std::fill(label.begin(), label.begin() + nodes, kNone);
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
 
   // Seed: vertex sources at 0; other points through their temporary edges.
@@ -234,10 +234,20 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     if (targets_left && is_target[u] && --targets_left == 0) return Visit::kStop;
     return Visit::kRelax;
   };
-  auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
+  // Each combination of fans and labels is its own search, so the inner
+  // loop tests neither (labels cost a read and a write per improvement).
+  auto search = [&]<bool kUseFans>(auto& queue) {
+    if (options.nearest_source) {
+      auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
+      return SearchGraph<kUseFans>(g, queue, dist.data(), fan.data(), visit, improved);
+    }
+    return SearchGraph<kUseFans>(g, queue, dist.data(), fan.data(), visit,
+                                 [](uint32_t, uint32_t) {});
+  };
   auto run = [&](auto& queue) {
     for (uint32_t s : seeds) queue.Push(s, dist[s]);
-    result.relaxed = SearchGraph(g, queue, use_fans, dist.data(), fan.data(), visit, improved);
+    result.relaxed = use_fans ? search.template operator()<true>(queue)
+                              : search.template operator()<false>(queue);
   };
   if (targets_left) {
     // Stopping at targets needs nodes settled in order of distance.
