@@ -13,6 +13,7 @@
 #include <mutex>
 #include <numbers>
 #include <queue>
+#include <span>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
@@ -499,7 +500,7 @@ constexpr double kStrictlyShorter = 1 - 1e-9;
 
 // The shortest circular range of `degree` indices holding every index in
 // `kept` (sorted): it starts after the widest gap.
-FanRange CircularHull(const std::vector<uint32_t>& kept, uint32_t degree) {
+FanRange CircularHull(std::span<const uint32_t> kept, uint32_t degree) {
   if (kept.empty()) return {};
   uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
   for (size_t q = 1; q < kept.size(); ++q) {
@@ -518,20 +519,15 @@ class FanBuilder {
 
   // Fans from paths of at most two edges.
   void TwoEdgePass() {
-    tbb::parallel_for(
-        tbb::blocked_range<uint32_t>(0, nodes_, 64), [&](const tbb::blocked_range<uint32_t>& r) {
-          Scratch& sc = Local();
-          std::vector<double>& best = sc.dist;
-          for (uint32_t u = r.begin(); u != r.end(); ++u) {
-            WithinTwoEdges(u,
-                           [&](uint32_t y, double length) { best[y] = std::min(best[y], length); });
-            best[u] = 0;
-            KeepTurns(sc, u);
-            // Cheaper than a list of the nodes touched.
-            WithinTwoEdges(u, [&](uint32_t y, double) { best[y] = kUnknown; });
-            best[u] = kUnknown;
-          }
-        });
+    tbb::parallel_for(tbb::blocked_range<uint32_t>(0, nodes_, 64),
+                      [&](const tbb::blocked_range<uint32_t>& r) {
+                        Scratch& sc = Local();
+                        for (uint32_t u = r.begin(); u != r.end(); ++u) {
+                          CollectTurns(sc, u);
+                          KeepTurns(sc, u, sc.best);
+                          Clear(sc);
+                        }
+                      });
   }
 
   // Fans from exact distances inside each node's two-edge neighbourhood,
@@ -539,15 +535,15 @@ class FanBuilder {
   void ExactPass(Progress& progress) {
     ParallelFor(nodes_, progress, "fans", 0.95, 1.0, [&](uint32_t u) {
       Scratch& sc = Local();
-      if (sc.inside.size() < nodes_) {
-        sc.inside.assign(nodes_, 0);
+      if (sc.exact.size() < nodes_) {
+        sc.exact.assign(nodes_, kUnknown);
         sc.fan.resize(nodes_);
       }
-      WithinTwoEdges(u, [&](uint32_t y, double) { sc.inside[y] = 1; });
+      CollectTurns(sc, u);
+      auto inside = [&](uint32_t y) { return sc.best[y] != kUnknown; };
       auto later = std::greater<std::pair<double, uint32_t>>();
       auto reach = [&](uint32_t y, double d, FanRange fan) {
-        if (sc.dist[y] == kUnknown) sc.touched.push_back(y);
-        sc.dist[y] = d;
+        sc.exact[y] = d;
         sc.fan[y] = fan;
         sc.heap.push_back({d, y});
         std::push_heap(sc.heap.begin(), sc.heap.end(), later);
@@ -557,20 +553,21 @@ class FanBuilder {
         std::pop_heap(sc.heap.begin(), sc.heap.end(), later);
         const auto [d, x] = sc.heap.back();
         sc.heap.pop_back();
-        if (d > sc.dist[x]) continue;
+        if (d > sc.exact[x]) continue;
         const auto list = of(x);
         const FanRange fan = sc.fan[x];
         for (uint32_t k = 0, j = fan.begin; k < fan.count; ++k) {
           const DggEdge& e = list[j];
           const double nd = d + e.weight;
-          if (sc.inside[e.target] && nd < sc.dist[e.target]) reach(e.target, nd, e.fan);
+          if (inside(e.target) && nd < sc.exact[e.target]) reach(e.target, nd, e.fan);
           if (++j == list.size()) j = 0;
         }
       }
-      WithinTwoEdges(u, [&](uint32_t y, double) { sc.inside[y] = 0; });
-      KeepTurns(sc, u);
-      for (uint32_t y : sc.touched) sc.dist[y] = kUnknown;
-      sc.touched.clear();
+      // A node the fan-restricted search missed keeps its two-edge bound.
+      for (uint32_t y : sc.ring_nodes()) sc.exact[y] = std::min(sc.exact[y], sc.best[y]);
+      KeepTurns(sc, u, sc.exact);
+      for (uint32_t y : sc.ring_nodes()) sc.exact[y] = kUnknown;
+      Clear(sc);
     });
   }
 
@@ -578,12 +575,29 @@ class FanBuilder {
   const std::vector<FanRange>& fans() const { return fans_; }
 
  private:
+  static constexpr double kUnknown = std::numeric_limits<double>::infinity();
+
+  // A turn u -> v -> y: the k-th edge of v after u's edge `edge` (local
+  // indices), and its length.
+  struct Turn {
+    double length;
+    uint32_t y;
+    uint32_t edge, k;
+  };
   struct Scratch {
-    std::vector<double> dist;  // from the current node, or kUnknown
-    std::vector<uint32_t> touched;
-    std::vector<FanRange> fan;    // the exact pass only
-    std::vector<uint8_t> inside;  // the exact pass only
+    // Per node, valid for the nodes in `ring`: the shortest path of at most
+    // two edges from the current node.
+    std::vector<double> best;
+    // The nodes within two edges and the listed turns (in order of edge,
+    // then k): the first ring_size and turns_size entries. The vectors only
+    // grow, since the walk writes past those ends.
+    std::vector<uint32_t> ring;
+    std::vector<Turn> turns;
+    size_t ring_size = 0, turns_size = 0;
+    std::span<const uint32_t> ring_nodes() const { return {ring.data(), ring_size}; }
     std::vector<uint32_t> kept;
+    std::vector<double> exact;  // the exact pass only
+    std::vector<FanRange> fan;  // the exact pass only
     std::vector<std::pair<double, uint32_t>> heap;
   };
 
@@ -591,35 +605,68 @@ class FanBuilder {
     return {a_.edges.data() + a_.offsets[u], a_.edges.data() + a_.offsets[u + 1]};
   }
 
-  // Calls f(y, length) for every path of one or two edges from u to y.
-  template <typename F>
-  void WithinTwoEdges(uint32_t u, F f) const {
-    for (const DggEdge& e : of(u)) {
-      f(e.target, e.weight);
-      for (const DggEdge& g : of(e.target)) f(g.target, double{e.weight} + g.weight);
-    }
-  }
-
-  static constexpr double kUnknown = std::numeric_limits<double>::infinity();
-
   Scratch& Local() {
     Scratch& sc = scratch_.local();
-    if (sc.dist.size() < nodes_) sc.dist.assign(nodes_, kUnknown);
+    if (sc.best.size() < nodes_) sc.best.assign(nodes_, kUnknown);
     return sc;
   }
 
-  // The fans of u's edges from the distances from u in `sc.dist`.
-  void KeepTurns(Scratch& sc, uint32_t u) {
-    uint64_t i = a_.offsets[u];
-    for (const DggEdge& e : of(u)) {
-      const auto next = of(e.target);
-      sc.kept.clear();
+  // One walk over u's two-edge neighbourhood. A node there is reached by
+  // about ten of u's turns (armadillo, 1e-3), so rather than walking again
+  // to test each turn against the final shortest path, the walk lists the
+  // turns that were close to the shortest found so far: a turn that fails
+  // then fails at the end too (the shortest only shrinks). About a fifth of
+  // the turns are listed. The walk does not branch on what it finds (a
+  // branch here is mispredicted often enough to double its cost): every
+  // turn and node is written, and kept by moving the end past it.
+  void CollectTurns(Scratch& sc, uint32_t u) {
+    const auto edges = of(u);
+    size_t turns = 0;
+    for (const DggEdge& e : edges) turns += of(e.target).size();
+    if (sc.turns.size() < turns) sc.turns.resize(turns);
+    if (sc.ring.size() < turns + edges.size() + 1) sc.ring.resize(turns + edges.size() + 1);
+    size_t ring = 0, listed = 0;
+    auto touch = [&](uint32_t y, double length) {
+      double& best = sc.best[y];
+      sc.ring[ring] = y;
+      ring += best == kUnknown;
+      best = std::min(best, length);
+    };
+    touch(u, 0);
+    for (const DggEdge& e : edges) touch(e.target, e.weight);
+    for (uint32_t i = 0; i < edges.size(); ++i) {
+      const auto next = of(edges[i].target);
       for (uint32_t k = 0; k < next.size(); ++k) {
-        const double turn = double{e.weight} + next[k].weight;
-        if (sc.dist[next[k].target] >= turn * kStrictlyShorter) sc.kept.push_back(k);
+        const uint32_t y = next[k].target;
+        const double length = double{edges[i].weight} + next[k].weight;
+        sc.turns[listed] = {length, y, i, k};
+        listed += length * kStrictlyShorter <= sc.best[y];
+        touch(y, length);
       }
-      fans_[i++] = CircularHull(sc.kept, next.size());
     }
+    sc.turns_size = listed;
+    sc.ring_size = ring;
+  }
+
+  // The fans of u's edges: each keeps the turns that no path in `shortest`
+  // (per node of the ring) beats.
+  void KeepTurns(Scratch& sc, uint32_t u, const std::vector<double>& shortest) {
+    const auto edges = of(u);
+    const Turn* t = sc.turns.data();
+    const Turn* const end = t + sc.turns_size;
+    for (uint32_t i = 0; i < edges.size(); ++i) {
+      sc.kept.clear();
+      for (; t != end && t->edge == i; ++t) {
+        if (shortest[t->y] >= t->length * kStrictlyShorter) sc.kept.push_back(t->k);
+      }
+      fans_[a_.offsets[u] + i] =
+          CircularHull(sc.kept, static_cast<uint32_t>(of(edges[i].target).size()));
+    }
+  }
+
+  void Clear(Scratch& sc) {
+    for (uint32_t y : sc.ring_nodes()) sc.best[y] = kUnknown;
+    sc.ring_size = sc.turns_size = 0;
   }
 
   const DggGraphArrays& a_;
