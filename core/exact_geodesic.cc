@@ -25,6 +25,12 @@ constexpr double kFilterSlack = 1e-12;
 // Root-finding steps when cutting off rays served by a corner: the cut is
 // conservative, so fewer steps only keep a little more of a window.
 constexpr int kRelaySteps = 5;
+// ... and root finding stops once the cut is known to within this fraction
+// of the window. A deeper cut is not better: it leaves the descendants a
+// corner whose route is closer to its limit. Armadillo (1e-2 and 1e-3, one
+// thread), against always taking five steps: 1% fewer windows, up to 0.4%
+// fewer edges, candidates 11% and 8% faster; 0.1 and 0.2 were about level.
+constexpr double kRelayCloseEnough = 0.3;
 // Root-finding steps when trimming by the vertex behind a window: also
 // conservative, the cut stays on the dominated side of the root.
 constexpr int kFilterSteps = 6;
@@ -80,11 +86,13 @@ double FilterRoot(double sx, double sy, double c) {
 // the reverse), around the one root of a smooth f, and returns the bracket's
 // end on a's side: every point between a and that end is on a's side of the
 // root, so cutting there is conservative. Regula falsi with the Illinois
-// modification brackets a smooth root far faster than bisection.
+// modification brackets a smooth root far faster than bisection. Stops after
+// `steps`, or once the bracket is no wider than `close_enough`.
 template <typename F>
-double BracketEndOnSideOf(const F& f, double a, double fa, double b, double fb, int steps) {
+double BracketEndOnSideOf(const F& f, double a, double fa, double b, double fb, int steps,
+                          double close_enough = 0) {
   int side = 0;
-  for (int i = 0; i < steps; ++i) {
+  for (int i = 0; i < steps && std::abs(b - a) > close_enough; ++i) {
     const double x = b - fb * (b - a) / (fb - fa);
     if (!(x != a && x != b)) break;  // converged to rounding (or NaN)
     const double fx = f(x);
@@ -416,24 +424,29 @@ bool ExactGeodesic::TrimByRelays(Window& w) const {
     const Vec2 p{x, 0};
     return g + Norm(p - c) - (1 + epsilon_) * (w.sigma + Norm(p - I));
   };
-  // Largest x (conservatively) with slack <= 0 on [from, x], given that the
-  // slack at `from` is not positive.
-  auto reach = [&](const Vec2& c, double g, double from, double to) {
+  // Largest x (conservatively) with slack <= 0 on [from, x], given the
+  // slack at `from`, which is not positive.
+  auto reach = [&](const Vec2& c, double g, double from, double f_from, double to) {
     const double f_to = slack(c, g, to);
     if (f_to <= 0) return to;
     auto f = [&](double x) { return slack(c, g, x); };
-    return BracketEndOnSideOf(f, from, f(from), to, f_to, kRelaySteps);
+    return BracketEndOnSideOf(f, from, f_from, to, f_to, kRelaySteps,
+                              kRelayCloseEnough * (w.b1 - w.b0));
   };
   // Cuts smaller than min_cut are not made, so one probe at that depth
   // settles most windows without root finding.
   const double min_cut = kMinRelayCut * (w.b1 - w.b0);
   double x_left = w.b0;
   const double probe_left = w.b0 + min_cut;
-  if (slack(w.lc, w.lg, probe_left) <= 0) x_left = reach(w.lc, w.lg, probe_left, w.b1);
+  if (const double f = slack(w.lc, w.lg, probe_left); f <= 0) {
+    x_left = reach(w.lc, w.lg, probe_left, f, w.b1);
+  }
   if (x_left >= w.b1) return false;
   double x_right = w.b1;
   const double probe_right = std::max(w.b1 - min_cut, x_left);
-  if (slack(w.rc, w.rg, probe_right) <= 0) x_right = reach(w.rc, w.rg, probe_right, x_left);
+  if (const double f = slack(w.rc, w.rg, probe_right); f <= 0) {
+    x_right = reach(w.rc, w.rg, probe_right, f, x_left);
+  }
   if (x_right <= x_left) return false;
   if (x_left > w.b0) {
     const Vec2 p{x_left, 0};
