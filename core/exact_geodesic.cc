@@ -23,10 +23,13 @@ constexpr double kMinHeight = 1e-14;
 // margin, so rounding never trims the true geodesic.
 constexpr double kFilterSlack = 1e-12;
 // Root-finding steps when cutting off rays served by a corner: the cut is
-// conservative, so fewer steps only keep a little more of a window.
-constexpr int kRelaySteps = 5;
-// ... and root finding stops once the cut is known to within this fraction
-// of the window. A deeper cut is not better: it leaves the descendants a
+// conservative, so fewer steps only keep a little more of a window. Two
+// against five (both stopping at kRelayCloseEnough): armadillo at 1e-3 7%
+// faster with the same windows and edges, at 1e-2 6% faster with 0.5% more
+// edges; one step gave 1% more windows and edges at 1e-3.
+constexpr int kRelaySteps = 2;
+// Root finding for those cuts also stops once the cut is known to within
+// this fraction of the window. A deeper cut is not better: it leaves the descendants a
 // corner whose route is closer to its limit. Armadillo (1e-2 and 1e-3, one
 // thread), against always taking five steps: 1% fewer windows, up to 0.4%
 // fewer edges, candidates 11% and 8% faster; 0.1 and 0.2 were about level.
