@@ -263,7 +263,13 @@ def write_plots(rows, plot_dir):
 
 def write_markdown(rows, command, seconds, plots):
     out = ["# Benchmarks\n"]
-    out.append(f"Regenerate: `{command}` (this run took {seconds / 60:.1f} min). "
+    regenerate = f"`{command}` (this run took {seconds / 60:.1f} min)"
+    if "--rows-from" in command:
+        # Those rows come from an earlier run of this script; say how to make them.
+        regenerate = ("`bench/run_benchmarks.py --eps 1e-4 --plain-max-vertices 0 | grep '^{' > "
+                      "bench/rows-1e4.jsonl` (the ε = 1e-4 rows, about 13 min), then " + regenerate +
+                      "; the ε = 1e-4 rows come first in each table")
+    out.append(f"Regenerate: {regenerate}. "
                f"Machine: {machine()}. Absolute times are noisy on this shared machine; the ratios "
                "compare runs made in the same invocation. Accuracy is measured against the exact "
                "fields and pairs in `../shared/truth` (an independent exact solver).\n")
