@@ -1,17 +1,18 @@
 // The discrete geodesic graph (DGG, Wang et al., CAGD 2017) as an immutable,
 // memory-mappable structure.
 //
-// Nodes 0..n-1 are the mesh vertices and nodes n.. are pseudo vertices
-// (section 4.3), each a point inside a face. Vertex nodes are numbered along a
-// Z-order curve through their positions, not in the mesh file's order: a
-// search's next nodes then lie near each other in memory (armadillo at
-// 1e-3: a Dijkstra field 25 -> 20 ms, point-to-point 4.6 -> 3.8 ms).
-// node_of_vertex and vertex_of_node translate; callers speak mesh vertex
-// ids. Edges are stored directed in compressed adjacency (CSR): every
-// undirected DGG edge appears once from each end. Per node, outgoing edges are sorted by their
-// polar angle at the node (the node's intrinsic tangent frame, core/mesh.h), and each directed edge
-// u->v carries its fan: the range of v's outgoing edges that a shortest path arriving along u->v
-// can continue on (section 5.1.2), which the DGG-tailored solver scans instead of all of v's edges.
+// Nodes 0..n-1 are the mesh vertices and nodes n.. are pseudo vertices (section
+// 4.3), each a point inside a face. Vertex nodes are numbered along a Z-order
+// curve through their positions, not in the mesh file's order: a search's next
+// nodes then lie near each other in memory (armadillo at 1e-3: a Dijkstra field
+// 25 -> 20 ms, point-to-point 4.6 -> 3.8 ms). node_of_vertex and vertex_of_node
+// translate; callers speak mesh vertex ids. Edges are stored directed in
+// compressed adjacency (CSR): every undirected DGG edge appears once from each
+// end. Per node, outgoing edges are sorted by their polar angle at the node
+// (the node's intrinsic tangent frame, core/mesh.h), and each directed edge
+// u->v carries its fan: the range of v's outgoing edges that a shortest path
+// arriving along u->v can continue on (section 5.1.2), which the DGG-tailored
+// solver scans instead of all of v's edges.
 //
 // Weights are float32 lengths of real surface paths, rounded up, so graph
 // distances never undercut exact geodesic distances (float32's 6e-8 relative

@@ -28,11 +28,11 @@ constexpr double kFilterSlack = 1e-12;
 // faster with the same windows and edges, at 1e-2 6% faster with 0.5% more
 // edges; one step gave 1% more windows and edges at 1e-3.
 constexpr int kRelaySteps = 2;
-// Root finding for those cuts also stops once the cut is known to within
-// this fraction of the window. A deeper cut is not better: it leaves the descendants a
-// corner whose route is closer to its limit. Armadillo (1e-2 and 1e-3, one
-// thread), against always taking five steps: 1% fewer windows, up to 0.4%
-// fewer edges, candidates 11% and 8% faster; 0.1 and 0.2 were about level.
+// Root finding for those cuts also stops once the cut is known to within this
+// fraction of the window. A deeper cut is not better: it leaves the descendants
+// a corner whose route is closer to its limit. Armadillo (1e-2 and 1e-3, one
+// thread), against always taking five steps: 1% fewer windows, up to 0.4% fewer
+// edges, candidates 11% and 8% faster; 0.1 and 0.2 were about level.
 constexpr double kRelayCloseEnough = 0.3;
 // Root-finding steps when trimming by the vertex behind a window: also
 // conservative, the cut stays on the dominated side of the root.
