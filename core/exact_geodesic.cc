@@ -47,6 +47,10 @@ constexpr size_t kScratchKeepBytes = size_t{64} << 20;
 
 double Hypot(double x, double y) { return std::sqrt(x * x + y * y); }
 
+// Hypot(x, y) > k, without the square root: most of the propagation's tests
+// compare a distance with a bound, and square roots are much of its time.
+bool HypotExceeds(double x, double y, double k) { return k < 0 || x * x + y * y > k * k; }
+
 // Position of a point in the frame of an edge of length L (tail at the
 // origin, head at (L, 0)) from its distances d0 to the tail and d1 to the
 // head; `above` picks the side.
@@ -212,19 +216,21 @@ bool ExactGeodesic::Trim(Window& w) const {
   // Vertex filter against the edge's end points.
   const double dP = dist_[mesh_.tail(w.h)];
   if (dP < kInf) {
-    const double bound = dP * (1 + kFilterSlack) + kFilterSlack * L;
-    auto excess = [&](double x) { return w.sigma + Hypot(x - w.sx, w.sy) - x; };
-    if (excess(w.b1) > bound) return false;
-    if (excess(w.b0) > bound) w.b0 = std::max(w.b0, FilterRoot(w.sx, w.sy, bound - w.sigma));
+    const double c = dP * (1 + kFilterSlack) + kFilterSlack * L - w.sigma;
+    // Dominated at x: |I x| > c + x.
+    if (HypotExceeds(w.b1 - w.sx, w.sy, c + w.b1)) return false;
+    if (HypotExceeds(w.b0 - w.sx, w.sy, c + w.b0)) {
+      w.b0 = std::max(w.b0, FilterRoot(w.sx, w.sy, c));
+    }
   }
   const double dQ = dist_[mesh_.head(w.h)];
   if (dQ < kInf) {
-    const double bound = dQ * (1 + kFilterSlack) + kFilterSlack * L;
-    auto excess = [&](double x) { return w.sigma + Hypot(x - w.sx, w.sy) - (L - x); };
-    if (excess(w.b0) > bound) return false;
-    if (excess(w.b1) > bound) {
+    const double c = dQ * (1 + kFilterSlack) + kFilterSlack * L - w.sigma;
+    // Dominated at x: |I x| > c + (L - x).
+    if (HypotExceeds(w.b0 - w.sx, w.sy, c + (L - w.b0))) return false;
+    if (HypotExceeds(w.b1 - w.sx, w.sy, c + (L - w.b1))) {
       // Mirror the edge so the same closed form applies.
-      w.b1 = std::min(w.b1, L - FilterRoot(L - w.sx, w.sy, bound - w.sigma));
+      w.b1 = std::min(w.b1, L - FilterRoot(L - w.sx, w.sy, c));
     }
   }
   if (w.b1 - w.b0 <= width_floor) return false;
@@ -437,17 +443,25 @@ bool ExactGeodesic::TrimByRelays(Window& w) const {
                               kRelayCloseEnough * (w.b1 - w.b0));
   };
   // Cuts smaller than min_cut are not made, so one probe at that depth
-  // settles most windows without root finding.
+  // settles most windows without root finding. A probe that finds the ray
+  // unserved (most do) needs the slack's sign only: one square root.
+  auto probe = [&](const Vec2& c, double g, double x) {
+    const Vec2 p{x, 0};
+    const double k = (1 + epsilon_) * (w.sigma + Norm(p - I)) - g;
+    const Vec2 cp = p - c;
+    const double cp2 = Dot(cp, cp);
+    return k < 0 || cp2 > k * k ? 1.0 : std::sqrt(cp2) - k;
+  };
   const double min_cut = kMinRelayCut * (w.b1 - w.b0);
   double x_left = w.b0;
   const double probe_left = w.b0 + min_cut;
-  if (const double f = slack(w.lc, w.lg, probe_left); f <= 0) {
+  if (const double f = probe(w.lc, w.lg, probe_left); f <= 0) {
     x_left = reach(w.lc, w.lg, probe_left, f, w.b1);
   }
   if (x_left >= w.b1) return false;
   double x_right = w.b1;
   const double probe_right = std::max(w.b1 - min_cut, x_left);
-  if (const double f = slack(w.rc, w.rg, probe_right); f <= 0) {
+  if (const double f = probe(w.rc, w.rg, probe_right); f <= 0) {
     x_right = reach(w.rc, w.rg, probe_right, f, x_left);
   }
   if (x_right <= x_left) return false;
@@ -502,7 +516,8 @@ void ExactGeodesic::Propagate(uint32_t index) {
   if (sees_c) {
     const double d = w.sigma + Hypot(C.x - w.sx, C.y - w.sy);
     double a_src = 0, a_vtx = 0;
-    if (mode_ == Mode::kDirect) {
+    // The directions cost two atan2; they are only kept when d improves.
+    if (mode_ == Mode::kDirect && d < dist_[vc]) {
       a_src = ray_angle(std::clamp(xc, w.b0, w.b1));
       a_vtx = mesh_.polar_angle(hp) +
               std::clamp(SignedAngle(A - C, I - C), 0.0, mesh_.corner_angle(hp));
@@ -511,10 +526,13 @@ void ExactGeodesic::Propagate(uint32_t index) {
     if (relays_) {
       // A vertex the graph already reaches within 1 + epsilon through a
       // corner needs no edge from the source: only the route is recorded.
-      const double via = std::min(w.lg + Norm(C - w.lc), w.rg + Norm(C - w.rc));
-      const bool needed = via > (1 + epsilon_) * d;
+      // Most are needed, which takes no square root to tell.
+      const double limit = (1 + epsilon_) * d;
+      const Vec2 l = C - w.lc, r = C - w.rc;
+      const bool needed =
+          HypotExceeds(l.x, l.y, limit - w.lg) && HypotExceeds(r.x, r.y, limit - w.rg);
       if (dist_[vc] == d) excluded_[vc] = !needed;
-      route_[vc] = std::min(route_[vc], needed ? d : via);
+      route_[vc] = std::min(route_[vc], needed ? d : std::min(w.lg + Norm(l), w.rg + Norm(r)));
     }
   }
 
@@ -544,9 +562,11 @@ void ExactGeodesic::Propagate(uint32_t index) {
     if (mode_ == Mode::kDirect && dmax < kInf) {
       // The paper's rule: a child travels on only if both of its ends are
       // still within the parent's limit.
-      const double e0 = c.sigma + Hypot(c.b0 - c.sx, c.sy);
-      const double e1 = c.sigma + Hypot(c.b1 - c.sx, c.sy);
-      if (!(e0 < dmax && e1 < dmax)) return;
+      const double reach = dmax - c.sigma;
+      if (!(reach > 0) || (c.b0 - c.sx) * (c.b0 - c.sx) + c.sy * c.sy >= reach * reach ||
+          (c.b1 - c.sx) * (c.b1 - c.sx) + c.sy * c.sy >= reach * reach) {
+        return;
+      }
     }
     TrimAndPush(c);
   };
