@@ -143,7 +143,15 @@ struct ExactGeodesic::Candidate {
   Vec2 local;  // the target in the window's frame
 };
 
-ExactGeodesic::ExactGeodesic(const Mesh& mesh) : mesh_(mesh) {
+FaceApexes::FaceApexes(const Mesh& mesh) : apex_(mesh.num_halfedges()) {
+  for (HalfedgeId h = 0; h < apex_.size(); ++h) {
+    apex_[h] = PlaceFromDistances(mesh.length(h), mesh.length(Mesh::prev(h)),
+                                  mesh.length(Mesh::next(h)), /*above=*/true);
+  }
+}
+
+ExactGeodesic::ExactGeodesic(const Mesh& mesh, const FaceApexes* apexes)
+    : mesh_(mesh), apexes_(apexes) {
   const size_t n = mesh.num_vertices();
   dist_.assign(n, kInf);
   via_window_.assign(n, kNone);
@@ -492,7 +500,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
   const double lb = mesh_.length(hp);  // |AC|
   const double la = mesh_.length(hn);  // |BC|
   const Vec2 A{0, 0}, B{L, 0};
-  const Vec2 C = PlaceFromDistances(L, lb, la, /*above=*/true);
+  const Vec2 C = apexes_ ? (*apexes_)[h] : PlaceFromDistances(L, lb, la, /*above=*/true);
   const Vec2 I{w.sx, w.sy};
   const VertexId vc = mesh_.opposite(h);
 

@@ -98,9 +98,24 @@ struct ExactStats {
   uint64_t peak_queue = 0;
 };
 
+// The third vertex of every half-edge's face in that half-edge's frame (tail
+// at the origin, head at (length, 0), the face above). Propagating a window
+// otherwise places it with a square root and a division; engines that share
+// one mesh over many sources (the DGG build) share one table instead, 16
+// bytes per half-edge.
+class FaceApexes {
+ public:
+  explicit FaceApexes(const Mesh& mesh);
+  const Vec2& operator[](HalfedgeId h) const { return apex_[h]; }
+
+ private:
+  std::vector<Vec2> apex_;
+};
+
 class ExactGeodesic {
  public:
-  explicit ExactGeodesic(const Mesh& mesh);
+  // `apexes`, if given, must be built from `mesh` and outlive the engine.
+  explicit ExactGeodesic(const Mesh& mesh, const FaceApexes* apexes = nullptr);
   ~ExactGeodesic();
   ExactGeodesic(const ExactGeodesic&) = delete;
   ExactGeodesic& operator=(const ExactGeodesic&) = delete;
@@ -158,6 +173,7 @@ class ExactGeodesic {
   Candidate BestCandidate(const SurfacePoint& target) const;
 
   const Mesh& mesh_;
+  const FaceApexes* apexes_;
   ExactStats stats_;
   Mode mode_ = Mode::kFull;
   bool keep_windows_ = false;

@@ -239,6 +239,30 @@ TEST_F(SpotTest, DirectGeodesicsNeverUndercutExact) {
   }
 }
 
+TEST_F(SpotTest, SharedApexTableChangesNoResult) {
+  const FaceApexes apexes(*mesh_);
+  ExactGeodesic plain(*mesh_), shared(*mesh_, &apexes);
+  DirectOptions options;
+  options.epsilon = 1e-3;
+  for (VertexId s : {VertexId{10}, VertexId{1500}, VertexId{2900}}) {
+    auto a = plain.DirectGeodesics(SurfacePoint::Vertex(s), options);
+    auto b = shared.DirectGeodesics(SurfacePoint::Vertex(s), options);
+    ASSERT_OK(a);
+    ASSERT_OK(b);
+    ASSERT_EQ(a->size(), b->size());
+    for (size_t i = 0; i < a->size(); ++i) {
+      EXPECT_EQ((*a)[i].vertex, (*b)[i].vertex);
+      EXPECT_EQ((*a)[i].distance, (*b)[i].distance) << "vertex " << (*a)[i].vertex;
+      EXPECT_EQ((*a)[i].angle_at_source, (*b)[i].angle_at_source);
+    }
+    auto full_a = plain.Distances(SurfacePoint::Vertex(s));
+    auto full_b = shared.Distances(SurfacePoint::Vertex(s));
+    ASSERT_OK(full_a);
+    ASSERT_OK(full_b);
+    EXPECT_EQ(*full_a, *full_b);
+  }
+}
+
 TEST_F(SpotTest, DirectAnglesOfMeshEdgesMatchTheFrame) {
   ExactGeodesic exact(*mesh_);
   const VertexId s = 100;
