@@ -170,9 +170,9 @@ std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double
                                                         double progress_end,
                                                         uint64_t* windows_created) {
   std::vector<std::vector<DggHalfEdge>> candidates(end - begin);
-  const FaceApexes apexes(mesh);
+  const FaceFrames frames(mesh);
   tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
-      [&] { return std::make_unique<ExactGeodesic>(mesh, &apexes); });
+      [&] { return std::make_unique<ExactGeodesic>(mesh, &frames); });
   std::atomic<uint64_t> windows{0};
   const std::vector<uint32_t> order = SpatialOrder(mesh, begin, end);
   ParallelFor(end - begin, progress, "candidates", 0.0, progress_end, [&](uint32_t k) {

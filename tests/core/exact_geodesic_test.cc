@@ -239,9 +239,9 @@ TEST_F(SpotTest, DirectGeodesicsNeverUndercutExact) {
   }
 }
 
-TEST_F(SpotTest, SharedApexTableChangesNoResult) {
-  const FaceApexes apexes(*mesh_);
-  ExactGeodesic plain(*mesh_), shared(*mesh_, &apexes);
+TEST_F(SpotTest, SharedFaceFramesChangeNoResult) {
+  const FaceFrames frames(*mesh_);
+  ExactGeodesic plain(*mesh_), shared(*mesh_, &frames);
   DirectOptions options;
   options.epsilon = 1e-3;
   for (VertexId s : {VertexId{10}, VertexId{1500}, VertexId{2900}}) {
