@@ -295,7 +295,7 @@ bool ExactGeodesic::TrimByFaceBehind(Window& w) const {
   return w.b1 - w.b0 > kMinWidth * L;
 }
 
-bool ExactGeodesic::TrimAndPush(Window w, const EdgeEnds& edge) {
+bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   // Rays the corners serve are cut before the window is queued, so windows
   // served whole are never stored (a window's own corners do not change
   // while it waits).

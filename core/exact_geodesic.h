@@ -190,7 +190,9 @@ class ExactGeodesic {
   bool Trim(Window& w, const EdgeEnds& edge) const;
   bool TrimByRelays(Window& w) const;
   bool TrimByFaceBehind(Window& w) const;
-  bool TrimAndPush(Window w, const EdgeEnds& edge);
+  // Trims w in place (a copy of the 120-byte window per child cost 4% of the
+  // DGG candidates) and queues what is left.
+  bool TrimAndPush(Window& w, const EdgeEnds& edge);
   uint32_t Allocate(const Window& w);
   void Push(double key, uint32_t item);
 
