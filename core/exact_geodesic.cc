@@ -232,6 +232,7 @@ bool ExactGeodesic::Trim(Window& w, const EdgeEnds& edge) const {
   if (!(w.sy < -kMinHeight * L)) return false;
   const double width_floor = kMinWidth * L;
   if (w.b1 - w.b0 <= width_floor) return false;
+  const double b0 = w.b0, b1 = w.b1;
 
   // Vertex filter against the edge's end points.
   const double dP = dist_[edge.tail];
@@ -254,7 +255,28 @@ bool ExactGeodesic::Trim(Window& w, const EdgeEnds& edge) const {
     }
   }
   if (w.b1 - w.b0 <= width_floor) return false;
+  if (relays_) KeepCornersOnBoundary(w, b0, b1);
   return TrimByFaceBehind(w);
+}
+
+void ExactGeodesic::KeepCornersOnBoundary(Window& w, double b0, double b1) const {
+  // A corner serves the points beyond a window along segments that stay
+  // between the window's boundary rays and the corner, a region no vertex
+  // lies in: the vertices inside the cone split it, and each child takes
+  // the splitting vertex as its corner. A cut moves a boundary ray inwards,
+  // and vertices beyond the edge between the old ray and the new one split
+  // nothing from now on, so the corner moves onto the new ray (at the cut,
+  // with the route's length so far) to keep them out of that region.
+  if (w.b0 > b0) {
+    const Vec2 p{w.b0, 0};
+    w.lg += Norm(p - w.lc);
+    w.lc = p;
+  }
+  if (w.b1 < b1) {
+    const Vec2 p{w.b1, 0};
+    w.rg += Norm(p - w.rc);
+    w.rc = p;
+  }
 }
 
 bool ExactGeodesic::TrimByFaceBehind(Window& w) const {

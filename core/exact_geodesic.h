@@ -189,6 +189,7 @@ class ExactGeodesic {
   }
   bool Trim(Window& w, const EdgeEnds& edge) const;
   bool TrimByRelays(Window& w) const;
+  void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
   bool TrimByFaceBehind(Window& w) const;
   // Trims w in place (a copy of the 120-byte window per child cost 4% of the
   // DGG candidates) and queues what is left.
