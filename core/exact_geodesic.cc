@@ -507,18 +507,10 @@ bool ExactGeodesic::TrimByRelays(Window& w) const {
     x_right = reach(w.rc, w.rg, probe_right, f, x_left);
   }
   if (x_right <= x_left) return false;
-  if (x_left > w.b0) {
-    const Vec2 p{x_left, 0};
-    w.lg += Norm(p - w.lc);
-    w.lc = p;
-    w.b0 = x_left;
-  }
-  if (x_right < w.b1) {
-    const Vec2 p{x_right, 0};
-    w.rg += Norm(p - w.rc);
-    w.rc = p;
-    w.b1 = x_right;
-  }
+  const double b0 = w.b0, b1 = w.b1;
+  w.b0 = x_left;
+  w.b1 = x_right;
+  KeepCornersOnBoundary(w, b0, b1);
   return true;
 }
 
