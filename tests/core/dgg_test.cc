@@ -122,9 +122,11 @@ TEST_F(SpotGraphTest, FieldsAreWithinEpsilonOfExact) {
     auto plain = engine.Field(absl::MakeConstSpan(&source, 1), dijkstra);
     ASSERT_OK(plain);
     ErrorStats e = Compare(plain->distance, *truth);
-    EXPECT_LE(e.mean, 0.25 * eps) << "source " << s;
-    // The contract: the build aims at eps, and compounding may take a rare
-    // vertex a little past it, never near 1.5 eps.
+    // The contract is 0.3 eps; spot measures 0.24-0.26 eps with the
+    // candidates' budget of 1.1 eps, so this also catches a drift.
+    EXPECT_LE(e.mean, 0.28 * eps) << "source " << s;
+    // The contract: compounding may take a rare vertex a little past the
+    // budget, never near 1.5 eps.
     EXPECT_LE(e.max, 1.5 * eps) << "source " << s;
     // Graph distances are lengths of real paths: never below exact.
     EXPECT_GE(e.most_under, -1e-9);
