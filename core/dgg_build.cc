@@ -40,14 +40,19 @@ constexpr double kPruningFanScale = 0.9;
 // corners that are themselves served routes compound, so a field's largest
 // error exceeds what one route may use, and its mean is a quarter of it.
 // b = 1.1 instead of 1 (the paper's rule) gives 4-5% fewer edges, for means
-// up to 0.28 eps and maxima up to 1.41 eps on the shared meshes (from 0.25
-// and 1.36; the contract is 0.3 and 1.5). At the same degree this is more
-// accurate than FastDGG's rule, which tests corners by their exact distance
-// rather than by their routes (bench/notes.md, "Candidate budget").
-constexpr double kCandidateBudget = 1.1;
+// up to 0.28 eps and maxima up to 1.41 eps on the shared meshes at 1e-2 and
+// 1e-3 (from 0.25 and 1.36; the contract is 0.3 and 1.5). At the same degree
+// this is more accurate than FastDGG's rule, which tests corners by their
+// exact distance rather than by their routes (bench/notes.md, "Candidate
+// budget"). Smaller eps chains more corners and compounds more: at 1e-4,
+// b = 1 already reaches 1.45 eps and b = 1.1 reached 1.58 eps, so the extra
+// tenth fades out between 1e-3 and 1e-4.
+double CornerBudgetFactor(double epsilon) {
+  return 1 + 0.1 * std::clamp(std::log10(epsilon / 1e-4), 0.0, 1.0);
+}
 double PruningBudget(double epsilon) { return 0.1 * epsilon; }
 double CandidateBudget(double epsilon, bool prune) {
-  const double budget = kCandidateBudget * epsilon;
+  const double budget = CornerBudgetFactor(epsilon) * epsilon;
   if (!prune) return budget;
   return (1 + budget) / (1 + PruningBudget(epsilon)) - 1;
 }
