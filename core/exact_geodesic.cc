@@ -491,8 +491,7 @@ bool ExactGeodesic::TrimByRelays(Window& w) const {
     const Vec2 p{x, 0};
     const double k = (1 + epsilon_) * (w.sigma + Norm(p - I)) - g;
     const Vec2 cp = p - c;
-    const double cp2 = Dot(cp, cp);
-    return k < 0 || cp2 > k * k ? 1.0 : std::sqrt(cp2) - k;
+    return HypotExceeds(cp.x, cp.y, k) ? 1.0 : Norm(cp) - k;
   };
   const double min_cut = kMinRelayCut * (w.b1 - w.b0);
   double x_left = w.b0;
