@@ -147,35 +147,59 @@ uint64_t GeodesicEngine::landmark_bytes() const {
 
 namespace {
 
-std::vector<TemporaryEdge> AsTemporaryEdges(const DggGraph& graph,
-                                            const std::vector<DirectHit>& hits) {
+// One end of a query (a field's source, a pair's point, a matrix's row or
+// column): a graph node, or a point joined to the graph by temporary edges.
+struct Endpoint {
+  SurfacePoint point;
+  Vec3 xyz;
+  bool is_node = false;
+  uint32_t node = kNone;
   std::vector<TemporaryEdge> edges;
-  edges.reserve(hits.size());
-  for (const DirectHit& h : hits) {
-    edges.push_back({h.vertex, graph.node_of_vertex(h.vertex), h.distance});
-  }
-  return edges;
-}
+};
 
-std::vector<TemporaryEdge> TemporaryEdges(const DggGraph& graph, ExactGeodesic& exact,
-                                          const SurfacePoint& p) {
+// Joins `raw` to the graph: a vertex is its own node; any other point runs
+// the exact engine's direct propagation, whose lit vertices become its
+// temporary edges. With `keep_windows` the propagation stays in `exact`, so
+// that exact.DistanceTo then answers direct geodesic distances from the
+// point (the same-face and nearby cases no path through vertices gets
+// right). Every query joins its points here, so fields, pairs and matrices
+// see one augmented graph.
+absl::StatusOr<Endpoint> JoinToGraph(const Mesh& mesh, const DggGraph& graph, ExactGeodesic& exact,
+                                     const SurfacePoint& raw, bool keep_windows) {
+  Endpoint end;
+  end.point = CanonicalizeSurfacePoint(mesh, raw);
+  end.xyz = PositionOf(mesh, end.point);
+  if (end.point.kind == SurfacePoint::Kind::kVertex) {
+    end.is_node = true;
+    end.node = graph.node_of_vertex(end.point.id);
+    return end;
+  }
   DirectOptions options;
   options.epsilon = graph.params().epsilon;
-  auto hits = exact.DirectGeodesics(p, options);
-  if (!hits.ok()) return {};
-  return AsTemporaryEdges(graph, *hits);
+  options.keep_windows = keep_windows;
+  ASSIGN_OR_RETURN(std::vector<DirectHit> hits, exact.DirectGeodesics(end.point, options));
+  end.edges.reserve(hits.size());
+  for (const DirectHit& h : hits) {
+    end.edges.push_back({h.vertex, graph.node_of_vertex(h.vertex), h.distance});
+  }
+  return end;
 }
 
-}  // namespace
+// The distance of an end point from a field given in mesh vertex order: at
+// its node, or the best of its temporary edges (the last hop of a path that
+// enters it through them).
+double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field) {
+  if (end.is_node) return field[end.point.id];
+  double d = kInfinity;
+  for (const TemporaryEdge& e : end.edges) d = std::min(d, field[e.vertex] + e.weight);
+  return d;
+}
 
-absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint> sources,
-                                                  const FieldOptions& options) const {
-  const Mesh& mesh = *mesh_;
-  const DggGraph& g = *graph_;
-  if (sources.empty()) return absl::InvalidArgumentError("a field needs at least one source");
-  for (size_t i = 0; i < sources.size(); ++i) {
-    RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
-  }
+// The field from sources already joined to the graph.
+absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
+                                       const BucketShape& bucket_shape,
+                                       absl::Span<const Endpoint> sources,
+                                       const FieldOptions& options) {
   for (VertexId t : options.targets) {
     if (t >= mesh.num_vertices()) {
       return absl::OutOfRangeError(absl::StrFormat(
@@ -203,14 +227,8 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
     seeds.push_back(u);
   };
   for (uint32_t i = 0; i < sources.size(); ++i) {
-    const SurfacePoint p = CanonicalizeSurfacePoint(mesh, sources[i]);
-    if (p.kind == SurfacePoint::Kind::kVertex) {
-      seed(g.node_of_vertex(p.id), 0, i);
-      continue;
-    }
-    for (const TemporaryEdge& e : TemporaryEdges(g, sc.Exact(mesh_), p)) {
-      seed(e.node, e.weight, i);
-    }
+    if (sources[i].is_node) seed(sources[i].node, 0, i);
+    for (const TemporaryEdge& e : sources[i].edges) seed(e.node, e.weight, i);
   }
   std::sort(seeds.begin(), seeds.end());
   seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
@@ -257,7 +275,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   } else {
     double max_seed = 0;
     for (uint32_t s : seeds) max_seed = std::max(max_seed, dist[s]);
-    sc.buckets.Reset(nodes, buckets_.width, std::max(buckets_.max_step, max_seed));
+    sc.buckets.Reset(nodes, bucket_shape.width, std::max(bucket_shape.max_step, max_seed));
     run(sc.buckets);
   }
   if (cancelled) return absl::CancelledError("field cancelled");
@@ -278,17 +296,25 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   return result;
 }
 
-namespace {
+}  // namespace
 
-// One endpoint of a point-to-point query: a graph node, or a point joined to
-// the graph by temporary edges.
-struct Endpoint {
-  SurfacePoint point;
-  Vec3 xyz;
-  bool is_node = false;
-  uint32_t node = kNone;
-  std::vector<TemporaryEdge> edges;
-};
+absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint> sources,
+                                                  const FieldOptions& options) const {
+  const Mesh& mesh = *mesh_;
+  if (sources.empty()) return absl::InvalidArgumentError("a field needs at least one source");
+  for (size_t i = 0; i < sources.size(); ++i) {
+    RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
+  }
+  ExactGeodesic& exact = ThreadScratch().Exact(mesh_);
+  std::vector<Endpoint> ends;
+  ends.reserve(sources.size());
+  for (const SurfacePoint& p : sources) {
+    ASSIGN_OR_RETURN(ends.emplace_back(), JoinToGraph(mesh, *graph_, exact, p, false));
+  }
+  return SolveField(mesh, *graph_, buckets_, ends, options);
+}
+
+namespace {
 
 // Length of the straight segments of a traced path.
 double PolylineLength(const std::vector<PathPoint>& points) {
@@ -393,39 +419,23 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   const DggGraph& g = *graph_;
   RETURN_IF_ERROR(CheckPoint(mesh, raw_a, "first point"));
   RETURN_IF_ERROR(CheckPoint(mesh, raw_b, "second point"));
-  const double epsilon = g.params().epsilon;
   Scratch& sc = ThreadScratch();
   ExactGeodesic& exact = sc.Exact(mesh_);
-
-  Endpoint ends[2];
-  const SurfacePoint raw[2] = {raw_a, raw_b};
-  for (int s = 0; s < 2; ++s) {
-    ends[s].point = CanonicalizeSurfacePoint(mesh, raw[s]);
-    ends[s].xyz = PositionOf(mesh, ends[s].point);
-    if (ends[s].point.kind == SurfacePoint::Kind::kVertex) {
-      ends[s].is_node = true;
-      ends[s].node = g.node_of_vertex(ends[s].point.id);
-    }
-  }
   PairResult result;
   // A point that is not a node joins the graph by its direct geodesics. The
   // first one also gives the direct geodesic to the second point, if it sees
   // it: exact, and the answer whenever it is shortest. When either point is
   // a vertex the other's temporary edges (or the graph's own) already hold
   // that geodesic up to the candidate budget, so a vertex costs no
-  // propagation at all.
+  // propagation at all. Matrix makes the same choices, entry by entry.
+  Endpoint ends[2];
+  ASSIGN_OR_RETURN(ends[0], JoinToGraph(mesh, g, exact, raw_a, /*keep_windows=*/true));
   double best = kInfinity;
   if (!ends[0].is_node) {
-    DirectOptions options_a;
-    options_a.epsilon = epsilon;
-    options_a.keep_windows = true;
-    auto hits = exact.DirectGeodesics(ends[0].point, options_a);
-    if (!hits.ok()) return hits.status();
-    ends[0].edges = AsTemporaryEdges(g, *hits);
-    auto direct = exact.DistanceTo(ends[1].point);
+    auto direct = exact.DistanceTo(CanonicalizeSurfacePoint(mesh, raw_b));
     if (direct.ok()) best = *direct;
   }
-  if (!ends[1].is_node) ends[1].edges = TemporaryEdges(g, exact, ends[1].point);
+  ASSIGN_OR_RETURN(ends[1], JoinToGraph(mesh, g, exact, raw_b, /*keep_windows=*/false));
 
   const uint32_t nodes = g.num_nodes();
   const uint32_t stamp = sc.PreparePair(nodes);
@@ -592,38 +602,41 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
     absl::Span<const SurfacePoint> sources, absl::Span<const SurfacePoint> targets,
     const std::function<bool()>& cancelled) const {
   const Mesh& mesh = *mesh_;
+  for (size_t i = 0; i < sources.size(); ++i) {
+    RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
+  }
   for (size_t j = 0; j < targets.size(); ++j) {
     RETURN_IF_ERROR(CheckPoint(mesh, targets[j], absl::StrFormat("target %u", j)));
   }
-  // A target inside a face is reached through its own direct edges.
-  Scratch& sc = ThreadScratch();
-  std::vector<std::vector<TemporaryEdge>> target_edges(targets.size());
-  std::vector<SurfacePoint> canon(targets.size());
-  for (size_t j = 0; j < targets.size(); ++j) {
-    canon[j] = CanonicalizeSurfacePoint(mesh, targets[j]);
-    if (canon[j].kind != SurfacePoint::Kind::kVertex) {
-      target_edges[j] = TemporaryEdges(*graph_, sc.Exact(mesh_), canon[j]);
-    }
+  // Entry (i, j) is what Distance(sources[i], targets[j]) answers without a
+  // path: the graph distance on the augmented graph, or the direct geodesic
+  // from a source that is not a vertex, whichever is shorter. One field per
+  // source serves its whole row.
+  ExactGeodesic& exact = ThreadScratch().Exact(mesh_);
+  std::vector<Endpoint> target_ends;
+  target_ends.reserve(targets.size());
+  for (const SurfacePoint& t : targets) {
+    ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, exact, t, false));
   }
   std::vector<double> out;
   out.reserve(sources.size() * targets.size());
   FieldOptions options;
   options.cancelled = cancelled;
-  for (size_t i = 0; i < sources.size(); ++i) {
-    ASSIGN_OR_RETURN(FieldResult field, Field(absl::MakeConstSpan(&sources[i], 1), options));
-    const SurfacePoint src = CanonicalizeSurfacePoint(mesh, sources[i]);
-    for (size_t j = 0; j < targets.size(); ++j) {
-      double d;
-      if (canon[j].kind == SurfacePoint::Kind::kVertex) {
-        d = field.distance[canon[j].id];
-        if (src.kind == SurfacePoint::Kind::kVertex && src.id == canon[j].id) d = 0;
-      } else {
-        d = kInfinity;
-        for (const TemporaryEdge& e : target_edges[j]) {
-          d = std::min(d, field.distance[e.vertex] + e.weight);
-        }
+  for (const SurfacePoint& raw : sources) {
+    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, exact, raw, true));
+    const size_t row = out.size();
+    for (const Endpoint& t : target_ends) {
+      double direct = kInfinity;
+      if (!source.is_node) {
+        auto d = exact.DistanceTo(t.point);
+        if (d.ok()) direct = *d;
       }
-      out.push_back(d);
+      out.push_back(direct);
+    }
+    ASSIGN_OR_RETURN(FieldResult field,
+                     SolveField(mesh, *graph_, buckets_, absl::MakeConstSpan(&source, 1), options));
+    for (size_t j = 0; j < target_ends.size(); ++j) {
+      out[row + j] = std::min(out[row + j], FieldDistanceTo(target_ends[j], field.distance));
     }
   }
   return out;

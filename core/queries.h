@@ -117,7 +117,10 @@ class GeodesicEngine {
   // Bytes held by the landmark distances (0 before PrepareLandmarks).
   uint64_t landmark_bytes() const;
 
-  // sources x targets distances, row-major.
+  // sources x targets distances, row-major. Entry (i, j) is what
+  // Distance(sources[i], targets[j]) answers without a path (points join
+  // the graph the same way, and a source that is not a vertex also reaches
+  // targets by its direct geodesics), at one field per source.
   absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
                                              absl::Span<const SurfacePoint> targets,
                                              const std::function<bool()>& cancelled = {}) const;
