@@ -20,6 +20,7 @@
 #ifndef GEODESIC_CORE_DGG_GRAPH_H_
 #define GEODESIC_CORE_DGG_GRAPH_H_
 
+#include <compare>
 #include <cstdint>
 #include <memory>
 #include <span>
@@ -53,6 +54,7 @@ struct DggParams {
   // measured (BENCHMARKS.md) they double the node count for no accuracy gain;
   // turn them on for anisotropic meshes.
   bool pseudo_vertices = false;
+  friend auto operator<=>(const DggParams&, const DggParams&) = default;
 };
 
 class DggGraph {

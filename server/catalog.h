@@ -1,0 +1,85 @@
+// The daemon's durable state: the meshes clients registered and the graphs
+// they requested, kept in <graph dir>/catalog.json so that a restarted daemon,
+// or another replica sharing the directory, restores them without the
+// clients registering again.
+//
+// The file is replaced atomically (temporary file, fsync, rename, fsync of
+// the directory), so a crash leaves the old catalog or the new one, never
+// half of one. Updates are read-modify-write under an exclusive lock on
+// <graph dir>/catalog.lock (an open-file-description lock: it serialises
+// threads of one daemon and daemons on one host alike), so concurrent
+// replicas never lose each other's changes. Every update bumps a generation
+// number, which replicas compare to notice changes made elsewhere.
+#ifndef GEODESIC_SERVER_CATALOG_H_
+#define GEODESIC_SERVER_CATALOG_H_
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "absl/functional/function_ref.h"
+#include "absl/status/statusor.h"
+#include "core/dgg_graph.h"
+
+namespace geodesic::server {
+
+struct CatalogMesh {
+  std::string name;
+  // Where it came from: a path the daemon may read again (under the mesh
+  // root, or the operator's own), or "upload".
+  std::string source;
+  std::string format;        // "obj", "off", "ply" or "stl"
+  uint64_t source_hash = 0;  // the mesh snapshot's key (core/mesh_snapshot.h)
+  uint64_t fingerprint = 0;  // of the built mesh: graphs are keyed by it
+  bool repair_non_manifold = false;
+};
+
+struct CatalogGraph {
+  std::string mesh;
+  DggParams params;
+};
+
+struct CatalogState {
+  uint64_t generation = 0;  // 0: no catalog written yet
+  std::vector<CatalogMesh> meshes;
+  std::vector<CatalogGraph> graphs;
+
+  const CatalogMesh* FindMesh(const std::string& name) const;
+  // Adds or replaces the mesh of that name.
+  void PutMesh(CatalogMesh mesh);
+  // Removes the mesh and every graph of it; false if there was none.
+  bool RemoveMesh(const std::string& name);
+  bool HasGraph(const std::string& mesh, const DggParams& params) const;
+  void PutGraph(CatalogGraph graph);  // no-op if present
+  bool RemoveGraph(const std::string& mesh, const DggParams& params);
+};
+
+class Catalog {
+ public:
+  static constexpr uint32_t kFormatVersion = 1;
+
+  explicit Catalog(std::string dir);
+
+  const std::string& path() const { return path_; }
+
+  // The current state; a missing file is the empty state (generation 0).
+  // DATA_LOSS naming the file and the problem when it cannot be parsed,
+  // FAILED_PRECONDITION when it has another format version.
+  absl::StatusOr<CatalogState> Read() const;
+
+  // Applies `change` to the current state under the lock and, if it
+  // returns OK, writes the result with the next generation. The state
+  // written is returned. An error from `change` writes nothing.
+  absl::StatusOr<CatalogState> Update(absl::FunctionRef<absl::Status(CatalogState&)> change);
+
+ private:
+  std::string dir_, path_, lock_path_;
+};
+
+// The JSON text of a state, and back; exposed for tests and `info`.
+std::string CatalogToJson(const CatalogState& state);
+absl::StatusOr<CatalogState> CatalogFromJson(const std::string& text, const std::string& path);
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_CATALOG_H_

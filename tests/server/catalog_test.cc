@@ -1,0 +1,213 @@
+// The durable catalog: round trips, refusals of damaged files, and updates
+// from many threads and processes at once that lose nothing.
+#include "server/catalog.h"
+
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <thread>
+
+#include "absl/strings/str_cat.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geodesic::server {
+namespace {
+
+class CatalogTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = std::filesystem::temp_directory_path() /
+           absl::StrCat("catalog_test.", getpid(), ".",
+                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    std::filesystem::remove_all(dir_);
+    std::filesystem::create_directories(dir_);
+  }
+  void TearDown() override { std::filesystem::remove_all(dir_); }
+  void WriteCatalogText(const std::string& text) { std::ofstream(dir_ / "catalog.json") << text; }
+
+  std::filesystem::path dir_;
+};
+
+CatalogMesh Kitten() {
+  return {"kitten", "scans/kitten.off", "off", 0x0123456789abcdefULL, 0xfedcba9876543210ULL, true};
+}
+
+TEST_F(CatalogTest, MissingFileIsTheEmptyState) {
+  Catalog catalog(dir_);
+  auto state = catalog.Read();
+  ASSERT_TRUE(state.ok()) << state.status();
+  EXPECT_EQ(state->generation, 0u);
+  EXPECT_TRUE(state->meshes.empty());
+  EXPECT_TRUE(state->graphs.empty());
+}
+
+TEST_F(CatalogTest, UpdatesRoundTripEveryField) {
+  Catalog catalog(dir_);
+  DggParams pseudo;
+  pseudo.epsilon = 1e-3;
+  pseudo.pseudo_vertices = true;
+  DggParams plain;
+  plain.epsilon = 0.1 + 0.2;  // not a short decimal: must round-trip exactly
+  auto written = catalog.Update([&](CatalogState& s) {
+    s.PutMesh(Kitten());
+    s.PutGraph({"kitten", pseudo});
+    s.PutGraph({"kitten", plain});
+    s.PutGraph({"kitten", plain});  // twice is once
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(written.ok()) << written.status();
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(read->generation, 1u);
+  ASSERT_EQ(read->meshes.size(), 1u);
+  const CatalogMesh& m = read->meshes[0];
+  EXPECT_EQ(m.name, "kitten");
+  EXPECT_EQ(m.source, "scans/kitten.off");
+  EXPECT_EQ(m.format, "off");
+  EXPECT_EQ(m.source_hash, 0x0123456789abcdefULL);
+  EXPECT_EQ(m.fingerprint, 0xfedcba9876543210ULL);
+  EXPECT_TRUE(m.repair_non_manifold);
+  ASSERT_EQ(read->graphs.size(), 2u);
+  EXPECT_TRUE(read->HasGraph("kitten", pseudo));
+  EXPECT_TRUE(read->HasGraph("kitten", plain));
+  EXPECT_FALSE(read->HasGraph("kitten", DggParams{}));
+  EXPECT_EQ(CatalogToJson(*read), CatalogToJson(*written));
+}
+
+TEST_F(CatalogTest, RemovingAMeshRemovesItsGraphs) {
+  Catalog catalog(dir_);
+  ASSERT_TRUE(catalog
+                  .Update([](CatalogState& s) {
+                    s.PutMesh(Kitten());
+                    CatalogMesh other = Kitten();
+                    other.name = "other";
+                    s.PutMesh(other);
+                    s.PutGraph({"kitten", DggParams{}});
+                    s.PutGraph({"other", DggParams{}});
+                    return absl::OkStatus();
+                  })
+                  .ok());
+  auto after = catalog.Update([](CatalogState& s) {
+    EXPECT_TRUE(s.RemoveMesh("kitten"));
+    EXPECT_FALSE(s.RemoveMesh("kitten"));
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(after.ok()) << after.status();
+  EXPECT_EQ(after->FindMesh("kitten"), nullptr);
+  ASSERT_NE(after->FindMesh("other"), nullptr);
+  ASSERT_EQ(after->graphs.size(), 1u);
+  EXPECT_EQ(after->graphs[0].mesh, "other");
+}
+
+TEST_F(CatalogTest, AFailedChangeWritesNothing) {
+  Catalog catalog(dir_);
+  ASSERT_TRUE(catalog
+                  .Update([](CatalogState& s) {
+                    s.PutMesh(Kitten());
+                    return absl::OkStatus();
+                  })
+                  .ok());
+  auto failed = catalog.Update([](CatalogState& s) {
+    s.RemoveMesh("kitten");
+    return absl::AlreadyExistsError("no");
+  });
+  EXPECT_EQ(failed.status().code(), absl::StatusCode::kAlreadyExists);
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok());
+  EXPECT_EQ(read->generation, 1u);
+  EXPECT_NE(read->FindMesh("kitten"), nullptr);
+}
+
+TEST_F(CatalogTest, DamagedFilesAreRefusedByName) {
+  Catalog catalog(dir_);
+  struct Case {
+    std::string text;
+    absl::StatusCode code;
+    std::string says;
+  };
+  const std::string valid = CatalogToJson([] {
+    CatalogState s;
+    s.generation = 3;
+    s.PutMesh(Kitten());
+    return s;
+  }());
+  std::string bad_hex = valid;
+  bad_hex.replace(bad_hex.find("0123456789abcdef"), 16, "0123456789abcdeg");
+  std::string newer = valid;
+  newer.replace(newer.find("\"version\": 1"), 12, "\"version\": 9");
+  std::string wrong_type = valid;
+  wrong_type.replace(wrong_type.find("true"), 4, "\"yes\"");
+  const std::vector<Case> cases = {
+      {valid.substr(0, valid.size() / 2), absl::StatusCode::kDataLoss, "not a JSON object"},
+      {"{\"format\": \"something else\"}", absl::StatusCode::kDataLoss, "not a geodesicd catalog"},
+      {bad_hex, absl::StatusCode::kDataLoss, "0123456789abcdeg"},
+      {newer, absl::StatusCode::kFailedPrecondition, "format version 9"},
+      {wrong_type, absl::StatusCode::kDataLoss, "repair_non_manifold"},
+  };
+  for (const Case& c : cases) {
+    WriteCatalogText(c.text);
+    auto read = catalog.Read();
+    ASSERT_FALSE(read.ok()) << c.text;
+    EXPECT_EQ(read.status().code(), c.code) << read.status();
+    EXPECT_THAT(std::string(read.status().message()), ::testing::HasSubstr(catalog.path()));
+    EXPECT_THAT(std::string(read.status().message()), ::testing::HasSubstr(c.says));
+    // An update never replaces a catalog it cannot read.
+    EXPECT_FALSE(catalog.Update([](CatalogState&) { return absl::OkStatus(); }).ok());
+    std::ifstream in(catalog.path());
+    EXPECT_EQ(std::string(std::istreambuf_iterator<char>(in), {}), c.text);
+  }
+}
+
+// Replicas sharing a directory update it from several processes, each with
+// several threads: every change must survive, and no temporary file stays.
+TEST_F(CatalogTest, ConcurrentUpdatesFromProcessesAndThreadsLoseNothing) {
+  constexpr int kProcesses = 3, kThreads = 3, kUpdates = 15;
+  auto work = [&](int process) {
+    std::vector<std::thread> threads;
+    for (int t = 0; t < kThreads; ++t) {
+      threads.emplace_back([&, t] {
+        Catalog catalog(dir_);  // each its own object, as separate daemons
+        for (int k = 0; k < kUpdates; ++k) {
+          auto s = catalog.Update([&](CatalogState& s) {
+            CatalogMesh m = Kitten();
+            m.name = absl::StrCat("m", process, "_", t, "_", k);
+            s.PutMesh(m);
+            return absl::OkStatus();
+          });
+          if (!s.ok()) ADD_FAILURE() << s.status();
+        }
+      });
+    }
+    for (auto& t : threads) t.join();
+  };
+  std::vector<pid_t> children;
+  for (int p = 1; p < kProcesses; ++p) {
+    const pid_t pid = fork();
+    ASSERT_GE(pid, 0);
+    if (pid == 0) {
+      work(p);
+      _exit(::testing::Test::HasFailure() ? 1 : 0);
+    }
+    children.push_back(pid);
+  }
+  work(0);
+  for (pid_t pid : children) {
+    int status = 0;
+    ASSERT_EQ(waitpid(pid, &status, 0), pid);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) == 0);
+  }
+  auto read = Catalog(dir_).Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(read->meshes.size(), size_t{kProcesses * kThreads * kUpdates});
+  EXPECT_EQ(read->generation, uint64_t{kProcesses * kThreads * kUpdates});
+  for (const auto& entry : std::filesystem::directory_iterator(dir_)) {
+    const std::string name = entry.path().filename();
+    EXPECT_TRUE(name == "catalog.json" || name == "catalog.lock") << name;
+  }
+}
+
+}  // namespace
+}  // namespace geodesic::server
