@@ -1,0 +1,102 @@
+#include "server/disk_budget.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <system_error>
+
+#include "absl/strings/match.h"
+#include "absl/strings/str_format.h"
+
+namespace geodesic::server {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Candidate {
+  std::string name;
+  uint64_t bytes;
+  fs::file_time_type used;
+  FileRole role;
+};
+
+bool Removable(const std::string& name) {
+  return absl::EndsWith(name, ".dgg") || absl::EndsWith(name, ".mesh");
+}
+
+}  // namespace
+
+absl::StatusOr<uint64_t> DirectoryBytes(const std::string& dir) {
+  std::error_code ec;
+  uint64_t total = 0;
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir, ec)) {
+    std::error_code file_ec;
+    // A file removed between listing and stat (another replica's cleanup)
+    // simply no longer counts.
+    if (entry.is_regular_file(file_ec)) {
+      const uint64_t size = entry.file_size(file_ec);
+      if (!file_ec) total += size;
+    }
+  }
+  if (ec) {
+    return absl::InternalError(absl::StrFormat("cannot list %s: %s", dir, ec.message()));
+  }
+  return total;
+}
+
+absl::StatusOr<DiskReport> EnforceDiskLimit(
+    const std::string& dir, uint64_t limit,
+    const std::function<FileRole(const std::string&)>& role) {
+  DiskReport report;
+  std::vector<Candidate> candidates;
+  std::error_code ec;
+  for (const fs::directory_entry& entry : fs::directory_iterator(dir, ec)) {
+    std::error_code file_ec;
+    if (!entry.is_regular_file(file_ec)) continue;
+    const uint64_t bytes = entry.file_size(file_ec);
+    if (file_ec) continue;
+    report.bytes_before += bytes;
+    const std::string name = entry.path().filename();
+    if (!Removable(name)) continue;
+    const fs::file_time_type used = entry.last_write_time(file_ec);
+    if (file_ec) continue;
+    candidates.push_back({name, bytes, used, role(name)});
+  }
+  if (ec) return absl::InternalError(absl::StrFormat("cannot list %s: %s", dir, ec.message()));
+  report.bytes_after = report.bytes_before;
+  if (limit == 0 || report.bytes_before <= limit) return report;
+
+  // Spare files before catalogued ones, each group least recently used first.
+  std::erase_if(candidates, [](const Candidate& c) { return c.role == FileRole::kInUse; });
+  std::sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) {
+    const bool a_spare = a.role == FileRole::kSpare, b_spare = b.role == FileRole::kSpare;
+    if (a_spare != b_spare) return a_spare;
+    if (a.used != b.used) return a.used < b.used;
+    return a.name < b.name;
+  });
+  for (const Candidate& c : candidates) {
+    if (report.bytes_after <= limit) break;
+    // Asked again just before removing: a file may have come into use since
+    // the listing (a graph mapped meanwhile).
+    if (role(c.name) == FileRole::kInUse) continue;
+    std::error_code remove_ec;
+    if (fs::remove(fs::path(dir) / c.name, remove_ec)) {
+      report.removed.push_back(c.name);
+      report.bytes_after -= c.bytes;
+    } else if (remove_ec) {
+      return absl::InternalError(
+          absl::StrFormat("cannot remove %s/%s: %s", dir, c.name, remove_ec.message()));
+    }
+  }
+  report.over_limit = report.bytes_after > limit;
+  return report;
+}
+
+void MarkFileUsed(const std::string& path) {
+  const struct timespec now[2] = {{0, UTIME_NOW}, {0, UTIME_NOW}};
+  ::utimensat(AT_FDCWD, path.c_str(), now, 0);
+}
+
+}  // namespace geodesic::server

@@ -1,0 +1,132 @@
+// The graph directory's byte budget: what goes first, and what never goes.
+#include "server/disk_budget.h"
+
+#include <unistd.h>
+
+#include <chrono>
+#include <filesystem>
+#include <fstream>
+#include <map>
+
+#include "absl/strings/str_cat.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geodesic::server {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::ElementsAre;
+using ::testing::IsEmpty;
+
+class DiskBudgetTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           absl::StrCat("disk_budget_test.", getpid(), ".",
+                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+
+  // A file of `bytes` bytes last used `age_s` seconds ago.
+  void Add(const std::string& name, size_t bytes, int age_s, FileRole role) {
+    std::ofstream(dir_ / name) << std::string(bytes, 'x');
+    fs::last_write_time(dir_ / name,
+                        fs::file_time_type::clock::now() - std::chrono::seconds(age_s));
+    roles_[name] = role;
+  }
+  absl::StatusOr<DiskReport> Enforce(uint64_t limit) {
+    return EnforceDiskLimit(dir_, limit, [&](const std::string& name) {
+      auto it = roles_.find(name);
+      EXPECT_NE(it, roles_.end()) << "asked about " << name;
+      return it == roles_.end() ? FileRole::kInUse : it->second;
+    });
+  }
+  bool Exists(const std::string& name) const { return fs::exists(dir_ / name); }
+
+  fs::path dir_;
+  std::map<std::string, FileRole> roles_;
+};
+
+TEST_F(DiskBudgetTest, SpareFilesGoFirstLeastRecentlyUsedFirst) {
+  Add("old-spare.dgg", 100, 300, FileRole::kSpare);
+  Add("new-spare.mesh", 100, 10, FileRole::kSpare);
+  Add("oldest-cataloged.dgg", 100, 900, FileRole::kCataloged);
+  Add("in-use.dgg", 100, 1000, FileRole::kInUse);
+  std::ofstream(dir_ / "catalog.json") << std::string(50, 'c');
+  auto report = Enforce(320);  // 450 bytes: two files must go
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_EQ(report->bytes_before, 450u);
+  EXPECT_THAT(report->removed, ElementsAre("old-spare.dgg", "new-spare.mesh"));
+  EXPECT_EQ(report->bytes_after, 250u);
+  EXPECT_FALSE(report->over_limit);
+  EXPECT_TRUE(Exists("oldest-cataloged.dgg"));
+  EXPECT_TRUE(Exists("in-use.dgg"));
+}
+
+TEST_F(DiskBudgetTest, CatalogedFilesGoOnlyWhenSpareOnesAreNotEnough) {
+  Add("spare.dgg", 100, 10, FileRole::kSpare);
+  Add("cataloged-old.dgg", 100, 500, FileRole::kCataloged);
+  Add("cataloged-new.dgg", 100, 50, FileRole::kCataloged);
+  auto report = Enforce(150);
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_THAT(report->removed, ElementsAre("spare.dgg", "cataloged-old.dgg"));
+  EXPECT_TRUE(Exists("cataloged-new.dgg"));
+}
+
+TEST_F(DiskBudgetTest, FilesInUseAndOtherFilesAreNeverRemoved) {
+  Add("mapped.dgg", 300, 1000, FileRole::kInUse);
+  Add("registered.mesh", 300, 1000, FileRole::kInUse);
+  std::ofstream(dir_ / "x.dgg.tmp.1.abc") << std::string(300, 't');  // being written
+  auto report = Enforce(100);
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_THAT(report->removed, IsEmpty());
+  EXPECT_TRUE(report->over_limit);
+  EXPECT_EQ(report->bytes_after, 900u);
+  EXPECT_TRUE(Exists("mapped.dgg"));
+  EXPECT_TRUE(Exists("registered.mesh"));
+  EXPECT_TRUE(Exists("x.dgg.tmp.1.abc"));
+}
+
+// A file that comes into use after the listing (mapped meanwhile) stays.
+TEST_F(DiskBudgetTest, AFileTakenIntoUseDuringTheSweepStays) {
+  Add("a.dgg", 100, 100, FileRole::kSpare);
+  Add("b.dgg", 100, 50, FileRole::kSpare);
+  int asked_about_a = 0;
+  auto report = EnforceDiskLimit(dir_, 50, [&](const std::string& name) {
+    if (name == "a.dgg" && ++asked_about_a > 1) return FileRole::kInUse;
+    return FileRole::kSpare;
+  });
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_THAT(report->removed, ElementsAre("b.dgg"));
+  EXPECT_TRUE(Exists("a.dgg"));
+  EXPECT_TRUE(report->over_limit);
+}
+
+TEST_F(DiskBudgetTest, UnderTheLimitOrNoLimitRemovesNothing) {
+  Add("a.dgg", 100, 100, FileRole::kSpare);
+  for (uint64_t limit : {uint64_t{0}, uint64_t{100}, uint64_t{1} << 40}) {
+    auto report = Enforce(limit);
+    ASSERT_TRUE(report.ok()) << report.status();
+    EXPECT_THAT(report->removed, IsEmpty()) << limit;
+  }
+  EXPECT_TRUE(Exists("a.dgg"));
+  auto bytes = DirectoryBytes(dir_);
+  ASSERT_TRUE(bytes.ok());
+  EXPECT_EQ(*bytes, 100u);
+}
+
+TEST_F(DiskBudgetTest, MarkFileUsedMovesAFileToTheBackOfTheLine) {
+  Add("a.dgg", 100, 500, FileRole::kSpare);
+  Add("b.dgg", 100, 100, FileRole::kSpare);
+  MarkFileUsed(dir_ / "a.dgg");
+  MarkFileUsed(dir_ / "no-such-file.dgg");  // best effort: no crash, no error
+  auto report = Enforce(150);
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_THAT(report->removed, ElementsAre("b.dgg"));
+}
+
+}  // namespace
+}  // namespace geodesic::server
