@@ -1,0 +1,139 @@
+#include "server/catalog_sync.h"
+
+#include "absl/strings/str_format.h"
+#include "core/status.h"
+#include "server/log.h"
+
+namespace geodesic::server {
+
+absl::Status CatalogSync::Reconcile() {
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Read());
+  absl::MutexLock lock(&mu_);
+  return ApplyLocked(state);
+}
+
+absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
+  generation_ = state.generation;
+  listed_.clear();
+  for (const CatalogMesh& m : state.meshes) listed_.insert(m.name);
+  // Gone from the catalog, or replaced by another mesh of the same name.
+  for (auto it = meshes_.begin(); it != meshes_.end();) {
+    const CatalogMesh* listed = state.FindMesh(it->first);
+    if (listed && listed->fingerprint == it->second) {
+      ++it;
+      continue;
+    }
+    Log(LogLevel::kInfo, "catalog_mesh_dropped", {{"mesh", it->first}});
+    hooks_.drop_mesh(it->first);
+    std::erase_if(graphs_, [&](const auto& g) { return g.first == it->first; });
+    it = meshes_.erase(it);
+  }
+  for (const CatalogMesh& m : state.meshes) {
+    if (meshes_.contains(m.name)) continue;
+    absl::Status s = hooks_.restore_mesh(m);
+    if (!s.ok()) {
+      auto [failure, added] = failures_.try_emplace(m.name, s.ToString());
+      if (added || failure->second != s.ToString()) {
+        failure->second = s.ToString();
+        Log(LogLevel::kError, "catalog_mesh_restore_failed",
+            {{"mesh", m.name}, {"error", s.ToString()}});
+      }
+      continue;
+    }
+    failures_.erase(m.name);
+    meshes_[m.name] = m.fingerprint;
+    Log(LogLevel::kInfo, "catalog_mesh_restored", {{"mesh", m.name}, {"source", m.source}});
+  }
+  for (auto it = graphs_.begin(); it != graphs_.end();) {
+    if (state.HasGraph(it->first, it->second)) {
+      ++it;
+      continue;
+    }
+    hooks_.cancel_graph(it->first, it->second);
+    it = graphs_.erase(it);
+  }
+  for (const CatalogGraph& g : state.graphs) {
+    if (!meshes_.contains(g.mesh)) continue;  // its mesh failed to restore
+    if (graphs_.emplace(g.mesh, g.params).second) hooks_.request_graph(g.mesh, g.params);
+  }
+  return absl::OkStatus();
+}
+
+absl::Status CatalogSync::RecordMesh(const CatalogMesh& mesh) {
+  absl::MutexLock lock(&mu_);
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
+    const CatalogMesh* existing = s.FindMesh(mesh.name);
+    if (existing && existing->fingerprint != mesh.fingerprint) {
+      return absl::AlreadyExistsError(
+          absl::StrFormat("mesh '%s' is already registered (from %s) with other contents",
+                          mesh.name, existing->source));
+    }
+    s.PutMesh(mesh);
+    return absl::OkStatus();
+  }));
+  // Loaded here already: applying it means only remembering it.
+  meshes_[mesh.name] = mesh.fingerprint;
+  failures_.erase(mesh.name);
+  return ApplyLocked(state);
+}
+
+absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
+  absl::MutexLock lock(&mu_);
+  bool listed = false;
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
+    listed = s.RemoveMesh(name);
+    return absl::OkStatus();
+  }));
+  // The caller unloads the mesh itself.
+  meshes_.erase(name);
+  std::erase_if(graphs_, [&](const auto& g) { return g.first == name; });
+  RETURN_IF_ERROR(ApplyLocked(state));
+  return listed;
+}
+
+absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const DggParams& params) {
+  absl::MutexLock lock(&mu_);
+  if (!meshes_.contains(mesh)) return false;
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
+    if (!s.FindMesh(mesh)) {
+      return absl::NotFoundError(
+          absl::StrFormat("mesh '%s' was unloaded meanwhile (by another replica)", mesh));
+    }
+    s.PutGraph({mesh, params});
+    return absl::OkStatus();
+  }));
+  // The caller requests the graph itself; remember it as applied.
+  graphs_.emplace(mesh, params);
+  RETURN_IF_ERROR(ApplyLocked(state));
+  return true;
+}
+
+absl::StatusOr<bool> CatalogSync::ForgetGraph(const std::string& mesh, const DggParams& params) {
+  absl::MutexLock lock(&mu_);
+  bool listed = false;
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
+    listed = s.RemoveGraph(mesh, params);
+    return absl::OkStatus();
+  }));
+  // The caller cancels the graph itself.
+  graphs_.erase({mesh, params});
+  RETURN_IF_ERROR(ApplyLocked(state));
+  return listed;
+}
+
+bool CatalogSync::Catalogued(const std::string& mesh) const {
+  absl::MutexLock lock(&mu_);
+  return listed_.contains(mesh);
+}
+
+std::map<std::string, std::string> CatalogSync::failures() const {
+  absl::MutexLock lock(&mu_);
+  return failures_;
+}
+
+uint64_t CatalogSync::generation() const {
+  absl::MutexLock lock(&mu_);
+  return generation_;
+}
+
+}  // namespace geodesic::server

@@ -1,0 +1,88 @@
+// Keeps a daemon's meshes and graphs in step with the catalog
+// (server/catalog.h) that it shares with its restarts and with replicas on
+// the same graph directory.
+//
+// Every change a client makes goes to the catalog first and is applied
+// locally second, so a client is told "done" only once the change would
+// survive a crash. Reconcile() then brings this daemon to what the catalog
+// says: it restores meshes and requests graphs the catalog lists and this
+// daemon lacks (after a restart, or when another replica registered them),
+// and drops what this daemon applied from the catalog and the catalog no
+// longer lists (another replica unloaded it). Meshes this daemon holds that
+// never came through the catalog (the bundled sample) are left alone.
+//
+// What "apply" means is given as hooks, so the rules here are tested
+// without a registry or a cache.
+#ifndef GEODESIC_SERVER_CATALOG_SYNC_H_
+#define GEODESIC_SERVER_CATALOG_SYNC_H_
+
+#include <functional>
+#include <map>
+#include <set>
+#include <string>
+#include <utility>
+
+#include "absl/base/thread_annotations.h"
+#include "absl/status/statusor.h"
+#include "absl/synchronization/mutex.h"
+#include "server/catalog.h"
+
+namespace geodesic::server {
+
+class CatalogSync {
+ public:
+  struct Hooks {
+    // Brings a catalogued mesh into this daemon (from its snapshot, or from
+    // its source); the mesh must have the catalogued fingerprint.
+    std::function<absl::Status(const CatalogMesh&)> restore_mesh;
+    // Removes a mesh and its graphs from this daemon.
+    std::function<void(const std::string& name)> drop_mesh;
+    // Requests a graph (maps its file, or builds it in the background).
+    std::function<void(const std::string& mesh, const DggParams&)> request_graph;
+    std::function<void(const std::string& mesh, const DggParams&)> cancel_graph;
+  };
+
+  CatalogSync(Catalog* catalog, Hooks hooks) : catalog_(catalog), hooks_(std::move(hooks)) {}
+
+  // Reads the catalog and applies what differs. Errors are the catalog's
+  // (unreadable, damaged); a mesh that fails to restore is reported by
+  // failures() and tried again at the next call.
+  absl::Status Reconcile();
+
+  // A client registered `mesh`, already loaded here: records it. If the
+  // catalog has a mesh of that name with another fingerprint (registered
+  // elsewhere meanwhile), ALREADY_EXISTS and nothing changes.
+  absl::Status RecordMesh(const CatalogMesh& mesh);
+  // A client unloads a mesh: removes it and its graphs from the catalog;
+  // the caller then unloads it here. false if the catalog did not list it
+  // (a local-only mesh).
+  absl::StatusOr<bool> ForgetMesh(const std::string& name);
+  // A client requested or cancelled a graph of a catalogued mesh; the
+  // caller requests or cancels it here. Graphs of local-only meshes are not
+  // recorded (false).
+  absl::StatusOr<bool> RecordGraph(const std::string& mesh, const DggParams& params);
+  absl::StatusOr<bool> ForgetGraph(const std::string& mesh, const DggParams& params);
+
+  // Whether the catalog lists the mesh (as last read).
+  bool Catalogued(const std::string& mesh) const;
+  // Meshes that could not be restored, with the reason.
+  std::map<std::string, std::string> failures() const;
+  uint64_t generation() const;
+
+ private:
+  absl::Status ApplyLocked(const CatalogState& state) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+
+  Catalog* const catalog_;
+  const Hooks hooks_;
+  mutable absl::Mutex mu_;
+  uint64_t generation_ ABSL_GUARDED_BY(mu_) = 0;
+  std::set<std::string> listed_ ABSL_GUARDED_BY(mu_);  // meshes in the catalog
+  // What this daemon applied from the catalog: mesh name -> fingerprint.
+  std::map<std::string, uint64_t> meshes_ ABSL_GUARDED_BY(mu_);
+  std::set<std::pair<std::string, DggParams>> graphs_ ABSL_GUARDED_BY(mu_);
+  std::map<std::string, std::string> failures_ ABSL_GUARDED_BY(mu_);
+};
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_CATALOG_SYNC_H_

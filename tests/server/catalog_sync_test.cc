@@ -1,0 +1,195 @@
+// The rules that keep a daemon in step with the shared catalog, with fake
+// hooks standing for the registry and the graph cache.
+#include "server/catalog_sync.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+
+#include "absl/strings/str_cat.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geodesic::server {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::ElementsAre;
+using ::testing::IsEmpty;
+using ::testing::Pair;
+
+// What one daemon holds, as the hooks change it.
+struct FakeDaemon {
+  std::map<std::string, uint64_t> meshes;  // name -> fingerprint
+  std::set<std::pair<std::string, double>> graphs;
+  std::set<std::string> unrestorable;
+  int restores = 0;
+
+  CatalogSync::Hooks Hooks() {
+    return {
+        .restore_mesh =
+            [this](const CatalogMesh& m) {
+              ++restores;
+              if (unrestorable.contains(m.name)) return absl::DataLossError("snapshot damaged");
+              meshes[m.name] = m.fingerprint;
+              return absl::OkStatus();
+            },
+        .drop_mesh =
+            [this](const std::string& name) {
+              meshes.erase(name);
+              std::erase_if(graphs, [&](const auto& g) { return g.first == name; });
+            },
+        .request_graph =
+            [this](const std::string& mesh, const DggParams& p) {
+              graphs.insert({mesh, p.epsilon});
+            },
+        .cancel_graph =
+            [this](const std::string& mesh, const DggParams& p) {
+              graphs.erase({mesh, p.epsilon});
+            },
+    };
+  }
+};
+
+CatalogMesh MeshNamed(const std::string& name, uint64_t fingerprint = 7) {
+  return {name, "upload", "obj", 42, fingerprint, false};
+}
+
+DggParams Eps(double e) {
+  DggParams p;
+  p.epsilon = e;
+  return p;
+}
+
+class CatalogSyncTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           absl::StrCat("catalog_sync_test.", getpid(), ".",
+                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    fs::create_directories(dir_);
+  }
+  void TearDown() override { fs::remove_all(dir_); }
+  fs::path dir_;
+};
+
+// Two replicas on one directory: what one records, the other restores; what
+// one forgets, the other drops.
+TEST_F(CatalogSyncTest, AReplicaFollowsWhatAnotherRecords) {
+  Catalog catalog_a(dir_), catalog_b(dir_);
+  FakeDaemon a, b;
+  CatalogSync sync_a(&catalog_a, a.Hooks()), sync_b(&catalog_b, b.Hooks());
+
+  a.meshes["kitten"] = 7;  // registered by a client on replica a
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten")).ok());
+  a.graphs.insert({"kitten", 1e-3});
+  auto recorded = sync_a.RecordGraph("kitten", Eps(1e-3));
+  ASSERT_TRUE(recorded.ok() && *recorded) << recorded.status();
+  EXPECT_EQ(a.restores, 0);  // loaded there already
+
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_THAT(b.meshes, ElementsAre(Pair("kitten", 7u)));
+  EXPECT_THAT(b.graphs, ElementsAre(Pair("kitten", 1e-3)));
+  EXPECT_TRUE(sync_b.Catalogued("kitten"));
+  ASSERT_TRUE(sync_b.Reconcile().ok());  // nothing new: nothing done again
+  EXPECT_EQ(b.restores, 1);
+
+  auto forgot = sync_a.ForgetGraph("kitten", Eps(1e-3));
+  ASSERT_TRUE(forgot.ok() && *forgot);
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_THAT(b.graphs, IsEmpty());
+
+  auto unloaded = sync_a.ForgetMesh("kitten");
+  ASSERT_TRUE(unloaded.ok() && *unloaded);
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_THAT(b.meshes, IsEmpty());
+  EXPECT_FALSE(sync_b.Catalogued("kitten"));
+}
+
+// A restart is a new daemon on the same directory.
+TEST_F(CatalogSyncTest, ARestartRestoresMeshesAndThenTheirGraphs) {
+  {
+    Catalog catalog(dir_);
+    FakeDaemon before;
+    CatalogSync sync(&catalog, before.Hooks());
+    before.meshes["a"] = 1;
+    before.meshes["b"] = 2;
+    ASSERT_TRUE(sync.RecordMesh(MeshNamed("a", 1)).ok());
+    ASSERT_TRUE(sync.RecordMesh(MeshNamed("b", 2)).ok());
+    ASSERT_TRUE(sync.RecordGraph("a", Eps(1e-2)).ok());
+    ASSERT_TRUE(sync.RecordGraph("b", Eps(1e-3)).ok());
+  }
+  Catalog catalog(dir_);
+  FakeDaemon after;
+  after.unrestorable = {"b"};
+  CatalogSync sync(&catalog, after.Hooks());
+  ASSERT_TRUE(sync.Reconcile().ok());
+  EXPECT_THAT(after.meshes, ElementsAre(Pair("a", 1u)));
+  // A graph waits for its mesh; the failure is reported and retried.
+  EXPECT_THAT(after.graphs, ElementsAre(Pair("a", 1e-2)));
+  EXPECT_THAT(sync.failures(), ElementsAre(Pair("b", ::testing::HasSubstr("snapshot damaged"))));
+  after.unrestorable.clear();
+  ASSERT_TRUE(sync.Reconcile().ok());
+  EXPECT_THAT(after.meshes, ElementsAre(Pair("a", 1u), Pair("b", 2u)));
+  EXPECT_THAT(after.graphs, ElementsAre(Pair("a", 1e-2), Pair("b", 1e-3)));
+  EXPECT_THAT(sync.failures(), IsEmpty());
+}
+
+TEST_F(CatalogSyncTest, ANameTakenElsewhereWithOtherContentsIsRefused) {
+  Catalog catalog_a(dir_), catalog_b(dir_);
+  FakeDaemon a, b;
+  CatalogSync sync_a(&catalog_a, a.Hooks()), sync_b(&catalog_b, b.Hooks());
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten", 7)).ok());
+  absl::Status s = sync_b.RecordMesh(MeshNamed("kitten", 8));
+  EXPECT_EQ(s.code(), absl::StatusCode::kAlreadyExists) << s;
+  // The same contents again is fine (a client retrying on another replica).
+  EXPECT_TRUE(sync_b.RecordMesh(MeshNamed("kitten", 7)).ok());
+}
+
+// A mesh replaced under the same name elsewhere is dropped and restored.
+TEST_F(CatalogSyncTest, AMeshReplacedElsewhereIsRestoredAgain) {
+  Catalog catalog_a(dir_), catalog_b(dir_);
+  FakeDaemon a, b;
+  CatalogSync sync_a(&catalog_a, a.Hooks()), sync_b(&catalog_b, b.Hooks());
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten", 7)).ok());
+  ASSERT_TRUE(sync_a.RecordGraph("kitten", Eps(1e-3)).ok());
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  ASSERT_TRUE(sync_a.ForgetMesh("kitten").ok());
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten", 9)).ok());
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_THAT(b.meshes, ElementsAre(Pair("kitten", 9u)));
+  EXPECT_THAT(b.graphs, IsEmpty());  // the old mesh's graph went with it
+}
+
+TEST_F(CatalogSyncTest, LocalOnlyMeshesAreLeftAlone) {
+  Catalog catalog(dir_);
+  FakeDaemon d;
+  CatalogSync sync(&catalog, d.Hooks());
+  d.meshes["sample"] = 3;  // registered by serve itself, never catalogued
+  ASSERT_TRUE(sync.Reconcile().ok());
+  EXPECT_THAT(d.meshes, ElementsAre(Pair("sample", 3u)));
+  auto graph = sync.RecordGraph("sample", Eps(1e-3));
+  ASSERT_TRUE(graph.ok());
+  EXPECT_FALSE(*graph);
+  auto forgot = sync.ForgetMesh("sample");
+  ASSERT_TRUE(forgot.ok());
+  EXPECT_FALSE(*forgot);
+}
+
+TEST_F(CatalogSyncTest, ADamagedCatalogIsAnErrorAndChangesNothing) {
+  Catalog catalog(dir_);
+  FakeDaemon d;
+  CatalogSync sync(&catalog, d.Hooks());
+  d.meshes["kitten"] = 7;
+  ASSERT_TRUE(sync.RecordMesh(MeshNamed("kitten")).ok());
+  std::ofstream(catalog.path()) << "{ not json";
+  EXPECT_EQ(sync.Reconcile().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(d.meshes, ElementsAre(Pair("kitten", 7u)));
+  EXPECT_EQ(sync.RecordMesh(MeshNamed("other")).code(), absl::StatusCode::kDataLoss);
+}
+
+}  // namespace
+}  // namespace geodesic::server
