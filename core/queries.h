@@ -83,6 +83,20 @@ struct PairResult {
   std::optional<GeodesicPath> path;
 };
 
+struct SampleOptions {
+  // The first point is a vertex drawn with this seed; the rest follow from
+  // it, so one seed gives one sampling.
+  uint64_t seed = 0;
+  std::function<bool()> cancelled;
+};
+
+struct SampleResult {
+  std::vector<VertexId> vertices;  // in the order chosen
+  // Graph distance from the farthest surface vertex to its nearest sample:
+  // every vertex lies within it (+inf while a component has no sample).
+  double covering_radius = kInfinity;
+};
+
 class GeodesicEngine {
  public:
   GeodesicEngine(std::shared_ptr<const Mesh> mesh, std::shared_ptr<const DggGraph> graph);
@@ -116,6 +130,14 @@ class GeodesicEngine {
   int DefaultLandmarkCount() const;
   // Bytes held by the landmark distances (0 before PrepareLandmarks).
   uint64_t landmark_bytes() const;
+
+  // Geodesic farthest-point sampling: each point after the first is the
+  // vertex farthest from those chosen so far, so `count` points cover the
+  // surface about as evenly as any `count` points can (within a factor 2 of
+  // the best covering radius). Vertices that no face uses are not on the
+  // surface and never chosen; a component without a sample is farthest of
+  // all. INVALID_ARGUMENT for a count below 1 or above the usable vertices.
+  absl::StatusOr<SampleResult> SamplePoints(int count, const SampleOptions& options) const;
 
   // sources x targets distances, row-major. Entry (i, j) is what
   // Distance(sources[i], targets[j]) answers without a path (points join

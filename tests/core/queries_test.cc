@@ -518,3 +518,87 @@ TEST(NodeHeapTest, PopsEachNodeOnceInKeyOrder) {
 
 }  // namespace
 }  // namespace geodesic
+
+namespace geodesic {
+namespace {
+
+// Farthest-point sampling against its definition, recomputed with
+// multi-source fields from the samples chosen so far.
+TEST(SamplePointsTest, EachPointIsTheFarthestFromThoseBefore) {
+  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  SampleOptions sample_options;
+  sample_options.seed = 5;
+  auto sample = engine.SamplePoints(12, sample_options);
+  ASSERT_OK(sample);
+  ASSERT_EQ(sample->vertices.size(), 12u);
+  std::vector<SurfacePoint> chosen;
+  double last_radius = kInfinity;
+  for (size_t i = 1; i <= sample->vertices.size(); ++i) {
+    chosen.push_back(SurfacePoint::Vertex(sample->vertices[i - 1]));
+    auto field = engine.Field(chosen, {});
+    ASSERT_OK(field);
+    const double radius = *std::max_element(field->distance.begin(), field->distance.end());
+    EXPECT_LE(radius, last_radius);
+    last_radius = radius;
+    if (i < sample->vertices.size()) {
+      EXPECT_EQ(field->distance[sample->vertices[i]], radius) << "sample " << i;
+    } else {
+      EXPECT_EQ(sample->covering_radius, radius);
+    }
+  }
+  // One seed, one sampling; another seed starts elsewhere.
+  auto again = engine.SamplePoints(12, sample_options);
+  ASSERT_OK(again);
+  EXPECT_EQ(again->vertices, sample->vertices);
+  sample_options.seed = 6;
+  auto other = engine.SamplePoints(12, sample_options);
+  ASSERT_OK(other);
+  EXPECT_NE(other->vertices[0], sample->vertices[0]);
+  EXPECT_EQ(engine.SamplePoints(0, {}).status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(engine.SamplePoints(mesh->num_vertices() + 1, {}).status().code(),
+            absl::StatusCode::kInvalidArgument);
+}
+
+// Two separate squares: the second sample goes to the component the first
+// did not reach, and only then is the radius finite.
+TEST(SamplePointsTest, EveryComponentGetsASampleAndAllVerticesCanBeChosen) {
+  TriangleSoup soup;
+  for (double x0 : {0.0, 10.0}) {
+    const VertexId base = soup.positions.size();
+    soup.positions.insert(soup.positions.end(),
+                          {{x0, 0, 0}, {x0 + 1, 0, 0}, {x0 + 1, 1, 0}, {x0, 1, 0}});
+    soup.triangles.push_back({base, base + 1, base + 2});
+    soup.triangles.push_back({base, base + 2, base + 3});
+  }
+  soup.positions.push_back({5, 5, 5});  // used by no face: not on the surface
+  auto mesh = std::make_shared<const Mesh>(testing::MustBuild(soup));
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  auto one = engine.SamplePoints(1, {});
+  ASSERT_OK(one);
+  EXPECT_EQ(one->covering_radius, kInfinity);
+  auto two = engine.SamplePoints(2, {});
+  ASSERT_OK(two);
+  EXPECT_NE(two->vertices[0] / 4, two->vertices[1] / 4);
+  EXPECT_NEAR(two->covering_radius, std::sqrt(2.0), 1e-6);
+  auto all = engine.SamplePoints(8, {});
+  ASSERT_OK(all);
+  std::vector<VertexId> sorted = all->vertices;
+  std::sort(sorted.begin(), sorted.end());
+  EXPECT_EQ(sorted, (std::vector<VertexId>{0, 1, 2, 3, 4, 5, 6, 7}));
+  EXPECT_EQ(all->covering_radius, 0);
+  EXPECT_EQ(engine.SamplePoints(9, {}).status().code(), absl::StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace geodesic
