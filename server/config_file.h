@@ -1,0 +1,48 @@
+// geodesicd serve --config FILE: the meshes and graphs a deployment
+// declares, so that every replica starts with them without a client
+// registering anything.
+//
+//   meshes:
+//     - name: kitten
+//       path: scans/kitten.off      # under --mesh-root, or an absolute path
+//       repair_non_manifold: false  # optional
+//   graphs:
+//     - mesh: kitten
+//       eps: 1e-3
+//       pseudo_vertices: false      # optional
+//
+// Unknown keys are refused (a misspelt "pseudo_vertice" must not silently
+// build the plain graph), and every error names the file, line and key.
+#ifndef GEODESIC_SERVER_CONFIG_FILE_H_
+#define GEODESIC_SERVER_CONFIG_FILE_H_
+
+#include <string>
+#include <vector>
+
+#include "absl/status/statusor.h"
+
+namespace geodesic::server {
+
+struct DeclaredMesh {
+  std::string name;
+  std::string path;
+  bool repair_non_manifold = false;
+};
+
+struct DeclaredGraph {
+  std::string mesh;
+  double epsilon = 0;
+  bool pseudo_vertices = false;
+};
+
+struct ServeConfig {
+  std::vector<DeclaredMesh> meshes;
+  std::vector<DeclaredGraph> graphs;
+};
+
+absl::StatusOr<ServeConfig> ParseServeConfig(const std::string& text, const std::string& path);
+absl::StatusOr<ServeConfig> LoadServeConfig(const std::string& path);
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_CONFIG_FILE_H_
