@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "core/mesh_io.h"
+#include "nlohmann/json.hpp"
 
 namespace {
 
@@ -123,10 +124,13 @@ int main(int argc, char** argv) {
   }
   const double exact_s = SecondsSince(t);
   WriteF64(prefix + ".exact.f64", in_file_order(field));
-  std::printf(
-      "{\"vertices\": %zu, \"refused_faces\": %zu, \"heat_setup_seconds\": %.4f, "
-      "\"heat_solve_seconds\": %.4f, \"heat_idt_setup_seconds\": %.4f, "
-      "\"heat_idt_solve_seconds\": %.4f, \"exact_seconds\": %.4f}\n",
-      n, refused, heat_setup, heat_solve, idt_setup, idt_solve, exact_s);
+  const nlohmann::ordered_json timings = {{"vertices", n},
+                                          {"refused_faces", refused},
+                                          {"heat_setup_seconds", heat_setup},
+                                          {"heat_solve_seconds", heat_solve},
+                                          {"heat_idt_setup_seconds", idt_setup},
+                                          {"heat_idt_solve_seconds", idt_solve},
+                                          {"exact_seconds", exact_s}};
+  std::printf("%s\n", timings.dump().c_str());
   return 0;
 }

@@ -19,6 +19,7 @@
 #include "core/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
+#include "nlohmann/json.hpp"
 
 namespace {
 
@@ -205,7 +206,23 @@ std::string PointText(const v1::SurfacePoint& p) {
   }
 }
 
-std::string JsonNumber(double d) { return std::isfinite(d) ? absl::StrFormat("%.17g", d) : "null"; }
+// --json output. Keys keep the order they are set in; strings are escaped;
+// doubles print with full (round-trip) precision; +inf and NaN, which JSON
+// cannot hold, print as null.
+using Json = nlohmann::ordered_json;
+
+void PrintJson(const Json& value) { std::printf("%s\n", value.dump().c_str()); }
+
+// The daemon sends mesh diagnostics as a JSON text; embedded as JSON, or as
+// null (with a warning) if it does not parse.
+Json DiagnosticsJson(const v1::MeshDiagnostics& d) {
+  Json parsed = Json::parse(d.json(), nullptr, /*allow_exceptions=*/false);
+  if (parsed.is_discarded()) {
+    std::fprintf(stderr, "geodesic: the server's mesh diagnostics are not valid JSON\n");
+    return nullptr;
+  }
+  return parsed;
+}
 
 const char* StateName(v1::GraphState s) {
   switch (s) {
@@ -228,14 +245,20 @@ const char* StateName(v1::GraphState s) {
   }
 }
 
-std::string GraphJson(const v1::Graph& g) {
-  return absl::StrFormat(
-      "{\"mesh\": \"%s\", \"epsilon\": %g, \"state\": \"%s\", \"phase\": \"%s\", "
-      "\"progress\": %.4f, \"error\": \"%s\", \"bytes\": %u, \"mapped\": %s, \"from_file\": %s, "
-      "\"nodes\": %u, \"edges\": %u, \"build_seconds\": %.4f, \"landmark_bytes\": %u}",
-      g.mesh(), g.epsilon(), StateName(g.state()), g.phase(), g.progress(), g.error(), g.bytes(),
-      g.mapped() ? "true" : "false", g.from_file() ? "true" : "false", g.nodes(), g.edges(),
-      g.build_seconds(), g.landmark_bytes());
+Json GraphJson(const v1::Graph& g) {
+  return {{"mesh", g.mesh()},
+          {"epsilon", g.epsilon()},
+          {"state", StateName(g.state())},
+          {"phase", g.phase()},
+          {"progress", g.progress()},
+          {"error", g.error()},
+          {"bytes", g.bytes()},
+          {"mapped", g.mapped()},
+          {"from_file", g.from_file()},
+          {"nodes", g.nodes()},
+          {"edges", g.edges()},
+          {"build_seconds", g.build_seconds()},
+          {"landmark_bytes", g.landmark_bytes()}};
 }
 
 int CmdMeshes(const Common& c) {
@@ -245,22 +268,22 @@ int CmdMeshes(const Common& c) {
   v1::ListMeshesResponse resp;
   grpc::Status s = stub->ListMeshes(&ctx, {}, &resp);
   if (!s.ok()) return Fail(s);
-  if (c.json) std::printf("[");
+  Json list = Json::array();
   for (int i = 0; i < resp.meshes_size(); ++i) {
     const auto& m = resp.meshes(i);
     if (c.json) {
-      std::printf(
-          "%s{\"name\": \"%s\", \"fingerprint\": \"%s\", \"source\": \"%s\", "
-          "\"restored\": %s, \"diagnostics\": %s}",
-          i ? ", " : "", m.name().c_str(), m.fingerprint().c_str(), m.source().c_str(),
-          m.restored() ? "true" : "false", m.diagnostics().json().c_str());
+      list.push_back({{"name", m.name()},
+                      {"fingerprint", m.fingerprint()},
+                      {"source", m.source()},
+                      {"restored", m.restored()},
+                      {"diagnostics", DiagnosticsJson(m.diagnostics())}});
     } else {
       std::printf("%-16s %8lu vertices %8lu faces  %s  %s\n", m.name().c_str(),
                   m.diagnostics().vertices(), m.diagnostics().faces(), m.fingerprint().c_str(),
                   m.source().c_str());
     }
   }
-  if (c.json) std::printf("]\n");
+  if (c.json) PrintJson(list);
   return 0;
 }
 
@@ -298,11 +321,10 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload)
   }
   if (!s.ok()) return Fail(s);
   if (c.json) {
-    std::printf(
-        "{\"name\": \"%s\", \"fingerprint\": \"%s\", \"restored\": %s, \"diagnostics\": "
-        "%s}\n",
-        resp.name().c_str(), resp.fingerprint().c_str(), resp.restored() ? "true" : "false",
-        resp.diagnostics().json().c_str());
+    PrintJson({{"name", resp.name()},
+               {"fingerprint", resp.fingerprint()},
+               {"restored", resp.restored()},
+               {"diagnostics", DiagnosticsJson(resp.diagnostics())}});
   } else {
     std::printf("registered %s: %lu vertices, %lu faces, fingerprint %s%s\n", resp.name().c_str(),
                 resp.diagnostics().vertices(), resp.diagnostics().faces(),
@@ -353,7 +375,7 @@ int CmdGraph(const Common& c, bool wait, bool pseudo, bool cancel) {
     if (!s.ok()) return Fail(s);
   }
   if (c.json) {
-    std::printf("%s\n", GraphJson(g).c_str());
+    PrintJson(GraphJson(g));
   } else {
     std::printf("graph %s at eps %g: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
                 g.mesh().c_str(), g.epsilon(), StateName(g.state()), g.error().empty() ? "" : ": ",
@@ -370,11 +392,11 @@ int CmdStatus(const Common& c) {
   v1::ListGraphsResponse resp;
   grpc::Status s = stub->ListGraphs(&ctx, {}, &resp);
   if (!s.ok()) return Fail(s);
-  if (c.json) std::printf("[");
+  Json list = Json::array();
   for (int i = 0; i < resp.graphs_size(); ++i) {
     const auto& g = resp.graphs(i);
     if (c.json) {
-      std::printf("%s%s", i ? ", " : "", GraphJson(g).c_str());
+      list.push_back(GraphJson(g));
     } else {
       std::printf("%-16s eps %-8g %-10s %5.1f%% %12lu bytes %s%s\n", g.mesh().c_str(), g.epsilon(),
                   StateName(g.state()), 100 * g.progress(), g.bytes(),
@@ -382,7 +404,7 @@ int CmdStatus(const Common& c) {
                   g.error().empty() ? "" : (" " + g.error()).c_str());
     }
   }
-  if (c.json) std::printf("]\n");
+  if (c.json) PrintJson(list);
   return 0;
 }
 
@@ -479,8 +501,10 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
     if (std::isfinite(v)) ++reached, far = std::max(far, v);
   }
   if (c.json) {
-    std::printf("{\"vertices\": %zu, \"reached\": %zu, \"max_distance\": %s, \"seconds\": %.6f}\n",
-                values.size(), reached, JsonNumber(far).c_str(), seconds);
+    PrintJson({{"vertices", values.size()},
+               {"reached", reached},
+               {"max_distance", far},
+               {"seconds", seconds}});
   } else {
     std::printf("field on %s: %zu of %zu vertices reached, farthest %.9g, %.2f ms%s%s\n",
                 c.mesh.c_str(), reached, values.size(), far, 1e3 * seconds,
@@ -522,24 +546,23 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   if (!s.ok()) return Fail(s);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (c.json) std::printf("[");
+  Json results = Json::array();
   for (int i = 0; i < resp.results_size(); ++i) {
     const auto& r = resp.results(i);
     if (c.json) {
-      std::string path;
+      Json result = {{"from", specs[2 * i]},
+                     {"to", specs[2 * i + 1]},
+                     {"distance", r.distance()},
+                     {"reachable", r.reachable()}};
       if (with_path) {
-        path = ", \"path\": [";
-        for (int k = 0; k < r.path().points_size(); ++k) {
-          const auto& q = r.path().points(k);
-          path += absl::StrFormat("%s{\"point\": \"%s\", \"xyz\": [%.17g, %.17g, %.17g]}",
-                                  k ? ", " : "", PointText(q.point()), q.xyz().x(), q.xyz().y(),
-                                  q.xyz().z());
+        Json path = Json::array();
+        for (const auto& q : r.path().points()) {
+          path.push_back(
+              {{"point", PointText(q.point())}, {"xyz", {q.xyz().x(), q.xyz().y(), q.xyz().z()}}});
         }
-        path += "]";
+        result["path"] = std::move(path);
       }
-      std::printf("%s{\"from\": \"%s\", \"to\": \"%s\", \"distance\": %s, \"reachable\": %s%s}",
-                  i ? ", " : "", specs[2 * i].c_str(), specs[2 * i + 1].c_str(),
-                  JsonNumber(r.distance()).c_str(), r.reachable() ? "true" : "false", path.c_str());
+      results.push_back(std::move(result));
     } else {
       std::printf("%s -> %s: %s\n", specs[2 * i].c_str(), specs[2 * i + 1].c_str(),
                   r.reachable() ? absl::StrFormat("%.12g", r.distance()).c_str() : "unreachable");
@@ -550,7 +573,7 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
     }
   }
   if (c.json) {
-    std::printf("]\n");
+    PrintJson(results);
   } else {
     std::printf("(%d pairs in %.2f ms, eps %g)\n", resp.results_size(), 1e3 * seconds,
                 resp.echo().epsilon());
@@ -575,21 +598,22 @@ int CmdMatrix(const Common& c, const std::vector<std::string>& sources,
   v1::MatrixResponse resp;
   grpc::Status s = stub->Matrix(&ctx, req, &resp);
   if (!s.ok()) return Fail(s);
-  if (c.json)
-    std::printf("{\"rows\": %u, \"cols\": %u, \"distances\": [", resp.rows(), resp.cols());
-  for (uint32_t i = 0; i < resp.rows(); ++i) {
-    if (c.json) std::printf("%s[", i ? ", " : "");
-    for (uint32_t j = 0; j < resp.cols(); ++j) {
-      const double d = resp.distances(i * resp.cols() + j);
-      if (c.json) {
-        std::printf("%s%s", j ? ", " : "", JsonNumber(d).c_str());
-      } else {
-        std::printf("%s%14.9g", j ? " " : "", d);
-      }
+  if (c.json) {
+    Json rows = Json::array();
+    for (uint32_t i = 0; i < resp.rows(); ++i) {
+      Json row = Json::array();
+      for (uint32_t j = 0; j < resp.cols(); ++j) row.push_back(resp.distances(i * resp.cols() + j));
+      rows.push_back(std::move(row));
     }
-    std::printf(c.json ? "]" : "\n");
+    PrintJson({{"rows", resp.rows()}, {"cols", resp.cols()}, {"distances", std::move(rows)}});
+    return 0;
   }
-  if (c.json) std::printf("]}\n");
+  for (uint32_t i = 0; i < resp.rows(); ++i) {
+    for (uint32_t j = 0; j < resp.cols(); ++j) {
+      std::printf("%s%14.9g", j ? " " : "", resp.distances(i * resp.cols() + j));
+    }
+    std::printf("\n");
+  }
   return 0;
 }
 
@@ -600,14 +624,15 @@ int CmdSnap(const Common& c, const std::vector<std::string>& positions) {
   for (const auto& p : positions) specs.push_back(p.rfind("xyz:", 0) == 0 ? p : "xyz:" + p);
   int rc = 0;
   if (!ResolvePoints(stub.get(), c, specs, &points, &rc)) return rc;
+  Json snapped = Json::array();
   for (size_t i = 0; i < points.size(); ++i) {
     if (c.json) {
-      std::printf("%s{\"position\": \"%s\", \"point\": \"%s\"}%s", i ? ", " : "[", specs[i].c_str(),
-                  PointText(points[i]).c_str(), i + 1 == points.size() ? "]\n" : "");
+      snapped.push_back({{"position", specs[i]}, {"point", PointText(points[i])}});
     } else {
       std::printf("%s -> %s\n", specs[i].c_str(), PointText(points[i]).c_str());
     }
   }
+  if (c.json) PrintJson(snapped);
   return 0;
 }
 
@@ -693,12 +718,15 @@ int CmdBench(const Common& c, int concurrency, double duration, int count, uint3
   };
   const double qps = latencies.size() / elapsed;
   if (c.json) {
-    std::printf(
-        "{\"queries\": %zu, \"failed\": %d, \"seconds\": %.3f, \"qps\": %.1f, "
-        "\"p50_ms\": %.4f, \"p90_ms\": %.4f, \"p99_ms\": %.4f, \"max_ms\": %.4f, "
-        "\"concurrency\": %d}\n",
-        latencies.size(), failed.load(), elapsed, qps, 1e3 * pct(0.5), 1e3 * pct(0.9),
-        1e3 * pct(0.99), 1e3 * pct(1.0), concurrency);
+    PrintJson({{"queries", latencies.size()},
+               {"failed", failed.load()},
+               {"seconds", elapsed},
+               {"qps", qps},
+               {"p50_ms", 1e3 * pct(0.5)},
+               {"p90_ms", 1e3 * pct(0.9)},
+               {"p99_ms", 1e3 * pct(0.99)},
+               {"max_ms", 1e3 * pct(1.0)},
+               {"concurrency", concurrency}});
   } else {
     std::printf(
         "%zu queries (%d failed) in %.2f s: %.1f queries/s; latency p50 %.3f ms, p90 %.3f "

@@ -1,5 +1,7 @@
 // geodesicd serve: the daemon.
+#include <netinet/in.h>
 #include <signal.h>
+#include <sys/socket.h>
 #include <unistd.h>
 
 #include <cctype>
@@ -9,15 +11,18 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <map>
 #include <mutex>
 #include <sstream>
 #include <thread>
 
 #include "CLI/CLI.hpp"
 #include "absl/strings/str_format.h"
+#include "core/atomic_file.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/grpcpp.h"
 #include "grpcpp/health_check_service_interface.h"
+#include "nlohmann/json.hpp"
 #include "server/geodesic_service.h"
 #include "server/serve.h"
 
@@ -104,6 +109,47 @@ std::shared_ptr<grpc::ServerCredentials> ServerCredentials(const SecurityFlags& 
   return grpc::SslServerCredentials(options);
 }
 
+// TCP ports this process listens on, by file descriptor. MetricsHttpServer
+// does not say which port it bound, so with --metrics-listen HOST:0 the port
+// is the one listening socket that appeared while it started.
+std::map<int, int> ListeningPorts() {
+  std::map<int, int> ports;
+  std::error_code ec;
+  for (const auto& entry : std::filesystem::directory_iterator("/proc/self/fd", ec)) {
+    const int fd = std::atoi(entry.path().filename().c_str());
+    int listening = 0;
+    socklen_t length = sizeof(listening);
+    if (getsockopt(fd, SOL_SOCKET, SO_ACCEPTCONN, &listening, &length) != 0 || !listening) {
+      continue;
+    }
+    sockaddr_storage address{};
+    length = sizeof(address);
+    if (getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) != 0) continue;
+    if (address.ss_family == AF_INET) {
+      ports[fd] = ntohs(reinterpret_cast<const sockaddr_in&>(address).sin_port);
+    } else if (address.ss_family == AF_INET6) {
+      ports[fd] = ntohs(reinterpret_cast<const sockaddr_in6&>(address).sin6_port);
+    }
+  }
+  return ports;
+}
+
+// --port-file: {"grpc": P} or {"grpc": P, "metrics": Q}, written once the
+// ports are bound, by rename so that a reader never sees half of it.
+bool WritePortFile(const std::string& path, int grpc_port, int metrics_port) {
+  nlohmann::json ports = {{"grpc", grpc_port}};
+  if (metrics_port > 0) ports["metrics"] = metrics_port;
+  const std::string text = ports.dump() + "\n";
+  auto file = AtomicFileWriter::Create(path);
+  absl::Status s = file.ok() ? file->Append(text.data(), text.size()) : file.status();
+  if (s.ok()) s = std::move(*file).Commit();
+  if (!s.ok()) {
+    std::fprintf(stderr, "geodesicd serve: --port-file: %s\n", std::string(s.message()).c_str());
+    return false;
+  }
+  return true;
+}
+
 }  // namespace
 
 int RunServe(int argc, char** argv) {
@@ -116,7 +162,12 @@ int RunServe(int argc, char** argv) {
   ServiceLimits limits;
   bool no_sample = false;
   double drain_seconds = 10;
-  app.add_option("--listen", listen, "address to serve gRPC on (HOST:PORT)");
+  std::string port_file;
+  app.add_option("--listen", listen, "address to serve gRPC on (HOST:PORT; port 0: any free port)");
+  app.add_option("--port-file", port_file,
+                 "once listening, write the bound ports here as JSON, {\"grpc\": P} or, with "
+                 "--metrics-listen, {\"grpc\": P, \"metrics\": Q} (replaced atomically: the "
+                 "file appears complete or not at all); for HOST:0 addresses");
   app.add_option("--graph-dir", graph_dir,
                  "where graphs, and snapshots of registered meshes, are written and read back");
   app.add_option("--mesh-root", mesh_root, "RegisterMesh paths must lie under this directory");
@@ -135,7 +186,8 @@ int RunServe(int argc, char** argv) {
   app.add_option("--max-sources", limits.max_sources, "sources per field");
   app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
   app.add_option("--default-epsilon", limits.default_epsilon, "epsilon when a request gives none");
-  app.add_option("--metrics-listen", metrics_listen, "serve Prometheus metrics on HOST:PORT");
+  app.add_option("--metrics-listen", metrics_listen,
+                 "serve Prometheus metrics on HOST:PORT (port 0: any free port)");
   app.add_option("--log-level", log_level, "info (one line per request) or warning")
       ->check(CLI::IsMember({"info", "warning"}));
   app.add_option("--sample-mesh", sample, "mesh registered as 'spot' at start (default: bundled)");
@@ -262,14 +314,24 @@ int RunServe(int argc, char** argv) {
     health->SetServingStatus("geodesic.v1.Geodesic", true);
   }
   std::unique_ptr<MetricsHttpServer> metrics_http;
+  int metrics_port = 0;
   if (!metrics_listen.empty()) {
+    const std::map<int, int> before = ListeningPorts();
     std::string error;
     metrics_http = MetricsHttpServer::Start(metrics_listen, &metrics, &error);
     if (!metrics_http) {
       std::fprintf(stderr, "geodesicd serve: %s\n", error.c_str());
       return 1;
     }
+    for (const auto& [fd, port] : ListeningPorts()) {
+      if (!before.count(fd)) metrics_port = port;
+    }
+    if (metrics_port == 0 && !port_file.empty()) {
+      std::fprintf(stderr, "geodesicd serve: cannot tell which port --metrics-listen bound\n");
+      return 1;
+    }
   }
+  if (!port_file.empty() && !WritePortFile(port_file, bound_port, metrics_port)) return 1;
   std::fprintf(stderr, "geodesicd: serving on %s (port %d, %s%s), graphs in %s, mesh root %s\n",
                listen.c_str(), bound_port,
                security.tls_cert.empty()        ? "plaintext"

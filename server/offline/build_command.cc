@@ -59,22 +59,26 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
   const size_t n = mesh.num_vertices();
   const double epsilon = graph.params().epsilon;
   if (json) {
-    std::printf(
-        "{\"vertices\": %zu, \"nodes\": %u, \"pseudo_vertices\": %u, \"edges\": %llu, "
-        "\"candidate_edges\": %llu, \"average_degree\": %.3f, \"max_degree\": %u, "
-        "\"found_edges\": %llu, \"found_degree\": %.3f, "
-        "\"epsilon\": %g, \"threads\": %d, \"build_seconds\": %.4f, \"candidate_seconds\": %.4f, "
-        "\"pruning_seconds\": %.4f, \"pseudo_seconds\": %.4f, \"fan_seconds\": %.4f, "
-        "\"windows_per_source\": %.2f, \"average_fan\": %.3f, \"peak_memory_bytes\": %llu, "
-        "\"file_bytes\": %llu}\n",
-        n, graph.num_nodes(), stats.pseudo_vertices, static_cast<unsigned long long>(stats.edges),
-        static_cast<unsigned long long>(stats.candidate_edges), stats.average_degree,
-        stats.max_degree, static_cast<unsigned long long>(stats.found_edges),
-        double(stats.found_edges) / std::max<size_t>(n, 1), epsilon, threads, stats.total_seconds,
-        stats.candidate_seconds, stats.pruning_seconds, stats.pseudo_seconds, stats.fan_seconds,
-        double(stats.windows_created) / std::max<size_t>(n, 1), stats.average_fan,
-        static_cast<unsigned long long>(PeakMemoryBytes()),
-        static_cast<unsigned long long>(file_bytes));
+    PrintJson({{"vertices", n},
+               {"nodes", graph.num_nodes()},
+               {"pseudo_vertices", stats.pseudo_vertices},
+               {"edges", stats.edges},
+               {"candidate_edges", stats.candidate_edges},
+               {"average_degree", stats.average_degree},
+               {"max_degree", stats.max_degree},
+               {"found_edges", stats.found_edges},
+               {"found_degree", double(stats.found_edges) / std::max<size_t>(n, 1)},
+               {"epsilon", epsilon},
+               {"threads", threads},
+               {"build_seconds", stats.total_seconds},
+               {"candidate_seconds", stats.candidate_seconds},
+               {"pruning_seconds", stats.pruning_seconds},
+               {"pseudo_seconds", stats.pseudo_seconds},
+               {"fan_seconds", stats.fan_seconds},
+               {"windows_per_source", double(stats.windows_created) / std::max<size_t>(n, 1)},
+               {"average_fan", stats.average_fan},
+               {"peak_memory_bytes", PeakMemoryBytes()},
+               {"file_bytes", file_bytes}});
   } else {
     std::printf(
         "built %s: %zu vertices, %u pseudo vertices, %llu edges (average degree %.1f, max %u) "
@@ -107,13 +111,16 @@ int BuildPart(const Mesh& mesh, const DggBuildOptions& options, const std::strin
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   const uint32_t sources = part->end - part->begin;
   if (json) {
-    std::printf(
-        "{\"part\": %u, \"parts\": %u, \"begin\": %u, \"end\": %u, \"epsilon\": %g, "
-        "\"candidate_half_edges\": %zu, \"windows_per_source\": %.2f, \"build_seconds\": %.4f, "
-        "\"file_bytes\": %llu}\n",
-        index, count, part->begin, part->end, part->params.epsilon, part->edges.size(),
-        double(part->windows_created) / std::max<uint32_t>(sources, 1), seconds,
-        static_cast<unsigned long long>(std::filesystem::file_size(out_path)));
+    PrintJson(
+        {{"part", index},
+         {"parts", count},
+         {"begin", part->begin},
+         {"end", part->end},
+         {"epsilon", part->params.epsilon},
+         {"candidate_half_edges", part->edges.size()},
+         {"windows_per_source", double(part->windows_created) / std::max<uint32_t>(sources, 1)},
+         {"build_seconds", seconds},
+         {"file_bytes", std::filesystem::file_size(out_path)}});
   } else {
     std::printf("built part %u/%u of %s: vertices %u..%u, %zu candidate half-edges in %.2f s\n",
                 index, count, out_path.c_str(), part->begin, part->end, part->edges.size(),

@@ -44,9 +44,6 @@ absl::Status WriteF64(const std::string& path, const std::vector<double>& values
   return absl::OkStatus();
 }
 
-std::string JsonNumber(double value) {
-  if (!std::isfinite(value)) return "null";
-  return absl::StrFormat("%.17g", value);
-}
+void PrintJson(const Json& value) { std::printf("%s\n", value.dump().c_str()); }
 
 }  // namespace geodesic::offline

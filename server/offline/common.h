@@ -10,6 +10,7 @@
 #include "core/dgg_graph.h"
 #include "core/mesh.h"
 #include "core/surface_point.h"
+#include "nlohmann/json.hpp"
 
 namespace geodesic::offline {
 
@@ -25,8 +26,13 @@ absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& s
 // Writes one little-endian float64 per value.
 absl::Status WriteF64(const std::string& path, const std::vector<double>& values);
 
-// JSON number that stays valid for +inf / NaN (as null).
-std::string JsonNumber(double value);
+// --json output. Keys keep the order they are set in; strings are escaped;
+// doubles print with full (round-trip) precision; +inf and NaN, which JSON
+// cannot hold, print as null.
+using Json = nlohmann::ordered_json;
+
+// Prints `value` and a newline to stdout.
+void PrintJson(const Json& value);
 
 }  // namespace geodesic::offline
 

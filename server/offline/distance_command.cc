@@ -15,14 +15,13 @@
 namespace geodesic::offline {
 namespace {
 
-std::string PathJson(const GeodesicPath& path) {
-  std::string out = "[";
-  for (size_t i = 0; i < path.points.size(); ++i) {
-    const PathPoint& p = path.points[i];
-    out += absl::StrFormat("%s{\"point\": \"%s\", \"xyz\": [%.17g, %.17g, %.17g]}", i ? ", " : "",
-                           FormatSurfacePoint(p.point), p.xyz.x, p.xyz.y, p.xyz.z);
+Json PathJson(const GeodesicPath& path) {
+  Json points = Json::array();
+  for (const PathPoint& p : path.points) {
+    points.push_back(
+        {{"point", FormatSurfacePoint(p.point)}, {"xyz", {p.xyz.x, p.xyz.y, p.xyz.z}}});
   }
-  return out + "]";
+  return points;
 }
 
 }  // namespace
@@ -88,7 +87,8 @@ int RunDistance(int argc, char** argv) {
   PairOptions options;
   options.want_path = want_path;
   options.use_astar = !no_astar;
-  std::string out = json && !pairs_path.empty() ? "[" : "";
+  std::string out;
+  Json results = Json::array();
   for (size_t i = 0; i < pairs.size(); ++i) {
     auto a = ResolvePoint(**mesh, pairs[i].first);
     if (!a.ok()) return Fail("distance", a.status());
@@ -100,13 +100,17 @@ int RunDistance(int argc, char** argv) {
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (!r.ok()) return Fail("distance", r.status());
     if (json) {
-      out += absl::StrFormat(
-          "%s{\"from\": \"%s\", \"to\": \"%s\", \"distance\": %s, \"reachable\": %s, "
-          "\"seconds\": %.9f, \"settled\": %u, \"queued\": %u, \"relaxed\": %u%s}",
-          i ? ", " : "", pairs[i].first, pairs[i].second, JsonNumber(r->distance),
-          r->distance < kInfinity ? "true" : "false", seconds, r->settled, r->queued, r->relaxed,
-          r->path ? ", \"path\": " + PathJson(*r->path) : "");
-      if (pairs_path.empty()) out += "\n";
+      Json result = {{"from", pairs[i].first},  {"to", pairs[i].second},
+                     {"distance", r->distance}, {"reachable", r->distance < kInfinity},
+                     {"seconds", seconds},      {"settled", r->settled},
+                     {"queued", r->queued},     {"relaxed", r->relaxed}};
+      if (r->path) result["path"] = PathJson(*r->path);
+      // One pair: an object; --pairs: an array of them.
+      if (pairs_path.empty()) {
+        PrintJson(result);
+      } else {
+        results.push_back(std::move(result));
+      }
     } else {
       std::string d = r->distance < kInfinity ? absl::StrFormat("%.12g", r->distance)
                                               : std::string("unreachable");
@@ -120,7 +124,7 @@ int RunDistance(int argc, char** argv) {
       }
     }
   }
-  if (json && !pairs_path.empty()) out += "]\n";
+  if (json && !pairs_path.empty()) PrintJson(results);
   std::fputs(out.c_str(), stdout);
   return 0;
 }

@@ -52,16 +52,16 @@ int RunExact(int argc, char** argv) {
   const size_t n = (*mesh)->num_vertices();
   const ExactStats& st = engine.stats();
   if (json) {
-    std::printf(
-        "{\"vertices\": %zu, \"reached\": %zu, \"solve_seconds\": %.6f, \"load_seconds\": %.6f, "
-        "\"windows_created\": %llu, \"windows_per_vertex\": %.3f, \"windows_propagated\": %llu, "
-        "\"vertices_per_second\": %.1f, "
-        "\"pseudo_sources\": %llu, \"peak_queue\": %llu}\n",
-        n, reached, solve_seconds, load_seconds,
-        static_cast<unsigned long long>(st.windows_created), double(st.windows_created) / n,
-        static_cast<unsigned long long>(st.windows_propagated), n / std::max(solve_seconds, 1e-9),
-        static_cast<unsigned long long>(st.pseudo_sources),
-        static_cast<unsigned long long>(st.peak_queue));
+    PrintJson({{"vertices", n},
+               {"reached", reached},
+               {"solve_seconds", solve_seconds},
+               {"load_seconds", load_seconds},
+               {"windows_created", st.windows_created},
+               {"windows_per_vertex", double(st.windows_created) / n},
+               {"windows_propagated", st.windows_propagated},
+               {"vertices_per_second", n / std::max(solve_seconds, 1e-9)},
+               {"pseudo_sources", st.pseudo_sources},
+               {"peak_queue", st.peak_queue}});
   } else {
     std::printf(
         "exact field from %s on %s: %zu of %zu vertices reached in %.3f s "

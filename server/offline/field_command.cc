@@ -65,13 +65,15 @@ int RunField(int argc, char** argv) {
   size_t reached = 0;
   for (double d : field->distance) reached += d < kInfinity;
   if (json) {
-    std::printf(
-        "{\"vertices\": %zu, \"reached\": %zu, \"method\": \"%s\", \"solve_seconds\": %.6f, "
-        "\"ns_per_vertex\": %.2f, \"queue_pops_per_vertex\": %.4f, \"graph_open_seconds\": %.6f, "
-        "\"epsilon\": %g, \"relaxed_per_vertex\": %.4f}\n",
-        n, reached, method.c_str(), solve_seconds, 1e9 * solve_seconds / std::max<size_t>(n, 1),
-        double(field->queue_pops) / std::max<size_t>(n, 1), open_seconds,
-        (*graph)->params().epsilon, double(field->relaxed) / std::max<size_t>(n, 1));
+    PrintJson({{"vertices", n},
+               {"reached", reached},
+               {"method", method},
+               {"solve_seconds", solve_seconds},
+               {"ns_per_vertex", 1e9 * solve_seconds / std::max<size_t>(n, 1)},
+               {"queue_pops_per_vertex", double(field->queue_pops) / std::max<size_t>(n, 1)},
+               {"graph_open_seconds", open_seconds},
+               {"epsilon", (*graph)->params().epsilon},
+               {"relaxed_per_vertex", double(field->relaxed) / std::max<size_t>(n, 1)}});
   } else {
     std::printf("field on %s (eps %g, %s): %zu of %zu vertices reached in %.3f ms\n",
                 graph_path.c_str(), (*graph)->params().epsilon, method.c_str(), reached, n,

@@ -1,6 +1,7 @@
 // geodesicd info GRAPH.dgg: describe and validate a graph file.
 #include <cstdio>
 
+#include "absl/strings/str_format.h"
 #include "core/graph_file.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
@@ -13,16 +14,19 @@ int RunGraphInfo(const std::string& path, bool json) {
   const double average_degree =
       info->num_nodes ? double(info->num_directed_edges) / info->num_nodes : 0;
   if (json) {
-    std::printf(
-        "{\"path\": \"%s\", \"format_version\": %u, \"mesh_fingerprint\": \"%016llx\", "
-        "\"epsilon\": %g, \"pseudo_vertices_enabled\": %s, \"vertices\": %u, \"nodes\": %u, "
-        "\"pseudo_vertices\": %u, \"edges\": %llu, \"average_degree\": %.3f, \"file_bytes\": %llu, "
-        "\"checksums_ok\": true}\n",
-        path.c_str(), info->version, static_cast<unsigned long long>(info->mesh_fingerprint),
-        info->params.epsilon, info->params.pseudo_vertices ? "true" : "false",
-        info->num_mesh_vertices, info->num_nodes, info->num_nodes - info->num_mesh_vertices,
-        static_cast<unsigned long long>(info->num_directed_edges / 2), average_degree,
-        static_cast<unsigned long long>(info->file_bytes));
+    PrintJson({{"path", path},
+               {"format_version", info->version},
+               {"mesh_fingerprint",
+                absl::StrFormat("%016x", static_cast<unsigned long long>(info->mesh_fingerprint))},
+               {"epsilon", info->params.epsilon},
+               {"pseudo_vertices_enabled", info->params.pseudo_vertices},
+               {"vertices", info->num_mesh_vertices},
+               {"nodes", info->num_nodes},
+               {"pseudo_vertices", info->num_nodes - info->num_mesh_vertices},
+               {"edges", info->num_directed_edges / 2},
+               {"average_degree", average_degree},
+               {"file_bytes", info->file_bytes},
+               {"checksums_ok", true}});
   } else {
     std::printf(
         "%s: geodesicd graph, format version %u\n  mesh fingerprint %016llx, %u vertices\n"

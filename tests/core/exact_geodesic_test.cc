@@ -156,7 +156,7 @@ class TruthTest : public ::testing::TestWithParam<std::string> {};
 
 // Against the independent exact solver's fields (../shared/truth).
 TEST_P(TruthTest, MatchesExactFields) {
-  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  ASSERT_TRUE(SharedDataAvailable());
   const std::string name = GetParam();
   auto mesh = LoadMesh(testing::SharedMeshPath(name));
   ASSERT_OK(mesh);

@@ -2,7 +2,8 @@
 // with valid checksums, other format versions, and failed writes.
 #include "core/graph_file.h"
 
-#include <sys/stat.h>
+#include <signal.h>
+#include <sys/resource.h>
 #include <unistd.h>
 
 #include <cstring>
@@ -110,15 +111,37 @@ TEST(GraphFileTest, FailedWritesLeaveNothingAndKeepTheOldFile) {
   auto missing = GraphFile::Write(*CompleteGraph(mesh, 2), dir.File("no/such/dir/g.dgg"));
   EXPECT_EQ(missing.code(), absl::StatusCode::kNotFound) << missing;
 
-  // Over an existing file in a directory that turned read-only (root
-  // ignores permissions, so only checked when they apply).
-  chmod(dir.path().c_str(), 0500);
-  const bool enforced = access(dir.path().c_str(), W_OK) != 0;
-  auto refused = GraphFile::Write(*CompleteGraph(mesh, 2), path);
-  chmod(dir.path().c_str(), 0700);
-  if (enforced) {
-    EXPECT_EQ(refused.code(), absl::StatusCode::kPermissionDenied) << refused;
+  // Refusals that hold for root too (CI runs as root, where a read-only
+  // directory stops nothing). Under a path whose "directory" is a regular
+  // file: the temporary file cannot be created.
+  auto under_file = GraphFile::Write(*CompleteGraph(mesh, 2), path + "/g.dgg");
+  EXPECT_FALSE(under_file.ok());
+  EXPECT_NE(under_file.message().find(path), std::string::npos) << under_file;
+
+  // Onto a directory: everything is written, then the rename is refused.
+  std::filesystem::create_directory(dir.File("a_directory.dgg"));
+  auto onto_dir = GraphFile::Write(*CompleteGraph(mesh, 2), dir.File("a_directory.dgg"));
+  EXPECT_FALSE(onto_dir.ok());
+  EXPECT_NE(onto_dir.message().find("a_directory.dgg"), std::string::npos) << onto_dir;
+  EXPECT_TRUE(std::filesystem::is_directory(dir.File("a_directory.dgg")));
+
+  // Over the existing file, failing half way: a file size limit (which
+  // binds root as well) below the graph's size makes a write fail with
+  // EFBIG. The old file stays as it was.
+  {
+    struct rlimit old_limit;
+    ASSERT_EQ(getrlimit(RLIMIT_FSIZE, &old_limit), 0);
+    struct rlimit small = old_limit;
+    small.rlim_cur = before / 2;
+    void (*old_handler)(int) = signal(SIGXFSZ, SIG_IGN);
+    ASSERT_EQ(setrlimit(RLIMIT_FSIZE, &small), 0);
+    auto too_big = GraphFile::Write(*CompleteGraph(mesh, 2), path);
+    setrlimit(RLIMIT_FSIZE, &old_limit);
+    signal(SIGXFSZ, old_handler);
+    EXPECT_FALSE(too_big.ok());
+    EXPECT_NE(too_big.message().find("cannot write"), std::string::npos) << too_big;
   }
+
   EXPECT_EQ(std::filesystem::file_size(path), before);
   EXPECT_TRUE(GraphFile::Open(path, mesh, GraphFile::Check::kFull).ok());
   for (const auto& entry : std::filesystem::directory_iterator(dir.path())) {

@@ -45,7 +45,7 @@ const ManifestRow kManifest[] = {
 class ManifestTest : public ::testing::TestWithParam<ManifestRow> {};
 
 TEST_P(ManifestTest, LoadsWithManifestCountsAndDiagnostics) {
-  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  ASSERT_TRUE(SharedDataAvailable());
   const ManifestRow& row = GetParam();
   MeshDiagnostics d;
   auto mesh = LoadMesh(SharedPath(std::string("meshes/") + row.file), {}, &d);
@@ -83,7 +83,7 @@ INSTANTIATE_TEST_SUITE_P(SharedMeshes, ManifestTest, ::testing::ValuesIn(kManife
 
 // The first and last vertex lines of an OBJ/OFF file, read as text.
 TEST(MeshIoTest, VertexOrderIsTheFileOrder) {
-  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  ASSERT_TRUE(SharedDataAvailable());
   auto mesh = LoadMesh(SharedPath("meshes/armadillo.obj"));
   ASSERT_OK(mesh);
   std::ifstream in(SharedPath("meshes/armadillo.obj"));
@@ -105,7 +105,7 @@ TEST(MeshIoTest, VertexOrderIsTheFileOrder) {
 }
 
 TEST(MeshIoTest, MessyOgreDiagnosticsMatchTheManifest) {
-  if (!SharedDataAvailable()) GTEST_SKIP() << "shared data not available";
+  ASSERT_TRUE(SharedDataAvailable());
   MeshDiagnostics d;
   auto mesh = LoadMesh(SharedPath("meshes/ogre_messy.obj"), {}, &d);
   EXPECT_EQ(mesh.status().code(), absl::StatusCode::kInvalidArgument);

@@ -11,7 +11,8 @@
 namespace geodesic::testing {
 
 std::string SharedPath(const std::string& relative) {
-  return std::string(GEODESIC_SHARED_DIR) + "/" + relative;
+  const char* dir = getenv("GEODESIC_SHARED_DIR");
+  return std::string(dir && *dir ? dir : GEODESIC_SHARED_DIR) + "/" + relative;
 }
 
 std::string SharedMeshPath(const std::string& name) {
@@ -22,7 +23,14 @@ std::string SharedMeshPath(const std::string& name) {
   return SharedPath("meshes/" + name);
 }
 
-bool SharedDataAvailable() { return std::filesystem::exists(SharedPath("meshes/MANIFEST.md")); }
+bool SharedDataAvailable() {
+  const std::string manifest = SharedPath("meshes/MANIFEST.md");
+  if (std::filesystem::exists(manifest)) return true;
+  ADD_FAILURE() << "shared data missing: " << manifest
+                << " does not exist (clone the shared data beside the repository, or set "
+                   "GEODESIC_SHARED_DIR)";
+  return false;
+}
 
 std::string SourcePath(const std::string& relative) {
   return std::string(GEODESIC_SOURCE_DIR) + "/" + relative;

@@ -12,8 +12,13 @@
 
 namespace geodesic::testing {
 
-// ../shared next to the clone (meshes/, truth/).
+// ../shared next to the clone (meshes/, truth/); the environment variable
+// GEODESIC_SHARED_DIR, when set, points elsewhere (to check what happens when
+// it is missing without reconfiguring).
 std::string SharedPath(const std::string& relative);
+// Whether the shared data is there. When it is not, this also records a test
+// failure naming the missing path: a test that needs shared data fails rather
+// than skips (CI has it), even where the caller goes on to GTEST_SKIP.
 bool SharedDataAvailable();
 // The shared mesh called `name`, whatever its format.
 std::string SharedMeshPath(const std::string& name);

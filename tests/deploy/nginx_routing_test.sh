@@ -13,6 +13,9 @@ nginx=$(command -v nginx || echo /usr/sbin/nginx)
 work=$(mktemp -d)
 chmod 755 "$work"
 failures=0
+source "$src/tests/server/daemon_port.sh"
+# nginx cannot report a port it picked, so its front port is one found free,
+# and nginx is started again on another if that one is taken meanwhile.
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
 pids=()
 cleanup() {
@@ -30,17 +33,21 @@ json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
 
 ports=()
 for i in 0 1 2; do
-  ports[i]=$(free_port)
-  "$bin/geodesicd" serve --listen "127.0.0.1:${ports[i]}" --graph-dir "$work/graphs" \
+  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports$i" --graph-dir "$work/graphs" \
     --mesh-root "$src/data" --log-level info --build-threads 1 2>"$work/replica$i.log" &
   pids[i]=$!
 done
-front=$(free_port)
-sed -e "s/geodesicd-\([0-9]\)\.geodesicd-headless:50051/127.0.0.1:PORT\1/" \
-    -e "s/listen 50051 http2;/listen 127.0.0.1:$front http2;/" \
-    -e "s/127.0.0.1:PORT0/127.0.0.1:${ports[0]}/" -e "s/127.0.0.1:PORT1/127.0.0.1:${ports[1]}/" \
-    -e "s/127.0.0.1:PORT2/127.0.0.1:${ports[2]}/" \
-    "$src/deploy/nginx/geodesicd.conf" > "$work/geodesicd.conf"
+for i in 0 1 2; do
+  ports[i]=$(wait_port_file "${pids[i]}" "$work/ports$i") ||
+    { echo "replica $i did not start"; cat "$work/replica$i.log"; exit 1; }
+done
+write_config() {
+  sed -e "s/geodesicd-\([0-9]\)\.geodesicd-headless:50051/127.0.0.1:PORT\1/" \
+      -e "s/listen 50051 http2;/listen 127.0.0.1:$front http2;/" \
+      -e "s/127.0.0.1:PORT0/127.0.0.1:${ports[0]}/" -e "s/127.0.0.1:PORT1/127.0.0.1:${ports[1]}/" \
+      -e "s/127.0.0.1:PORT2/127.0.0.1:${ports[2]}/" \
+      "$src/deploy/nginx/geodesicd.conf" > "$work/geodesicd.conf"
+}
 mkdir -m 777 "$work/tmp"
 cat > "$work/nginx.conf" <<CONF
 worker_processes 1;
@@ -57,8 +64,14 @@ http {
     include $work/geodesicd.conf;
 }
 CONF
+front=$(free_port)
+write_config
 check "nginx accepts the deploy configuration" "$nginx" -t -q -c "$work/nginx.conf" -p "$work"
-"$nginx" -c "$work/nginx.conf" -p "$work" 2>>"$work/nginx-error.log"
+for _ in 1 2 3 4 5; do
+  "$nginx" -c "$work/nginx.conf" -p "$work" 2>>"$work/nginx-error.log" && break
+  front=$(free_port)
+  write_config
+done
 
 cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$front" --timeout 60 "$@" 2>>"$work/cli.log"; }
 for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && break; sleep 0.1; done

@@ -48,11 +48,12 @@ check "part index out of range" grep -q "index must be in" "$work/e5"
 # (the Kubernetes build Job's flow), instead of building.
 geodesicd merge "$mesh" "$work/p0.part" "$work/p1.part" "$work/p2.part" --quiet \
   --graph-dir "$work/graphs" >/dev/null
-port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
-"$bin/geodesicd" serve --listen "127.0.0.1:$port" --graph-dir "$work/graphs" --log-level warning \
-  2>/dev/null &
+source "$(dirname "$0")/daemon_port.sh"
+"$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --graph-dir "$work/graphs" \
+  --log-level warning 2>"$work/daemon.log" &
 daemon=$!
 trap 'kill "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; rm -rf "$work"' EXIT
+port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
 from_file=
 for _ in $(seq 50); do
   from_file=$(timeout 60 "$bin/geodesic" --server "127.0.0.1:$port" --json --eps 0.005 graph --wait 2>/dev/null |

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# End-to-end: a real daemon on 127.0.0.1 (a free port), driven by the CLI.
+# End-to-end: a real daemon on 127.0.0.1 (port 0, read back), driven by the CLI.
 # Usage: e2e_test.sh BUILD_BIN_DIR SOURCE_DIR
 set -uo pipefail
 bin=$1
@@ -7,12 +7,15 @@ src=$2
 work=$(mktemp -d)
 failures=0
 passes=0
-port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+source "$(dirname "$0")/daemon_port.sh"
+port=
 daemon=
 start_daemon() {
-  "$bin/geodesicd" serve --listen "127.0.0.1:$port" --graph-dir "$work/graphs" \
+  rm -f "$work/ports"
+  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --graph-dir "$work/graphs" \
     --mesh-root "$src/data" --log-level warning "$@" 2>>"$work/daemon.log" &
   daemon=$!
+  port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
   for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && return 0; sleep 0.1; done
   echo "daemon did not start"; cat "$work/daemon.log"; exit 1
 }

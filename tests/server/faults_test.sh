@@ -9,13 +9,16 @@ src=$2
 work=$(mktemp -d)
 graphs=$work/graphs
 failures=0
-port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+source "$(dirname "$0")/daemon_port.sh"
+port=
 daemon=
 tmpfs=
 start_daemon() {
-  "$bin/geodesicd" serve --listen "127.0.0.1:$port" --mesh-root "$src/data" --log-level warning \
-    --build-threads 1 --graph-dir "$@" 2>>"$work/daemon.log" &
+  rm -f "$work/ports"
+  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --mesh-root "$src/data" \
+    --log-level warning --build-threads 1 --graph-dir "$@" 2>>"$work/daemon.log" &
   daemon=$!
+  port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
   for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && return 0; sleep 0.1; done
   echo "daemon did not start"; cat "$work/daemon.log"; exit 1
 }
@@ -40,19 +43,33 @@ offline_distance() {
 daemon_distance() { cli --json --eps "$1" distance --from v:5 --to v:2500 | json 'd[0]["distance"]'; }
 
 # kill -9 in the middle of a build: no graph file appears, and a restart
-# builds again rather than trusting anything left behind.
+# builds again rather than trusting anything left behind. At eps 1e-5 spot
+# takes seconds to build on one thread (2e-4 took one: often done before the
+# kill).
+slow=0.00001
 start_daemon "$graphs"
-cli --eps 0.0002 graph >/dev/null
-for _ in $(seq 100); do
-  [ "$(cli --json --eps 0.0002 graph | json 'd["state"]')" = building ] && break; sleep 0.05
+cli --eps $slow graph >/dev/null
+graph_state() { cli --json --eps $slow graph | json 'd["state"] + "/" + str(d["from_file"])'; }
+state=
+for _ in $(seq 200); do
+  state=$(graph_state)
+  [ "$state" = building/False ] && break; sleep 0.05
 done
 sleep 0.5
+check "the build is running when the daemon is killed" test "$(graph_state)" = building/False
 kill -9 "$daemon"; wait "$daemon" 2>/dev/null
-check "kill -9 during a build leaves no graph file" test -z "$(ls "$graphs" | grep 'eps0.0002')"
+check "kill -9 during a build leaves no graph file" test -z "$(ls "$graphs" | grep 'eps1e-05')"
 start_daemon "$graphs"
-check "after restart the interrupted graph is built again, not mapped" \
-  test "$(cli --json --eps 0.0002 graph | json 'd["from_file"]')" = False
-cli --eps 0.0002 graph --cancel >/dev/null
+cli --eps $slow graph >/dev/null
+# A fresh request is queued, then either mapped from a file (loading, then
+# ready with from_file) or built: wait until it is one or the other.
+for _ in $(seq 200); do
+  state=$(graph_state)
+  case $state in queued/* | loading/*) sleep 0.05 ;; *) break ;; esac
+done
+check "after restart the interrupted graph is built again, not mapped ($state)" \
+  test "$state" = building/False
+cli --eps $slow graph --cancel >/dev/null
 
 # kill -9 in the middle of a graph write leaves a temporary file (simulated
 # here: the first half of a real graph under the writer's temporary name).

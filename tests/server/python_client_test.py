@@ -5,7 +5,6 @@ Usage: python_client_test.py BUILD_BIN_DIR SOURCE_DIR
 """
 import os
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -18,25 +17,17 @@ BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
 from geodesic_client import Client  # noqa: E402
-
-
-def free_port():
-    s = socket.socket()
-    s.bind(("127.0.0.1", 0))
-    port = s.getsockname()[1]
-    s.close()
-    return port
+from daemon_ports import start_daemon  # noqa: E402
 
 
 class ClientTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
         cls.work = tempfile.mkdtemp()
-        cls.port = free_port()
-        cls.daemon = subprocess.Popen(
-            [f"{BIN}/geodesicd", "serve", "--listen", f"127.0.0.1:{cls.port}", "--graph-dir",
-             f"{cls.work}/graphs", "--mesh-root", f"{SRC}/data", "--log-level", "warning"],
-            stderr=subprocess.DEVNULL)
+        cls.daemon, ports = start_daemon(
+            BIN, cls.work, ["--graph-dir", f"{cls.work}/graphs", "--mesh-root", f"{SRC}/data",
+                            "--log-level", "warning"])
+        cls.port = ports["grpc"]
         cls.client = Client(f"127.0.0.1:{cls.port}", timeout=120)
         for _ in range(100):
             try:
@@ -66,25 +57,42 @@ class ClientTest(unittest.TestCase):
                        check=True, capture_output=True)
         np.testing.assert_array_equal(field, np.fromfile(out))
 
-    def test_distance_path_and_matrix_agree(self):
-        d = self.client.distance("spot", "f:0:0.2,0.3,0.5", "v:1500", epsilon=0.01)
-        length, points = self.client.path("spot", "f:0:0.2,0.3,0.5", "v:1500", epsilon=0.01)
-        self.assertGreater(d, 0)
-        self.assertLessEqual(length, d * (1 + 1e-6))
-        self.assertEqual(points[-1][0], "v:1500")
-        # The matrix comes from label-correcting fields, the pair from bidirectional search on
-        # the augmented graph: different searches, so both are checked against the exact
-        # distance (never below it, at most 1+eps above it) rather than against each other.
-        m = self.client.matrix("spot", ["v:0", "v:10"], ["v:100", "v:200", "v:300"], epsilon=0.01)
-        self.assertEqual(m.shape, (2, 3))
-        exact = f"{self.work}/exact0.f64"
+    def exact_field(self, source):
+        out = f"{self.work}/exact-{source.replace(':', '_')}.f64"
         subprocess.run([f"{BIN}/geodesicd", "exact", "--mesh", f"{SRC}/data/spot.obj", "--source",
-                        "v:0", "--out", exact], check=True, capture_output=True)
-        truth = np.fromfile(exact)
-        pair = self.client.distance("spot", "v:0", "v:200", epsilon=0.01)
-        for got, target in ((m[0, 0], 100), (m[0, 1], 200), (m[0, 2], 300), (pair, 200)):
-            self.assertGreaterEqual(got, truth[target] * (1 - 1e-9))
-            self.assertLessEqual(got, truth[target] * 1.01)
+                        source, "--out", out], check=True, capture_output=True)
+        return np.fromfile(out)
+
+    def test_distance_path_and_matrix_agree(self):
+        eps = 0.01
+        # The matrix comes from label-correcting fields, the pairs from bidirectional search:
+        # two searches of one graph, each returning its shortest distance, so they agree to
+        # rounding (1e-9 relative); both lie within [exact, (1 + eps) exact].
+        targets = (100, 200, 300)
+        m = self.client.matrix("spot", ["v:0", "v:10"], [f"v:{t}" for t in targets], epsilon=eps)
+        self.assertEqual(m.shape, (2, 3))
+        truth = self.exact_field("v:0")
+        for j, target in enumerate(targets):
+            pair = self.client.distance("spot", "v:0", f"v:{target}", epsilon=eps)
+            self.assertAlmostEqual(m[0, j], pair, delta=1e-9 * pair, msg=f"v:0 -> v:{target}")
+            self.assertGreaterEqual(pair, truth[target] * (1 - 1e-9))
+            self.assertLessEqual(pair, truth[target] * (1 + eps))
+        pair = self.client.distance("spot", "v:10", "v:300", epsilon=eps)
+        self.assertAlmostEqual(m[1, 2], pair, delta=1e-9 * pair, msg="v:10 -> v:300")
+
+        # A distance asked with its path is that path's exact length: never above the graph
+        # distance (1e-6 relative for float32 edge weights), never below the exact distance,
+        # so the two agree within eps of the exact distance.
+        source = "f:0:0.2,0.3,0.5"
+        d = self.client.distance("spot", source, "v:1500", epsilon=eps)
+        length, points = self.client.path("spot", source, "v:1500", epsilon=eps)
+        exact = self.exact_field(source)[1500]
+        self.assertGreater(exact, 0)
+        self.assertEqual(points[-1][0], "v:1500")
+        self.assertLessEqual(length, d * (1 + 1e-6))
+        self.assertGreaterEqual(length, exact * (1 - 1e-9))
+        self.assertLessEqual(d, exact * (1 + eps))
+        self.assertAlmostEqual(length, d, delta=eps * exact)
 
     def test_snap_and_positions(self):
         (snapped,) = self.client.snap("spot", [(0.1, 0.2, 0.3)])

@@ -8,12 +8,15 @@ bin=$1
 src=$2
 work=$(mktemp -d)
 failures=0
-port=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])')
+source "$(dirname "$0")/daemon_port.sh"
+port=
 daemon=
 start_daemon() {
-  "$bin/geodesicd" serve --listen "127.0.0.1:$port" --graph-dir "$work/graphs" \
+  rm -f "$work/ports"
+  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --graph-dir "$work/graphs" \
     --mesh-root "$src/data" --log-level warning --default-epsilon 0.02 "$@" 2>>"$work/daemon.log" &
   daemon=$!
+  port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
   for _ in $(seq 100); do
     python3 - "$port" <<'PY' 2>/dev/null && return 0
 import socket, sys
@@ -116,12 +119,12 @@ check "mTLS: Python client with certificate and token is served" \
 stop_daemon
 
 # Misconfiguration is refused at start, naming the flag.
-"$bin/geodesicd" serve --listen "127.0.0.1:$port" --tls-cert "$work/server.crt" 2>"$work/e1"
+"$bin/geodesicd" serve --listen 127.0.0.1:0 --tls-cert "$work/server.crt" 2>"$work/e1"
 check "--tls-cert without --tls-key refused" grep -q "go together" "$work/e1"
-"$bin/geodesicd" serve --listen "127.0.0.1:$port" --tls-client-ca "$work/ca.crt" 2>"$work/e3"
+"$bin/geodesicd" serve --listen 127.0.0.1:0 --tls-client-ca "$work/ca.crt" 2>"$work/e3"
 check "--tls-client-ca without a server certificate refused" \
   grep -q "tls-client-ca needs --tls-cert" "$work/e3"
 : > "$work/empty"
-"$bin/geodesicd" serve --listen "127.0.0.1:$port" --auth-token-file "$work/empty" 2>"$work/e2"
+"$bin/geodesicd" serve --listen 127.0.0.1:0 --auth-token-file "$work/empty" 2>"$work/e2"
 check "empty token file refused" grep -q "auth-token-file" "$work/e2"
 exit $((failures > 0))

@@ -10,7 +10,6 @@ import json
 import os
 import random
 import shutil
-import socket
 import subprocess
 import sys
 import tempfile
@@ -25,6 +24,7 @@ SECONDS = float(sys.argv[3]) if len(sys.argv) > 3 else 20
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
 from geodesic_client import Client  # noqa: E402
+from daemon_ports import start_daemon  # noqa: E402
 
 MESH = f"{SRC}/data/spot.obj"
 EPSILONS = (0.01, 0.02)
@@ -152,23 +152,18 @@ class Stress:
 
 def main():
     work = tempfile.mkdtemp()
-    def free_port():
-        with socket.socket() as sock:
-            sock.bind(("127.0.0.1", 0))
-            return sock.getsockname()[1]
-    port, metrics_port = free_port(), free_port()
     daemon = None
     try:
         truth = offline_truth(work)
         graph_bytes = sum(os.path.getsize(f"{work}/offline-{e}.dgg") for e in EPSILONS)
         # Room for the two graphs of spot but not also the churning mesh's:
         # each of its builds evicts the least recently used graph.
-        daemon = subprocess.Popen(
-            [f"{BIN}/geodesicd", "serve", "--listen", f"127.0.0.1:{port}", "--graph-dir",
-             f"{work}/graphs", "--mesh-root", f"{SRC}/data", "--log-level", "warning",
-             "--memory-limit", str(int(graph_bytes * 1.1)), "--max-inflight", "6",
-             "--metrics-listen", f"127.0.0.1:{metrics_port}"],
-            stderr=open(f"{work}/daemon.log", "w"))
+        daemon, ports = start_daemon(
+            BIN, work,
+            ["--graph-dir", f"{work}/graphs", "--mesh-root", f"{SRC}/data", "--log-level",
+             "warning", "--memory-limit", str(int(graph_bytes * 1.1)), "--max-inflight", "6"],
+            stderr=open(f"{work}/daemon.log", "w"), metrics=True)
+        port, metrics_port = ports["grpc"], ports["metrics"]
         client = Client(f"127.0.0.1:{port}", timeout=60)
         for _ in range(100):
             try:
