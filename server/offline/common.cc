@@ -6,8 +6,10 @@
 #include <fstream>
 
 #include "absl/status/status.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "core/mesh_io.h"
+#include "core/result_files.h"
 #include "core/status.h"
 #include "core/surface_locator.h"
 
@@ -23,25 +25,43 @@ absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& p
   return std::make_shared<const Mesh>(std::move(mesh));
 }
 
-absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& spec) {
+absl::StatusOr<PointResolver::Resolved> PointResolver::Resolve(const std::string& spec) {
   ASSIGN_OR_RETURN(SurfacePointSpec parsed, ParseSurfacePointSpec(spec));
-  SurfacePoint p = parsed.point;
+  Resolved r{parsed.point, std::nullopt};
   if (parsed.is_position) {
-    ASSIGN_OR_RETURN(SurfaceLocator locator, SurfaceLocator::Build(mesh));
-    ASSIGN_OR_RETURN(p, locator.Snap(parsed.position));
+    if (!locator_) {
+      ASSIGN_OR_RETURN(SurfaceLocator locator, SurfaceLocator::Build(mesh_));
+      locator_.emplace(std::move(locator));
+    }
+    ASSIGN_OR_RETURN(r.point, locator_->Snap(parsed.position));
+    r.snap_distance = Distance(parsed.position, PositionOf(mesh_, r.point));
   }
-  absl::Status s = ValidateSurfacePoint(mesh, p);
+  absl::Status s = ValidateSurfacePoint(mesh_, r.point);
   if (!s.ok()) return absl::Status(s.code(), absl::StrFormat("%s: %s", spec, s.message()));
-  return p;
+  return r;
 }
 
-absl::Status WriteF64(const std::string& path, const std::vector<double>& values) {
-  static_assert(std::endian::native == std::endian::little, "f64 files are little-endian");
-  std::ofstream out(path, std::ios::binary | std::ios::trunc);
-  if (!out) return absl::PermissionDeniedError(absl::StrFormat("cannot write %s", path));
-  out.write(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
-  if (!out) return absl::InternalError(absl::StrFormat("short write to %s", path));
-  return absl::OkStatus();
+absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& spec) {
+  PointResolver resolver(mesh);
+  ASSIGN_OR_RETURN(PointResolver::Resolved r, resolver.Resolve(spec));
+  return r.point;
+}
+
+nlohmann::ordered_json SnapJson(const PointResolver::Resolved& r) {
+  return r.snap_distance ? nlohmann::ordered_json(*r.snap_distance) : nlohmann::ordered_json();
+}
+
+absl::Status WriteFieldFile(const std::string& path, const std::vector<double>& values,
+                            const Mesh& mesh) {
+  TriangleSoup geometry;
+  if (absl::EndsWithIgnoreCase(path, ".ply")) {
+    geometry.positions = mesh.positions();
+    for (FaceId f = 0; f < mesh.num_faces(); ++f) {
+      geometry.triangles.push_back(
+          {mesh.face_vertex(f, 0), mesh.face_vertex(f, 1), mesh.face_vertex(f, 2)});
+    }
+  }
+  return WriteField(path, values, &geometry);
 }
 
 void PrintJson(const Json& value) { std::printf("%s\n", value.dump().c_str()); }

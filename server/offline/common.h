@@ -3,12 +3,14 @@
 #define GEODESIC_SERVER_OFFLINE_COMMON_H_
 
 #include <memory>
+#include <optional>
 #include <string>
 #include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/dgg_graph.h"
 #include "core/mesh.h"
+#include "core/surface_locator.h"
 #include "core/surface_point.h"
 #include "nlohmann/json.hpp"
 
@@ -19,12 +21,34 @@ int Fail(const char* command, const absl::Status& status);
 
 absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path);
 
-// Parses a point spec (v:ID, e:EDGE:T, f:FACE:B0,B1,B2, xyz:X,Y,Z), snapping
-// positions to the surface, and validates it against the mesh.
+// Parses point specs (v:ID, e:EDGE:T, f:FACE:B0,B1,B2, xyz:X,Y,Z) and
+// validates them against one mesh. Positions are snapped to the nearest
+// surface point, with the search index built on the first xyz: spec only.
+class PointResolver {
+ public:
+  explicit PointResolver(const Mesh& mesh) : mesh_(mesh) {}
+  struct Resolved {
+    SurfacePoint point;
+    // How far an xyz: position was from the surface point it snapped to.
+    std::optional<double> snap_distance;
+  };
+  absl::StatusOr<Resolved> Resolve(const std::string& spec);
+
+ private:
+  const Mesh& mesh_;
+  std::optional<SurfaceLocator> locator_;
+};
+
+// One spec, for commands that resolve a single point.
 absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& spec);
 
-// Writes one little-endian float64 per value.
-absl::Status WriteF64(const std::string& path, const std::vector<double>& values);
+// The snap distance as JSON: null for points that were not positions.
+nlohmann::ordered_json SnapJson(const PointResolver::Resolved& r);
+
+// Writes a field in the format the path's extension names
+// (core/result_files.h: .f64, .npy, .csv, or .ply coloured on `mesh`).
+absl::Status WriteFieldFile(const std::string& path, const std::vector<double>& values,
+                            const Mesh& mesh);
 
 // --json output. Keys keep the order they are set in; strings are escaped;
 // doubles print with full (round-trip) precision; +inf and NaN, which JSON

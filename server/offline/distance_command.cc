@@ -9,6 +9,7 @@
 #include "absl/strings/str_format.h"
 #include "core/graph_file.h"
 #include "core/queries.h"
+#include "core/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
@@ -29,7 +30,7 @@ Json PathJson(const GeodesicPath& path) {
 int RunDistance(int argc, char** argv) {
   CLI::App app{"Geodesic distance (and path) between surface points on a discrete geodesic graph",
                "geodesicd distance"};
-  std::string mesh_path, graph_path, from, to, pairs_path;
+  std::string mesh_path, graph_path, from, to, pairs_path, path_out;
   bool json = false, want_path = false, no_astar = false;
   std::optional<int> landmarks;
   app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
@@ -40,6 +41,9 @@ int RunDistance(int argc, char** argv) {
   app.add_option("--to", to, "second point, same forms");
   app.add_option("--pairs", pairs_path, "file with one pair of points per line");
   app.add_flag("--path", want_path, "also recover the geodesic path");
+  app.add_option("--path-out", path_out,
+                 "write the path (implies --path; --from/--to only) as a polyline: .csv (x,y,z), "
+                 ".ply (vertices and edges) or .obj (v and l lines)");
   app.add_flag("--no-astar", no_astar, "plain bidirectional Dijkstra instead of A*");
   app.add_option("--landmarks", landmarks,
                  "landmarks whose graph distances tighten the A* bounds, computed once before "
@@ -70,9 +74,17 @@ int RunDistance(int argc, char** argv) {
       pairs.push_back({a, b});
     }
   } else if (!from.empty() && !to.empty()) {
+    if (!path_out.empty()) {
+      if (absl::Status s = CheckPolylinePath(path_out); !s.ok()) return Fail("distance", s);
+      want_path = true;
+    }
     pairs.push_back({from, to});
   } else {
     return Fail("distance", absl::InvalidArgumentError("give --from and --to, or --pairs FILE"));
+  }
+  if (!path_out.empty() && !pairs_path.empty()) {
+    return Fail("distance",
+                absl::InvalidArgumentError("--path-out writes one path: use --from and --to"));
   }
   auto mesh = LoadMeshOrError(mesh_path);
   if (!mesh.ok()) return Fail("distance", mesh.status());
@@ -89,21 +101,37 @@ int RunDistance(int argc, char** argv) {
   options.use_astar = !no_astar;
   std::string out;
   Json results = Json::array();
+  PointResolver resolver(**mesh);
   for (size_t i = 0; i < pairs.size(); ++i) {
-    auto a = ResolvePoint(**mesh, pairs[i].first);
+    auto a = resolver.Resolve(pairs[i].first);
     if (!a.ok()) return Fail("distance", a.status());
-    auto b = ResolvePoint(**mesh, pairs[i].second);
+    auto b = resolver.Resolve(pairs[i].second);
     if (!b.ok()) return Fail("distance", b.status());
     auto t0 = std::chrono::steady_clock::now();
-    auto r = engine.Distance(*a, *b, options);
+    auto r = engine.Distance(a->point, b->point, options);
     const double seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (!r.ok()) return Fail("distance", r.status());
+    if (!path_out.empty() && !r->path) {
+      return Fail("distance", absl::FailedPreconditionError(
+                                  "no path to write: the points are in different components"));
+    }
+    if (!path_out.empty()) {
+      std::vector<Vec3> polyline;
+      for (const PathPoint& p : r->path->points) polyline.push_back(p.xyz);
+      if (absl::Status s = WritePolyline(path_out, polyline); !s.ok()) return Fail("distance", s);
+    }
     if (json) {
-      Json result = {{"from", pairs[i].first},  {"to", pairs[i].second},
-                     {"distance", r->distance}, {"reachable", r->distance < kInfinity},
-                     {"seconds", seconds},      {"settled", r->settled},
-                     {"queued", r->queued},     {"relaxed", r->relaxed}};
+      Json result = {{"from", pairs[i].first},
+                     {"to", pairs[i].second},
+                     {"distance", r->distance},
+                     {"reachable", r->distance < kInfinity},
+                     {"seconds", seconds},
+                     {"settled", r->settled},
+                     {"queued", r->queued},
+                     {"relaxed", r->relaxed},
+                     {"from_snap_distance", SnapJson(*a)},
+                     {"to_snap_distance", SnapJson(*b)}};
       if (r->path) result["path"] = PathJson(*r->path);
       // One pair: an object; --pairs: an array of them.
       if (pairs_path.empty()) {

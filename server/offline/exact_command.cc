@@ -4,6 +4,7 @@
 
 #include "CLI/CLI.hpp"
 #include "core/exact_geodesic.h"
+#include "core/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
@@ -20,7 +21,9 @@ int RunExact(int argc, char** argv) {
                  "source point: v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's "
                  "vertex order of that face) or xyz:X,Y,Z")
       ->required();
-  app.add_option("--out", out_path, "write one little-endian float64 per vertex (+inf: unreached)");
+  app.add_option("--out", out_path,
+                 "write the field, one value per vertex in file order: .f64 (little-endian "
+                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
   app.add_option("--max-distance", max_distance, "stop the wavefront at this distance");
   app.add_flag("--json", json, "print a JSON object");
   try {
@@ -28,13 +31,18 @@ int RunExact(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  if (!out_path.empty()) {
+    if (absl::Status s = CheckFieldPath(out_path, true); !s.ok()) return Fail("exact", s);
+  }
   auto t0 = std::chrono::steady_clock::now();
   auto mesh = LoadMeshOrError(mesh_path);
   if (!mesh.ok()) return Fail("exact", mesh.status());
   const double load_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  auto source = ResolvePoint(**mesh, source_spec);
-  if (!source.ok()) return Fail("exact", source.status());
+  PointResolver resolver(**mesh);
+  auto resolved = resolver.Resolve(source_spec);
+  if (!resolved.ok()) return Fail("exact", resolved.status());
+  const SurfacePoint* source = &resolved->point;
   ExactGeodesic engine(**mesh);
   ExactOptions options;
   options.max_distance = max_distance;
@@ -44,7 +52,7 @@ int RunExact(int argc, char** argv) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   if (!field.ok()) return Fail("exact", field.status());
   if (!out_path.empty()) {
-    absl::Status s = WriteF64(out_path, *field);
+    absl::Status s = WriteFieldFile(out_path, *field, **mesh);
     if (!s.ok()) return Fail("exact", s);
   }
   size_t reached = 0;
@@ -61,7 +69,8 @@ int RunExact(int argc, char** argv) {
                {"windows_propagated", st.windows_propagated},
                {"vertices_per_second", n / std::max(solve_seconds, 1e-9)},
                {"pseudo_sources", st.pseudo_sources},
-               {"peak_queue", st.peak_queue}});
+               {"peak_queue", st.peak_queue},
+               {"snap_distance", SnapJson(*resolved)}});
   } else {
     std::printf(
         "exact field from %s on %s: %zu of %zu vertices reached in %.3f s "

@@ -5,6 +5,7 @@
 #include "CLI/CLI.hpp"
 #include "core/graph_file.h"
 #include "core/queries.h"
+#include "core/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
@@ -13,7 +14,7 @@ namespace geodesic::offline {
 int RunField(int argc, char** argv) {
   CLI::App app{"Distance field from one or more sources on a discrete geodesic graph",
                "geodesicd field"};
-  std::string mesh_path, graph_path, out_path, method = "lc";
+  std::string mesh_path, graph_path, out_path, labels_path, method = "lc";
   std::vector<std::string> source_specs;
   double max_distance = kInfinity;
   bool json = false;
@@ -23,7 +24,12 @@ int RunField(int argc, char** argv) {
                  "source point(s): v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's "
                  "vertex order of that face) or xyz:X,Y,Z; repeat for several sources")
       ->required();
-  app.add_option("--out", out_path, "write one little-endian float64 per vertex (+inf: unreached)");
+  app.add_option("--out", out_path,
+                 "write the field, one value per vertex in file order: .f64 (little-endian "
+                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
+  app.add_option("--labels-out", labels_path,
+                 "write each vertex's nearest source (geodesic Voronoi regions: the index of its "
+                 "--source, 4294967295 unreached) as .npy, .csv or .u32");
   app.add_option("--method", method,
                  "lc (default: each vertex relaxes only the fan of the edge it was reached by) or "
                  "dijkstra (every edge); both give the graph's shortest distances")
@@ -35,6 +41,13 @@ int RunField(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
+  // A bad output name is refused before minutes of work, not after.
+  if (!out_path.empty()) {
+    if (absl::Status s = CheckFieldPath(out_path, true); !s.ok()) return Fail("field", s);
+  }
+  if (!labels_path.empty()) {
+    if (absl::Status s = CheckLabelPath(labels_path); !s.ok()) return Fail("field", s);
+  }
   auto mesh = LoadMeshOrError(mesh_path);
   if (!mesh.ok()) return Fail("field", mesh.status());
   auto t0 = std::chrono::steady_clock::now();
@@ -43,22 +56,30 @@ int RunField(int argc, char** argv) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!graph.ok()) return Fail("field", graph.status());
   std::vector<SurfacePoint> sources;
+  Json snap_distances = Json::array();
+  PointResolver resolver(**mesh);
   for (const std::string& spec : source_specs) {
-    auto p = ResolvePoint(**mesh, spec);
+    auto p = resolver.Resolve(spec);
     if (!p.ok()) return Fail("field", p.status());
-    sources.push_back(*p);
+    sources.push_back(p->point);
+    snap_distances.push_back(SnapJson(*p));
   }
   GeodesicEngine engine(*mesh, *graph);
   FieldOptions options;
   options.method = method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
   options.max_distance = max_distance;
+  options.nearest_source = !labels_path.empty();
   auto t1 = std::chrono::steady_clock::now();
   auto field = engine.Field(sources, options);
   const double solve_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   if (!field.ok()) return Fail("field", field.status());
   if (!out_path.empty()) {
-    absl::Status s = WriteF64(out_path, field->distance);
+    absl::Status s = WriteFieldFile(out_path, field->distance, **mesh);
+    if (!s.ok()) return Fail("field", s);
+  }
+  if (!labels_path.empty()) {
+    absl::Status s = WriteLabels(labels_path, field->nearest_source);
     if (!s.ok()) return Fail("field", s);
   }
   const size_t n = (*mesh)->num_vertices();
@@ -73,7 +94,8 @@ int RunField(int argc, char** argv) {
                {"queue_pops_per_vertex", double(field->queue_pops) / std::max<size_t>(n, 1)},
                {"graph_open_seconds", open_seconds},
                {"epsilon", (*graph)->params().epsilon},
-               {"relaxed_per_vertex", double(field->relaxed) / std::max<size_t>(n, 1)}});
+               {"relaxed_per_vertex", double(field->relaxed) / std::max<size_t>(n, 1)},
+               {"snap_distances", snap_distances}});
   } else {
     std::printf("field on %s (eps %g, %s): %zu of %zu vertices reached in %.3f ms\n",
                 graph_path.c_str(), (*graph)->params().epsilon, method.c_str(), reached, n,

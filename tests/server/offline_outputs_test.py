@@ -1,0 +1,101 @@
+#!/usr/bin/env python3
+"""The offline commands' result files: every format by extension, labels,
+path polylines and snap distances, checked against each other and against
+the raw fields. Usage: offline_outputs_test.py BUILD_BIN_DIR SOURCE_DIR"""
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+
+bin_dir, src = sys.argv[1], sys.argv[2]
+mesh = os.path.join(src, "data", "spot.obj")
+failures = 0
+passes = 0
+
+
+def check(name, ok, detail=""):
+    global failures, passes
+    print(("ok   " if ok else "FAIL ") + name + ("" if ok else f": {detail}"))
+    failures += 0 if ok else 1
+    passes += 1 if ok else 0
+
+
+def run(*args, expect_ok=True):
+    r = subprocess.run([os.path.join(bin_dir, "geodesicd"), *args], capture_output=True,
+                       text=True, timeout=120)
+    if expect_ok and r.returncode != 0:
+        sys.exit(f"geodesicd {' '.join(args)} failed: {r.stderr}")
+    return r
+
+
+with tempfile.TemporaryDirectory() as work:
+    graph = os.path.join(work, "g.dgg")
+    run("build", mesh, "--eps", "1e-2", "--out", graph)
+    common = ["--mesh", mesh, "--graph", graph]
+
+    # One field in every format: the same numbers.
+    for ext in ("f64", "npy", "csv", "ply"):
+        run("field", *common, "--source", "v:0", "--source", "v:1500", "--out",
+            os.path.join(work, "f." + ext))
+    raw = np.fromfile(os.path.join(work, "f.f64"), dtype="<f8")
+    check("npy equals f64", np.array_equal(np.load(os.path.join(work, "f.npy")), raw))
+    csv = np.loadtxt(os.path.join(work, "f.csv"), delimiter=",", skiprows=1)
+    check("csv equals f64 (full precision)",
+          np.array_equal(csv[:, 0], np.arange(len(raw))) and np.array_equal(csv[:, 1], raw))
+    with open(os.path.join(work, "f.ply")) as f:
+        lines = f.read().splitlines()
+    body = lines[lines.index("end_header") + 1:][:len(raw)]
+    check("ply carries the distance of every vertex",
+          np.array_equal(np.array([float(l.split()[-1]) for l in body]), raw))
+
+    # Labels are the index of the nearest source: the smaller of the two
+    # single-source fields (exact ties are possible, but not at these sources).
+    run("field", *common, "--source", "v:0", "--source", "v:1500", "--labels-out",
+        os.path.join(work, "l.npy"))
+    for k, s in enumerate(("v:0", "v:1500")):
+        run("field", *common, "--source", s, "--out", os.path.join(work, f"s{k}.f64"))
+    s0 = np.fromfile(os.path.join(work, "s0.f64"), dtype="<f8")
+    s1 = np.fromfile(os.path.join(work, "s1.f64"), dtype="<f8")
+    labels = np.load(os.path.join(work, "l.npy"))
+    check("labels are uint32", labels.dtype == np.uint32)
+    check("labels name the nearer source", np.array_equal(labels, (s1 < s0).astype(np.uint32)),
+          f"{np.sum(labels != (s1 < s0))} vertices differ")
+    check("the two-source field is the smaller one", np.array_equal(raw, np.minimum(s0, s1)))
+
+    # Unknown formats are refused by name, before any work, and write nothing.
+    r = run("field", *common, "--source", "v:0", "--out", os.path.join(work, "f.txt"),
+            expect_ok=False)
+    check("field refuses .txt", r.returncode != 0 and "'.txt'" in r.stderr and
+          not os.path.exists(os.path.join(work, "f.txt")), r.stderr)
+    r = run("field", *common, "--source", "v:0", "--labels-out", os.path.join(work, "l.f64"),
+            expect_ok=False)
+    check("labels refuse .f64", r.returncode != 0 and ".npy, .csv, .u32" in r.stderr, r.stderr)
+
+    # A path as a polyline: its segments add up to the distance reported.
+    out = run("distance", *common, "--from", "f:0:0.2,0.3,0.5", "--to", "xyz:0.3,0.1,0",
+              "--path-out", os.path.join(work, "p.obj"), "--json").stdout
+    d = json.loads(out)
+    with open(os.path.join(work, "p.obj")) as f:
+        rows = f.read().splitlines()
+    pts = np.array([[float(x) for x in l.split()[1:]] for l in rows if l.startswith("v ")])
+    length = np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))
+    check("obj polyline has one l line over every vertex",
+          rows[-1] == "l " + " ".join(str(i + 1) for i in range(len(pts))))
+    check("polyline length is the distance", abs(length - d["distance"]) <= 1e-9 * d["distance"],
+          f"{length} vs {d['distance']}")
+    check("snap distance reported for xyz: only",
+          d["from_snap_distance"] is None and d["to_snap_distance"] > 0)
+    for ext in ("csv", "ply"):
+        run("distance", *common, "--from", "v:0", "--to", "v:1500", "--path-out",
+            os.path.join(work, "p." + ext))
+    with open(os.path.join(work, "p.csv")) as f:
+        check("csv polyline has a header", f.readline().strip() == "x,y,z")
+
+    e = json.loads(run("exact", "--mesh", mesh, "--source", "xyz:0,0,0", "--json").stdout)
+    check("exact reports the snap distance", e["snap_distance"] > 0)
+
+print(f"{passes} passed, {failures} failed")
+sys.exit(1 if failures else 0)
