@@ -14,8 +14,10 @@
 #include <thread>
 
 #include "CLI/CLI.hpp"
+#include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "core/mesh_io.h"
+#include "core/result_files.h"
 #include "core/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
@@ -408,60 +410,30 @@ int CmdStatus(const Common& c) {
   return 0;
 }
 
-// Writes a field as .f64, .csv, or a PLY with per-vertex colours.
-int WriteField(const Common& c, const std::string& out, const std::vector<double>& values) {
-  auto ends_with = [&](const char* ext) {
-    return out.size() >= std::strlen(ext) &&
-           out.compare(out.size() - std::strlen(ext), std::string::npos, ext) == 0;
-  };
-  if (ends_with(".csv")) {
-    std::ofstream f(out);
-    f << "vertex,distance\n";
-    for (size_t i = 0; i < values.size(); ++i)
-      f << i << "," << absl::StrFormat("%.17g", values[i]) << "\n";
-    return f ? 0 : FailText("cannot write " + out);
+// The geometry a coloured .ply field needs: the local copy of the mesh.
+absl::StatusOr<TriangleSoup> GeometryFor(const std::string& out, const std::string& mesh_file) {
+  if (!absl::EndsWithIgnoreCase(out, ".ply")) return TriangleSoup{};
+  if (mesh_file.empty()) {
+    return absl::InvalidArgumentError(out + ": .ply output needs --mesh-file (the mesh geometry)");
   }
-  if (ends_with(".ply")) return FailText(".ply output needs --mesh-file (the mesh geometry)");
-  std::ofstream f(out, std::ios::binary);
-  f.write(reinterpret_cast<const char*>(values.data()), values.size() * sizeof(double));
-  return f ? 0 : FailText("cannot write " + out);
-}
-
-int WriteColouredPly(const std::string& mesh_file, const std::string& out,
-                     const std::vector<double>& values) {
-  auto soup = ReadTriangleSoup(mesh_file);
-  if (!soup.ok()) return FailText(std::string(soup.status().message()));
-  if (soup->positions.size() != values.size()) {
-    return FailText("the mesh file has a different vertex count than the field");
-  }
-  double hi = 0;
-  for (double v : values)
-    if (std::isfinite(v)) hi = std::max(hi, v);
-  std::ofstream f(out);
-  f << "ply\nformat ascii 1.0\nelement vertex " << values.size()
-    << "\nproperty double x\nproperty double y\nproperty double z\nproperty uchar red\n"
-       "property uchar green\nproperty uchar blue\nproperty double distance\nelement face "
-    << soup->triangles.size() << "\nproperty list uchar int vertex_indices\nend_header\n";
-  for (size_t i = 0; i < values.size(); ++i) {
-    const Vec3& p = soup->positions[i];
-    // Blue (near) to red (far), grey where unreachable; isolines every 1/20.
-    double t = std::isfinite(values[i]) && hi > 0 ? values[i] / hi : -1;
-    int r = 128, g = 128, b = 128;
-    if (t >= 0) {
-      const bool line = std::fmod(t * 20, 1.0) < 0.08;
-      r = line ? 0 : static_cast<int>(255 * t);
-      g = line ? 0 : static_cast<int>(255 * (1 - std::abs(2 * t - 1)));
-      b = line ? 0 : static_cast<int>(255 * (1 - t));
-    }
-    f << absl::StrFormat("%.17g %.17g %.17g %d %d %d %.17g\n", p.x, p.y, p.z, r, g, b,
-                         std::isfinite(values[i]) ? values[i] : -1.0);
-  }
-  for (const auto& t : soup->triangles) f << "3 " << t[0] << " " << t[1] << " " << t[2] << "\n";
-  return f ? 0 : FailText("cannot write " + out);
+  return ReadTriangleSoup(mesh_file);
 }
 
 int CmdField(const Common& c, const std::vector<std::string>& sources, const std::string& out,
-             double radius, const std::string& method, bool f32, const std::string& mesh_file) {
+             const std::string& labels_out, double radius, const std::string& method, bool f32,
+             const std::string& mesh_file) {
+  // Refused before the query, not after it.
+  absl::StatusOr<TriangleSoup> geometry = TriangleSoup{};
+  if (!out.empty()) {
+    geometry = GeometryFor(out, mesh_file);
+    if (!geometry.ok()) return FailText(std::string(geometry.status().message()));
+    absl::Status s = CheckFieldPath(out, true);
+    if (!s.ok()) return FailText(std::string(s.message()));
+  }
+  if (!labels_out.empty()) {
+    absl::Status s = CheckLabelPath(labels_out);
+    if (!s.ok()) return FailText(std::string(s.message()));
+  }
   auto stub = Connect(c, /*connected=*/true);
   v1::DistanceFieldRequest req;
   req.set_mesh(c.mesh);
@@ -469,6 +441,7 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
   req.set_max_distance(radius);
   req.set_method(method);
   req.set_float32(f32);
+  req.set_nearest_source(!labels_out.empty());
   std::vector<v1::SurfacePoint> points;
   int rc = 0;
   if (!ResolvePoints(stub.get(), c, sources, &points, &rc)) return rc;
@@ -478,9 +451,14 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
   const auto start = std::chrono::steady_clock::now();
   auto reader = stub->DistanceField(&ctx, req);
   std::vector<double> values;
+  std::vector<uint32_t> labels;
   v1::DistanceFieldChunk chunk;
   while (reader->Read(&chunk)) {
     values.resize(chunk.total());
+    if (!labels_out.empty()) labels.resize(chunk.total());
+    for (int i = 0; i < chunk.nearest_source_size(); ++i) {
+      labels[chunk.offset() + i] = chunk.nearest_source(i);
+    }
     for (int i = 0; i < chunk.values_size(); ++i) values[chunk.offset() + i] = chunk.values(i);
     for (int i = 0; i < chunk.values_f32_size(); ++i)
       values[chunk.offset() + i] = chunk.values_f32(i);
@@ -490,10 +468,12 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (!out.empty()) {
-    int w = out.size() > 4 && out.substr(out.size() - 4) == ".ply"
-                ? WriteColouredPly(mesh_file, out, values)
-                : WriteField(c, out, values);
-    if (w) return w;
+    absl::Status w = WriteField(out, values, &*geometry);
+    if (!w.ok()) return FailText(std::string(w.message()));
+  }
+  if (!labels_out.empty()) {
+    absl::Status w = WriteLabels(labels_out, labels);
+    if (!w.ok()) return FailText(std::string(w.message()));
   }
   size_t reached = 0;
   double far = 0;
@@ -514,7 +494,11 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
 }
 
 int CmdDistance(const Common& c, const std::string& from, const std::string& to,
-                const std::string& pairs_file, bool with_path) {
+                const std::string& pairs_file, bool with_path, const std::string& path_out = {}) {
+  if (!path_out.empty()) {
+    absl::Status s = CheckPolylinePath(path_out);
+    if (!s.ok()) return FailText(std::string(s.message()));
+  }
   auto stub = Connect(c);
   std::vector<std::string> specs;
   if (!pairs_file.empty()) {
@@ -546,6 +530,15 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   if (!s.ok()) return Fail(s);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!path_out.empty() && resp.results_size() == 1) {
+    std::vector<Vec3> polyline;
+    for (const auto& q : resp.results(0).path().points()) {
+      polyline.push_back({q.xyz().x(), q.xyz().y(), q.xyz().z()});
+    }
+    if (polyline.empty()) return FailText("no path to write: the points are unreachable");
+    absl::Status w = WritePolyline(path_out, polyline);
+    if (!w.ok()) return FailText(std::string(w.message()));
+  }
   Json results = Json::array();
   for (int i = 0; i < resp.results_size(); ++i) {
     const auto& r = resp.results(i);
@@ -776,11 +769,16 @@ int main(int argc, char** argv) {
   app.add_subcommand("status", "list graphs and their state");
   auto* field = app.add_subcommand("field", "distance field");
   std::vector<std::string> sources;
-  std::string out, method = "lc", mesh_file;
+  std::string out, labels_out, path_out, method = "lc", mesh_file;
   double radius = 0;
   bool f32 = false;
   field->add_option("--source", sources, "source point(s)")->required();
-  field->add_option("--out", out, "write .f64 (float64 per vertex), .csv, or .ply (colours)");
+  field->add_option("--out", out,
+                    "write the field as .f64 (float64 per vertex), .npy, .csv, or .ply (colours; "
+                    "needs --mesh-file)");
+  field->add_option("--labels-out", labels_out,
+                    "write each vertex's nearest source (geodesic Voronoi regions) as .npy, .csv "
+                    "or .u32");
   field->add_option("--mesh-file", mesh_file, "local copy of the mesh, for .ply output");
   field->add_option("--radius", radius, "only vertices within this distance");
   field->add_option("--method", method,
@@ -797,6 +795,7 @@ int main(int argc, char** argv) {
   auto* path = app.add_subcommand("path", "geodesic path between two points");
   path->add_option("--from", from, "first point")->required();
   path->add_option("--to", to, "second point")->required();
+  path->add_option("--out", path_out, "write the path as a .csv, .ply or .obj polyline");
   auto* matrix = app.add_subcommand("matrix", "sources x targets distances");
   std::vector<std::string> targets;
   matrix->add_option("--source", sources, "source points")->required();
@@ -826,9 +825,10 @@ int main(int argc, char** argv) {
   if (app.got_subcommand("load")) return CmdLoad(c, load_path, upload);
   if (app.got_subcommand("graph")) return CmdGraph(c, wait, pseudo, cancel);
   if (app.got_subcommand("status")) return CmdStatus(c);
-  if (app.got_subcommand("field")) return CmdField(c, sources, out, radius, method, f32, mesh_file);
+  if (app.got_subcommand("field"))
+    return CmdField(c, sources, out, labels_out, radius, method, f32, mesh_file);
   if (app.got_subcommand("distance")) return CmdDistance(c, from, to, pairs, with_path);
-  if (app.got_subcommand("path")) return CmdDistance(c, from, to, "", true);
+  if (app.got_subcommand("path")) return CmdDistance(c, from, to, "", true, path_out);
   if (app.got_subcommand("matrix")) return CmdMatrix(c, sources, targets);
   if (app.got_subcommand("snap")) return CmdSnap(c, positions);
   if (app.got_subcommand("bench"))

@@ -49,6 +49,17 @@ cli --eps 0.01 field --source v:7 --out "$work/f_daemon.f64" >/dev/null
 check "streamed field equals the offline field" cmp -s "$work/f_daemon.f64" "$work/f_offline.f64"
 plen=$(cli --json --eps 0.01 path --from v:1 --to v:2500 | json 'len(d[0]["path"])')
 check "path has points ($plen)" test "$plen" -gt 2
+# Result files by extension, as the offline commands write them.
+cli --eps 0.01 field --source v:7 --source v:900 --out "$work/f_daemon.npy" --labels-out "$work/l_daemon.csv" >/dev/null
+"$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$graph" --source v:7 --source v:900 \
+  --out "$work/f_offline.npy" --labels-out "$work/l_offline.csv" >/dev/null
+check "npy field equals the offline one" cmp -s "$work/f_daemon.npy" "$work/f_offline.npy"
+check "Voronoi labels equal the offline ones" cmp -s "$work/l_daemon.csv" "$work/l_offline.csv"
+cli --eps 0.01 field --source v:7 --out "$work/f.txt" 2>"$work/e_ext"
+check "unknown field format refused" grep -q "'.txt'" "$work/e_ext"
+check "nothing written for it" test ! -e "$work/f.txt"
+cli --eps 0.01 path --from v:1 --to v:2500 --out "$work/p.obj" >/dev/null
+check "path polyline written ($plen points)" test "$(grep -c '^v ' "$work/p.obj")" = "$plen"
 
 # Bad requests get precise codes and the daemon keeps serving.
 cli --eps 0.01 distance --from v:999999 --to v:1 2>"$work/e1"; check "vertex id too large" grep -q OUT_OF_RANGE "$work/e1"
