@@ -764,13 +764,24 @@ absl::Status CheckEpsilon(double epsilon) {
   return absl::OkStatus();
 }
 
+absl::Status CheckBuildParams(const DggParams& params) {
+  RETURN_IF_ERROR(CheckEpsilon(params.epsilon));
+  if (params.candidate_rule != kCandidateRuleVersion) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("candidate rule %u was asked for; this build makes graphs of rule %u",
+                        params.candidate_rule, kCandidateRuleVersion));
+  }
+  return absl::OkStatus();
+}
+
 // Phases 2-4 on the candidates of every vertex: pseudo vertices, pruning,
 // fans. Runs inside the caller's arena.
 std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
                                             std::vector<std::vector<DggHalfEdge>> candidates,
-                                            const DggParams& params, bool prune, bool exact_fans,
-                                            Progress& progress, DggBuildStats& st) {
+                                            const DggParams& params, Progress& progress,
+                                            DggBuildStats& st) {
   const double epsilon = params.epsilon;
+  const bool prune = params.prune_redundant, exact_fans = params.exact_fans;
   auto t = std::chrono::steady_clock::now();
   for (const auto& c : candidates) st.found_edges += c.size();
   Adjacency cand = Symmetrize(std::move(candidates));
@@ -862,7 +873,7 @@ uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon) {
 absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
                                                          const DggBuildOptions& options,
                                                          DggBuildStats* stats) {
-  if (absl::Status s = CheckEpsilon(options.params.epsilon); !s.ok()) return s;
+  RETURN_IF_ERROR(CheckBuildParams(options.params));
   DggBuildStats local;
   DggBuildStats& st = stats ? *stats : local;
   st = {};
@@ -872,12 +883,11 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   std::shared_ptr<const DggGraph> graph;
   arena.execute([&] {
     auto candidates = ComputeCandidates(
-        mesh, CandidateBudget(options.params.epsilon, options.prune_redundant),
+        mesh, CandidateBudget(options.params.epsilon, options.params.prune_redundant),
         options.stop_at_corners, 0, mesh.num_vertices(), progress, 0.7, &st.windows_created);
     st.candidate_seconds = Seconds(start);
     if (progress.cancelled()) return;
-    graph = FinishBuild(mesh, std::move(candidates), options.params, options.prune_redundant,
-                        options.exact_fans, progress, st);
+    graph = FinishBuild(mesh, std::move(candidates), options.params, progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
@@ -887,7 +897,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
 absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
                                                        const DggBuildOptions& options,
                                                        uint32_t index, uint32_t count) {
-  if (absl::Status s = CheckEpsilon(options.params.epsilon); !s.ok()) return s;
+  RETURN_IF_ERROR(CheckBuildParams(options.params));
   if (count == 0 || index >= count) {
     return absl::InvalidArgumentError(
         absl::StrFormat("part %u/%u: the index must be in [0, %u)", index, count, count));
@@ -904,7 +914,7 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   std::vector<std::vector<DggHalfEdge>> candidates;
   arena.execute([&] {
     candidates = ComputeCandidates(
-        mesh, CandidateBudget(options.params.epsilon, options.prune_redundant),
+        mesh, CandidateBudget(options.params.epsilon, options.params.prune_redundant),
         options.stop_at_corners, part.begin, part.end, progress, 1.0, &part.windows_created);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
@@ -923,19 +933,16 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   const uint32_t n = mesh.num_vertices();
   const uint64_t fingerprint = MeshFingerprint(mesh);
   const DggParams params = parts[0].params;
-  if (absl::Status s = CheckEpsilon(params.epsilon); !s.ok()) return s;
+  RETURN_IF_ERROR(CheckBuildParams(params));
   for (size_t i = 0; i < parts.size(); ++i) {
     const DggCandidatePart& p = parts[i];
     if (p.mesh_fingerprint != fingerprint || p.num_vertices != n) {
       return absl::FailedPreconditionError(absl::StrFormat(
           "part %u (vertices %u..%u) was built for another mesh", i, p.begin, p.end));
     }
-    if (p.params.epsilon != params.epsilon || p.params.pseudo_vertices != params.pseudo_vertices) {
-      return absl::FailedPreconditionError(
-          absl::StrFormat("part %u was built with epsilon %g%s, part 0 with epsilon %g%s", i,
-                          p.params.epsilon, p.params.pseudo_vertices ? " and pseudo vertices" : "",
-                          params.epsilon, params.pseudo_vertices ? " and pseudo vertices" : ""));
-    }
+    RETURN_IF_ERROR(CheckSameParams(
+        params, p.params,
+        absl::StrFormat("part %u (vertices %u..%u), unlike part 0,", i, p.begin, p.end)));
     if (p.begin > p.end || p.end > n || p.offsets.size() != p.end - p.begin + 1 ||
         p.offsets.front() != 0 || p.offsets.back() != p.edges.size() ||
         !std::is_sorted(p.offsets.begin(), p.offsets.end())) {
@@ -981,10 +988,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   Progress progress(options);
   BuildArena arena(options);
   std::shared_ptr<const DggGraph> graph;
-  arena.execute([&] {
-    graph = FinishBuild(mesh, std::move(candidates), params, options.prune_redundant,
-                        options.exact_fans, progress, st);
-  });
+  arena.execute([&] { graph = FinishBuild(mesh, std::move(candidates), params, progress, st); });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
   return graph;

@@ -16,24 +16,14 @@
 namespace geodesic {
 
 struct DggBuildOptions {
+  // What to build. params.candidate_rule must be kCandidateRuleVersion:
+  // this code makes graphs of no other rule.
   DggParams params;
   int threads = 0;  // 0: all hardware threads
   // Candidate propagation stops rays that a route through a window's corner
   // already serves (DirectOptions::stop_at_corners). False: plain Algorithm
   // 1, for benchmarks; the graph may differ, the accuracy bound does not.
   bool stop_at_corners = true;
-  // Phase 2 of Algorithm 1 (PRUNEREDUNDANTEDGES), with a tenth of epsilon
-  // taken from the candidates' budget. Off by default: measured on the shared
-  // meshes it removes well under 1% of the edges for about a quarter of the
-  // build, while giving its budget to the candidates instead stops them
-  // earlier, for 4-6% fewer edges (bench/notes.md). Parts and their merge
-  // must agree on it.
-  bool prune_redundant = false;
-  // Fans from each node's exact local distances, not only its paths of at
-  // most two edges (core/dgg_build.cc): armadillo fans of 2.1 edges instead
-  // of 7.4 (1e-2) and 16.7 (1e-3), fields 1.9x and 3.1x faster, for builds
-  // 1.6x and 2.2x longer on one thread. Distances are the same either way.
-  bool exact_fans = false;
   // Called now and then from any build thread with the current phase
   // ("candidates", "pruning", "pseudo", "fans") and the fraction of the whole
   // build done, in [0, 1]. Returning false cancels the build (CANCELLED).
@@ -103,8 +93,9 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
                                                        uint32_t index, uint32_t count);
 
 // Joins parts (in any order) that together cover every vertex exactly once,
-// all built for this mesh with the same parameters; options.params is
-// ignored in favour of theirs. FAILED_PRECONDITION names the part at fault.
+// all built for this mesh with the same parameters, which the graph takes
+// (options.params is ignored). FAILED_PRECONDITION names the part at fault
+// and, for parameters, the field that differs.
 absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
                                                               std::vector<DggCandidatePart> parts,
                                                               const DggBuildOptions& options,

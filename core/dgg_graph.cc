@@ -6,12 +6,65 @@
 #include <numbers>
 
 #include "absl/status/status.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/dgg_graph_internal.h"
 #include "core/status.h"
 #include "xxhash.h"
 
 namespace geodesic {
+
+std::string DescribeParams(const DggParams& p) {
+  return absl::StrFormat(
+      "eps %.9g%s%s%s, candidate rule %u", p.epsilon, p.pseudo_vertices ? ", pseudo vertices" : "",
+      p.prune_redundant ? ", pruned" : "", p.exact_fans ? ", exact fans" : "", p.candidate_rule);
+}
+
+absl::Status CheckSameParams(const DggParams& want, const DggParams& have, std::string_view what) {
+  auto text = [](auto v) -> std::string {
+    if constexpr (std::is_same_v<decltype(v), bool>) {
+      return v ? "true" : "false";
+    } else {
+      return absl::StrCat(v);
+    }
+  };
+  auto differs = [&](std::string_view field, auto want_value, auto have_value) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "%s was built with %s %s, not %s", what, field, text(have_value), text(want_value)));
+  };
+  if (have.epsilon != want.epsilon) {
+    return absl::FailedPreconditionError(absl::StrFormat("%s was built with epsilon %.9g, not %.9g",
+                                                         what, have.epsilon, want.epsilon));
+  }
+  if (have.pseudo_vertices != want.pseudo_vertices) {
+    return differs("pseudo_vertices", want.pseudo_vertices, have.pseudo_vertices);
+  }
+  if (have.prune_redundant != want.prune_redundant) {
+    return differs("prune_redundant", want.prune_redundant, have.prune_redundant);
+  }
+  if (have.exact_fans != want.exact_fans) {
+    return differs("exact_fans", want.exact_fans, have.exact_fans);
+  }
+  if (have.candidate_rule != want.candidate_rule) {
+    return differs("candidate_rule", want.candidate_rule, have.candidate_rule);
+  }
+  return absl::OkStatus();
+}
+
+StoredDggParams StoredDggParams::Of(const DggParams& p) {
+  return {p.epsilon, p.pseudo_vertices ? 1u : 0u, p.prune_redundant ? 1u : 0u,
+          p.exact_fans ? 1u : 0u, p.candidate_rule};
+}
+
+DggParams StoredDggParams::params() const {
+  DggParams p;
+  p.epsilon = epsilon;
+  p.pseudo_vertices = pseudo_vertices != 0;
+  p.prune_redundant = prune_redundant != 0;
+  p.exact_fans = exact_fans != 0;
+  p.candidate_rule = candidate_rule;
+  return p;
+}
 
 DggGraph::Storage::~Storage() {
   if (mapping != nullptr) munmap(mapping, mapping_bytes);

@@ -25,6 +25,7 @@
 #include <memory>
 #include <span>
 #include <string>
+#include <string_view>
 
 #include "absl/status/statusor.h"
 #include "core/mesh.h"
@@ -47,15 +48,58 @@ struct DggEdge {
 };
 static_assert(sizeof(DggEdge) == 16);
 
-// Parameters a graph was built with; part of its identity.
+// The version of the rule that decides which candidate edges a build keeps
+// (core/dgg_build.cc, CornerBudgetFactor). Bump it whenever a change to the
+// rule changes the graphs built for the same parameters, so that files made
+// under the old rule are told apart and rebuilt rather than served as if
+// they were today's. 2: a lit vertex needs an edge unless a corner route is
+// within 1 + 1.1 eps, the extra tenth fading out between 1e-3 and 1e-4.
+inline constexpr uint32_t kCandidateRuleVersion = 2;
+
+// Everything a graph was built with that changes the graph: its identity.
+// Graph and part files record all of it, the daemon keys its graphs by it,
+// and file names are made from it (GraphFileName).
 struct DggParams {
   double epsilon = 1e-3;
   // Section 4.3's pseudo vertices. Off by default: on the isotropic meshes
   // measured (BENCHMARKS.md) they double the node count for no accuracy gain;
   // turn them on for anisotropic meshes.
   bool pseudo_vertices = false;
+  // Phase 2 of Algorithm 1 (PRUNEREDUNDANTEDGES), with a tenth of epsilon
+  // taken from the candidates' budget. Off by default: measured on the shared
+  // meshes it removes well under 1% of the edges for about a quarter of the
+  // build, while giving its budget to the candidates instead stops them
+  // earlier, for 4-6% fewer edges (bench/notes.md).
+  bool prune_redundant = false;
+  // Fans from each node's exact local distances, not only its paths of at
+  // most two edges (core/dgg_build.cc): armadillo fans of 2.1 edges instead
+  // of 7.4 (1e-2) and 16.7 (1e-3), fields 1.9x and 3.1x faster, for builds
+  // 1.6x and 2.2x longer on one thread. Distances are the same either way.
+  bool exact_fans = false;
+  uint32_t candidate_rule = kCandidateRuleVersion;
   friend auto operator<=>(const DggParams&, const DggParams&) = default;
 };
+
+// "eps 0.001, pseudo vertices, pruned, exact fans, candidate rule 2": every
+// field, for messages and `geodesicd info`.
+std::string DescribeParams(const DggParams& params);
+// OK if `have` equals `want`; otherwise FAILED_PRECONDITION "<what> was
+// built with <field> <value>, not <value>", naming the first field that
+// differs.
+absl::Status CheckSameParams(const DggParams& want, const DggParams& have, std::string_view what);
+
+// DggParams as file headers store them: fixed size, no padding holes (a
+// header's checksum covers every byte).
+struct StoredDggParams {
+  double epsilon;
+  uint32_t pseudo_vertices;
+  uint32_t prune_redundant;
+  uint32_t exact_fans;
+  uint32_t candidate_rule;
+  static StoredDggParams Of(const DggParams& p);
+  DggParams params() const;
+};
+static_assert(sizeof(StoredDggParams) == 24);
 
 class DggGraph {
  public:

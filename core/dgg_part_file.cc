@@ -18,11 +18,11 @@ struct PartHeader {
   uint32_t version;
   uint32_t endian;
   uint64_t mesh_fingerprint;
-  double epsilon;
-  uint32_t pseudo_vertices;
+  StoredDggParams params;
   uint32_t num_vertices;
   uint32_t begin;
   uint32_t end;
+  uint32_t reserved;  // zero: keeps the next field aligned, every byte defined
   uint64_t windows_created;
   uint64_t num_edges;
   uint64_t payload_checksum;  // XXH3-64 of offsets then edges
@@ -53,8 +53,7 @@ absl::Status WriteDggPart(const DggCandidatePart& part, const std::string& path)
   h.version = kPartFormatVersion;
   h.endian = kEndianTag;
   h.mesh_fingerprint = part.mesh_fingerprint;
-  h.epsilon = part.params.epsilon;
-  h.pseudo_vertices = part.params.pseudo_vertices;
+  h.params = StoredDggParams::Of(part.params);
   h.num_vertices = part.num_vertices;
   h.begin = part.begin;
   h.end = part.end;
@@ -99,8 +98,7 @@ absl::StatusOr<DggCandidatePart> ReadDggPart(const std::string& path) {
                         h.begin, h.end, h.num_edges));
   }
   DggCandidatePart part;
-  part.params.epsilon = h.epsilon;
-  part.params.pseudo_vertices = h.pseudo_vertices != 0;
+  part.params = h.params.params();
   part.mesh_fingerprint = h.mesh_fingerprint;
   part.num_vertices = h.num_vertices;
   part.begin = h.begin;

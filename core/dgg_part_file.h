@@ -11,7 +11,10 @@
 
 namespace geodesic {
 
-inline constexpr uint32_t kPartFormatVersion = 1;
+// 2: the whole build record (DggParams), so a merge can refuse parts built
+// with other pruning, fans or candidate rule; version 1 held only epsilon
+// and pseudo vertices.
+inline constexpr uint32_t kPartFormatVersion = 2;
 
 absl::Status WriteDggPart(const DggCandidatePart& part, const std::string& path);
 

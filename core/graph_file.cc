@@ -7,6 +7,7 @@
 
 #include <array>
 #include <cerrno>
+#include <charconv>
 #include <cstring>
 #include <filesystem>
 #include <future>
@@ -55,11 +56,11 @@ struct Header {
   uint32_t version;
   uint32_t endian;
   uint64_t mesh_fingerprint;
-  double epsilon;
-  uint32_t pseudo_vertices;  // build parameter: 1 if enabled
+  StoredDggParams params;
   uint32_t num_nodes;
   uint32_t num_mesh_vertices;
   uint32_t section_count;
+  uint32_t reserved;  // zero: keeps the next field aligned, every byte defined
   uint64_t num_directed_edges;
   uint64_t file_bytes;
   SectionEntry sections[kSectionCount];
@@ -108,9 +109,15 @@ absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::stri
 
 }  // namespace
 
-std::string GraphFileName(uint64_t mesh_fingerprint, double epsilon, bool pseudo_vertices) {
-  return absl::StrFormat("%016x-eps%.9g%s.dgg", mesh_fingerprint, epsilon,
-                         pseudo_vertices ? "-pseudo" : "");
+std::string GraphFileName(uint64_t mesh_fingerprint, const DggParams& params) {
+  // The shortest text that reads back as the same double: any fixed number
+  // of digits either gives two epsilons one name or "0.10000000000000001".
+  char eps[32];
+  const auto [end, ec] = std::to_chars(eps, eps + sizeof(eps), params.epsilon);
+  return absl::StrFormat("%016x-eps%s%s%s%s-r%u.dgg", mesh_fingerprint,
+                         std::string_view(eps, end - eps), params.pseudo_vertices ? "-pseudo" : "",
+                         params.prune_redundant ? "-prune" : "", params.exact_fans ? "-xfans" : "",
+                         params.candidate_rule);
 }
 
 absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
@@ -119,8 +126,7 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   h.version = kGraphFormatVersion;
   h.endian = kEndianTag;
   h.mesh_fingerprint = graph.mesh_fingerprint();
-  h.epsilon = graph.params().epsilon;
-  h.pseudo_vertices = graph.params().pseudo_vertices ? 1 : 0;
+  h.params = StoredDggParams::Of(graph.params());
   h.num_nodes = graph.num_nodes();
   h.num_mesh_vertices = graph.num_mesh_vertices();
   h.section_count = kSectionCount;
@@ -201,7 +207,8 @@ absl::Status VerifyChecksums(const Header& h, const char* base, const std::strin
 }  // namespace
 
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphFile::Open(const std::string& path,
-                                                                const Mesh& mesh, Check check) {
+                                                                const Mesh& mesh, Check check,
+                                                                const DggParams* expected) {
   ASSIGN_OR_RETURN(Mapping m, MapReadOnly(path));
   auto storage = std::make_shared<DggGraph::Storage>();
   storage->mapping = m.base;
@@ -212,12 +219,12 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphFile::Open(const std::strin
         absl::StrFormat("%s was built for another mesh (fingerprint %016x, this mesh has %016x)",
                         path, h.mesh_fingerprint, MeshFingerprint(mesh)));
   }
+  if (expected) RETURN_IF_ERROR(CheckSameParams(*expected, h.params.params(), path));
   const char* base = static_cast<const char*>(m.base);
   auto graph = std::make_shared<DggGraph>();
   graph->num_nodes_ = h.num_nodes;
   graph->num_mesh_vertices_ = h.num_mesh_vertices;
-  graph->params_.epsilon = h.epsilon;
-  graph->params_.pseudo_vertices = h.pseudo_vertices != 0;
+  graph->params_ = h.params.params();
   graph->mesh_fingerprint_ = h.mesh_fingerprint;
   auto section = [&]<typename T>(Section i, std::span<const T>& out) {
     out = std::span<const T>(reinterpret_cast<const T*>(base + h.sections[i].offset),
@@ -253,8 +260,7 @@ absl::StatusOr<GraphFile::Info> GraphFile::Inspect(const std::string& path) {
   Info info;
   info.version = h.version;
   info.mesh_fingerprint = h.mesh_fingerprint;
-  info.params.epsilon = h.epsilon;
-  info.params.pseudo_vertices = h.pseudo_vertices != 0;
+  info.params = h.params.params();
   info.num_nodes = h.num_nodes;
   info.num_mesh_vertices = h.num_mesh_vertices;
   info.num_directed_edges = h.num_directed_edges;

@@ -23,13 +23,18 @@ namespace geodesic {
 
 // 2: vertex nodes in spatial order (the node_of_vertex and vertex_of_node
 // sections); each edge one record with its fan, and fans that hold every
-// turn a shortest path takes. Files of another version are rejected by name.
-inline constexpr uint32_t kGraphFormatVersion = 2;
+// turn a shortest path takes. 3: the whole build record (DggParams: pruning,
+// exact fans and the candidate rule besides epsilon and pseudo vertices),
+// which version 2 left out although they change the graph. Files of another
+// version are rejected by name.
+inline constexpr uint32_t kGraphFormatVersion = 3;
 
-// The name a graph has in a graph directory (geodesicd serve --graph-dir):
-// "<mesh fingerprint, 16 hex digits>-eps<epsilon>[-pseudo].dgg". Offline
-// builds and merges that write into a daemon's directory use the same name.
-std::string GraphFileName(uint64_t mesh_fingerprint, double epsilon, bool pseudo_vertices);
+// The name a graph has in a graph directory (geodesicd serve --graph-dir),
+// made from its whole build record:
+// "<mesh fingerprint, 16 hex digits>-eps<epsilon>[-pseudo][-prune][-xfans]-r<rule>.dgg".
+// Offline builds and merges that write into a daemon's directory use the
+// same name.
+std::string GraphFileName(uint64_t mesh_fingerprint, const DggParams& params);
 
 class GraphFile {
  public:
@@ -41,10 +46,12 @@ class GraphFile {
     kFull,    // also every checksum and DggGraph::Validate
   };
   // Maps `path` read-only. FAILED_PRECONDITION when the file was built for
-  // another mesh (fingerprint) or another format version; DATA_LOSS when it
-  // is truncated or corrupt. Messages name the path and the problem.
+  // another mesh (fingerprint), another format version, or (if `expected`
+  // is given) with other parameters, naming the field; DATA_LOSS when it is
+  // truncated or corrupt. Messages name the path and the problem.
   static absl::StatusOr<std::shared_ptr<const DggGraph>> Open(const std::string& path,
-                                                              const Mesh& mesh, Check check);
+                                                              const Mesh& mesh, Check check,
+                                                              const DggParams* expected = nullptr);
 
   // Header facts without a mesh: for `geodesicd info GRAPH.dgg`.
   struct Info {

@@ -23,7 +23,11 @@ constexpr char kFormatName[] = "geodesicd-catalog";
 std::string Hex(uint64_t v) { return absl::StrFormat("%016x", v); }
 
 json ParamsToJson(const DggParams& p) {
-  return json{{"epsilon", p.epsilon}, {"pseudo_vertices", p.pseudo_vertices}};
+  return json{{"epsilon", p.epsilon},
+              {"pseudo_vertices", p.pseudo_vertices},
+              {"prune_redundant", p.prune_redundant},
+              {"exact_fans", p.exact_fans},
+              {"candidate_rule", p.candidate_rule}};
 }
 
 // A malformed entry, named by where it is ("meshes[2].fingerprint"). Thrown
@@ -57,6 +61,9 @@ DggParams ParamsFromJson(const json& j, const std::string& where) {
   DggParams p;
   p.epsilon = Get<double>(j, "epsilon", where);
   p.pseudo_vertices = Get<bool>(j, "pseudo_vertices", where);
+  p.prune_redundant = Get<bool>(j, "prune_redundant", where);
+  p.exact_fans = Get<bool>(j, "exact_fans", where);
+  p.candidate_rule = Get<uint32_t>(j, "candidate_rule", where);
   return p;
 }
 

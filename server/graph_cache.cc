@@ -79,7 +79,11 @@ GraphCache::~GraphCache() {
 
 std::string GraphCache::GraphPath(const RegisteredMesh& mesh, double epsilon, bool pseudo) const {
   if (options_.graph_dir.empty()) return "";
-  return options_.graph_dir + "/" + GraphFileName(mesh.fingerprint, epsilon, pseudo);
+  DggParams params;
+  params.epsilon = epsilon;
+  params.pseudo_vertices = pseudo;
+  params.exact_fans = options_.exact_fans;
+  return options_.graph_dir + "/" + GraphFileName(mesh.fingerprint, params);
 }
 
 void GraphCache::Bump(Entry& e) { ++e.status.version; }
@@ -179,7 +183,7 @@ void GraphCache::Run(const Key& key) {
     options.params.epsilon = key.second;
     options.params.pseudo_vertices = e->pseudo_vertices;
     options.threads = options_.build_threads;
-    options.exact_fans = options_.exact_fans;
+    options.params.exact_fans = options_.exact_fans;
     options.progress = [&](std::string_view phase, double fraction) {
       absl::MutexLock lock(&mu_);
       if (e->status.phase != phase || fraction - e->status.progress >= 0.01 || fraction >= 1) {

@@ -49,9 +49,7 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
   if (out_path.empty()) {
     std::error_code ignored;  // a failure shows up as the write's error
     std::filesystem::create_directories(graph_dir, ignored);
-    out_path = graph_dir + "/" +
-               GraphFileName(graph.mesh_fingerprint(), graph.params().epsilon,
-                             graph.params().pseudo_vertices);
+    out_path = graph_dir + "/" + GraphFileName(graph.mesh_fingerprint(), graph.params());
   }
   absl::Status written = GraphFile::Write(graph, out_path);
   if (!written.ok()) return Fail(command, written);
@@ -69,6 +67,10 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                {"found_edges", stats.found_edges},
                {"found_degree", double(stats.found_edges) / std::max<size_t>(n, 1)},
                {"epsilon", epsilon},
+               {"prune_redundant", graph.params().prune_redundant},
+               {"exact_fans", graph.params().exact_fans},
+               {"candidate_rule", graph.params().candidate_rule},
+               {"graph_file", out_path},
                {"threads", threads},
                {"build_seconds", stats.total_seconds},
                {"candidate_seconds", stats.candidate_seconds},
@@ -117,6 +119,9 @@ int BuildPart(const Mesh& mesh, const DggBuildOptions& options, const std::strin
          {"begin", part->begin},
          {"end", part->end},
          {"epsilon", part->params.epsilon},
+         {"prune_redundant", part->params.prune_redundant},
+         {"exact_fans", part->params.exact_fans},
+         {"candidate_rule", part->params.candidate_rule},
          {"candidate_half_edges", part->edges.size()},
          {"windows_per_source", double(part->windows_created) / std::max<uint32_t>(sources, 1)},
          {"build_seconds", seconds},
@@ -156,10 +161,10 @@ int RunBuild(int argc, char** argv) {
   bool prune = false, exact_fans = false;
   app.add_flag("--exact-fans", exact_fans,
                "fans from each vertex's exact local distances: 2-3x faster fields and smaller "
-               "fans, for a longer build (same distances)");
+               "fans, for a longer build (same distances); parts record it for the merge");
   app.add_flag("--prune", prune,
                "also prune redundant edges (Algorithm 1, phase 2), giving it a tenth of eps: "
-               "slower, and rarely smaller (see bench/notes.md); give it to the merge too");
+               "slower, and rarely smaller (see bench/notes.md); parts record it for the merge");
   bool plain = false;
   app.add_flag("--plain-candidates", plain,
                "benchmarking: plain Algorithm 1 candidates (Theorem 2 only, no corner early "
@@ -182,8 +187,8 @@ int RunBuild(int argc, char** argv) {
   options.params.pseudo_vertices = pseudo;
   options.threads = threads;
   options.stop_at_corners = !plain;
-  options.prune_redundant = prune;
-  options.exact_fans = exact_fans;
+  options.params.prune_redundant = prune;
+  options.params.exact_fans = exact_fans;
   options.progress = ProgressBar(!json && !quiet);
   if (!part.empty()) return BuildPart(**mesh, options, part, out_path, json);
   DggBuildStats stats;
@@ -214,8 +219,9 @@ int RunMerge(int argc, char** argv) {
   app.add_flag("--quiet", quiet, "no progress bar");
   bool prune = false, exact_fans = false;
   app.add_flag("--prune", prune,
-               "prune redundant edges: only if the parts were built with --prune");
-  app.add_flag("--exact-fans", exact_fans, "fans from exact local distances (as build)");
+               "expect parts built with --prune (the parts' own record decides; a part that "
+               "contradicts a flag given is refused)");
+  app.add_flag("--exact-fans", exact_fans, "expect parts built with --exact-fans (as --prune)");
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -232,10 +238,19 @@ int RunMerge(int argc, char** argv) {
     if (!part.ok()) return Fail("merge", part.status());
     parts.push_back(*std::move(part));
   }
+  // The parts carry the whole build record and the graph takes it; the
+  // flags, where given, only say what the caller expects of them.
+  for (size_t i = 0; i < parts.size(); ++i) {
+    const DggParams& p = parts[i].params;
+    if ((app.count("--prune") && p.prune_redundant != prune) ||
+        (app.count("--exact-fans") && p.exact_fans != exact_fans)) {
+      return Fail("merge", absl::FailedPreconditionError(absl::StrFormat(
+                               "%s was built with %s, which the flags given contradict",
+                               part_paths[i], DescribeParams(p))));
+    }
+  }
   DggBuildOptions options;
   options.threads = threads;
-  options.prune_redundant = prune;
-  options.exact_fans = exact_fans;
   options.progress = ProgressBar(!json && !quiet);
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);

@@ -20,6 +20,10 @@ int RunGraphInfo(const std::string& path, bool json) {
                 absl::StrFormat("%016x", static_cast<unsigned long long>(info->mesh_fingerprint))},
                {"epsilon", info->params.epsilon},
                {"pseudo_vertices_enabled", info->params.pseudo_vertices},
+               {"prune_redundant", info->params.prune_redundant},
+               {"exact_fans", info->params.exact_fans},
+               {"candidate_rule", info->params.candidate_rule},
+               {"build", DescribeParams(info->params)},
                {"vertices", info->num_mesh_vertices},
                {"nodes", info->num_nodes},
                {"pseudo_vertices", info->num_nodes - info->num_mesh_vertices},
@@ -30,11 +34,10 @@ int RunGraphInfo(const std::string& path, bool json) {
   } else {
     std::printf(
         "%s: geodesicd graph, format version %u\n  mesh fingerprint %016llx, %u vertices\n"
-        "  epsilon %g, pseudo vertices %s: %u\n  %llu edges, average degree %.2f\n"
+        "  built with %s\n  pseudo vertices: %u\n  %llu edges, average degree %.2f\n"
         "  %llu bytes, all section checksums valid\n",
         path.c_str(), info->version, static_cast<unsigned long long>(info->mesh_fingerprint),
-        info->num_mesh_vertices, info->params.epsilon,
-        info->params.pseudo_vertices ? "enabled" : "disabled",
+        info->num_mesh_vertices, DescribeParams(info->params).c_str(),
         info->num_nodes - info->num_mesh_vertices,
         static_cast<unsigned long long>(info->num_directed_edges / 2), average_degree,
         static_cast<unsigned long long>(info->file_bytes));

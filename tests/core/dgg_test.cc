@@ -243,7 +243,7 @@ TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
 // Dijkstra's distances, for fields and for pairs.
 TEST_F(SpotGraphTest, ExactFansAreSmallerAndKeepEveryShortestPath) {
   DggBuildStats stats;
-  auto exact = Variant([](DggBuildOptions& o) { o.exact_fans = true; }, &stats);
+  auto exact = Variant([](DggBuildOptions& o) { o.params.exact_fans = true; }, &stats);
   ASSERT_NE(exact, nullptr);
   ASSERT_EQ(exact->num_directed_edges(), graph_->num_directed_edges());
   for (uint64_t i = 0; i < graph_->num_directed_edges(); ++i) {
@@ -476,7 +476,7 @@ TEST(DggBuildTest, PlanarGridGraphIsNearlyExact) {
 
 TEST_F(SpotGraphTest, PruningRemovesEdgesAndKeepsTheBound) {
   DggBuildStats pruned_stats;
-  auto pruned = Variant([](DggBuildOptions& o) { o.prune_redundant = true; }, &pruned_stats);
+  auto pruned = Variant([](DggBuildOptions& o) { o.params.prune_redundant = true; }, &pruned_stats);
   ASSERT_NE(pruned, nullptr);
   // Pruning takes a tenth of eps from the candidates, which then stop later.
   EXPECT_GT(pruned_stats.candidate_edges, stats_.candidate_edges);
@@ -516,7 +516,7 @@ TEST_P(SharedAccuracyTest, FieldsWithinEpsilonOfExact) {
   // Exact fans at the coarser epsilon, where their build is cheap.
   std::unique_ptr<GeodesicEngine> exact_fans;
   if (eps == 1e-2) {
-    options.exact_fans = true;
+    options.params.exact_fans = true;
     auto tight = BuildDgg(*mesh, options);
     ASSERT_OK(tight);
     exact_fans = std::make_unique<GeodesicEngine>(mesh, *tight);

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <set>
 
 #include "absl/strings/str_cat.h"
 #include "core/dgg_graph_internal.h"
@@ -30,7 +31,8 @@ Mesh Square() {
 
 // A complete graph on the square's 4 vertices, with one target replaced.
 std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_target,
-                                              std::vector<uint32_t> node_of_vertex = {2, 0, 3, 1}) {
+                                              std::vector<uint32_t> node_of_vertex = {2, 0, 3, 1},
+                                              DggParams params = {.epsilon = 0.1}) {
   DggGraphArrays a;
   a.vertex_of_node.assign(4, 0);
   for (uint32_t v = 0; v < 4; ++v) a.vertex_of_node[node_of_vertex[v]] = v;
@@ -45,8 +47,6 @@ std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_tar
     a.offsets.push_back(a.edges.size());
   }
   a.edges[5].target = bad_target;
-  DggParams params;
-  params.epsilon = 0.1;
   return DggGraphBuilder::FromArrays(std::move(a), 4, 4, params, MeshFingerprint(mesh));
 }
 
@@ -98,6 +98,73 @@ TEST(GraphFileTest, OtherFormatVersionIsFailedPreconditionNamingBoth) {
   EXPECT_NE(opened.status().message().find(absl::StrCat("version ", kGraphFormatVersion + 1)),
             std::string::npos)
       << opened.status();
+}
+
+// The whole build record travels with the file: what Inspect and Open read
+// back, what Open refuses when the caller expects another graph, and the
+// file name a graph directory knows it by.
+TEST(GraphFileTest, TheBuildRecordRoundTripsAndIsChecked) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  const DggParams record = {.epsilon = 0.1 + 0.2,
+                            .pseudo_vertices = true,
+                            .prune_redundant = true,
+                            .exact_fans = true,
+                            .candidate_rule = kCandidateRuleVersion};
+  const std::string path = dir.File("record.dgg");
+  ASSERT_OK(GraphFile::Write(*CompleteGraph(mesh, 2, {2, 0, 3, 1}, record), path));
+  auto info = GraphFile::Inspect(path);
+  ASSERT_OK(info);
+  EXPECT_EQ(info->params, record);
+  auto opened = GraphFile::Open(path, mesh, GraphFile::Check::kFull, &record);
+  ASSERT_OK(opened);
+  EXPECT_EQ((*opened)->params(), record);
+
+  struct Change {
+    const char* field;
+    void (*apply)(DggParams&);
+  };
+  const Change changes[] = {
+      {"epsilon", [](DggParams& p) { p.epsilon = 0.3; }},
+      {"pseudo_vertices", [](DggParams& p) { p.pseudo_vertices = false; }},
+      {"prune_redundant", [](DggParams& p) { p.prune_redundant = false; }},
+      {"exact_fans", [](DggParams& p) { p.exact_fans = false; }},
+      {"candidate_rule", [](DggParams& p) { p.candidate_rule = 1; }},
+  };
+  std::set<std::string> names = {GraphFileName(7, record)};
+  for (const Change& c : changes) {
+    DggParams other = record;
+    c.apply(other);
+    auto refused = GraphFile::Open(path, mesh, GraphFile::Check::kHeader, &other);
+    ASSERT_FALSE(refused.ok()) << c.field;
+    EXPECT_EQ(refused.status().code(), absl::StatusCode::kFailedPrecondition);
+    EXPECT_THAT(std::string(refused.status().message()), ::testing::HasSubstr(c.field));
+    EXPECT_THAT(std::string(refused.status().message()), ::testing::HasSubstr(path));
+    // Every field shows in the name, so two graphs never share a file.
+    EXPECT_TRUE(names.insert(GraphFileName(7, other)).second) << GraphFileName(7, other);
+  }
+  EXPECT_EQ(GraphFileName(0xabc, record),
+            "0000000000000abc-eps0.30000000000000004-pseudo-prune-xfans-r2.dgg");
+}
+
+// A graph file from before the build record (format version 2) is refused by
+// name rather than read with half its identity missing.
+TEST(GraphFileTest, FilesWithoutTheBuildRecordAreRefused) {
+  const Mesh mesh = Square();
+  TempDir dir;
+  const std::string path = dir.File("old.dgg");
+  ASSERT_OK(GraphFile::Write(*CompleteGraph(mesh, 2), path));
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    const uint32_t version = 2;
+    f.seekp(8);
+    f.write(reinterpret_cast<const char*>(&version), sizeof(version));
+  }
+  auto opened = GraphFile::Open(path, mesh, GraphFile::Check::kHeader);
+  ASSERT_FALSE(opened.ok());
+  EXPECT_EQ(opened.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_THAT(std::string(opened.status().message()),
+              ::testing::HasSubstr("format version 2; this build reads version 3"));
 }
 
 TEST(GraphFileTest, FailedWritesLeaveNothingAndKeepTheOldFile) {

@@ -84,7 +84,7 @@ counts=$(for i in 0 1 2; do requests "$i"; done | tr '\n' ' ')
 owner=-1
 for i in 0 1 2; do [ "$(requests "$i")" = 20 ] && owner=$i; done
 check "all 20 queries for spot landed on one replica ($counts)" test "$owner" -ge 0
-check "the graph file is in the shared directory" test -n "$(ls "$work/graphs" | grep 'eps0.01.dgg$')"
+check "the graph file is in the shared directory" test -n "$(ls "$work/graphs" | grep 'eps0.01-r[0-9]*.dgg$')"
 
 kill -9 "${pids[owner]}"
 wait "${pids[owner]}" 2>/dev/null

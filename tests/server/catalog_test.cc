@@ -49,6 +49,9 @@ TEST_F(CatalogTest, UpdatesRoundTripEveryField) {
   DggParams pseudo;
   pseudo.epsilon = 1e-3;
   pseudo.pseudo_vertices = true;
+  pseudo.prune_redundant = true;
+  pseudo.exact_fans = true;
+  pseudo.candidate_rule = 1;
   DggParams plain;
   plain.epsilon = 0.1 + 0.2;  // not a short decimal: must round-trip exactly
   auto written = catalog.Update([&](CatalogState& s) {

@@ -40,7 +40,26 @@ geodesicd build "$mesh" --eps 0.01 --quiet --part 1/3 --out "$work/other_eps.par
 geodesicd merge "$mesh" "$work/p0.part" "$work/other_eps.part" "$work/p2.part" \
   --out "$work/x.dgg" 2>"$work/e4"
 check "parts of another epsilon are refused" grep -q "epsilon 0.01" "$work/e4"
+# Parts record the whole build: pruning and exact fans must agree too, and
+# the graph takes the parts' record (a flag given must match it).
+geodesicd build "$mesh" --eps 0.005 --quiet --prune --part 1/3 --out "$work/pruned.part" >/dev/null
+geodesicd merge "$mesh" "$work/p0.part" "$work/pruned.part" "$work/p2.part" \
+  --out "$work/x.dgg" 2>"$work/e6"
+check "parts built with other pruning are refused by field" grep -q "prune_redundant true, not false" "$work/e6"
+for i in 0 1 2; do
+  geodesicd build "$mesh" --eps 0.005 --quiet --exact-fans --part "$i/3" --out "$work/xf$i.part" >/dev/null
+done
+geodesicd merge "$mesh" "$work/p0.part" "$work/xf1.part" "$work/p2.part" \
+  --out "$work/x.dgg" 2>"$work/e7"
+check "parts built with other fans are refused by field" grep -q "exact_fans true, not false" "$work/e7"
+geodesicd merge "$mesh" "$work/xf0.part" "$work/xf1.part" "$work/xf2.part" --prune \
+  --out "$work/x.dgg" 2>"$work/e8"
+check "a merge flag the parts contradict is refused" grep -q "which the flags given contradict" "$work/e8"
 check "no output written by failed merges" test ! -e "$work/x.dgg"
+geodesicd merge "$mesh" "$work/xf0.part" "$work/xf1.part" "$work/xf2.part" --quiet \
+  --out "$work/xf.dgg" >/dev/null
+check "the merged graph carries the parts' exact fans" \
+  test "$(geodesicd info "$work/xf.dgg" --json | python3 -c 'import json,sys; print(json.load(sys.stdin)["exact_fans"])')" = True
 geodesicd build "$mesh" --eps 0.01 --part 3/3 --out "$work/y" 2>"$work/e5"
 check "part index out of range" grep -q "index must be in" "$work/e5"
 

@@ -34,7 +34,7 @@ check "sample mesh parsed and built the first time" \
   test "$(cli --json meshes | json 'd[0]["restored"]')" = False
 state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
 check "graph builds to ready" test "$state" = ready
-graph=$(ls "$work"/graphs/*eps0.01.dgg)
+graph=$(ls "$work"/graphs/*eps0.01-r*.dgg)
 check "graph persisted atomically (no temp files)" test "$(ls "$work/graphs" | grep -c tmp)" = 0
 
 # Query results equal the offline core results on the same graph file.

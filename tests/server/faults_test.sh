@@ -77,7 +77,7 @@ cli --eps $slow graph --cancel >/dev/null
 # too old to belong to a live writer (replicas may share the directory).
 graph_field 0.01 state >/dev/null
 stop_daemon
-good=$(ls "$graphs"/*eps0.01.dgg)
+good=$(ls "$graphs"/*eps0.01-r*.dgg)
 size=$(stat -c %s "$good")
 head -c $((size / 2)) "$good" > "$good.tmp.4242.beef"
 touch -d '2 hours ago' "$good.tmp.4242.beef"
