@@ -5,6 +5,7 @@
 #include <numeric>
 #include <random>
 #include <span>
+#include <thread>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
@@ -27,84 +28,6 @@ struct TemporaryEdge {
   double weight;
 };
 
-// Per-thread scratch reused by every query on that thread.
-struct Scratch {
-  // Field solves, which touch every node anyway and so clear these.
-  std::vector<double> dist;
-  // The edges a node relaxes once taken out: the fan of the edge that set
-  // its label, copied from that edge's record when it improves the label.
-  std::vector<FanRange> fan;
-  std::vector<uint32_t> label;  // index of the nearest source
-  NodeHeap heap;                // Dijkstra's queue, for searches that stop at targets
-  BucketQueue buckets;
-
-  // Point-to-point searches touch a few thousand nodes at random: one
-  // record per node, one cache line, so each touch is one miss, valid only
-  // if its stamp is the query's (no O(n) clearing per query).
-  struct alignas(64) PairNode {
-    double dist[2];
-    uint32_t pred[2];
-    uint32_t slot[2];  // places in the two searches' heaps
-    // The edges each search relaxes from the node (Field's fans). The
-    // graph is symmetric, and so are its fans: u -> v -> w is a kept turn
-    // exactly when w -> v -> u is, so the backward search uses them too.
-    FanRange fan[2];
-    // A* potential, computed on first touch. Its float rounding (~6e-8
-    // relative) can only make an answer longer by as much, never shorter.
-    float potential;
-    uint32_t mark;  // stamp << 2 | settled backward << 1 | settled forward
-    uint32_t stamp() const { return mark >> 2; }
-    bool done(int side) const { return mark >> side & 1; }
-    void set_done(int side) { mark |= 1u << side; }
-  };
-  static_assert(sizeof(PairNode) == 64);
-  std::vector<PairNode> pair;
-  uint32_t current = 0;  // below 2^30
-  // The forward (0) and backward (1) searches' queues, with their slots in
-  // the records above.
-  struct PairSlot {
-    std::vector<PairNode>* records;
-    int side;
-    uint32_t& operator()(uint32_t node) const { return (*records)[node].slot[side]; }
-  };
-  BasicNodeHeap<PairSlot> pair_heap[2] = {BasicNodeHeap<PairSlot>({&pair, 0}),
-                                          BasicNodeHeap<PairSlot>({&pair, 1})};
-
-  std::unique_ptr<ExactGeodesic> exact;
-  // Weak, not a raw pointer: a mesh freed and another allocated at the same
-  // address must not find the old mesh's engine.
-  std::weak_ptr<const Mesh> exact_mesh;
-
-  void PrepareField(size_t nodes) {
-    if (dist.size() < nodes) {
-      dist.resize(nodes);
-      fan.resize(nodes);
-      label.resize(nodes);
-    }
-  }
-  // Returns the new query's stamp.
-  uint32_t PreparePair(size_t nodes) {
-    if (pair.size() < nodes) pair.resize(nodes, PairNode{});
-    if (++current == 1u << 30) {
-      for (PairNode& p : pair) p.mark = 0;
-      current = 1;
-    }
-    return current;
-  }
-  ExactGeodesic& Exact(const std::shared_ptr<const Mesh>& mesh) {
-    if (!exact || exact_mesh.lock() != mesh) {
-      exact = std::make_unique<ExactGeodesic>(*mesh);
-      exact_mesh = mesh;
-    }
-    return *exact;
-  }
-};
-
-Scratch& ThreadScratch() {
-  thread_local Scratch scratch;
-  return scratch;
-}
-
 absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_view what) {
   absl::Status s = ValidateSurfacePoint(mesh, p);
   if (s.ok()) return s;
@@ -115,7 +38,9 @@ absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_vie
 
 GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
-    : mesh_(std::move(mesh)), graph_(std::move(graph)) {
+    : mesh_(std::move(mesh)),
+      graph_(std::move(graph)),
+      scratch_(mesh_.get(), std::max<int>(2, std::thread::hardware_concurrency())) {
   buckets_ = BucketShapeOf(*graph_);
   node_xyz_.resize(graph_->num_nodes());
   for (uint32_t u = 0; u < node_xyz_.size(); ++u) {
@@ -160,12 +85,13 @@ struct Endpoint {
 
 // Joins `raw` to the graph: a vertex is its own node; any other point runs
 // the exact engine's direct propagation, whose lit vertices become its
-// temporary edges. With `keep_windows` the propagation stays in `exact`, so
-// that exact.DistanceTo then answers direct geodesic distances from the
+// temporary edges. With `keep_windows` the propagation stays in the
+// scratch's exact engine, so that its DistanceTo then answers direct
+// geodesic distances from the
 // point (the same-face and nearby cases no path through vertices gets
 // right). Every query joins its points here, so fields, pairs and matrices
 // see one augmented graph.
-absl::StatusOr<Endpoint> JoinToGraph(const Mesh& mesh, const DggGraph& graph, ExactGeodesic& exact,
+absl::StatusOr<Endpoint> JoinToGraph(const Mesh& mesh, const DggGraph& graph, QueryScratch& sc,
                                      const SurfacePoint& raw, bool keep_windows) {
   Endpoint end;
   end.point = CanonicalizeSurfacePoint(mesh, raw);
@@ -178,7 +104,7 @@ absl::StatusOr<Endpoint> JoinToGraph(const Mesh& mesh, const DggGraph& graph, Ex
   DirectOptions options;
   options.epsilon = graph.params().epsilon;
   options.keep_windows = keep_windows;
-  ASSIGN_OR_RETURN(std::vector<DirectHit> hits, exact.DirectGeodesics(end.point, options));
+  ASSIGN_OR_RETURN(std::vector<DirectHit> hits, sc.Exact(mesh).DirectGeodesics(end.point, options));
   end.edges.reserve(hits.size());
   for (const DirectHit& h : hits) {
     end.edges.push_back({h.vertex, graph.node_of_vertex(h.vertex), h.distance});
@@ -198,7 +124,7 @@ double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field) {
 
 // The field from sources already joined to the graph.
 absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
-                                       const BucketShape& bucket_shape,
+                                       const BucketShape& bucket_shape, QueryScratch& sc,
                                        absl::Span<const Endpoint> sources,
                                        const FieldOptions& options) {
   for (VertexId t : options.targets) {
@@ -208,7 +134,6 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
     }
   }
   const uint32_t nodes = g.num_nodes();
-  Scratch& sc = ThreadScratch();
   sc.PrepareField(nodes);
   std::vector<double>& dist = sc.dist;
   std::vector<FanRange>& fan = sc.fan;
@@ -306,13 +231,13 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   for (size_t i = 0; i < sources.size(); ++i) {
     RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
   }
-  ExactGeodesic& exact = ThreadScratch().Exact(mesh_);
+  ScratchPool::Lease sc = scratch_.Acquire();
   std::vector<Endpoint> ends;
   ends.reserve(sources.size());
   for (const SurfacePoint& p : sources) {
-    ASSIGN_OR_RETURN(ends.emplace_back(), JoinToGraph(mesh, *graph_, exact, p, false));
+    ASSIGN_OR_RETURN(ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, p, false));
   }
-  return SolveField(mesh, *graph_, buckets_, ends, options);
+  return SolveField(mesh, *graph_, buckets_, *sc, ends, options);
 }
 
 namespace {
@@ -420,8 +345,8 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   const DggGraph& g = *graph_;
   RETURN_IF_ERROR(CheckPoint(mesh, raw_a, "first point"));
   RETURN_IF_ERROR(CheckPoint(mesh, raw_b, "second point"));
-  Scratch& sc = ThreadScratch();
-  ExactGeodesic& exact = sc.Exact(mesh_);
+  ScratchPool::Lease lease = scratch_.Acquire();
+  QueryScratch& sc = *lease;
   PairResult result;
   // A point that is not a node joins the graph by its direct geodesics. The
   // first one also gives the direct geodesic to the second point, if it sees
@@ -430,17 +355,16 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   // that geodesic up to the candidate budget, so a vertex costs no
   // propagation at all. Matrix makes the same choices, entry by entry.
   Endpoint ends[2];
-  ASSIGN_OR_RETURN(ends[0], JoinToGraph(mesh, g, exact, raw_a, /*keep_windows=*/true));
+  ASSIGN_OR_RETURN(ends[0], JoinToGraph(mesh, g, sc, raw_a, /*keep_windows=*/true));
   double best = kInfinity;
   if (!ends[0].is_node) {
-    auto direct = exact.DistanceTo(CanonicalizeSurfacePoint(mesh, raw_b));
+    auto direct = sc.Exact(mesh).DistanceTo(CanonicalizeSurfacePoint(mesh, raw_b));
     if (direct.ok()) best = *direct;
   }
-  ASSIGN_OR_RETURN(ends[1], JoinToGraph(mesh, g, exact, raw_b, /*keep_windows=*/false));
+  ASSIGN_OR_RETURN(ends[1], JoinToGraph(mesh, g, sc, raw_b, /*keep_windows=*/false));
 
-  const uint32_t nodes = g.num_nodes();
-  const uint32_t stamp = sc.PreparePair(nodes);
-  std::vector<Scratch::PairNode>& at = sc.pair;
+  PairTable& at = sc.pairs;
+  at.Reset(g.num_nodes());
   auto offsets = g.offsets();
   auto edges = g.edges();
   // Average potential p(v) = (bound to b - bound to a) / 2: consistent for
@@ -458,10 +382,10 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     if (active_lines.empty() || active_lines.back() != line) active_lines.push_back(line);
   }
   // The record of node u for this query, initialised on first touch.
-  auto node = [&](uint32_t u) -> Scratch::PairNode& {
-    Scratch::PairNode& n = at[u];
-    if (n.stamp() != stamp) {
-      n.mark = stamp << 2;
+  auto node = [&](uint32_t u) -> PairTable::Record& {
+    bool inserted;
+    PairTable::Record& n = at.FindOrInsert(u, &inserted);
+    if (inserted) {
       n.dist[0] = n.dist[1] = kInfinity;
       n.slot[0] = n.slot[1] = kNotInHeap;
       if (options.use_astar) {
@@ -481,7 +405,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   // Side s reaches node u at distance d from node `from` (or from an end
   // point), to go on along `fan`.
   auto set = [&](int s, uint32_t u, double d, uint32_t from, FanRange fan) {
-    Scratch::PairNode& n = node(u);
+    PairTable::Record& n = node(u);
     if (!(d < n.dist[s])) return;
     n.dist[s] = d;
     n.pred[s] = from;
@@ -516,11 +440,12 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     const int s = heap[0].size() <= heap[1].size() ? 0 : 1;
     const uint32_t u = heap[s].top();
     heap[s].Pop();
-    if (at[u].done(s)) continue;
-    at[u].set_done(s);
+    PairTable::Record& record = *at.Find(u);
+    if (record.done(s)) continue;
+    record.set_done(s);
     ++result.settled;
-    const double du = at[u].dist[s];
-    const FanRange fan = at[u].fan[s];
+    const double du = record.dist[s];
+    const FanRange fan = record.fan[s];
     // Memory-bound: each neighbour is a random node. Ask for the records a
     // few edges ahead so their cache misses overlap.
     constexpr uint64_t kAhead = 6;
@@ -530,7 +455,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
       if (k + kAhead < fan.count) {
         const uint64_t j = i + kAhead < end ? i + kAhead : i + kAhead - degree;
         const uint32_t ahead = edges[j].target;
-        __builtin_prefetch(&at[ahead]);
+        at.Prefetch(ahead);
         if (landmarks) {
           const float* row = landmarks->of(ahead).data();
           for (uint8_t line : active_lines) __builtin_prefetch(row + kFloatsPerLine * line);
@@ -551,26 +476,28 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   std::vector<double> along{0.0};
   if (meet != kNone && mu < best) {
     std::vector<uint32_t> chain;
-    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = at[u].pred[0]) {
+    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = at.Find(u)->pred[0]) {
       chain.push_back(u);
     }
     std::reverse(chain.begin(), chain.end());
     for (uint32_t u : chain) {
       if (!(ends[0].is_node && u == ends[0].node)) {
         stops.push_back(g.point_of_node(u));
-        along.push_back(at[u].dist[0]);
+        along.push_back(at.Find(u)->dist[0]);
       }
     }
-    for (uint32_t u = at[meet].pred[1]; u != kViaSource && u != kViaTemporary; u = at[u].pred[1]) {
+    for (uint32_t u = at.Find(meet)->pred[1]; u != kViaSource && u != kViaTemporary;
+         u = at.Find(u)->pred[1]) {
       if (ends[1].is_node && u == ends[1].node) break;
       stops.push_back(g.point_of_node(u));
-      along.push_back(mu - at[u].dist[1]);
+      along.push_back(mu - at.Find(u)->dist[1]);
     }
   }
   stops.push_back(ends[1].point);
   along.push_back(mu);
   // Each hop is a direct geodesic: trace it with the exact engine, bounding
   // the propagation by the hop's graph length.
+  ExactGeodesic& exact = sc.Exact(mesh);
   GeodesicPath path;
   for (size_t k = 0; k + 1 < stops.size(); ++k) {
     const SurfacePoint& from = stops[k];
@@ -656,29 +583,29 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   // path: the graph distance on the augmented graph, or the direct geodesic
   // from a source that is not a vertex, whichever is shorter. One field per
   // source serves its whole row.
-  ExactGeodesic& exact = ThreadScratch().Exact(mesh_);
+  ScratchPool::Lease sc = scratch_.Acquire();
   std::vector<Endpoint> target_ends;
   target_ends.reserve(targets.size());
   for (const SurfacePoint& t : targets) {
-    ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, exact, t, false));
+    ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
   }
   std::vector<double> out;
   out.reserve(sources.size() * targets.size());
   FieldOptions options;
   options.cancelled = cancelled;
   for (const SurfacePoint& raw : sources) {
-    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, exact, raw, true));
+    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *sc, raw, true));
     const size_t row = out.size();
     for (const Endpoint& t : target_ends) {
       double direct = kInfinity;
       if (!source.is_node) {
-        auto d = exact.DistanceTo(t.point);
+        auto d = sc->Exact(mesh).DistanceTo(t.point);
         if (d.ok()) direct = *d;
       }
       out.push_back(direct);
     }
-    ASSIGN_OR_RETURN(FieldResult field,
-                     SolveField(mesh, *graph_, buckets_, absl::MakeConstSpan(&source, 1), options));
+    ASSIGN_OR_RETURN(FieldResult field, SolveField(mesh, *graph_, buckets_, *sc,
+                                                   absl::MakeConstSpan(&source, 1), options));
     for (size_t j = 0; j < target_ends.size(); ++j) {
       out[row + j] = std::min(out[row + j], FieldDistanceTo(target_ends[j], field.distance));
     }

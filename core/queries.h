@@ -3,7 +3,9 @@
 //
 // A GeodesicEngine is the resident "solver object": it holds a mesh and its
 // graph, both immutable and shared, and answers queries from any number of
-// threads at once. Each thread reuses its own scratch memory between queries.
+// threads at once. Each query in flight leases scratch memory from the
+// engine's pool (core/query_scratch.h), which later queries reuse and which
+// goes with the engine.
 #ifndef GEODESIC_CORE_QUERIES_H_
 #define GEODESIC_CORE_QUERIES_H_
 
@@ -22,6 +24,7 @@
 #include "core/graph_search.h"
 #include "core/landmarks.h"
 #include "core/mesh.h"
+#include "core/query_scratch.h"
 #include "core/surface_point.h"
 
 namespace geodesic {
@@ -130,6 +133,8 @@ class GeodesicEngine {
   int DefaultLandmarkCount() const;
   // Bytes held by the landmark distances (0 before PrepareLandmarks).
   uint64_t landmark_bytes() const;
+  // Bytes of query scratch held for this engine (core/query_scratch.h).
+  uint64_t scratch_bytes() const { return scratch_.bytes(); }
 
   // Geodesic farthest-point sampling: each point after the first is the
   // vertex farthest from those chosen so far, so `count` points cover the
@@ -155,6 +160,7 @@ class GeodesicEngine {
   // vertex order, scattered across the search.
   std::vector<Vec3> node_xyz_;
   BucketShape buckets_;
+  mutable ScratchPool scratch_;
   // Written once under the mutex, then read lock-free by every query.
   mutable absl::Mutex landmarks_mu_;
   mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);

@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # The test suite under sanitizers:
-#   ASan+UBSan (build-asan): core unit tests, and the daemon end-to-end,
+#   ASan+UBSan (build-asan): core and server unit tests, and the daemon end-to-end,
 #     fault and security tests against an instrumented daemon and CLI;
-#   TSan (build-tsan): the core unit tests (concurrent queries and landmark
-#     preparation on one graph). The large shared-mesh accuracy suites are
+#   TSan (build-tsan): the core and server unit tests (concurrent queries
+#     and landmark preparation on one graph, concurrent catalog updates). The large shared-mesh accuracy suites are
 #     left out: single-threaded numerics under TSan's 10x slowdown, already
 #     run plain and under ASan. So is the 1-against-4-threads build
 #     comparison: TSan builds keep TBB to one thread (core/dgg_build.cc), so
@@ -22,11 +22,11 @@ for kind in $kinds; do
   cmake --build "$dir" -j"$(nproc)"
   if [ "$kind" = address ]; then
     export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
-    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core
+    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L "core|unit"
     ctest --test-dir "$dir" --output-on-failure --timeout 1800 -R "server_e2e|server_faults|server_security|distributed_build"
   else
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
-    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
+    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L "core|unit" \
       -E "SharedAccuracyTest|TruthTest|ManifestTest|PseudoVerticesTest|BuildIsIdenticalWhateverTheThreadCount"
   fi
 done

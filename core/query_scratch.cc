@@ -1,0 +1,73 @@
+#include "core/query_scratch.h"
+
+#include <algorithm>
+
+namespace geodesic {
+namespace {
+
+// Records kept between queries: 256 KiB, more than most queries touch.
+constexpr size_t kKeptRecords = 4096;
+
+}  // namespace
+
+void PairTable::Reset(uint32_t nodes) {
+  for (const Record& r : records_) index_[r.node] = 0;
+  records_.clear();
+  if (index_.size() < nodes) index_.resize(nodes, 0);
+  // A query that touched a large part of the graph leaves a large vector;
+  // the next ones rarely need it.
+  if (records_.capacity() > 4 * kKeptRecords || records_.capacity() == 0) {
+    std::vector<Record>().swap(records_);
+    records_.reserve(kKeptRecords);
+  }
+}
+
+void QueryScratch::PrepareField(size_t nodes) {
+  if (dist.size() < nodes) {
+    dist.resize(nodes);
+    fan.resize(nodes);
+    label.resize(nodes);
+  }
+}
+
+uint64_t QueryScratch::bytes(const Mesh& mesh) const {
+  uint64_t total = sizeof(*this) + pairs.bytes();
+  total += dist.capacity() * sizeof(double) + fan.capacity() * sizeof(FanRange) +
+           label.capacity() * sizeof(uint32_t);
+  // The exact engine keeps about six per-vertex arrays (distances, the
+  // window and vertex each was reached by, angles, flags).
+  if (exact) total += mesh.num_vertices() * uint64_t{40};
+  return total;
+}
+
+ScratchPool::Lease ScratchPool::Acquire() {
+  in_use_.fetch_add(1, std::memory_order_relaxed);
+  {
+    absl::MutexLock lock(&mu_);
+    if (!idle_.empty()) {
+      Idle reused = std::move(idle_.back());
+      idle_.pop_back();
+      return Lease(this, std::move(reused.scratch), reused.bytes);
+    }
+  }
+  return Lease(this, std::make_unique<QueryScratch>(), 0);
+}
+
+void ScratchPool::Release(std::unique_ptr<QueryScratch> scratch, uint64_t counted) {
+  in_use_.fetch_sub(1, std::memory_order_relaxed);
+  const uint64_t size = scratch->bytes(*mesh_);
+  absl::MutexLock lock(&mu_);
+  uint64_t total = bytes_.load(std::memory_order_relaxed) - counted;
+  if (static_cast<int>(idle_.size()) < keep_idle_) {
+    idle_.push_back({std::move(scratch), size});
+    total += size;
+  }
+  bytes_.store(total, std::memory_order_relaxed);
+}
+
+int ScratchPool::idle() const {
+  absl::MutexLock lock(&mu_);
+  return static_cast<int>(idle_.size());
+}
+
+}  // namespace geodesic
