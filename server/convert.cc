@@ -49,10 +49,12 @@ v1::SurfacePoint ToProto(const SurfacePoint& p) {
 void ToProto(const GraphStatus& s, v1::Graph* out) {
   out->set_mesh(s.mesh);
   out->set_epsilon(s.epsilon);
-  static const v1::GraphState kStates[] = {v1::GRAPH_STATE_QUEUED,  v1::GRAPH_STATE_BUILDING,
-                                           v1::GRAPH_STATE_LOADING, v1::GRAPH_STATE_READY,
-                                           v1::GRAPH_STATE_FAILED,  v1::GRAPH_STATE_CANCELLED,
-                                           v1::GRAPH_STATE_EVICTED};
+  // Persisting is a building graph being written: clients see "building"
+  // with phase "writing", as before the state had a name of its own.
+  static const v1::GraphState kStates[kGraphStateCount] = {
+      v1::GRAPH_STATE_QUEUED,    v1::GRAPH_STATE_LOADING, v1::GRAPH_STATE_BUILDING,
+      v1::GRAPH_STATE_BUILDING,  v1::GRAPH_STATE_READY,   v1::GRAPH_STATE_FAILED,
+      v1::GRAPH_STATE_CANCELLED, v1::GRAPH_STATE_EVICTED};
   out->set_state(kStates[static_cast<int>(s.state)]);
   out->set_phase(s.phase);
   out->set_progress(s.progress);
@@ -65,6 +67,10 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
   out->set_edges(s.edges);
   out->set_build_seconds(s.build_seconds);
   out->set_last_used_unix_ms(s.last_used_unix_ms);
+  out->set_pseudo_vertices(s.params.pseudo_vertices);
+  out->set_prune_redundant(s.params.prune_redundant);
+  out->set_exact_fans(s.params.exact_fans);
+  out->set_candidate_rule(s.params.candidate_rule);
 }
 
 grpc::Status ToGrpc(const absl::Status& s) {

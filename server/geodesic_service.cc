@@ -73,6 +73,16 @@ absl::StatusOr<double> GeodesicService::Epsilon(double requested) const {
   return eps;
 }
 
+absl::StatusOr<GraphKey> GeodesicService::Key(const std::string& mesh, double epsilon,
+                                              bool pseudo) const {
+  ASSIGN_OR_RETURN(const double eps, Epsilon(epsilon));
+  GraphKey key{mesh, DggParams{}};
+  key.params.epsilon = eps;
+  key.params.pseudo_vertices = pseudo;
+  key.params.exact_fans = limits_.exact_fans;
+  return key;
+}
+
 template <typename Body>
 grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ctx,
                                      const std::string& mesh, bool is_query, Body body) {
@@ -189,7 +199,8 @@ grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::Unl
 grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
                                            const v1::RequestGraphRequest* req, v1::Graph* resp) {
   return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    const double eps = key.params.epsilon;
     auto m = meshes_->Get(req->mesh());
     if (!m.ok()) return m.status();
     const uint64_t budget = graphs_->memory_limit();
@@ -200,7 +211,7 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
           "limit of %u bytes: use a larger epsilon",
           req->mesh(), eps, estimate, budget));
     }
-    ToProto(graphs_->Request(*m, eps, req->pseudo_vertices()), resp);
+    ToProto(graphs_->Request(*m, key.params), resp);
     return absl::OkStatus();
   });
 }
@@ -208,8 +219,8 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
 grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                        v1::Graph* resp) {
   return Handle("GetGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
-    auto g = graphs_->Get(req->mesh(), eps);
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    auto g = graphs_->Get(key);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
     return absl::OkStatus();
@@ -219,18 +230,18 @@ grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGr
 grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                          grpc::ServerWriter<v1::Graph>* writer) {
   return Handle("WatchGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
-    auto g = graphs_->Get(req->mesh(), eps);
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    auto g = graphs_->Get(key);
     while (g.ok()) {
       v1::Graph out;
       ToProto(*g, &out);
       if (!writer->Write(out)) return absl::CancelledError("client went away");
       if (g->state != GraphState::kQueued && g->state != GraphState::kBuilding &&
-          g->state != GraphState::kLoading) {
+          g->state != GraphState::kLoading && g->state != GraphState::kPersisting) {
         return absl::OkStatus();
       }
       if (Cancelled(ctx)()) return absl::CancelledError("watch cancelled");
-      g = graphs_->WaitForChange(req->mesh(), eps, g->version, absl::Now() + absl::Seconds(1));
+      g = graphs_->WaitForChange(key, g->version, absl::Now() + absl::Seconds(1));
     }
     return g.status();
   });
@@ -239,8 +250,8 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
 grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
-    auto g = graphs_->Cancel(req->mesh(), eps);
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    auto g = graphs_->Cancel(key);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
     return absl::OkStatus();
@@ -264,9 +275,10 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d sources exceed the limit of %d per field", req->sources_size(), limits_.max_sources));
     }
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    const double eps = key.params.epsilon;
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
-    auto engine = graphs_->Acquire(req->mesh(), eps);
+    auto engine = graphs_->Acquire(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources;
@@ -301,6 +313,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
         chunk.mutable_echo()->set_epsilon(eps);
         chunk.mutable_echo()->set_method(options.method == FieldMethod::kDijkstra ? "dijkstra"
                                                                                   : "lc");
+        chunk.mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
       }
       chunk.set_offset(offset);
       chunk.set_total(total);
@@ -343,13 +356,14 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
     }
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
-    auto engine = graphs_->Acquire(req->mesh(), eps);
+    auto engine = graphs_->Acquire(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     resp->mutable_echo()->set_mesh(req->mesh());
-    resp->mutable_echo()->set_epsilon(eps);
+    resp->mutable_echo()->set_epsilon(key.params.epsilon);
+    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
     resp->mutable_echo()->set_method("bidirectional-astar");
     PairOptions options;
     options.want_path = req->with_path();
@@ -378,9 +392,9 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
           "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
           req->targets_size(), limits_.max_sources, limits_.max_pairs));
     }
-    ASSIGN_OR_RETURN(const double eps, Epsilon(req->epsilon()));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
-    auto engine = graphs_->Acquire(req->mesh(), eps);
+    auto engine = graphs_->Acquire(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources, targets;
@@ -397,8 +411,11 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     auto m = (*engine)->Matrix(sources, targets, Cancelled(ctx));
     if (!m.ok()) return m.status();
     resp->mutable_echo()->set_mesh(req->mesh());
-    resp->mutable_echo()->set_epsilon(eps);
-    resp->mutable_echo()->set_method("dijkstra");
+    resp->mutable_echo()->set_epsilon(key.params.epsilon);
+    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
+    // One fan-restricted field per row (the "lc" solver), joined at the
+    // targets as Distance joins its points.
+    resp->mutable_echo()->set_method("lc");
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
     for (double d : *m) resp->add_distances(d);

@@ -22,6 +22,9 @@ struct ServiceLimits {
   uint64_t max_upload_bytes = uint64_t{256} << 20;
   int field_chunk = 65536;  // values per streamed chunk
   bool log_requests = true;
+  // Graphs this daemon builds use exact fans (geodesicd serve --exact-fans):
+  // part of the build record of every graph it requests.
+  bool exact_fans = false;
 };
 
 class GeodesicService final : public v1::Geodesic::Service {
@@ -68,6 +71,9 @@ class GeodesicService final : public v1::Geodesic::Service {
   // [1e-6, 0.5] (INVALID_ARGUMENT otherwise). Every RPC that takes one checks
   // it here, before it reaches the cache, whose ordered lookup a NaN breaks.
   absl::StatusOr<double> Epsilon(double requested) const;
+  // The graph a request names: its mesh, and the build record this daemon
+  // makes for that epsilon and pseudo vertices.
+  absl::StatusOr<GraphKey> Key(const std::string& mesh, double epsilon, bool pseudo) const;
 
   MeshRegistry* meshes_;
   GraphCache* graphs_;

@@ -1,13 +1,11 @@
 #include "server/graph_cache.h"
 
 #include <chrono>
-#include <cstdio>
 #include <filesystem>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
-#include "core/dgg_build.h"
-#include "core/graph_file.h"
+#include "server/log.h"
 
 namespace geodesic::server {
 
@@ -15,10 +13,12 @@ const char* GraphStateName(GraphState s) {
   switch (s) {
     case GraphState::kQueued:
       return "queued";
-    case GraphState::kBuilding:
-      return "building";
     case GraphState::kLoading:
       return "loading";
+    case GraphState::kBuilding:
+      return "building";
+    case GraphState::kPersisting:
+      return "persisting";
     case GraphState::kReady:
       return "ready";
     case GraphState::kFailed:
@@ -29,6 +29,43 @@ const char* GraphStateName(GraphState s) {
       return "evicted";
   }
   return "?";
+}
+
+bool LegalTransition(GraphState from, GraphState to) {
+  constexpr bool Q = true, _ = false;
+  // Rows: from; columns: to, in declaration order (queued, loading,
+  // building, persisting, ready, failed, cancelled, evicted).
+  static constexpr bool kLegal[kGraphStateCount][kGraphStateCount] = {
+      /* queued     */ {_, Q, Q, _, _, _, Q, _},
+      /* loading    */ {_, _, Q, _, Q, Q, Q, _},
+      /* building   */ {_, _, _, Q, Q, Q, Q, _},
+      /* persisting */ {_, _, _, _, Q, Q, Q, _},
+      /* ready      */ {_, _, _, _, _, _, _, Q},
+      /* failed     */ {Q, _, _, _, _, _, _, _},
+      /* cancelled  */ {Q, _, _, _, _, _, _, _},
+      /* evicted    */ {Q, _, _, _, _, _, _, _},
+  };
+  return kLegal[static_cast<int>(from)][static_cast<int>(to)];
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Open(const std::string& path,
+                                                                 const Mesh& mesh,
+                                                                 const DggParams& params,
+                                                                 GraphFile::Check check) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    return absl::NotFoundError(absl::StrFormat("no graph file %s", path));
+  }
+  return GraphFile::Open(path, mesh, check, &params);
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Build(const Mesh& mesh,
+                                                                  const DggBuildOptions& options) {
+  return BuildDgg(mesh, options);
+}
+
+absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {
+  return GraphFile::Write(graph, path);
 }
 
 namespace {
@@ -51,14 +88,19 @@ void RemoveStaleTemporaries(const std::string& dir) {
     auto written = entry.last_write_time(ec);
     if (ec || now - written < kStaleTemporaryAge) continue;
     if (std::filesystem::remove(entry.path(), ec)) {
-      std::fprintf(stderr, "geodesicd: removed stale temporary file %s\n", entry.path().c_str());
+      Log(LogLevel::kInfo, "stale_temporary_removed", {{"path", entry.path().string()}});
     }
   }
+}
+
+std::string Describe(const GraphKey& key) {
+  return absl::StrFormat("the graph of '%s' (%s)", key.mesh, DescribeParams(key.params));
 }
 
 }  // namespace
 
 GraphCache::GraphCache(Options options) : options_(std::move(options)) {
+  if (!options_.maker) options_.maker = std::make_shared<GraphMaker>();
   if (!options_.graph_dir.empty()) {
     std::filesystem::create_directories(options_.graph_dir);
     RemoveStaleTemporaries(options_.graph_dir);
@@ -77,51 +119,79 @@ GraphCache::~GraphCache() {
   for (auto& t : workers_) t.join();
 }
 
-std::string GraphCache::GraphPath(const RegisteredMesh& mesh, double epsilon, bool pseudo) const {
+std::string GraphCache::GraphPath(uint64_t mesh_fingerprint, const DggParams& params) const {
   if (options_.graph_dir.empty()) return "";
-  DggParams params;
-  params.epsilon = epsilon;
-  params.pseudo_vertices = pseudo;
-  params.exact_fans = options_.exact_fans;
-  return options_.graph_dir + "/" + GraphFileName(mesh.fingerprint, params);
+  return options_.graph_dir + "/" + GraphFileName(mesh_fingerprint, params);
 }
 
-void GraphCache::Bump(Entry& e) { ++e.status.version; }
+bool GraphCache::Transition(Entry& e, GraphState to) {
+  const GraphState from = e.status.state;
+  if (!LegalTransition(from, to)) {
+    Log(LogLevel::kError, "graph_illegal_transition",
+        {{"mesh", e.status.mesh}, {"from", GraphStateName(from)}, {"to", GraphStateName(to)}});
+    return false;
+  }
+  e.status.state = to;
+  ++e.status.version;
+  return true;
+}
+
+bool GraphCache::Current(const GraphKey& key, const Entry& e) const {
+  auto it = entries_.find(key);
+  return it != entries_.end() && it->second.get() == &e;
+}
+
+void GraphCache::Enqueue(const GraphKey& key) { queue_.push_back(key); }
 
 void GraphCache::Touch(Entry& e) {
   e.last_used = absl::Now();
   e.status.last_used_unix_ms = absl::ToUnixMillis(e.last_used);
 }
 
-GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh, double epsilon,
-                                bool pseudo_vertices) {
+void GraphCache::Announce(const Notices& notices) const {
+  if (!options_.on_readiness) return;
+  for (const Notice& n : notices) options_.on_readiness(n.key, n.ready);
+}
+
+GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
+                                const DggParams& params) {
   absl::MutexLock lock(&mu_);
-  Key key{mesh->name, epsilon};
+  GraphKey key{mesh->name, params};
   auto& slot = entries_[key];
-  if (slot && slot->mesh->fingerprint == mesh->fingerprint &&
-      slot->status.state != GraphState::kFailed && slot->status.state != GraphState::kCancelled &&
-      slot->status.state != GraphState::kEvicted) {
-    Touch(*slot);
-    return slot->status;  // single flight: join the running or finished operation
+  if (slot && slot->mesh->fingerprint == mesh->fingerprint) {
+    Entry& e = *slot;
+    Touch(e);
+    const GraphState s = e.status.state;
+    if (s == GraphState::kFailed || s == GraphState::kCancelled || s == GraphState::kEvicted) {
+      // No worker holds an entry in these states: it starts again in place.
+      e.cancel = false;
+      e.status.error.clear();
+      e.status.phase.clear();
+      e.status.progress = 0;
+      if (Transition(e, GraphState::kQueued)) Enqueue(key);
+    }
+    return e.status;  // single flight: join the running or finished operation
   }
+  // New, or the mesh was registered again with other contents: a new entry,
+  // so that an operation still running for the old one publishes nothing.
   auto e = std::make_shared<Entry>();
   e->mesh = std::move(mesh);
-  e->pseudo_vertices = pseudo_vertices;
-  e->status.mesh = key.first;
-  e->status.epsilon = epsilon;
+  e->path = GraphPath(e->mesh->fingerprint, params);
+  e->status.mesh = key.mesh;
+  e->status.params = params;
+  e->status.epsilon = params.epsilon;
   e->status.state = GraphState::kQueued;
   e->status.version = slot ? slot->status.version + 1 : 1;
+  if (slot) slot->cancel = true;
   Touch(*e);
   slot = e;
-  Schedule(key);
+  Enqueue(key);
   return e->status;
 }
 
-void GraphCache::Schedule(const Key& key) { queue_.push_back(key); }
-
 void GraphCache::Worker() {
   while (true) {
-    Key key;
+    GraphKey key;
     {
       absl::MutexLock lock(&mu_);
       mu_.Await(absl::Condition(
@@ -136,165 +206,246 @@ void GraphCache::Worker() {
   }
 }
 
-void GraphCache::Run(const Key& key) {
+bool GraphCache::SetPhase(const GraphKey& key, const std::shared_ptr<Entry>& e, GraphState state,
+                          std::string phase, double progress) {
+  absl::MutexLock lock(&mu_);
+  if (!Current(key, *e)) return false;
+  if (e->cancel) {
+    Transition(*e, GraphState::kCancelled);
+    Log(LogLevel::kInfo, "graph_cancelled", {{"mesh", key.mesh}, {"eps", key.params.epsilon}});
+    return false;
+  }
+  if (e->status.state != state && !Transition(*e, state)) return false;
+  e->status.phase = std::move(phase);
+  e->status.progress = progress;
+  ++e->status.version;
+  return true;
+}
+
+void GraphCache::Run(const GraphKey& key) {
   std::shared_ptr<Entry> e;
   {
     absl::MutexLock lock(&mu_);
     auto it = entries_.find(key);
     if (it == entries_.end() || it->second->status.state != GraphState::kQueued) return;
     e = it->second;
-    if (e->cancel) {
-      e->status.state = GraphState::kCancelled;
-      Bump(*e);
-      return;
-    }
   }
   const auto start = std::chrono::steady_clock::now();
-  auto set = [&](GraphState state, std::string phase, double progress) {
-    absl::MutexLock lock(&mu_);
-    e->status.state = state;
-    e->status.phase = std::move(phase);
-    e->status.progress = progress;
-    Bump(*e);
-  };
-  const std::string path = GraphPath(*e->mesh, key.second, e->pseudo_vertices);
-  std::shared_ptr<const DggGraph> graph;
   std::string note;
-  if (!path.empty() && std::filesystem::exists(path)) {
-    set(GraphState::kLoading, "mapping", 0);
-    auto opened = GraphFile::Open(path, *e->mesh->mesh, GraphFile::Check::kFull);
-    if (opened.ok()) {
-      graph = *opened;
-    } else {
-      // Never serve a file that fails validation: move it aside, rebuild.
-      const std::string aside =
-          absl::StrFormat("%s.rejected-%d", path, absl::ToUnixSeconds(absl::Now()));
-      std::error_code ec;
-      std::filesystem::rename(path, aside, ec);
-      note = absl::StrFormat("rejected %s (%s), rebuilding", path, opened.status().message());
-      std::fprintf(stderr, "geodesicd: %s\n", note.c_str());
-    }
+  std::shared_ptr<const DggGraph> graph;
+  if (!e->path.empty()) {
+    if (!SetPhase(key, e, GraphState::kLoading, "mapping", 0)) return;
+    graph = Load(*e, &note);
   }
   const bool from_file = graph != nullptr;
   if (!graph) {
-    set(GraphState::kBuilding, "candidates", 0);
-    ++builds_running_;
-    DggBuildOptions options;
-    options.params.epsilon = key.second;
-    options.params.pseudo_vertices = e->pseudo_vertices;
-    options.threads = options_.build_threads;
-    options.params.exact_fans = options_.exact_fans;
-    options.progress = [&](std::string_view phase, double fraction) {
-      absl::MutexLock lock(&mu_);
-      if (e->status.phase != phase || fraction - e->status.progress >= 0.01 || fraction >= 1) {
-        e->status.phase = std::string(phase);
-        e->status.progress = fraction;
-        Bump(*e);
-      }
-      return !e->cancel.load();
-    };
-    auto built = BuildDgg(*e->mesh->mesh, options);
-    --builds_running_;
+    if (!SetPhase(key, e, GraphState::kBuilding, "candidates", 0)) return;
+    auto built = Build(key, *e);
     if (!built.ok()) {
-      absl::MutexLock lock(&mu_);
-      e->status.state = built.status().code() == absl::StatusCode::kCancelled
-                            ? GraphState::kCancelled
-                            : GraphState::kFailed;
-      e->status.error = std::string(built.status().message());
-      Bump(*e);
-      if (options_.on_readiness) options_.on_readiness(key.first, key.second, false);
+      Abandon(key, e, built.status());
       return;
     }
-    graph = *built;
-    if (!path.empty()) {
-      set(GraphState::kBuilding, "writing", 1);
-      absl::Status written = GraphFile::Write(*graph, path);
-      if (written.ok()) {
-        // Serve the mapped copy: resident memory stays with the page cache.
-        auto mapped = GraphFile::Open(path, *e->mesh->mesh, GraphFile::Check::kHeader);
-        if (mapped.ok()) graph = *mapped;
-      } else {
-        note = absl::StrFormat("graph kept in memory only: %s", written.message());
-        std::fprintf(stderr, "geodesicd: %s\n", note.c_str());
-      }
+    graph = *std::move(built);
+    if (!e->path.empty()) {
+      if (!SetPhase(key, e, GraphState::kPersisting, "writing", 1)) return;
+      graph = Persist(key, *e, std::move(graph), &note);
     }
   }
-  auto engine = std::make_shared<const GeodesicEngine>(e->mesh->mesh, graph);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  std::shared_ptr<const GeodesicEngine> engine =
+      Publish(key, e, std::move(graph), from_file, std::move(note), seconds);
+  if (!engine) return;
+  // Landmarks cut the nodes a point-to-point query settles several times;
+  // queries that arrive before they are ready use straight-line bounds.
+  absl::Status landmarks =
+      engine->PrepareLandmarks(engine->DefaultLandmarkCount(), [e] { return e->cancel.load(); });
+  Notices notices;
   {
     absl::MutexLock lock(&mu_);
+    if (!landmarks.ok() || !Current(key, *e) || e->engine != engine) return;
+    e->status.landmark_bytes = engine->landmark_bytes();
+    ++e->status.version;
+    EvictOverBudget(key, notices);
+  }
+  Announce(notices);
+}
+
+std::shared_ptr<const DggGraph> GraphCache::Load(Entry& e, std::string* note) {
+  auto opened =
+      options_.maker->Open(e.path, *e.mesh->mesh, e.status.params, GraphFile::Check::kFull);
+  if (opened.ok()) {
+    if (options_.on_file_used) options_.on_file_used(e.path);
+    Log(LogLevel::kInfo, "graph_loaded", {{"mesh", e.status.mesh}, {"path", e.path}});
+    return *std::move(opened);
+  }
+  if (absl::IsNotFound(opened.status())) return nullptr;
+  // Never serve a file that fails validation or was built otherwise: move
+  // it aside (for a post-mortem), rebuild.
+  const std::string aside =
+      absl::StrFormat("%s.rejected-%d", e.path, absl::ToUnixSeconds(absl::Now()));
+  std::error_code ec;
+  std::filesystem::rename(e.path, aside, ec);
+  *note = absl::StrFormat("rejected %s (%s), rebuilt", e.path, opened.status().message());
+  Log(LogLevel::kWarning, "graph_file_rejected",
+      {{"mesh", e.status.mesh}, {"path", e.path}, {"error", opened.status().ToString()}});
+  return nullptr;
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey& key, Entry& e) {
+  Log(LogLevel::kInfo, "graph_build_started",
+      {{"mesh", key.mesh}, {"params", DescribeParams(key.params)}});
+  ++builds_running_;
+  DggBuildOptions options;
+  options.params = key.params;
+  options.threads = options_.build_threads;
+  int logged_quarter = 0;
+  options.progress = [&](std::string_view phase, double fraction) {
+    absl::MutexLock lock(&mu_);
+    if (e.status.phase != phase || fraction - e.status.progress >= 0.01 || fraction >= 1) {
+      e.status.phase = std::string(phase);
+      e.status.progress = fraction;
+      ++e.status.version;
+    }
+    if (static_cast<int>(4 * fraction) > logged_quarter && fraction < 1) {
+      logged_quarter = static_cast<int>(4 * fraction);
+      Log(LogLevel::kInfo, "graph_build_progress",
+          {{"mesh", key.mesh},
+           {"eps", key.params.epsilon},
+           {"percent", 25 * logged_quarter},
+           {"phase", std::string(phase)}});
+    }
+    return !e.cancel.load();
+  };
+  const auto start = std::chrono::steady_clock::now();
+  auto built = options_.maker->Build(*e.mesh->mesh, options);
+  --builds_running_;
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (built.ok()) {
+    Log(LogLevel::kInfo, "graph_build_finished",
+        {{"mesh", key.mesh},
+         {"eps", key.params.epsilon},
+         {"seconds", seconds},
+         {"edges", (*built)->num_directed_edges() / 2},
+         {"bytes", (*built)->byte_size()}});
+  }
+  return built;
+}
+
+std::shared_ptr<const DggGraph> GraphCache::Persist(const GraphKey& key, Entry& e,
+                                                    std::shared_ptr<const DggGraph> graph,
+                                                    std::string* note) {
+  absl::Status written = options_.maker->Write(*graph, e.path);
+  if (!written.ok()) {
+    *note = absl::StrFormat("graph kept in memory only: %s", written.message());
+    Log(LogLevel::kWarning, "graph_write_failed",
+        {{"mesh", key.mesh}, {"path", e.path}, {"error", written.ToString()}});
+    return graph;
+  }
+  if (options_.on_file_used) options_.on_file_used(e.path);
+  // Serve the mapped copy: resident memory stays with the page cache.
+  auto mapped = options_.maker->Open(e.path, *e.mesh->mesh, key.params, GraphFile::Check::kHeader);
+  return mapped.ok() ? *std::move(mapped) : graph;
+}
+
+std::shared_ptr<const GeodesicEngine> GraphCache::Publish(const GraphKey& key,
+                                                          const std::shared_ptr<Entry>& e,
+                                                          std::shared_ptr<const DggGraph> graph,
+                                                          bool from_file, std::string note,
+                                                          double seconds) {
+  // The engine is made outside the lock: it reads every node's position.
+  auto engine = std::make_shared<const GeodesicEngine>(e->mesh->mesh, graph);
+  Notices notices;
+  {
+    absl::MutexLock lock(&mu_);
+    if (!Current(key, *e)) return nullptr;
+    if (e->cancel) {
+      Transition(*e, GraphState::kCancelled);
+      return nullptr;
+    }
+    if (!Transition(*e, GraphState::kReady)) return nullptr;
     e->engine = engine;
-    e->status.state = GraphState::kReady;
     e->status.phase = "ready";
     e->status.progress = 1;
-    e->status.error = note;
+    e->status.error = std::move(note);
     e->status.bytes = graph->byte_size();
     e->status.landmark_bytes = 0;
     e->status.mapped = graph->is_mapped();
     e->status.from_file = from_file;
     e->status.nodes = graph->num_nodes();
     e->status.edges = graph->num_directed_edges() / 2;
-    e->status.build_seconds =
-        std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    e->status.build_seconds = seconds;
     Touch(*e);
-    Bump(*e);
-    EvictOverBudget(key);
+    notices.push_back({key, true});
+    EvictOverBudget(key, notices);
   }
-  if (options_.on_readiness) options_.on_readiness(key.first, key.second, true);
-  // Landmarks cut the nodes a point-to-point query settles several times;
-  // queries that arrive before they are ready use straight-line bounds.
-  absl::Status landmarks =
-      engine->PrepareLandmarks(engine->DefaultLandmarkCount(), [e] { return e->cancel.load(); });
-  absl::MutexLock lock(&mu_);
-  if (!landmarks.ok() || e->engine != engine) return;
-  e->status.landmark_bytes = engine->landmark_bytes();
-  Bump(*e);
-  EvictOverBudget(key);
+  Log(LogLevel::kInfo, "graph_ready",
+      {{"mesh", key.mesh},
+       {"eps", key.params.epsilon},
+       {"from_file", from_file ? "true" : "false"},
+       {"seconds", seconds}});
+  Announce(notices);
+  return engine;
 }
 
-void GraphCache::EvictOverBudget(const Key& keep) {
+void GraphCache::Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e,
+                         const absl::Status& why) {
+  const bool cancelled = absl::IsCancelled(why);
+  {
+    absl::MutexLock lock(&mu_);
+    if (!Current(key, *e)) return;
+    if (!Transition(*e, cancelled ? GraphState::kCancelled : GraphState::kFailed)) return;
+    e->status.error = std::string(why.message());
+  }
+  Log(cancelled ? LogLevel::kInfo : LogLevel::kError,
+      cancelled ? "graph_cancelled" : "graph_build_failed",
+      {{"mesh", key.mesh}, {"eps", key.params.epsilon}, {"error", why.ToString()}});
+}
+
+void GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
   if (options_.memory_limit == 0) return;
   while (true) {
     uint64_t total = 0;
     std::shared_ptr<Entry> victim;
-    Key victim_key;
+    const GraphKey* victim_key = nullptr;
     for (auto& [key, e] : entries_) {
       if (e->status.state != GraphState::kReady) continue;
-      total += e->status.bytes + e->status.landmark_bytes;
+      total += e->status.bytes + e->status.landmark_bytes + e->engine->scratch_bytes();
       // Only graphs no query holds; never the one just made ready.
       if (key == keep || e->engine.use_count() > 1) continue;
       if (!victim || e->last_used < victim->last_used) {
         victim = e;
-        victim_key = key;
+        victim_key = &key;
       }
     }
     if (total <= options_.memory_limit || !victim) return;
+    if (!Transition(*victim, GraphState::kEvicted)) return;
     victim->engine.reset();
     ++evictions_;
     victim->status.landmark_bytes = 0;
-    victim->status.state = GraphState::kEvicted;
     victim->status.phase = "evicted";
-    Bump(*victim);
-    if (options_.on_readiness) options_.on_readiness(victim_key.first, victim_key.second, false);
+    notices.push_back({*victim_key, false});
+    Log(LogLevel::kInfo, "graph_evicted",
+        {{"mesh", victim_key->mesh}, {"eps", victim_key->params.epsilon}});
   }
 }
 
-absl::StatusOr<GraphStatus> GraphCache::Get(const std::string& mesh, double epsilon) const {
+absl::StatusOr<GraphStatus> GraphCache::Get(const GraphKey& key) const {
   absl::MutexLock lock(&mu_);
-  auto it = entries_.find({mesh, epsilon});
+  auto it = entries_.find(key);
   if (it == entries_.end()) {
-    return absl::NotFoundError(
-        absl::StrFormat("no graph was requested for mesh '%s' at epsilon %g", mesh, epsilon));
+    return absl::NotFoundError(absl::StrFormat("%s was never requested", Describe(key)));
   }
   return it->second->status;
 }
 
-absl::StatusOr<GraphStatus> GraphCache::WaitForChange(const std::string& mesh, double epsilon,
-                                                      uint64_t version, absl::Time deadline) const {
+absl::StatusOr<GraphStatus> GraphCache::WaitForChange(const GraphKey& key, uint64_t version,
+                                                      absl::Time deadline) const {
   absl::MutexLock lock(&mu_);
-  auto it = entries_.find({mesh, epsilon});
+  auto it = entries_.find(key);
   if (it == entries_.end()) {
-    return absl::NotFoundError(
-        absl::StrFormat("no graph was requested for mesh '%s' at epsilon %g", mesh, epsilon));
+    return absl::NotFoundError(absl::StrFormat("%s was never requested", Describe(key)));
   }
   std::shared_ptr<Entry> e = it->second;
   auto changed = [&]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) { return e->status.version != version; };
@@ -302,19 +453,17 @@ absl::StatusOr<GraphStatus> GraphCache::WaitForChange(const std::string& mesh, d
   return e->status;
 }
 
-absl::StatusOr<GraphStatus> GraphCache::Cancel(const std::string& mesh, double epsilon) {
+absl::StatusOr<GraphStatus> GraphCache::Cancel(const GraphKey& key) {
   absl::MutexLock lock(&mu_);
-  auto it = entries_.find({mesh, epsilon});
+  auto it = entries_.find(key);
   if (it == entries_.end()) {
-    return absl::NotFoundError(
-        absl::StrFormat("no graph was requested for mesh '%s' at epsilon %g", mesh, epsilon));
+    return absl::NotFoundError(absl::StrFormat("%s was never requested", Describe(key)));
   }
   Entry& e = *it->second;
   e.cancel = true;
-  if (e.status.state == GraphState::kQueued) {
-    e.status.state = GraphState::kCancelled;
-    Bump(e);
-  }
+  // A queued entry has no worker to notice; one at work ends in cancelled
+  // at its next step.
+  if (e.status.state == GraphState::kQueued) Transition(e, GraphState::kCancelled);
   return e.status;
 }
 
@@ -326,61 +475,67 @@ std::vector<GraphStatus> GraphCache::List() const {
 }
 
 void GraphCache::DropMesh(const std::string& mesh) {
-  std::vector<double> dropped;
+  Notices notices;
   {
     absl::MutexLock lock(&mu_);
     for (auto it = entries_.begin(); it != entries_.end();) {
-      if (it->first.first == mesh) {
-        it->second->cancel = true;
-        dropped.push_back(it->first.second);
-        it = entries_.erase(it);
-      } else {
+      if (it->first.mesh != mesh) {
         ++it;
+        continue;
       }
+      it->second->cancel = true;
+      if (it->second->status.state == GraphState::kReady) notices.push_back({it->first, false});
+      it = entries_.erase(it);
     }
   }
-  if (options_.on_readiness) {
-    for (double eps : dropped) options_.on_readiness(mesh, eps, false);
-  }
+  Announce(notices);
 }
 
-absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GraphCache::Acquire(const std::string& mesh,
-                                                                          double epsilon) {
+absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GraphCache::Acquire(const GraphKey& key) {
   absl::MutexLock lock(&mu_);
-  auto it = entries_.find({mesh, epsilon});
+  auto it = entries_.find(key);
   if (it == entries_.end()) {
     ++misses_;
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "no graph for mesh '%s' at epsilon %g: request one first (RequestGraph)", mesh, epsilon));
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%s was never requested: request it first (RequestGraph)", Describe(key)));
   }
   Entry& e = *it->second;
+  if (e.status.state == GraphState::kReady) {
+    ++hits_;
+    Touch(e);
+    return e.engine;
+  }
+  ++misses_;
   switch (e.status.state) {
-    case GraphState::kReady:
-      ++hits_;
-      Touch(e);
-      return e.engine;
     case GraphState::kFailed:
-      ++misses_;
-      return absl::FailedPreconditionError(absl::StrFormat(
-          "the graph for '%s' at epsilon %g failed: %s", mesh, epsilon, e.status.error));
+      return absl::FailedPreconditionError(
+          absl::StrFormat("%s failed: %s", Describe(key), e.status.error));
     case GraphState::kCancelled:
-      ++misses_;
-      return absl::FailedPreconditionError(absl::StrFormat(
-          "the graph for '%s' at epsilon %g was cancelled: request it again", mesh, epsilon));
+      return absl::FailedPreconditionError(
+          absl::StrFormat("%s was cancelled: request it again", Describe(key)));
     case GraphState::kEvicted:
       // Map it again (it was persisted) and let the client retry.
-      ++misses_;
-      e.status.state = GraphState::kQueued;
       e.cancel = false;
-      Bump(e);
-      Schedule(it->first);
-      [[fallthrough]];
+      if (Transition(e, GraphState::kQueued)) Enqueue(key);
+      break;
     default:
-      ++misses_;
-      return absl::UnavailableError(
-          absl::StrFormat("the graph for '%s' at epsilon %g is %s (%.0f%%): retry shortly", mesh,
-                          epsilon, GraphStateName(e.status.state), 100 * e.status.progress));
+      break;
   }
+  return absl::UnavailableError(absl::StrFormat("%s is %s (%.0f%%): retry shortly", Describe(key),
+                                                GraphStateName(e.status.state),
+                                                100 * e.status.progress));
+}
+
+bool GraphCache::FileInUse(const std::string& file_name) const {
+  absl::MutexLock lock(&mu_);
+  for (const auto& [key, e] : entries_) {
+    const GraphState s = e->status.state;
+    if (s == GraphState::kFailed || s == GraphState::kCancelled || s == GraphState::kEvicted) {
+      continue;
+    }
+    if (!e->path.empty() && std::filesystem::path(e->path).filename() == file_name) return true;
+  }
+  return false;
 }
 
 uint64_t GraphCache::resident_bytes() const {
@@ -398,6 +553,15 @@ uint64_t GraphCache::mapped_bytes() const {
   uint64_t total = 0;
   for (const auto& [key, e] : entries_) {
     if (e->status.state == GraphState::kReady && e->status.mapped) total += e->status.bytes;
+  }
+  return total;
+}
+
+uint64_t GraphCache::scratch_bytes() const {
+  absl::MutexLock lock(&mu_);
+  uint64_t total = 0;
+  for (const auto& [key, e] : entries_) {
+    if (e->status.state == GraphState::kReady) total += e->engine->scratch_bytes();
   }
   return total;
 }

@@ -1,21 +1,37 @@
-// The daemon's graphs: one long-running operation per (mesh, epsilon) that
-// maps the graph from --graph-dir or builds it in the background, and a cache
-// of ready graphs under a memory budget.
+// The daemon's graphs: one long-running operation per (mesh, build record)
+// that maps the graph from --graph-dir or builds it in the background, and a
+// cache of ready graphs under a memory budget.
 //
-// - Single flight: one build or load per key; later requests join it.
+// Each entry is a small state machine (after TensorFlow Serving's
+// LoaderHarness): every change of state goes through Transition(), which
+// checks a table of legal moves, so a worker, a cancel, an eviction and an
+// unload racing for one entry cannot leave it somewhere no rule allows.
+//
+//   queued -> loading -> ready                 (the file in --graph-dir)
+//   queued -> [loading ->] building -> persisting -> ready
+//   loading | building | persisting -> failed | cancelled
+//   ready -> evicted -> queued                 (mapped again on next use)
+//   failed | cancelled -> queued               (requested again)
+//
+// - Single flight: one operation per key; later requests join it.
 // - Immutable, shared, reference-counted: queries hold a
 //   shared_ptr<const GeodesicEngine> for their duration, so eviction or a
 //   rebuild never pulls a graph from under a running query (hot swap).
+// - A worker publishes only into the entry it was started for: an entry
+//   unloaded or replaced meanwhile (its mesh registered again) keeps nothing
+//   of it.
 // - Memory budget: when ready graphs exceed it, the least recently used ones
 //   that no query holds are evicted; their files stay, so a later request
 //   maps them again instead of rebuilding.
 // - Persistence: built graphs are written atomically to --graph-dir; a file
-//   that fails validation is moved aside, reported and rebuilt, never served.
+//   that fails validation, or was built with other parameters, is moved
+//   aside, reported and rebuilt, never served.
+// - Callbacks (on_readiness) always run outside the cache's lock, so they
+//   may call back into it.
 #ifndef GEODESIC_SERVER_GRAPH_CACHE_H_
 #define GEODESIC_SERVER_GRAPH_CACHE_H_
 
 #include <atomic>
-#include <condition_variable>
 #include <deque>
 #include <functional>
 #include <map>
@@ -28,17 +44,39 @@
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
+#include "core/dgg_build.h"
+#include "core/graph_file.h"
 #include "core/queries.h"
 #include "server/mesh_registry.h"
 
 namespace geodesic::server {
 
-enum class GraphState { kQueued, kBuilding, kLoading, kReady, kFailed, kCancelled, kEvicted };
+enum class GraphState {
+  kQueued,
+  kLoading,  // mapping and validating the file in --graph-dir
+  kBuilding,
+  kPersisting,  // writing the built graph to --graph-dir
+  kReady,
+  kFailed,
+  kCancelled,
+  kEvicted,
+};
+inline constexpr int kGraphStateCount = 8;
 const char* GraphStateName(GraphState s);
+// Whether the table of legal moves allows `from` -> `to`.
+bool LegalTransition(GraphState from, GraphState to);
+
+// A graph's name in the cache: its mesh and its whole build record.
+struct GraphKey {
+  std::string mesh;
+  DggParams params;
+  friend auto operator<=>(const GraphKey&, const GraphKey&) = default;
+};
 
 struct GraphStatus {
   std::string mesh;
-  double epsilon = 0;
+  DggParams params;
+  double epsilon = 0;  // params.epsilon, for callers that name graphs by it
   GraphState state = GraphState::kQueued;
   std::string phase;
   double progress = 0;
@@ -56,6 +94,22 @@ struct GraphStatus {
   uint64_t version = 0;  // increases on every change
 };
 
+// How an entry gets its graph. The cache's own steps (load, build, persist)
+// call these; tests substitute them to hold an entry in any state.
+class GraphMaker {
+ public:
+  virtual ~GraphMaker() = default;
+  // The graph in `path`, which must be for `mesh` and `params`; NOT_FOUND
+  // when there is no file.
+  virtual absl::StatusOr<std::shared_ptr<const DggGraph>> Open(const std::string& path,
+                                                               const Mesh& mesh,
+                                                               const DggParams& params,
+                                                               GraphFile::Check check);
+  virtual absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const Mesh& mesh,
+                                                                const DggBuildOptions& options);
+  virtual absl::Status Write(const DggGraph& graph, const std::string& path);
+};
+
 class GraphCache {
  public:
   struct Options {
@@ -63,62 +117,99 @@ class GraphCache {
     uint64_t memory_limit = 0;  // bytes of ready graphs; 0: no limit
     int build_workers = 1;      // graphs built at once
     int build_threads = 0;      // threads per build (0: all cores)
-    bool exact_fans = false;    // DggBuildOptions::exact_fans
-    // Called with (mesh, epsilon, ready) whenever a graph becomes ready or stops being.
-    std::function<void(const std::string&, double, bool)> on_readiness;
+    // Called whenever a graph becomes ready or stops being, outside the lock.
+    std::function<void(const GraphKey&, bool ready)> on_readiness;
+    // Called with a graph's file when it is mapped or written (for the
+    // directory's least-recently-used order).
+    std::function<void(const std::string& path)> on_file_used;
+    std::shared_ptr<GraphMaker> maker;  // null: the real build and files
   };
   explicit GraphCache(Options options);
   ~GraphCache();
 
-  GraphStatus Request(std::shared_ptr<const RegisteredMesh> mesh, double epsilon,
-                      bool pseudo_vertices);
-  absl::StatusOr<GraphStatus> Get(const std::string& mesh, double epsilon) const;
+  // Starts (or joins) the operation that makes the graph of `mesh` with
+  // `params`. A failed, cancelled or evicted graph starts again.
+  GraphStatus Request(std::shared_ptr<const RegisteredMesh> mesh, const DggParams& params);
+  // NOT_FOUND if the graph was never requested.
+  absl::StatusOr<GraphStatus> Get(const GraphKey& key) const;
   // Waits until the status differs from `version` or the deadline passes.
-  absl::StatusOr<GraphStatus> WaitForChange(const std::string& mesh, double epsilon,
-                                            uint64_t version, absl::Time deadline) const;
-  absl::StatusOr<GraphStatus> Cancel(const std::string& mesh, double epsilon);
+  absl::StatusOr<GraphStatus> WaitForChange(const GraphKey& key, uint64_t version,
+                                            absl::Time deadline) const;
+  absl::StatusOr<GraphStatus> Cancel(const GraphKey& key);
   std::vector<GraphStatus> List() const;
   uint64_t memory_limit() const { return options_.memory_limit; }
-  // Drops every graph of a mesh (unload).
+  // Drops every graph of a mesh (unload); their operations are cancelled and
+  // publish nothing.
   void DropMesh(const std::string& mesh);
 
-  // The engine for queries: UNAVAILABLE while building or loading (an
-  // evicted graph is mapped again), FAILED_PRECONDITION if never requested,
-  // and the build's error if it failed.
-  absl::StatusOr<std::shared_ptr<const GeodesicEngine>> Acquire(const std::string& mesh,
-                                                                double epsilon);
+  // The engine for queries: UNAVAILABLE while it is being made (an evicted
+  // graph is mapped again), FAILED_PRECONDITION if never requested, and the
+  // build's error if it failed.
+  absl::StatusOr<std::shared_ptr<const GeodesicEngine>> Acquire(const GraphKey& key);
+
+  // The file a graph has (or would have) in --graph-dir; empty without one.
+  std::string GraphPath(uint64_t mesh_fingerprint, const DggParams& params) const;
+  // Whether a ready graph is mapped from `file_name` (a name in --graph-dir):
+  // such a file is in use and must stay.
+  bool FileInUse(const std::string& file_name) const;
 
   uint64_t resident_bytes() const;
   uint64_t mapped_bytes() const;
+  // Query scratch held by the engines of ready graphs.
+  uint64_t scratch_bytes() const;
   uint64_t hits() const { return hits_; }
   uint64_t misses() const { return misses_; }
   uint64_t evictions() const { return evictions_; }
   int builds_running() const { return builds_running_; }
 
-  std::string GraphPath(const RegisteredMesh& mesh, double epsilon, bool pseudo) const;
-
  private:
   struct Entry {
     GraphStatus status;
     std::shared_ptr<const RegisteredMesh> mesh;
-    bool pseudo_vertices = false;
     std::shared_ptr<const GeodesicEngine> engine;
+    std::string path;  // in --graph-dir, or empty
     std::atomic<bool> cancel{false};
     absl::Time last_used;
   };
-  using Key = std::pair<std::string, double>;
+  // A readiness change to announce once the lock is released.
+  struct Notice {
+    GraphKey key;
+    bool ready;
+  };
+  using Notices = std::vector<Notice>;
 
-  void Schedule(const Key& key) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  void Run(const Key& key);
-  void Touch(Entry& e) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  void Bump(Entry& e) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  void EvictOverBudget(const Key& keep) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // The one way an entry changes state. An illegal move is a bug: it is
+  // logged and refused, and the entry keeps its state.
+  bool Transition(Entry& e, GraphState to) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Whether `e` is still the entry for `key` (not unloaded or replaced).
+  bool Current(const GraphKey& key, const Entry& e) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  void Enqueue(const GraphKey& key) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   void Worker();
+  void Run(const GraphKey& key);
+  // The steps of Run, each outside the lock except where it changes state.
+  std::shared_ptr<const DggGraph> Load(Entry& e, std::string* note);
+  absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const GraphKey& key, Entry& e);
+  std::shared_ptr<const DggGraph> Persist(const GraphKey& key, Entry& e,
+                                          std::shared_ptr<const DggGraph> graph, std::string* note);
+  // Makes `graph` the entry's, if the entry is still current and not
+  // cancelled; returns the engine published, or null.
+  std::shared_ptr<const GeodesicEngine> Publish(const GraphKey& key,
+                                                const std::shared_ptr<Entry>& e,
+                                                std::shared_ptr<const DggGraph> graph,
+                                                bool from_file, std::string note, double seconds);
+  // Ends the entry's operation in failed or cancelled.
+  void Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e, const absl::Status& why);
+  // Moves `e` to a phase of its current state (progress reports).
+  bool SetPhase(const GraphKey& key, const std::shared_ptr<Entry>& e, GraphState state,
+                std::string phase, double progress);
+  void Touch(Entry& e) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  void EvictOverBudget(const GraphKey& keep, Notices& notices) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  void Announce(const Notices& notices) const ABSL_LOCKS_EXCLUDED(mu_);
 
   Options options_;
   mutable absl::Mutex mu_;
-  std::map<Key, std::shared_ptr<Entry>> entries_ ABSL_GUARDED_BY(mu_);
-  std::deque<Key> queue_ ABSL_GUARDED_BY(mu_);
+  std::map<GraphKey, std::shared_ptr<Entry>> entries_ ABSL_GUARDED_BY(mu_);
+  std::deque<GraphKey> queue_ ABSL_GUARDED_BY(mu_);
   bool stopping_ ABSL_GUARDED_BY(mu_) = false;
   std::vector<std::thread> workers_;
   std::atomic<uint64_t> hits_{0}, misses_{0}, evictions_{0};

@@ -19,7 +19,13 @@ void Metrics::Record(const std::string& method, const std::string& code, double 
 void Metrics::AddGauge(const std::string& name, const std::string& help,
                        std::function<double()> read) {
   absl::MutexLock lock(&mu_);
-  gauges_[name] = {help, std::move(read)};
+  series_[name] = {help, "gauge", std::move(read)};
+}
+
+void Metrics::AddCounter(const std::string& name, const std::string& help,
+                         std::function<double()> read) {
+  absl::MutexLock lock(&mu_);
+  series_[name] = {help, "counter", std::move(read)};
 }
 
 std::string Metrics::Render() const {
@@ -47,9 +53,9 @@ std::string Metrics::Render() const {
       "# HELP geodesicd_queue_depth Queries waiting or running.\n# TYPE geodesicd_queue_depth "
       "gauge\n";
   out += absl::StrFormat("geodesicd_queue_depth %d\n", queue_depth_.load());
-  for (const auto& [name, g] : gauges_) {
-    out += absl::StrFormat("# HELP %s %s\n# TYPE %s gauge\n%s %.17g\n", name, g.help, name, name,
-                           g.read());
+  for (const auto& [name, g] : series_) {
+    out += absl::StrFormat("# HELP %s %s\n# TYPE %s %s\n%s %.17g\n", name, g.help, name, g.type,
+                           name, g.read());
   }
   return out;
 }

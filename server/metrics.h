@@ -20,8 +20,12 @@ class Metrics {
   // Records one finished request.
   void Record(const std::string& method, const std::string& code, double seconds);
   void SetQueueDepth(int depth) { queue_depth_ = depth; }
-  // Gauges read when the page is rendered (resident bytes, builds, ...).
+  // Values read when the page is rendered. A gauge is a level that goes up
+  // and down (resident bytes, builds running); a counter only ever grows
+  // (hits, evictions), and its name ends in "_total", as Prometheus expects
+  // of the series rate() and increase() are asked about.
   void AddGauge(const std::string& name, const std::string& help, std::function<double()> read);
+  void AddCounter(const std::string& name, const std::string& help, std::function<double()> read);
   std::string Render() const;
 
  private:
@@ -35,11 +39,12 @@ class Metrics {
   mutable absl::Mutex mu_;
   std::map<std::pair<std::string, std::string>, uint64_t> requests_ ABSL_GUARDED_BY(mu_);
   std::map<std::string, Histogram> latency_ ABSL_GUARDED_BY(mu_);
-  struct Gauge {
+  struct Series {
     std::string help;
+    const char* type;  // "gauge" or "counter"
     std::function<double()> read;
   };
-  std::map<std::string, Gauge> gauges_ ABSL_GUARDED_BY(mu_);
+  std::map<std::string, Series> series_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> queue_depth_{0};
 };
 

@@ -61,8 +61,11 @@ std::string FindSampleMesh(const char* argv0) {
   return "";
 }
 
-std::string ServiceName(const std::string& mesh, double epsilon) {
-  return absl::StrFormat("geodesic.v1.Geodesic/%s@%g", mesh, epsilon);
+// The health-check name of a graph: "geodesic.v1.Geodesic/<mesh>@<eps>",
+// with "+pseudo" for the graph with pseudo vertices.
+std::string ServiceName(const GraphKey& key) {
+  return absl::StrFormat("geodesic.v1.Geodesic/%s@%g%s", key.mesh, key.params.epsilon,
+                         key.params.pseudo_vertices ? "+pseudo" : "");
 }
 
 // Certificates, keys and tokens: small files read once at start.
@@ -211,6 +214,7 @@ int RunServe(int argc, char** argv) {
     return app.exit(e);
   }
   limits.log_requests = log_level == "info";
+  limits.exact_fans = exact_fans;
   if (security.tls_cert.empty() != security.tls_key.empty()) {
     std::fprintf(stderr, "geodesicd serve: --tls-cert and --tls-key go together\n");
     return 2;
@@ -241,13 +245,12 @@ int RunServe(int argc, char** argv) {
   std::mutex health_mu;
   GraphCache::Options cache_options;
   cache_options.graph_dir = graph_dir;
-  cache_options.exact_fans = exact_fans;
   cache_options.memory_limit = memory_limit;
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;
-  cache_options.on_readiness = [&](const std::string& mesh, double eps, bool ready) {
+  cache_options.on_readiness = [&](const GraphKey& key, bool ready) {
     std::lock_guard<std::mutex> lock(health_mu);
-    if (health) health->SetServingStatus(ServiceName(mesh, eps), ready);
+    if (health) health->SetServingStatus(ServiceName(key), ready);
   };
   GraphCache graphs(cache_options);
   // Built meshes are saved beside the graphs, so a restarted daemon restores
@@ -260,13 +263,17 @@ int RunServe(int argc, char** argv) {
                    [&] { return double(graphs.mapped_bytes()); });
   metrics.AddGauge("geodesicd_builds_running", "Graph builds running.",
                    [&] { return double(graphs.builds_running()); });
-  metrics.AddGauge("geodesicd_cache_hits", "Queries that found their graph ready.",
-                   [&] { return double(graphs.hits()); });
-  metrics.AddGauge("geodesicd_cache_misses", "Queries whose graph was not ready.",
-                   [&] { return double(graphs.misses()); });
-  metrics.AddGauge("geodesicd_graph_evictions",
-                   "Ready graphs evicted to stay within --memory-limit.",
-                   [&] { return double(graphs.evictions()); });
+  metrics.AddGauge(
+      "geodesicd_query_scratch_bytes",
+      "Query scratch held by the engines of ready graphs (pooled per query in flight).",
+      [&] { return double(graphs.scratch_bytes()); });
+  metrics.AddCounter("geodesicd_cache_hits_total", "Queries that found their graph ready.",
+                     [&] { return double(graphs.hits()); });
+  metrics.AddCounter("geodesicd_cache_misses_total", "Queries whose graph was not ready.",
+                     [&] { return double(graphs.misses()); });
+  metrics.AddCounter("geodesicd_graph_evictions_total",
+                     "Ready graphs evicted to stay within --memory-limit.",
+                     [&] { return double(graphs.evictions()); });
 
   // Registered before the port opens, so that the first answer already lists
   // it; its graph is requested once health reporting is up.
@@ -339,7 +346,12 @@ int RunServe(int argc, char** argv) {
                                                 : "mutual TLS",
                token.empty() ? "" : ", bearer token required", graph_dir.c_str(),
                mesh_root.empty() ? "(none)" : mesh_root.c_str());
-  if (sample_mesh.ok()) graphs.Request(*sample_mesh, limits.default_epsilon, false);
+  if (sample_mesh.ok()) {
+    DggParams params;
+    params.epsilon = limits.default_epsilon;
+    params.exact_fans = exact_fans;
+    graphs.Request(*sample_mesh, params);
+  }
   signal(SIGTERM, OnSignal);
   signal(SIGINT, OnSignal);
   while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));

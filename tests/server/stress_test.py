@@ -200,7 +200,7 @@ def main():
         metrics = urllib.request.urlopen(f"http://127.0.0.1:{metrics_port}/metrics",
                                          timeout=10).read().decode()
         evictions = max((float(line.split()[-1]) for line in metrics.splitlines()
-                         if line.startswith("geodesicd_graph_evictions ")), default=0)
+                         if line.startswith("geodesicd_graph_evictions_total ")), default=0)
         print(f"graphs evicted: {evictions:.0f}")
         if evictions == 0:
             print("FAIL no graph was evicted: the memory limit was not exercised")

@@ -1,0 +1,386 @@
+// The graph cache's state machine, driven through every state with a maker
+// that holds each step (load, build, persist) until the test lets it go.
+#include "server/graph_cache.h"
+
+#include <unistd.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "absl/strings/str_cat.h"
+#include "absl/synchronization/notification.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geodesic::server {
+namespace {
+
+namespace fs = std::filesystem;
+using ::testing::HasSubstr;
+
+// A flat n x n grid of unit squares, two triangles each.
+std::shared_ptr<const RegisteredMesh> GridMesh(const std::string& name, int n, double z = 0) {
+  TriangleSoup soup;
+  for (int y = 0; y <= n; ++y) {
+    for (int x = 0; x <= n; ++x) soup.positions.push_back({double(x), double(y), z * x * y});
+  }
+  auto at = [&](int x, int y) { return static_cast<VertexId>(y * (n + 1) + x); };
+  for (int y = 0; y < n; ++y) {
+    for (int x = 0; x < n; ++x) {
+      soup.triangles.push_back({at(x, y), at(x + 1, y), at(x + 1, y + 1)});
+      soup.triangles.push_back({at(x, y), at(x + 1, y + 1), at(x, y + 1)});
+    }
+  }
+  auto m = std::make_shared<RegisteredMesh>();
+  m->name = name;
+  m->mesh = std::make_shared<const Mesh>(*Mesh::Build(std::move(soup), name));
+  m->fingerprint = MeshFingerprint(*m->mesh);
+  return m;
+}
+
+DggParams Eps(double eps, bool pseudo = false) {
+  DggParams p;
+  p.epsilon = eps;
+  p.pseudo_vertices = pseudo;
+  return p;
+}
+
+// The real steps, each of which can be held at its start until released,
+// and made to fail.
+class HeldMaker : public GraphMaker {
+ public:
+  enum Step { kOpen, kBuild, kWrite, kSteps };
+
+  void Hold(Step s) { held_[s] = std::make_unique<Gate>(); }
+  // Waits until the step is reached, then lets it go on.
+  void AwaitReached(Step s) { held_[s]->reached.WaitForNotification(); }
+  void Release(Step s) { held_[s]->release.Notify(); }
+  void FailBuild(bool fail) { fail_build_ = fail; }
+  int calls(Step s) const { return calls_[s]; }
+
+  absl::StatusOr<std::shared_ptr<const DggGraph>> Open(const std::string& path, const Mesh& mesh,
+                                                       const DggParams& params,
+                                                       GraphFile::Check check) override {
+    // Only the first open of a file (loading) is held, not the reopening
+    // of a freshly written one.
+    if (check == GraphFile::Check::kFull) Pass(kOpen);
+    return GraphMaker::Open(path, mesh, params, check);
+  }
+  absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const Mesh& mesh,
+                                                        const DggBuildOptions& options) override {
+    Pass(kBuild);
+    if (fail_build_) return absl::InternalError("the build broke on purpose");
+    return GraphMaker::Build(mesh, options);
+  }
+  absl::Status Write(const DggGraph& graph, const std::string& path) override {
+    Pass(kWrite);
+    return GraphMaker::Write(graph, path);
+  }
+
+ private:
+  struct Gate {
+    absl::Notification reached, release;
+  };
+  void Pass(Step s) {
+    ++calls_[s];
+    if (held_[s]) {
+      held_[s]->reached.Notify();
+      held_[s]->release.WaitForNotification();
+      held_[s].reset();
+    }
+  }
+  std::unique_ptr<Gate> held_[kSteps];
+  std::atomic<int> calls_[kSteps] = {};
+  std::atomic<bool> fail_build_{false};
+};
+
+class GraphCacheTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    dir_ = fs::temp_directory_path() /
+           absl::StrCat("graph_cache_test.", getpid(), ".",
+                        ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(dir_);
+    maker_ = std::make_shared<HeldMaker>();
+  }
+  void TearDown() override {
+    cache_.reset();
+    fs::remove_all(dir_);
+  }
+  GraphCache& Cache(bool persist = true, uint64_t memory_limit = 0) {
+    GraphCache::Options options;
+    if (persist) options.graph_dir = dir_;
+    options.memory_limit = memory_limit;
+    options.build_threads = 1;
+    options.maker = maker_;
+    // The callback asks the cache that calls it (not cache_, which the test
+    // may be replacing meanwhile).
+    auto self = std::make_shared<GraphCache*>(nullptr);
+    options.on_readiness = [this, self](const GraphKey& key, bool ready) {
+      // Outside the lock: calling back into the cache must not deadlock.
+      auto status = (*self)->Get(key);
+      absl::MutexLock lock(&notices_mu_);
+      notices_.push_back(absl::StrCat(key.mesh, "@", key.params.epsilon,
+                                      key.params.pseudo_vertices ? "+pseudo" : "",
+                                      ready ? " ready" : " gone", status.ok() ? "" : " (dropped)"));
+    };
+    cache_.reset();  // one cache on the directory at a time, as daemons
+    cache_ = std::make_unique<GraphCache>(options);
+    *self = cache_.get();
+    return *cache_;
+  }
+  // Waits until the graph's state is `want` (or fails the test after 30 s).
+  GraphStatus WaitFor(const GraphKey& key, GraphState want) {
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    auto s = cache_->Get(key);
+    while (s.ok() && s->state != want && absl::Now() < deadline) {
+      s = cache_->WaitForChange(key, s->version, deadline);
+    }
+    EXPECT_TRUE(s.ok()) << s.status();
+    EXPECT_EQ(s.ok() ? s->state : GraphState::kFailed, want)
+        << GraphStateName(s.ok() ? s->state : GraphState::kFailed);
+    return s.ok() ? *s : GraphStatus{};
+  }
+  std::vector<std::string> Notices() {
+    absl::MutexLock lock(&notices_mu_);
+    return notices_;
+  }
+  // Readiness is announced just after the state changes: waits for it.
+  bool Announced(const std::string& notice) {
+    absl::MutexLock lock(&notices_mu_);
+    auto seen = [&]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(notices_mu_) {
+      return std::find(notices_.begin(), notices_.end(), notice) != notices_.end();
+    };
+    return notices_mu_.AwaitWithTimeout(absl::Condition(&seen), absl::Seconds(30));
+  }
+
+  fs::path dir_;
+  std::shared_ptr<HeldMaker> maker_;
+  std::unique_ptr<GraphCache> cache_;
+  absl::Mutex notices_mu_;
+  std::vector<std::string> notices_;
+};
+
+TEST(GraphStateTest, TheTableAllowsExactlyTheDocumentedMoves) {
+  using S = GraphState;
+  const std::vector<std::pair<S, S>> legal = {
+      {S::kQueued, S::kLoading},    {S::kQueued, S::kBuilding},      {S::kQueued, S::kCancelled},
+      {S::kLoading, S::kBuilding},  {S::kLoading, S::kReady},        {S::kLoading, S::kFailed},
+      {S::kLoading, S::kCancelled}, {S::kBuilding, S::kPersisting},  {S::kBuilding, S::kReady},
+      {S::kBuilding, S::kFailed},   {S::kBuilding, S::kCancelled},   {S::kPersisting, S::kReady},
+      {S::kPersisting, S::kFailed}, {S::kPersisting, S::kCancelled}, {S::kReady, S::kEvicted},
+      {S::kFailed, S::kQueued},     {S::kCancelled, S::kQueued},     {S::kEvicted, S::kQueued},
+  };
+  for (int from = 0; from < kGraphStateCount; ++from) {
+    for (int to = 0; to < kGraphStateCount; ++to) {
+      const std::pair<S, S> move{S(from), S(to)};
+      const bool documented = std::find(legal.begin(), legal.end(), move) != legal.end();
+      EXPECT_EQ(LegalTransition(S(from), S(to)), documented)
+          << GraphStateName(S(from)) << " -> " << GraphStateName(S(to));
+    }
+  }
+}
+
+TEST_F(GraphCacheTest, BuildsPersistsAndARestartLoadsTheFile) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache();
+  EXPECT_EQ(cache.Request(mesh, key.params).state, GraphState::kQueued);
+  const GraphStatus ready = WaitFor(key, GraphState::kReady);
+  EXPECT_FALSE(ready.from_file);
+  EXPECT_TRUE(ready.mapped);
+  EXPECT_EQ(ready.params, key.params);
+  EXPECT_TRUE(fs::exists(cache.GraphPath(mesh->fingerprint, key.params)));
+  EXPECT_TRUE(cache.FileInUse(fs::path(cache.GraphPath(mesh->fingerprint, key.params)).filename()));
+  ASSERT_TRUE(cache.Acquire(key).ok());
+  EXPECT_EQ(cache.hits(), 1u);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+
+  // A new cache on the same directory maps the file instead of building.
+  GraphCache& again = Cache();
+  again.Request(mesh, key.params);
+  EXPECT_TRUE(WaitFor(key, GraphState::kReady).from_file);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+  EXPECT_TRUE(Announced("grid@0.05 ready")) << ::testing::PrintToString(Notices());
+}
+
+TEST_F(GraphCacheTest, PseudoAndPlainGraphsAreDifferentEntries) {
+  auto mesh = GridMesh("grid", 5, 0.1);
+  GraphCache& cache = Cache(/*persist=*/false);
+  cache.Request(mesh, Eps(0.1));
+  cache.Request(mesh, Eps(0.1, /*pseudo=*/true));
+  WaitFor({"grid", Eps(0.1)}, GraphState::kReady);
+  const GraphStatus pseudo = WaitFor({"grid", Eps(0.1, true)}, GraphState::kReady);
+  EXPECT_TRUE(pseudo.params.pseudo_vertices);
+  EXPECT_EQ(cache.List().size(), 2u);
+  auto plain = cache.Acquire({"grid", Eps(0.1)});
+  auto with_pseudo = cache.Acquire({"grid", Eps(0.1, true)});
+  ASSERT_TRUE(plain.ok() && with_pseudo.ok());
+  EXPECT_FALSE((*plain)->graph().params().pseudo_vertices);
+  EXPECT_TRUE((*with_pseudo)->graph().params().pseudo_vertices);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 2);
+}
+
+// Unloading a mesh while its graph is in each state of its making: nothing
+// is published for it, and no readiness is announced.
+TEST_F(GraphCacheTest, UnloadDuringEachStepPublishesNothing) {
+  for (HeldMaker::Step step : {HeldMaker::kOpen, HeldMaker::kBuild, HeldMaker::kWrite}) {
+    SCOPED_TRACE(step);
+    maker_ = std::make_shared<HeldMaker>();
+    auto mesh = GridMesh("grid", 5);
+    const GraphKey key{"grid", Eps(0.05)};
+    GraphCache& cache = Cache();
+    if (step == HeldMaker::kOpen) {
+      // A file to load: built by an earlier cache.
+      cache.Request(mesh, key.params);
+      WaitFor(key, GraphState::kReady);
+      Cache();
+    }
+    {
+      absl::MutexLock lock(&notices_mu_);
+      notices_.clear();
+    }
+    maker_->Hold(step);
+    cache_->Request(mesh, key.params);
+    maker_->AwaitReached(step);
+    const GraphState during = cache_->Get(key)->state;
+    EXPECT_EQ(during, step == HeldMaker::kOpen    ? GraphState::kLoading
+                      : step == HeldMaker::kBuild ? GraphState::kBuilding
+                                                  : GraphState::kPersisting);
+    cache_->DropMesh("grid");
+    maker_->Release(step);
+    EXPECT_EQ(cache_->Get(key).status().code(), absl::StatusCode::kNotFound);
+    EXPECT_EQ(cache_->Acquire(key).status().code(), absl::StatusCode::kFailedPrecondition);
+    // Let the worker finish its (now orphaned) operation: it announces
+    // nothing.
+    cache_.reset();
+    EXPECT_THAT(Notices(), ::testing::IsEmpty());
+    fs::remove_all(dir_);
+  }
+}
+
+TEST_F(GraphCacheTest, CancelDuringEachStepEndsCancelledAndARequestStartsAgain) {
+  for (HeldMaker::Step step : {HeldMaker::kOpen, HeldMaker::kBuild, HeldMaker::kWrite}) {
+    SCOPED_TRACE(step);
+    maker_ = std::make_shared<HeldMaker>();
+    auto mesh = GridMesh("grid", 5);
+    const GraphKey key{"grid", Eps(0.05)};
+    Cache();
+    if (step == HeldMaker::kOpen) {
+      cache_->Request(mesh, key.params);
+      WaitFor(key, GraphState::kReady);
+      Cache();
+    }
+    maker_->Hold(step);
+    cache_->Request(mesh, key.params);
+    maker_->AwaitReached(step);
+    ASSERT_TRUE(cache_->Cancel(key).ok());
+    maker_->Release(step);
+    WaitFor(key, GraphState::kCancelled);
+    EXPECT_THAT(std::string(cache_->Acquire(key).status().message()), HasSubstr("cancelled"));
+    // Asked again, it is made again, from the same entry.
+    EXPECT_EQ(cache_->Request(mesh, key.params).state, GraphState::kQueued);
+    WaitFor(key, GraphState::kReady);
+    cache_.reset();
+    fs::remove_all(dir_);
+  }
+}
+
+TEST_F(GraphCacheTest, CancelWhileQueuedNeedsNoWorker) {
+  auto mesh = GridMesh("grid", 5);
+  GraphCache& cache = Cache(false);
+  maker_->Hold(HeldMaker::kBuild);
+  cache.Request(mesh, Eps(0.05));  // takes the only worker
+  maker_->AwaitReached(HeldMaker::kBuild);
+  cache.Request(mesh, Eps(0.1));  // waits in the queue
+  auto cancelled = cache.Cancel({"grid", Eps(0.1)});
+  ASSERT_TRUE(cancelled.ok());
+  EXPECT_EQ(cancelled->state, GraphState::kCancelled);
+  maker_->Release(HeldMaker::kBuild);
+  WaitFor({"grid", Eps(0.05)}, GraphState::kReady);
+  EXPECT_EQ(cache.Get({"grid", Eps(0.1)})->state, GraphState::kCancelled);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+}
+
+TEST_F(GraphCacheTest, AFailedBuildReportsAndARequestRetries) {
+  auto mesh = GridMesh("grid", 5);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache(false);
+  maker_->FailBuild(true);
+  cache.Request(mesh, key.params);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  EXPECT_THAT(failed.error, HasSubstr("broke on purpose"));
+  EXPECT_THAT(std::string(cache.Acquire(key).status().message()), HasSubstr("broke on purpose"));
+  maker_->FailBuild(false);
+  cache.Request(mesh, key.params);
+  EXPECT_TRUE(WaitFor(key, GraphState::kReady).error.empty());
+}
+
+// Over the budget, the least recently used graph that no query holds goes;
+// its file stays, so using it again maps it. Each Acquire that finds no
+// ready graph is one miss.
+TEST_F(GraphCacheTest, EvictionSparesHeldGraphsAndEvictedOnesComeBackFromTheirFile) {
+  auto mesh = GridMesh("grid", 8);
+  GraphCache& cache = Cache(true, /*memory_limit=*/1);
+  const GraphKey a{"grid", Eps(0.05)}, b{"grid", Eps(0.1)};
+  cache.Request(mesh, a.params);
+  WaitFor(a, GraphState::kReady);
+  auto held = cache.Acquire(a);  // a query holds a
+  ASSERT_TRUE(held.ok());
+  cache.Request(mesh, b.params);
+  WaitFor(b, GraphState::kReady);
+  EXPECT_EQ(cache.Get(a)->state, GraphState::kReady);  // held: spared
+  EXPECT_EQ(cache.evictions(), 0u);
+  held = absl::UnavailableError("released");
+  cache.Request(mesh, Eps(0.2));
+  WaitFor({"grid", Eps(0.2)}, GraphState::kReady);
+  EXPECT_GE(cache.evictions(), 1u);
+  const GraphKey evicted = cache.Get(a)->state == GraphState::kEvicted ? a : b;
+  ASSERT_EQ(cache.Get(evicted)->state, GraphState::kEvicted);
+  EXPECT_TRUE(fs::exists(cache.GraphPath(mesh->fingerprint, evicted.params)));
+  const uint64_t misses = cache.misses();
+  EXPECT_EQ(cache.Acquire(evicted).status().code(), absl::StatusCode::kUnavailable);
+  EXPECT_EQ(cache.misses(), misses + 1);
+  EXPECT_TRUE(WaitFor(evicted, GraphState::kReady).from_file);
+  EXPECT_THAT(Notices(),
+              ::testing::Contains(absl::StrCat("grid@", evicted.params.epsilon, " gone")));
+}
+
+TEST_F(GraphCacheTest, AnInvalidFileIsMovedAsideAndRebuilt) {
+  auto mesh = GridMesh("grid", 5);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache();
+  fs::create_directories(dir_);
+  const std::string path = cache.GraphPath(mesh->fingerprint, key.params);
+  std::ofstream(path) << "not a graph";
+  cache.Request(mesh, key.params);
+  const GraphStatus ready = WaitFor(key, GraphState::kReady);
+  EXPECT_FALSE(ready.from_file);
+  EXPECT_THAT(ready.error, HasSubstr("rejected"));
+  bool aside = false;
+  for (const auto& f : fs::directory_iterator(dir_)) {
+    aside |= f.path().string().find(".rejected-") != std::string::npos;
+  }
+  EXPECT_TRUE(aside);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+}
+
+// A mesh registered again with other contents replaces the entry: the old
+// operation, still running, publishes nothing over the new one.
+TEST_F(GraphCacheTest, AReplacedMeshsOldOperationPublishesNothing) {
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache(false);
+  maker_->Hold(HeldMaker::kBuild);
+  cache.Request(GridMesh("grid", 5), key.params);
+  maker_->AwaitReached(HeldMaker::kBuild);
+  auto other = GridMesh("grid", 7);
+  EXPECT_EQ(cache.Request(other, key.params).state, GraphState::kQueued);
+  maker_->Release(HeldMaker::kBuild);
+  WaitFor(key, GraphState::kReady);
+  auto engine = cache.Acquire(key);
+  ASSERT_TRUE(engine.ok());
+  EXPECT_EQ((*engine)->mesh().num_vertices(), other->mesh->num_vertices());
+}
+
+}  // namespace
+}  // namespace geodesic::server
