@@ -1,0 +1,320 @@
+// The gRPC service on a real server on 127.0.0.1 (port 0, read back), in this
+// process: handlers, status codes, the build record of graphs, and a field
+// streamed in several chunks, against the core's own answers.
+#include <grpcpp/grpcpp.h>
+#include <unistd.h>
+
+#include <filesystem>
+
+#include "absl/strings/str_cat.h"
+#include "core/mesh_io.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+#include "server/convert.h"
+#include "server/geodesic_service.h"
+
+namespace geodesic::server {
+namespace {
+
+using ::testing::HasSubstr;
+
+class ServiceTest : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    limits_.field_chunk = 1000;  // spot's 2,930 values stream in 3 chunks
+    limits_.max_pairs = 50;
+    limits_.log_requests = false;
+    registry_ = std::make_unique<MeshRegistry>(std::string(GEODESIC_SOURCE_DIR) + "/data");
+    GraphCache::Options options;
+    options.build_threads = 2;
+    cache_ = std::make_unique<GraphCache>(options);
+    service_ = std::make_unique<GeodesicService>(registry_.get(), cache_.get(), &metrics_, limits_);
+    grpc::ServerBuilder builder;
+    int port = 0;
+    builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+    builder.RegisterService(service_.get());
+    server_ = builder.BuildAndStart();
+    ASSERT_NE(server_, nullptr);
+    ASSERT_GT(port, 0);
+    stub_ = v1::Geodesic::NewStub(
+        grpc::CreateChannel(absl::StrCat("127.0.0.1:", port), grpc::InsecureChannelCredentials()));
+  }
+  void TearDown() override {
+    server_->Shutdown();
+    server_.reset();
+  }
+  // Registers spot and waits for its graph at `eps`.
+  void ReadySpot(double eps, bool pseudo = false) {
+    if (!registry_->Get("spot").ok()) {
+      grpc::ClientContext ctx;
+      v1::RegisterMeshRequest req;
+      req.set_name("spot");
+      req.set_path("spot.obj");
+      v1::Mesh mesh;
+      ASSERT_TRUE(stub_->RegisterMesh(&ctx, req, &mesh).ok());
+      EXPECT_EQ(mesh.diagnostics().vertices(), 2930u);
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::RequestGraphRequest req;
+      req.set_mesh("spot");
+      req.set_epsilon(eps);
+      req.set_pseudo_vertices(pseudo);
+      v1::Graph graph;
+      ASSERT_TRUE(stub_->RequestGraph(&ctx, req, &graph).ok());
+    }
+    grpc::ClientContext ctx;
+    v1::GetGraphRequest req;
+    req.set_mesh("spot");
+    req.set_epsilon(eps);
+    req.set_pseudo_vertices(pseudo);
+    auto watch = stub_->WatchGraph(&ctx, req);
+    v1::Graph last;
+    while (watch->Read(&last)) {
+    }
+    ASSERT_TRUE(watch->Finish().ok());
+    ASSERT_EQ(last.state(), v1::GRAPH_STATE_READY) << last.error();
+    EXPECT_EQ(last.pseudo_vertices(), pseudo);
+    EXPECT_EQ(last.candidate_rule(), kCandidateRuleVersion);
+  }
+  std::shared_ptr<const GeodesicEngine> Engine(double eps, bool pseudo = false) {
+    GraphKey key{"spot", DggParams{}};
+    key.params.epsilon = eps;
+    key.params.pseudo_vertices = pseudo;
+    auto engine = cache_->Acquire(key);
+    EXPECT_TRUE(engine.ok()) << engine.status();
+    return engine.ok() ? *engine : nullptr;
+  }
+
+  ServiceLimits limits_;
+  Metrics metrics_;
+  std::unique_ptr<MeshRegistry> registry_;
+  std::unique_ptr<GraphCache> cache_;
+  std::unique_ptr<GeodesicService> service_;
+  std::unique_ptr<grpc::Server> server_;
+  std::unique_ptr<v1::Geodesic::Stub> stub_;
+};
+
+v1::SurfacePoint Vertex(uint32_t v) { return ToProto(SurfacePoint::Vertex(v)); }
+v1::SurfacePoint Face(uint32_t f, double b0, double b1, double b2) {
+  return ToProto(SurfacePoint::Face(f, b0, b1, b2));
+}
+
+TEST_F(ServiceTest, AFieldStreamsInChunksThatReassembleToTheCoresField) {
+  ReadySpot(1e-2);
+  grpc::ClientContext ctx;
+  v1::DistanceFieldRequest req;
+  req.set_mesh("spot");
+  req.set_epsilon(1e-2);
+  *req.add_sources() = Vertex(7);
+  *req.add_sources() = Face(100, 0.2, 0.3, 0.5);
+  req.set_nearest_source(true);
+  auto reader = stub_->DistanceField(&ctx, req);
+  std::vector<double> values;
+  std::vector<uint32_t> labels;
+  v1::DistanceFieldChunk chunk;
+  int chunks = 0;
+  while (reader->Read(&chunk)) {
+    if (chunks == 0) {
+      EXPECT_EQ(chunk.echo().method(), "lc");
+      EXPECT_EQ(chunk.echo().epsilon(), 1e-2);
+    }
+    EXPECT_EQ(chunk.offset(), values.size()) << "chunks arrive in order, without gaps";
+    EXPECT_LE(chunk.values_size(), limits_.field_chunk);
+    values.insert(values.end(), chunk.values().begin(), chunk.values().end());
+    labels.insert(labels.end(), chunk.nearest_source().begin(), chunk.nearest_source().end());
+    ++chunks;
+  }
+  ASSERT_TRUE(reader->Finish().ok());
+  EXPECT_EQ(chunks, 3);
+  auto engine = Engine(1e-2);
+  ASSERT_NE(engine, nullptr);
+  FieldOptions options;
+  options.nearest_source = true;
+  auto want = engine->Field(
+      std::vector<SurfacePoint>{SurfacePoint::Vertex(7), SurfacePoint::Face(100, 0.2, 0.3, 0.5)},
+      options);
+  ASSERT_TRUE(want.ok());
+  EXPECT_EQ(values, want->distance);
+  EXPECT_EQ(labels, want->nearest_source);
+}
+
+// Matrix entries are pair distances (Distance and Matrix answer alike), and
+// the echo names the solver that ran.
+TEST_F(ServiceTest, MatrixEqualsDistanceAndEchoesItsSolver) {
+  ReadySpot(1e-3);
+  const std::vector<v1::SurfacePoint> points = {Face(0, 0.2, 0.3, 0.5), Face(0, 0.25, 0.3, 0.45),
+                                                Vertex(1500), ToProto(SurfacePoint::Edge(40, 0.3))};
+  grpc::ClientContext ctx;
+  v1::MatrixRequest req;
+  req.set_mesh("spot");
+  req.set_epsilon(1e-3);
+  for (const auto& p : points) *req.add_sources() = p, *req.add_targets() = p;
+  v1::MatrixResponse matrix;
+  ASSERT_TRUE(stub_->Matrix(&ctx, req, &matrix).ok());
+  EXPECT_EQ(matrix.echo().method(), "lc");
+  ASSERT_EQ(matrix.distances_size(), 16);
+  grpc::ClientContext pair_ctx;
+  v1::DistanceRequest pairs;
+  pairs.set_mesh("spot");
+  pairs.set_epsilon(1e-3);
+  for (const auto& a : points) {
+    for (const auto& b : points) {
+      auto* p = pairs.add_pairs();
+      *p->mutable_from() = a;
+      *p->mutable_to() = b;
+    }
+  }
+  v1::DistanceResponse distances;
+  ASSERT_TRUE(stub_->Distance(&pair_ctx, pairs, &distances).ok());
+  for (int k = 0; k < 16; ++k) {
+    const double d = distances.results(k).distance();
+    EXPECT_NEAR(matrix.distances(k), d, 1e-7 * d) << "entry " << k;
+    if (k % 5 == 0) EXPECT_EQ(matrix.distances(k), 0) << "a point's distance to itself";
+  }
+}
+
+TEST_F(ServiceTest, BadRequestsGetCodesThatNameTheProblem) {
+  ReadySpot(1e-2);
+  auto distance = [&](v1::SurfacePoint a, v1::SurfacePoint b, const std::string& mesh, double eps) {
+    grpc::ClientContext ctx;
+    v1::DistanceRequest req;
+    req.set_mesh(mesh);
+    req.set_epsilon(eps);
+    *req.add_pairs()->mutable_from() = a;
+    *req.mutable_pairs(0)->mutable_to() = b;
+    v1::DistanceResponse resp;
+    return stub_->Distance(&ctx, req, &resp);
+  };
+  grpc::Status s = distance(Vertex(99999), Vertex(1), "spot", 1e-2);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::OUT_OF_RANGE);
+  EXPECT_THAT(s.error_message(), HasSubstr("pair 0, from"));
+  s = distance(Face(3, 0.5, 0.6, 0.1), Vertex(1), "spot", 1e-2);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  s = distance(Vertex(0), Vertex(1), "nosuch", 1e-2);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+  s = distance(Vertex(0), Vertex(1), "spot", 0.02);  // never requested
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_THAT(s.error_message(), HasSubstr("eps 0.02"));
+  s = distance(Vertex(0), Vertex(1), "spot", std::nan(""));
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  grpc::ClientContext ctx;
+  v1::DistanceRequest many;
+  many.set_mesh("spot");
+  for (int i = 0; i <= limits_.max_pairs; ++i) *many.add_pairs()->mutable_from() = Vertex(i);
+  v1::DistanceResponse resp;
+  EXPECT_EQ(stub_->Distance(&ctx, many, &resp).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  // And it still answers.
+  EXPECT_TRUE(distance(Vertex(0), Vertex(1), "spot", 1e-2).ok());
+}
+
+TEST_F(ServiceTest, ThePseudoVertexGraphIsItsOwnGraph) {
+  ReadySpot(2e-2);
+  ReadySpot(2e-2, /*pseudo=*/true);
+  grpc::ClientContext ctx;
+  v1::ListGraphsResponse list;
+  ASSERT_TRUE(stub_->ListGraphs(&ctx, {}, &list).ok());
+  ASSERT_EQ(list.graphs_size(), 2);
+  EXPECT_NE(list.graphs(0).pseudo_vertices(), list.graphs(1).pseudo_vertices());
+  grpc::ClientContext pair_ctx;
+  v1::DistanceRequest req;
+  req.set_mesh("spot");
+  req.set_epsilon(2e-2);
+  req.set_pseudo_vertices(true);
+  *req.add_pairs()->mutable_from() = Vertex(0);
+  *req.mutable_pairs(0)->mutable_to() = Vertex(2000);
+  v1::DistanceResponse resp;
+  ASSERT_TRUE(stub_->Distance(&pair_ctx, req, &resp).ok());
+  EXPECT_TRUE(resp.echo().pseudo_vertices());
+}
+
+TEST_F(ServiceTest, UnloadDropsTheMeshAndItsGraphs) {
+  ReadySpot(1e-2);
+  {
+    grpc::ClientContext ctx;
+    v1::UnloadMeshRequest req;
+    req.set_name("spot");
+    v1::UnloadMeshResponse resp;
+    ASSERT_TRUE(stub_->UnloadMesh(&ctx, req, &resp).ok());
+  }
+  grpc::ClientContext ctx;
+  v1::ListGraphsResponse list;
+  ASSERT_TRUE(stub_->ListGraphs(&ctx, {}, &list).ok());
+  EXPECT_EQ(list.graphs_size(), 0);
+  EXPECT_EQ(registry_->Get("spot").status().code(), absl::StatusCode::kNotFound);
+}
+
+// The exposition parsed line by line: every series has HELP and TYPE, and
+// counters (monotonic) are typed counter and end in _total.
+TEST(MetricsTest, CountersAndGaugesAreTypedAsPrometheusExpects) {
+  Metrics metrics;
+  uint64_t hits = 5;
+  metrics.AddCounter("geodesicd_cache_hits_total", "Hits.", [&] { return double(hits); });
+  metrics.AddGauge("geodesicd_graph_mapped_bytes", "Mapped.", [] { return 1024.0; });
+  metrics.Record("Distance", "OK", 0.003);
+  metrics.Record("Distance", "OK", 0.3);
+  metrics.Record("Distance", "NOT_FOUND", 0.001);
+  const std::string page = metrics.Render();
+  std::map<std::string, std::string> types;
+  std::map<std::string, double> values;
+  std::istringstream in(page);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("# TYPE ", 0) == 0) {
+      std::istringstream f(line.substr(7));
+      std::string name, type;
+      f >> name >> type;
+      types[name] = type;
+    } else if (!line.empty() && line[0] != '#') {
+      const size_t space = line.rfind(' ');
+      values[line.substr(0, space)] = std::stod(line.substr(space + 1));
+    }
+  }
+  for (const auto& [name, type] : types) {
+    EXPECT_THAT(page, HasSubstr("# HELP " + name + " ")) << name;
+    if (type == "counter") EXPECT_TRUE(name.ends_with("_total")) << name;
+  }
+  EXPECT_EQ(types["geodesicd_cache_hits_total"], "counter");
+  EXPECT_EQ(types["geodesicd_requests_total"], "counter");
+  EXPECT_EQ(types["geodesicd_graph_mapped_bytes"], "gauge");
+  EXPECT_EQ(types["geodesicd_request_seconds"], "histogram");
+  EXPECT_EQ(values["geodesicd_cache_hits_total"], 5);
+  EXPECT_EQ(values["geodesicd_requests_total{method=\"Distance\",code=\"OK\"}"], 2);
+  EXPECT_EQ(values["geodesicd_requests_total{method=\"Distance\",code=\"NOT_FOUND\"}"], 1);
+  EXPECT_EQ(values["geodesicd_request_seconds_bucket{method=\"Distance\",le=\"0.005\"}"], 2);
+  EXPECT_EQ(values["geodesicd_request_seconds_count{method=\"Distance\"}"], 3);
+  hits = 6;  // read when rendered
+  EXPECT_THAT(metrics.Render(), HasSubstr("geodesicd_cache_hits_total 6\n"));
+}
+
+TEST(MeshRegistryTest, NamesPathsAndContentsAreChecked) {
+  MeshRegistry registry(std::string(GEODESIC_SOURCE_DIR) + "/data");
+  auto spot = registry.RegisterPath("spot", "spot.obj");
+  ASSERT_TRUE(spot.ok()) << spot.status();
+  EXPECT_EQ((*spot)->mesh->num_vertices(), 2930u);
+  // The same contents again is the same mesh; a bad name or a path outside
+  // the root is refused by name.
+  auto again = registry.RegisterPath("spot", "spot.obj");
+  ASSERT_TRUE(again.ok());
+  EXPECT_EQ(again->get(), spot->get());
+  EXPECT_EQ(registry.RegisterPath("bad name", "spot.obj").status().code(),
+            absl::StatusCode::kInvalidArgument);
+  EXPECT_EQ(registry.RegisterPath("evil", "../../etc/passwd").status().code(),
+            absl::StatusCode::kPermissionDenied);
+  EXPECT_EQ(registry.RegisterPath("none", "no-such.obj").status().code(),
+            absl::StatusCode::kNotFound);
+  // Other contents under a taken name: ALREADY_EXISTS, the old mesh kept.
+  const std::string tiny = "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+  EXPECT_EQ(registry.RegisterBytes("spot", "obj", tiny).status().code(),
+            absl::StatusCode::kAlreadyExists);
+  EXPECT_EQ((*registry.Get("spot"))->mesh->num_vertices(), 2930u);
+  auto uploaded = registry.RegisterBytes("tiny", "obj", tiny);
+  ASSERT_TRUE(uploaded.ok()) << uploaded.status();
+  EXPECT_EQ((*uploaded)->source, "upload");
+  EXPECT_EQ(registry.List().size(), 2u);
+  EXPECT_TRUE(registry.Remove("tiny").ok());
+  EXPECT_EQ(registry.Remove("tiny").code(), absl::StatusCode::kNotFound);
+}
+
+}  // namespace
+}  // namespace geodesic::server
