@@ -19,6 +19,7 @@
 #include "grpcpp/grpcpp.h"
 #include "grpcpp/health_check_service_interface.h"
 #include "server/geodesic_service.h"
+#include "server/http_gateway.h"
 #include "server/serve.h"
 
 namespace geodesic::server {
@@ -108,6 +109,7 @@ std::shared_ptr<grpc::ServerCredentials> ServerCredentials(const SecurityFlags& 
 
 int RunServe(int argc, char** argv) {
   CLI::App app{"Serve geodesic queries over gRPC", "geodesicd serve"};
+  std::string http_listen;
   std::string listen = "127.0.0.1:50051", graph_dir = DefaultGraphDir(), mesh_root, metrics_listen,
               log_level = "info", sample;
   uint64_t memory_limit = 0;
@@ -135,6 +137,8 @@ int RunServe(int argc, char** argv) {
   app.add_option("--max-sources", limits.max_sources, "sources per field");
   app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
   app.add_option("--default-epsilon", limits.default_epsilon, "epsilon when a request gives none");
+  app.add_option("--http-listen", http_listen,
+                 "serve the HTTP/JSON API and the web viewer on HOST:PORT (same TLS and token)");
   app.add_option("--metrics-listen", metrics_listen, "serve Prometheus metrics on HOST:PORT");
   app.add_option("--log-level", log_level, "info (one line per request) or warning")
       ->check(CLI::IsMember({"info", "warning"}));
@@ -270,6 +274,23 @@ int RunServe(int argc, char** argv) {
       return 1;
     }
   }
+  std::unique_ptr<HttpGateway> http;
+  if (!http_listen.empty()) {
+    HttpGatewayOptions options;
+    options.listen = http_listen;
+    options.tls_cert = security.tls_cert;
+    options.tls_key = security.tls_key;
+    options.tls_client_ca = security.tls_client_ca;
+    auto started = HttpGateway::Start(options, server.get(), &meshes);
+    if (!started.ok()) {
+      std::fprintf(stderr, "geodesicd serve: %s\n",
+                   std::string(started.status().message()).c_str());
+      return 1;
+    }
+    http = std::move(*started);
+    std::fprintf(stderr, "geodesicd: HTTP on %s (http port %d, %s)\n", http_listen.c_str(),
+                 http->port(), http->tls() ? "TLS" : "plaintext");
+  }
   std::fprintf(stderr, "geodesicd: serving on %s (port %d, %s%s), graphs in %s, mesh root %s\n",
                listen.c_str(), bound_port,
                security.tls_cert.empty()        ? "plaintext"
@@ -286,6 +307,7 @@ int RunServe(int argc, char** argv) {
     std::lock_guard<std::mutex> lock(health_mu);
     health->SetServingStatus("", false);
   }
+  http.reset();  // its calls go through `server`
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(drain_seconds * 1000)));
   // Graph writes are atomic (temp + rename): an interrupted build leaves no
