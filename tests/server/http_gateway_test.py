@@ -222,6 +222,39 @@ class GatewayTest(unittest.TestCase):
             daemon.wait(timeout=30)
             log.close()
 
+    def test_mutual_tls_uses_the_grpc_client_ca(self):
+        work = f"{self.work}/mtls"
+        os.mkdir(work)
+
+        def openssl(*args):
+            subprocess.run(["openssl", *args], cwd=work, check=True, capture_output=True)
+
+        openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj",
+                "/CN=test-ca", "-keyout", "ca.key", "-out", "ca.crt")
+        with open(f"{work}/san.ext", "w") as f:
+            f.write("subjectAltName=IP:127.0.0.1\n")
+        for name in ("server", "client"):
+            openssl("req", "-newkey", "rsa:2048", "-nodes", "-subj", f"/CN={name}", "-keyout",
+                    f"{name}.key", "-out", f"{name}.csr")
+            openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key",
+                    "-CAcreateserial", "-days", "1", "-extfile", "san.ext", "-out", f"{name}.crt")
+        daemon, log, _, port = start_daemon(
+            self.work, "mtls", "--tls-cert", f"{work}/server.crt", "--tls-key",
+            f"{work}/server.key", "--tls-client-ca", f"{work}/ca.crt")
+        url = f"https://127.0.0.1:{port}/v1/meshes"
+        try:
+            status, body = curl(url, token=None, extra=("--cacert", f"{work}/ca.crt", "--cert",
+                                                        f"{work}/client.crt", "--key",
+                                                        f"{work}/client.key"))
+            self.assertEqual(status, 200, body)
+            anonymous = subprocess.run(["curl", "-sS", "--max-time", "10", "--cacert",
+                                        f"{work}/ca.crt", url], capture_output=True)
+            self.assertNotEqual(anonymous.returncode, 0, anonymous.stdout)
+        finally:
+            daemon.terminate()
+            daemon.wait(timeout=30)
+            log.close()
+
 
 if __name__ == "__main__":
     unittest.main(argv=sys.argv[:1], verbosity=2)
