@@ -142,7 +142,8 @@ async function selectMesh(name) {
   scene.add(state.object);
   const { center, radius } = g.boundingSphere;
   controls.target.copy(center);
-  camera.position.copy(center).add(new THREE.Vector3(0, 0, radius * 2.8));
+  // A three-quarter view: most meshes face +z or -z, and show their shape obliquely.
+  camera.position.copy(center).add(new THREE.Vector3(-1.4, 0.7, -2.2).setLength(radius * 2.8));
   camera.near = radius / 100;
   camera.far = radius * 100;
   camera.updateProjectionMatrix();
@@ -274,6 +275,14 @@ canvas.addEventListener('pointerup', (e) => {
 });
 $('mesh').addEventListener('change', (e) => selectMesh(e.target.value).catch((x) => status(x.message)));
 $('build').addEventListener('click', () => requestGraph());
+$('eps').addEventListener('change', () => state.mesh && requestGraph());
+// A token typed after a 401 retries the listing; kept for this tab only.
+$('token').value = sessionStorage.getItem('geodesicd-token') || '';
+$('token').addEventListener('change', () => {
+  sessionStorage.setItem('geodesicd-token', $('token').value.trim());
+  status('');
+  loadMeshes().catch((e) => status(e.message));
+});
 for (const r of document.querySelectorAll('input[name=mode]')) {
   r.addEventListener('change', () => {
     if (mode() === 'path' && state.object) {

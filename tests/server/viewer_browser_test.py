@@ -1,10 +1,11 @@
 #!/usr/bin/python3
 """The web viewer in a real browser (headless Debian chromium via selenium).
 
-Loads the page from a daemon's --http-listen, waits for the graph, clicks two
-points on the shaded mesh and checks the distance the page shows against the
-gRPC answer for the same specs (which the page exposes as data- attributes);
-then clicks a source in field mode and checks the colouring arrived. Saves
+Loads the page from a daemon's --http-listen (which wants a bearer token,
+typed into the page), waits for the graph, clicks two points on the shaded
+mesh and checks the distance the page shows against the gRPC answer for the
+same specs (which the page exposes as data- attributes); then clicks a source
+in field mode and checks the field's maximum against gRPC's. Saves
 screenshots into the build directory.
 
 Usage: viewer_browser_test.py BUILD_BIN_DIR SOURCE_DIR OUT_DIR
@@ -25,16 +26,21 @@ from selenium import webdriver  # noqa: E402
 from selenium.webdriver.chrome.service import Service  # noqa: E402
 from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
+from selenium.webdriver.common.keys import Keys  # noqa: E402
 from selenium.webdriver.support.ui import WebDriverWait  # noqa: E402
 
 EPS = 0.01
+TOKEN = "viewer-token"
 
 
 def start_daemon(work):
+    with open(f"{work}/token", "w") as f:
+        f.write(TOKEN)
     log = open(f"{work}/daemon.log", "w+")
     daemon = subprocess.Popen(
         [f"{BIN}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
-         "--graph-dir", f"{work}/graphs", "--log-level", "warning"],
+         "--graph-dir", f"{work}/graphs", "--log-level", "warning", "--auth-token-file",
+         f"{work}/token"],
         stderr=log)
     deadline = time.time() + 30
     while time.time() < deadline:
@@ -56,7 +62,7 @@ class ViewerTest(unittest.TestCase):
     def setUpClass(cls):
         cls.work = tempfile.mkdtemp()
         cls.daemon, cls.log, grpc_port, cls.http_port = start_daemon(cls.work)
-        cls.client = Client(f"127.0.0.1:{grpc_port}", timeout=60)
+        cls.client = Client(f"127.0.0.1:{grpc_port}", timeout=60, token=TOKEN)
         options = webdriver.ChromeOptions()
         options.binary_location = "/usr/bin/chromium"
         for flag in ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
@@ -92,6 +98,10 @@ class ViewerTest(unittest.TestCase):
     def test_path_distance_equals_grpc_and_field_colours_the_mesh(self):
         b = self.browser
         b.get(f"http://127.0.0.1:{self.http_port}/")
+        # The daemon wants a bearer token: the page says so until one is typed.
+        self.wait(lambda d: "UNAUTHENTICATED" in d.find_element(By.ID, "status").text,
+                  what="the missing token to be reported")
+        b.find_element(By.ID, "token").send_keys(TOKEN + Keys.TAB)
         self.wait(lambda d: d.find_element(By.ID, "graph-state").get_attribute("data-state")
                   == "READY", what="the graph to be ready")
         self.assertEqual(float(b.find_element(By.ID, "progress").get_attribute("value")), 1.0)
