@@ -1,5 +1,6 @@
 #include "server/http_gateway.h"
 
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -104,29 +105,49 @@ json JsonDistance(double d) { return std::isfinite(d) ? json(d) : json(nullptr);
 
 // A call's context: the HTTP bearer token travels as the gRPC metadata the
 // service checks, so a wrong or missing token fails exactly as over gRPC.
+// `?timeout=SECONDS` becomes the calls' deadline, which long solves poll.
 class Call {
  public:
   explicit Call(const httplib::Request& req) {
     const std::string auth = req.get_header_value("Authorization");
     for (char c : auth) {
       if (c < 0x20 || c > 0x7e) {
-        bad_header_ = true;
+        status_ = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                               "the Authorization header holds non-printable characters");
         return;
       }
     }
     auth_ = auth;
+    if (req.has_param("timeout")) {
+      const std::string text = req.get_param_value("timeout");
+      char* end = nullptr;
+      const double seconds = std::strtod(text.c_str(), &end);
+      if (text.empty() || end != text.c_str() + text.size() || !(seconds > 0 && seconds < 1e6)) {
+        status_ = grpc::Status(
+            grpc::StatusCode::INVALID_ARGUMENT,
+            absl::StrFormat("query parameter timeout=%s is not a number of seconds in (0, 1e6)",
+                            text));
+        return;
+      }
+      deadline_ = std::chrono::system_clock::now() +
+                  std::chrono::microseconds(static_cast<int64_t>(seconds * 1e6));
+    }
   }
-  // A fresh context per RPC (gRPC contexts are single-use).
+  // A fresh context per RPC (gRPC contexts are single-use); the deadline is
+  // the whole HTTP request's.
   std::unique_ptr<grpc::ClientContext> Context() const {
     auto ctx = std::make_unique<grpc::ClientContext>();
     if (!auth_.empty()) ctx->AddMetadata("authorization", auth_);
+    if (deadline_) ctx->set_deadline(*deadline_);
     return ctx;
   }
-  bool bad_header() const { return bad_header_; }
+  // Not OK when the request itself is unusable.
+  const grpc::Status& status() const { return status_; }
 
  private:
   std::string auth_;
-  bool bad_header_ = false;
+  std::optional<std::chrono::system_clock::time_point> deadline_;
+  grpc::Status status_;
 };
 
 grpc::Status ParseBody(const httplib::Request& req, json* body) {
@@ -580,10 +601,7 @@ void Reply(const httplib::Request& req, httplib::Response& res,
            const std::function<grpc::Status(const Call&, json*)>& handle) {
   Call call(req);
   json out;
-  grpc::Status s = call.bad_header()
-                       ? grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
-                                      "the Authorization header holds non-printable characters")
-                       : handle(call, &out);
+  grpc::Status s = call.status().ok() ? handle(call, &out) : call.status();
   if (!s.ok()) return WriteError(s, res);
   res.set_header("Cache-Control", "no-store");
   res.set_content(out.dump(), "application/json");

@@ -174,6 +174,15 @@ class GatewayTest(unittest.TestCase):
         self.assert_error(status, body, 400, "INVALID_ARGUMENT")
         status, body = self.post("matrix", None, raw=json.dumps({"sources": [[1]] * 4_000_000}))
         self.assert_error(status, body, 413, "RESOURCE_EXHAUSTED")
+        status, body = curl(f"{self.base}/v1/meshes/spot/field?timeout=0.000001", "POST",
+                            {"sources": ["v:1"], "eps": EPS})
+        self.assert_error(status, body, 504, "DEADLINE_EXCEEDED")
+        status, body = curl(f"{self.base}/v1/meshes/spot/field?timeout=soon", "POST",
+                            {"sources": ["v:1"], "eps": EPS})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = curl(f"{self.base}/v1/meshes/spot/field?timeout=30", "POST",
+                            {"sources": ["v:1"], "eps": EPS})
+        self.assertEqual(status, 200, body)
         status, body = curl(f"{self.base}/v1/no/such/route")
         self.assert_error(status, body, 404, "NOT_FOUND")
 
