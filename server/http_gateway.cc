@@ -141,6 +141,9 @@ class Call {
     if (deadline_) ctx->set_deadline(*deadline_);
     return ctx;
   }
+  // The deadline passed: an answer now comes too late for the client, as a
+  // gRPC client's call fails once its deadline passes, whatever the server.
+  bool expired() const { return deadline_ && std::chrono::system_clock::now() > *deadline_; }
   // Not OK when the request itself is unusable.
   const grpc::Status& status() const { return status_; }
 
@@ -602,6 +605,9 @@ void Reply(const httplib::Request& req, httplib::Response& res,
   Call call(req);
   json out;
   grpc::Status s = call.status().ok() ? handle(call, &out) : call.status();
+  if (s.ok() && call.expired()) {
+    s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
+  }
   if (!s.ok()) return WriteError(s, res);
   res.set_header("Cache-Control", "no-store");
   res.set_content(out.dump(), "application/json");
