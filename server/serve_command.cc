@@ -24,6 +24,7 @@
 #include "grpcpp/health_check_service_interface.h"
 #include "nlohmann/json.hpp"
 #include "server/geodesic_service.h"
+#include "server/http_gateway.h"
 #include "server/serve.h"
 
 namespace geodesic::server {
@@ -137,11 +138,12 @@ std::map<int, int> ListeningPorts() {
   return ports;
 }
 
-// --port-file: {"grpc": P} or {"grpc": P, "metrics": Q}, written once the
+// --port-file: {"grpc": P}, with "metrics": Q and "http": H when they listen, written once the
 // ports are bound, by rename so that a reader never sees half of it.
-bool WritePortFile(const std::string& path, int grpc_port, int metrics_port) {
+bool WritePortFile(const std::string& path, int grpc_port, int metrics_port, int http_port) {
   nlohmann::json ports = {{"grpc", grpc_port}};
   if (metrics_port > 0) ports["metrics"] = metrics_port;
+  if (http_port > 0) ports["http"] = http_port;
   const std::string text = ports.dump() + "\n";
   auto file = AtomicFileWriter::Create(path);
   absl::Status s = file.ok() ? file->Append(text.data(), text.size()) : file.status();
@@ -157,6 +159,7 @@ bool WritePortFile(const std::string& path, int grpc_port, int metrics_port) {
 
 int RunServe(int argc, char** argv) {
   CLI::App app{"Serve geodesic queries over gRPC", "geodesicd serve"};
+  std::string http_listen;
   std::string listen = "127.0.0.1:50051", graph_dir = DefaultGraphDir(), mesh_root, metrics_listen,
               log_level = "info", sample;
   uint64_t memory_limit = 0;
@@ -167,10 +170,11 @@ int RunServe(int argc, char** argv) {
   double drain_seconds = 10;
   std::string port_file;
   app.add_option("--listen", listen, "address to serve gRPC on (HOST:PORT; port 0: any free port)");
-  app.add_option("--port-file", port_file,
-                 "once listening, write the bound ports here as JSON, {\"grpc\": P} or, with "
-                 "--metrics-listen, {\"grpc\": P, \"metrics\": Q} (replaced atomically: the "
-                 "file appears complete or not at all); for HOST:0 addresses");
+  app.add_option(
+      "--port-file", port_file,
+      "once listening, write the bound ports here as JSON, {\"grpc\": P} and, with "
+      "--metrics-listen or --http-listen, \"metrics\": Q or \"http\": H (replaced atomically: the "
+      "file appears complete or not at all); for HOST:0 addresses");
   app.add_option("--graph-dir", graph_dir,
                  "where graphs, and snapshots of registered meshes, are written and read back");
   app.add_option("--mesh-root", mesh_root, "RegisterMesh paths must lie under this directory");
@@ -189,6 +193,9 @@ int RunServe(int argc, char** argv) {
   app.add_option("--max-sources", limits.max_sources, "sources per field");
   app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
   app.add_option("--default-epsilon", limits.default_epsilon, "epsilon when a request gives none");
+  app.add_option("--http-listen", http_listen,
+                 "serve the HTTP/JSON API and the web viewer on HOST:PORT (same TLS and token; "
+                 "port 0: any free port)");
   app.add_option("--metrics-listen", metrics_listen,
                  "serve Prometheus metrics on HOST:PORT (port 0: any free port)");
   app.add_option("--log-level", log_level, "info (one line per request) or warning")
@@ -338,7 +345,27 @@ int RunServe(int argc, char** argv) {
       return 1;
     }
   }
-  if (!port_file.empty() && !WritePortFile(port_file, bound_port, metrics_port)) return 1;
+  std::unique_ptr<HttpGateway> http;
+  if (!http_listen.empty()) {
+    HttpGatewayOptions options;
+    options.listen = http_listen;
+    options.tls_cert = security.tls_cert;
+    options.tls_key = security.tls_key;
+    options.tls_client_ca = security.tls_client_ca;
+    auto started = HttpGateway::Start(options, server.get(), &meshes);
+    if (!started.ok()) {
+      std::fprintf(stderr, "geodesicd serve: %s\n",
+                   std::string(started.status().message()).c_str());
+      return 1;
+    }
+    http = std::move(*started);
+    std::fprintf(stderr, "geodesicd: HTTP on %s (http port %d, %s)\n", http_listen.c_str(),
+                 http->port(), http->tls() ? "TLS" : "plaintext");
+  }
+  if (!port_file.empty() &&
+      !WritePortFile(port_file, bound_port, metrics_port, http ? http->port() : 0)) {
+    return 1;
+  }
   std::fprintf(stderr, "geodesicd: serving on %s (port %d, %s%s), graphs in %s, mesh root %s\n",
                listen.c_str(), bound_port,
                security.tls_cert.empty()        ? "plaintext"
@@ -360,6 +387,7 @@ int RunServe(int argc, char** argv) {
     std::lock_guard<std::mutex> lock(health_mu);
     health->SetServingStatus("", false);
   }
+  http.reset();  // its calls go through `server`
   server->Shutdown(std::chrono::system_clock::now() +
                    std::chrono::milliseconds(static_cast<int64_t>(drain_seconds * 1000)));
   // Graph writes are atomic (temp + rename): an interrupted build leaves no

@@ -1,0 +1,269 @@
+#!/usr/bin/python3
+"""The HTTP/JSON gateway with curl against a real daemon on 127.0.0.1.
+
+Distance, field and matrix answers over HTTP must equal the gRPC answers
+bit for bit (JSON numbers are printed round-trip exact); errors carry the
+gRPC code and the mapped HTTP status; the bearer token and TLS apply as on
+the gRPC listener.
+
+Usage: http_gateway_test.py BUILD_BIN_DIR SOURCE_DIR
+"""
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+import unittest
+
+BIN, SRC = sys.argv[1], sys.argv[2]
+sys.path.insert(0, os.path.join(SRC, "client", "python"))
+from geodesic_client import Client  # noqa: E402
+
+EPS = 0.01
+TOKEN = "s3cret-token"
+
+
+def start_daemon(work, name, *flags):
+    log = open(f"{work}/{name}.log", "w+")
+    daemon = subprocess.Popen(
+        [f"{BIN}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
+         "--graph-dir", f"{work}/graphs-{name}", "--log-level", "warning", *flags],
+        stderr=log)
+    deadline = time.time() + 30
+    while time.time() < deadline:
+        log.seek(0)
+        text = log.read()
+        grpc_port = re.search(r"serving on \S+ \(port (\d+)", text)
+        http_port = re.search(r"http port (\d+)", text)
+        if grpc_port and http_port:
+            return daemon, log, int(grpc_port.group(1)), int(http_port.group(1))
+        if daemon.poll() is not None:
+            raise RuntimeError(f"daemon exited: {text}")
+        time.sleep(0.05)
+    daemon.kill()
+    raise RuntimeError("daemon did not report its ports")
+
+
+def curl(url, method="GET", body=None, token=TOKEN, raw=None, extra=()):
+    """(HTTP status, parsed JSON body) of one curl call."""
+    cmd = ["curl", "-sS", "--max-time", "60", "-X", method, "-w", "\n%{http_code}", *extra]
+    if token is not None:
+        cmd += ["-H", f"Authorization: Bearer {token}"]
+    data = raw if raw is not None else (json.dumps(body) if body is not None else None)
+    if data is not None:
+        cmd += ["-H", "Content-Type: application/json", "--data-binary", "@-"]
+    out = subprocess.run(cmd + [url], input=data.encode() if data is not None else None,
+                         capture_output=True, check=True).stdout.decode()
+    text, _, status = out.rpartition("\n")
+    return int(status), json.loads(text) if text else None
+
+
+def inf_to_none(values):
+    return [None if math.isinf(v) else v for v in values]
+
+
+class GatewayTest(unittest.TestCase):
+    @classmethod
+    def setUpClass(cls):
+        cls.work = tempfile.mkdtemp()
+        with open(f"{cls.work}/token", "w") as f:
+            f.write(TOKEN + "\n")
+        cls.daemon, cls.log, grpc_port, http_port = start_daemon(
+            cls.work, "plain", "--auth-token-file", f"{cls.work}/token", "--max-pairs", "50")
+        cls.base = f"http://127.0.0.1:{http_port}"
+        cls.client = Client(f"127.0.0.1:{grpc_port}", timeout=60, token=TOKEN)
+        status, graph = curl(f"{cls.base}/v1/meshes/spot/graph", "POST", {"eps": EPS})
+        assert status == 200, graph
+        deadline = time.time() + 120
+        while graph["state"] != "READY" and time.time() < deadline:
+            time.sleep(0.1)
+            status, graph = curl(f"{cls.base}/v1/meshes/spot/graph?eps={EPS}")
+        assert graph["state"] == "READY", graph
+        cls.graph = graph
+
+    @classmethod
+    def tearDownClass(cls):
+        cls.client.close()
+        cls.daemon.terminate()
+        cls.daemon.wait(timeout=30)
+        cls.log.close()
+        shutil.rmtree(cls.work)
+
+    def post(self, what, body, **kw):
+        return curl(f"{self.base}/v1/meshes/spot/{what}", "POST", body, **kw)
+
+    def assert_error(self, status, body, http_status, code):
+        self.assertEqual(status, http_status, body)
+        self.assertEqual(body["error"]["code"], code, body)
+        self.assertTrue(body["error"]["message"])
+
+    def test_meshes_and_graph_state(self):
+        status, body = curl(f"{self.base}/v1/meshes")
+        self.assertEqual(status, 200)
+        [spot] = [m for m in body["meshes"] if m["name"] == "spot"]
+        self.assertEqual((spot["vertices"], spot["faces"]), (2930, 5856))
+        self.assertEqual(self.graph["progress"], 1.0)
+        self.assertEqual(self.graph["nodes"], 2930)
+        self.assertGreater(self.graph["edges"], 0)
+        status, geo = curl(f"{self.base}/v1/meshes/spot/geometry")
+        self.assertEqual(status, 200)
+        self.assertEqual((len(geo["positions"]), len(geo["faces"])), (3 * 2930, 3 * 5856))
+
+    def test_distance_equals_grpc(self):
+        pairs = [["v:0", "v:1500"], ["f:0:0.2,0.3,0.5", "e:10:0.25"], ["v:7", "v:7"]]
+        status, body = self.post("distance", {"pairs": pairs, "eps": EPS, "path": False})
+        self.assertEqual(status, 200, body)
+        expected = [r.distance for r in self.client.distances("spot", pairs, epsilon=EPS)]
+        self.assertEqual(body["distances"], expected)
+        self.assertEqual(body["distances"][2], 0)
+        self.assertNotIn("paths", body)
+
+        status, body = self.post("distance", {"pairs": pairs[:1], "eps": EPS, "path": True})
+        self.assertEqual(status, 200, body)
+        [r] = self.client.distances("spot", pairs[:1], epsilon=EPS, with_path=True)
+        self.assertEqual(body["distances"], [r.distance])
+        self.assertEqual(body["paths"][0], [[p.xyz.x, p.xyz.y, p.xyz.z] for p in r.path.points])
+
+        # xyz specs are snapped as the Snap RPC snaps them.
+        [snapped] = self.client.snap("spot", [(0.1, 0.2, 0.3)])
+        status, body = self.post("distance", {"pairs": [["xyz:0.1,0.2,0.3", "v:9"]], "eps": EPS})
+        self.assertEqual(status, 200, body)
+        self.assertEqual(body["distances"], [self.client.distance("spot", snapped, "v:9", EPS)])
+
+    def test_field_equals_grpc_with_null_where_unreachable(self):
+        sources = ["v:3", "f:100:0.1,0.1,0.8"]
+        status, body = self.post("field", {"sources": sources, "eps": EPS})
+        self.assertEqual(status, 200, body)
+        expected = self.client.field("spot", sources, epsilon=EPS)
+        self.assertEqual(body["distances"], expected.tolist())
+        # Beyond max_distance vertices are +inf over gRPC, null over HTTP.
+        status, body = self.post("field", {"sources": ["v:3"], "eps": EPS, "max_distance": 0.3})
+        self.assertEqual(status, 200, body)
+        expected = self.client.field("spot", ["v:3"], epsilon=EPS, max_distance=0.3)
+        self.assertTrue(any(math.isinf(v) for v in expected))
+        self.assertEqual(body["distances"], inf_to_none(expected.tolist()))
+
+    def test_matrix_equals_grpc(self):
+        sources, targets = ["v:0", "v:10"], ["v:100", "v:200", "f:5:0.3,0.3,0.4"]
+        status, body = self.post("matrix", {"sources": sources, "targets": targets, "eps": EPS})
+        self.assertEqual(status, 200, body)
+        self.assertEqual(body["distances"],
+                         self.client.matrix("spot", sources, targets, epsilon=EPS).tolist())
+
+    def test_errors_map_grpc_codes(self):
+        status, body = curl(f"{self.base}/v1/meshes/nope/distance", "POST",
+                            {"pairs": [["v:0", "v:1"]], "eps": EPS})
+        self.assert_error(status, body, 404, "NOT_FOUND")
+        status, body = self.post("distance", {"pairs": [["v:0", "q:1"]], "eps": EPS})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn("pair end 1", body["error"]["message"])
+        status, body = self.post("field", {"sources": ["v:99999"], "eps": EPS})
+        self.assert_error(status, body, 400, "OUT_OF_RANGE")
+        status, body = self.post("field", {"sources": ["v:1"], "eps": 0.9})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        # No graph was requested at this epsilon.
+        status, body = self.post("field", {"sources": ["v:1"], "eps": 0.2})
+        self.assert_error(status, body, 409, "FAILED_PRECONDITION")
+        status, body = self.post("distance", {"pairs": [["v:0", "v:1"]] * 51, "eps": EPS})
+        self.assert_error(status, body, 429, "RESOURCE_EXHAUSTED")
+        status, body = self.post("matrix", None, raw="{not json")
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = self.post("matrix", None, raw=json.dumps({"sources": [[1]] * 4_000_000}))
+        self.assert_error(status, body, 413, "RESOURCE_EXHAUSTED")
+        status, body = curl(f"{self.base}/v1/meshes/spot/field?timeout=0.000001", "POST",
+                            {"sources": ["v:1"], "eps": EPS})
+        self.assert_error(status, body, 504, "DEADLINE_EXCEEDED")
+        status, body = curl(f"{self.base}/v1/meshes/spot/field?timeout=soon", "POST",
+                            {"sources": ["v:1"], "eps": EPS})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = curl(f"{self.base}/v1/meshes/spot/field?timeout=30", "POST",
+                            {"sources": ["v:1"], "eps": EPS})
+        self.assertEqual(status, 200, body)
+        status, body = curl(f"{self.base}/v1/no/such/route")
+        self.assert_error(status, body, 404, "NOT_FOUND")
+
+    def test_bearer_token_is_required(self):
+        for token in (None, "wrong"):
+            status, body = curl(f"{self.base}/v1/meshes", token=token)
+            self.assert_error(status, body, 401, "UNAUTHENTICATED")
+            status, body = self.post("distance", {"pairs": [["v:0", "v:1"]]}, token=token)
+            self.assert_error(status, body, 401, "UNAUTHENTICATED")
+            status, body = curl(f"{self.base}/v1/meshes/spot/geometry", token=token)
+            self.assert_error(status, body, 401, "UNAUTHENTICATED")
+
+    def test_openapi_and_viewer_are_served(self):
+        status, spec = curl(f"{self.base}/v1/openapi.json", token=None)
+        self.assertEqual(status, 200)
+        self.assertTrue(spec["openapi"].startswith("3."))
+        for path in ["/v1/meshes", "/v1/meshes/{name}/graph", "/v1/meshes/{name}/distance",
+                     "/v1/meshes/{name}/field", "/v1/meshes/{name}/matrix"]:
+            self.assertIn(path, spec["paths"])
+        page = subprocess.run(["curl", "-sS", f"{self.base}/"], capture_output=True,
+                              check=True).stdout.decode()
+        self.assertIn('id="distance"', page)
+        head = subprocess.run(["curl", "-sSI", f"{self.base}/three/build/three.module.js"],
+                              capture_output=True, check=True).stdout.decode()
+        self.assertIn("200 OK", head)
+        self.assertIn("text/javascript", head)
+
+    def test_tls_uses_the_grpc_certificate(self):
+        work = self.work
+        quiet = dict(check=True, capture_output=True)
+        subprocess.run(["openssl", "req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1",
+                        "-subj", "/CN=127.0.0.1", "-addext", "subjectAltName=IP:127.0.0.1",
+                        "-keyout", f"{work}/server.key", "-out", f"{work}/server.crt"], **quiet)
+        daemon, log, _, port = start_daemon(work, "tls", "--tls-cert", f"{work}/server.crt",
+                                            "--tls-key", f"{work}/server.key")
+        try:
+            status, body = curl(f"https://127.0.0.1:{port}/v1/meshes", token=None,
+                                extra=("--cacert", f"{work}/server.crt"))
+            self.assertEqual(status, 200, body)
+            self.assertIn("spot", [m["name"] for m in body["meshes"]])
+            plain = subprocess.run(["curl", "-sS", "--max-time", "10",
+                                    f"http://127.0.0.1:{port}/v1/meshes"], capture_output=True)
+            self.assertNotEqual(plain.returncode, 0)
+        finally:
+            daemon.terminate()
+            daemon.wait(timeout=30)
+            log.close()
+
+    def test_mutual_tls_uses_the_grpc_client_ca(self):
+        work = f"{self.work}/mtls"
+        os.mkdir(work)
+
+        def openssl(*args):
+            subprocess.run(["openssl", *args], cwd=work, check=True, capture_output=True)
+
+        openssl("req", "-x509", "-newkey", "rsa:2048", "-nodes", "-days", "1", "-subj",
+                "/CN=test-ca", "-keyout", "ca.key", "-out", "ca.crt")
+        with open(f"{work}/san.ext", "w") as f:
+            f.write("subjectAltName=IP:127.0.0.1\n")
+        for name in ("server", "client"):
+            openssl("req", "-newkey", "rsa:2048", "-nodes", "-subj", f"/CN={name}", "-keyout",
+                    f"{name}.key", "-out", f"{name}.csr")
+            openssl("x509", "-req", "-in", f"{name}.csr", "-CA", "ca.crt", "-CAkey", "ca.key",
+                    "-CAcreateserial", "-days", "1", "-extfile", "san.ext", "-out", f"{name}.crt")
+        daemon, log, _, port = start_daemon(
+            self.work, "mtls", "--tls-cert", f"{work}/server.crt", "--tls-key",
+            f"{work}/server.key", "--tls-client-ca", f"{work}/ca.crt")
+        url = f"https://127.0.0.1:{port}/v1/meshes"
+        try:
+            status, body = curl(url, token=None, extra=("--cacert", f"{work}/ca.crt", "--cert",
+                                                        f"{work}/client.crt", "--key",
+                                                        f"{work}/client.key"))
+            self.assertEqual(status, 200, body)
+            anonymous = subprocess.run(["curl", "-sS", "--max-time", "10", "--cacert",
+                                        f"{work}/ca.crt", url], capture_output=True)
+            self.assertNotEqual(anonymous.returncode, 0, anonymous.stdout)
+        finally:
+            daemon.terminate()
+            daemon.wait(timeout=30)
+            log.close()
+
+
+if __name__ == "__main__":
+    unittest.main(argv=sys.argv[:1], verbosity=2)
