@@ -8,6 +8,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <mutex>
 #include <sstream>
@@ -286,6 +287,23 @@ int CmdMeshes(const Common& c) {
     }
   }
   if (c.json) PrintJson(list);
+  return 0;
+}
+
+int CmdUnload(const Common& c) {
+  auto stub = Connect(c);
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::UnloadMeshRequest req;
+  req.set_name(c.mesh);
+  v1::UnloadMeshResponse resp;
+  grpc::Status s = stub->UnloadMesh(&ctx, req, &resp);
+  if (!s.ok()) return Fail(s);
+  if (c.json) {
+    PrintJson({{"name", c.mesh}, {"unloaded", true}});
+  } else {
+    std::printf("unloaded %s\n", c.mesh.c_str());
+  }
   return 0;
 }
 
@@ -741,7 +759,9 @@ int main(int argc, char** argv) {
       "geodesic"};
   Common c;
   app.add_option("--server", c.server, "geodesicd address");
-  app.add_option("--mesh", c.mesh, "mesh name")->capture_default_str();
+  auto* mesh_option =
+      app.add_option("--mesh", c.mesh, "mesh name ('load' defaults to the file's stem)")
+          ->capture_default_str();
   app.add_option("--eps", c.epsilon, "graph accuracy (0: the server's default)");
   app.add_flag("--json", c.json, "machine-readable output");
   app.add_option("--timeout", c.timeout, "deadline per call, seconds");
@@ -761,6 +781,9 @@ int main(int argc, char** argv) {
   std::string load_path, upload;
   load->add_option("path", load_path, "path relative to the server's --mesh-root");
   load->add_option("--upload", upload, "upload this local file instead");
+  app.add_subcommand("unload",
+                     "unregister --mesh and drop its graphs (here and, through the "
+                     "shared catalog, on every replica)");
   auto* graph = app.add_subcommand("graph", "request the graph of --mesh at --eps");
   bool wait = false, pseudo = false, cancel = false;
   graph->add_flag("--wait", wait, "wait for it, with a progress bar");
@@ -822,7 +845,14 @@ int main(int argc, char** argv) {
   }
   if (!LoadSecurity(c)) return 2;
   if (app.got_subcommand("meshes")) return CmdMeshes(c);
-  if (app.got_subcommand("load")) return CmdLoad(c, load_path, upload);
+  if (app.got_subcommand("load")) {
+    // 'geodesic load kitten.off' registers 'kitten', not the default mesh.
+    if (mesh_option->count() == 0) {
+      c.mesh = std::filesystem::path(upload.empty() ? load_path : upload).stem().string();
+    }
+    return CmdLoad(c, load_path, upload);
+  }
+  if (app.got_subcommand("unload")) return CmdUnload(c);
   if (app.got_subcommand("graph")) return CmdGraph(c, wait, pseudo, cancel);
   if (app.got_subcommand("status")) return CmdStatus(c);
   if (app.got_subcommand("field"))

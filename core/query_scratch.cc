@@ -43,7 +43,7 @@ uint64_t QueryScratch::bytes(const Mesh& mesh) const {
 ScratchPool::Lease ScratchPool::Acquire() {
   in_use_.fetch_add(1, std::memory_order_relaxed);
   {
-    absl::MutexLock lock(&mu_);
+    std::lock_guard<std::mutex> lock(mu_);
     if (!idle_.empty()) {
       Idle reused = std::move(idle_.back());
       idle_.pop_back();
@@ -56,7 +56,7 @@ ScratchPool::Lease ScratchPool::Acquire() {
 void ScratchPool::Release(std::unique_ptr<QueryScratch> scratch, uint64_t counted) {
   in_use_.fetch_sub(1, std::memory_order_relaxed);
   const uint64_t size = scratch->bytes(*mesh_);
-  absl::MutexLock lock(&mu_);
+  std::lock_guard<std::mutex> lock(mu_);
   uint64_t total = bytes_.load(std::memory_order_relaxed) - counted;
   if (static_cast<int>(idle_.size()) < keep_idle_) {
     idle_.push_back({std::move(scratch), size});
@@ -66,7 +66,7 @@ void ScratchPool::Release(std::unique_ptr<QueryScratch> scratch, uint64_t counte
 }
 
 int ScratchPool::idle() const {
-  absl::MutexLock lock(&mu_);
+  std::lock_guard<std::mutex> lock(mu_);
   return static_cast<int>(idle_.size());
 }
 

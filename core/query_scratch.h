@@ -14,10 +14,9 @@
 #include <atomic>
 #include <cstdint>
 #include <memory>
+#include <mutex>
 #include <vector>
 
-#include "absl/base/thread_annotations.h"
-#include "absl/synchronization/mutex.h"
 #include "core/bucket_queue.h"
 #include "core/dgg_graph.h"
 #include "core/exact_geodesic.h"
@@ -159,8 +158,11 @@ class ScratchPool {
 
   const Mesh* mesh_;
   const int keep_idle_;
-  mutable absl::Mutex mu_;
-  std::vector<Idle> idle_ ABSL_GUARDED_BY(mu_);
+  // std::mutex, not absl::Mutex: Debian's Abseil is not built for
+  // ThreadSanitizer, which then cannot see its locking, and every query
+  // passes through here.
+  mutable std::mutex mu_;
+  std::vector<Idle> idle_;  // guarded by mu_
   std::atomic<uint64_t> bytes_{0};
   std::atomic<int> in_use_{0};
 };

@@ -83,6 +83,42 @@ absl::StatusOr<GraphKey> GeodesicService::Key(const std::string& mesh, double ep
   return key;
 }
 
+absl::Status GeodesicService::Record(const RegisteredMesh& m, bool existed) {
+  if (!catalog_) return absl::OkStatus();
+  absl::Status s = catalog_->RecordMesh(
+      {m.name, m.source, m.format, m.source_hash, m.fingerprint, /*repair_non_manifold=*/false});
+  // Not recorded, not registered: a client told of an error must not find
+  // the mesh answering here and gone after a restart.
+  if (!s.ok() && !existed) meshes_->Remove(m.name).IgnoreError();
+  return s;
+}
+
+absl::StatusOr<std::shared_ptr<const RegisteredMesh>> GeodesicService::FindMesh(
+    const std::string& name) {
+  auto m = meshes_->Get(name);
+  if (m.ok() || !absl::IsNotFound(m.status()) || !catalog_) return m;
+  // Registered on another replica sharing the graph directory, perhaps.
+  RETURN_IF_ERROR(catalog_->Reconcile());
+  return meshes_->Get(name);
+}
+
+absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEngine(
+    const GraphKey& key) {
+  auto engine = graphs_->Acquire(key);
+  if (engine.ok() || !catalog_ || graphs_->Get(key).ok()) return engine;
+  // Requested on another replica, perhaps: follow the catalog, and give a
+  // graph that only needs mapping from its file the moment that takes.
+  RETURN_IF_ERROR(catalog_->Reconcile());
+  auto status = graphs_->Get(key);
+  const absl::Time deadline = absl::Now() + absl::Seconds(2);
+  while (status.ok() &&
+         (status->state == GraphState::kQueued || status->state == GraphState::kLoading) &&
+         absl::Now() < deadline) {
+    status = graphs_->WaitForChange(key, status->version, deadline);
+  }
+  return graphs_->Acquire(key);
+}
+
 template <typename Body>
 grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ctx,
                                      const std::string& mesh, bool is_query, Body body) {
@@ -140,8 +176,10 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
 grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
                                            const v1::RegisterMeshRequest* req, v1::Mesh* resp) {
   return Handle("RegisterMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    const bool existed = meshes_->Get(req->name()).ok();
     auto m = meshes_->RegisterPath(req->name(), req->path());
     if (!m.ok()) return m.status();
+    RETURN_IF_ERROR(Record(**m, existed));
     FillMesh(**m, resp);
     return absl::OkStatus();
   });
@@ -162,8 +200,10 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
       }
       bytes += chunk.data();
     }
+    const bool existed = meshes_->Get(name).ok();
     auto m = meshes_->RegisterBytes(name, format, bytes);
     if (!m.ok()) return m.status();
+    RETURN_IF_ERROR(Record(**m, existed));
     FillMesh(**m, resp);
     return absl::OkStatus();
   });
@@ -180,7 +220,7 @@ grpc::Status GeodesicService::ListMeshes(grpc::ServerContext* ctx, const v1::Lis
 grpc::Status GeodesicService::GetMesh(grpc::ServerContext* ctx, const v1::GetMeshRequest* req,
                                       v1::Mesh* resp) {
   return Handle("GetMesh", ctx, req->name(), false, [&]() -> absl::Status {
-    auto m = meshes_->Get(req->name());
+    auto m = FindMesh(req->name());
     if (!m.ok()) return m.status();
     FillMesh(**m, resp);
     return absl::OkStatus();
@@ -190,9 +230,15 @@ grpc::Status GeodesicService::GetMesh(grpc::ServerContext* ctx, const v1::GetMes
 grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::UnloadMeshRequest* req,
                                          v1::UnloadMeshResponse*) {
   return Handle("UnloadMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    // The catalog first: once it no longer lists the mesh, no restart or
+    // replica brings it back.
+    bool catalogued = false;
+    if (catalog_) {
+      ASSIGN_OR_RETURN(catalogued, catalog_->ForgetMesh(req->name()));
+    }
     absl::Status s = meshes_->Remove(req->name());
-    if (s.ok()) graphs_->DropMesh(req->name());
-    return s;
+    graphs_->DropMesh(req->name());
+    return catalogued ? absl::OkStatus() : s;
   });
 }
 
@@ -201,7 +247,7 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
   return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     const double eps = key.params.epsilon;
-    auto m = meshes_->Get(req->mesh());
+    auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
     const uint64_t budget = graphs_->memory_limit();
     const uint64_t estimate = EstimateDggBytesLowerBound((*m)->mesh->num_vertices(), eps);
@@ -211,6 +257,7 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
           "limit of %u bytes: use a larger epsilon",
           req->mesh(), eps, estimate, budget));
     }
+    if (catalog_) RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
     ToProto(graphs_->Request(*m, key.params), resp);
     return absl::OkStatus();
   });
@@ -251,6 +298,7 @@ grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    if (catalog_) RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params).status());
     auto g = graphs_->Cancel(key);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
@@ -277,8 +325,8 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     const double eps = key.params.epsilon;
-    if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
-    auto engine = graphs_->Acquire(key);
+    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
+    auto engine = AcquireEngine(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources;
@@ -357,8 +405,8 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
-    auto engine = graphs_->Acquire(key);
+    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
+    auto engine = AcquireEngine(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     resp->mutable_echo()->set_mesh(req->mesh());
@@ -393,8 +441,8 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
           req->targets_size(), limits_.max_sources, limits_.max_pairs));
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (auto known = meshes_->Get(req->mesh()); !known.ok()) return known.status();
-    auto engine = graphs_->Acquire(key);
+    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
+    auto engine = AcquireEngine(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources, targets;
@@ -429,7 +477,7 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
     if (req->positions_size() > limits_.max_pairs) {
       return absl::ResourceExhaustedError("too many positions in one call");
     }
-    auto m = meshes_->Get(req->mesh());
+    auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
     for (const auto& p : req->positions()) {
       auto s = (*m)->locator->Snap({p.x(), p.y(), p.z()});

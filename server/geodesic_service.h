@@ -8,6 +8,7 @@
 
 #include "absl/status/statusor.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
+#include "server/catalog_sync.h"
 #include "server/graph_cache.h"
 #include "server/mesh_registry.h"
 #include "server/metrics.h"
@@ -36,6 +37,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   // <token>"; others fail with UNAUTHENTICATED. Health checks and reflection
   // are separate services and stay open, so that probes need no secret.
   void RequireBearerToken(std::string token) { bearer_token_ = std::move(token); }
+  // Records registrations and graph requests in the catalog before
+  // answering, and follows it for meshes and graphs this daemon lacks
+  // (registered through another replica, or before a restart).
+  void UseCatalog(CatalogSync* catalog) { catalog_ = catalog; }
 
   grpc::Status RegisterMesh(grpc::ServerContext*, const v1::RegisterMeshRequest*,
                             v1::Mesh*) override;
@@ -74,12 +79,21 @@ class GeodesicService final : public v1::Geodesic::Service {
   // The graph a request names: its mesh, and the build record this daemon
   // makes for that epsilon and pseudo vertices.
   absl::StatusOr<GraphKey> Key(const std::string& mesh, double epsilon, bool pseudo) const;
+  // Records a registered mesh in the catalog (if any); on failure a mesh
+  // that did not exist before is unregistered again.
+  absl::Status Record(const RegisteredMesh& m, bool existed);
+  // The registry's mesh, or the catalog's if another replica registered it.
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> FindMesh(const std::string& name);
+  // The cache's engine, or, for a graph only the catalog knows, the graph
+  // requested and (if it only needs mapping) waited for up to 2 s.
+  absl::StatusOr<std::shared_ptr<const GeodesicEngine>> AcquireEngine(const GraphKey& key);
 
   MeshRegistry* meshes_;
   GraphCache* graphs_;
   Metrics* metrics_;
   ServiceLimits limits_;
   std::string bearer_token_;
+  CatalogSync* catalog_ = nullptr;
   std::atomic<int> inflight_{0};
 };
 

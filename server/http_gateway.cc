@@ -18,6 +18,7 @@
 #include "grpcpp/grpcpp.h"
 #include "httplib.h"
 #include "nlohmann/json.hpp"
+#include "server/listen_socket.h"
 
 namespace geodesic::server {
 namespace {
@@ -802,6 +803,7 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
     });
   }
 
+  http.set_socket_options(ExclusiveListenSocket);
   if (port == 0) {
     impl->port = http.bind_to_any_port(host);
   } else if (http.bind_to_port(host, static_cast<int>(port))) {

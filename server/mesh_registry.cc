@@ -11,6 +11,7 @@
 #include "core/dgg_graph.h"
 #include "core/mesh_snapshot.h"
 #include "core/status.h"
+#include "server/log.h"
 
 namespace geodesic::server {
 namespace {
@@ -88,29 +89,36 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterPath
     return absl::PermissionDeniedError(
         absl::StrFormat("'%s' leads outside the mesh root", relative_path));
   }
-  ASSIGN_OR_RETURN(auto m, LoadFile(name, relative_path, resolved.string()));
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, relative_path, resolved.string(), durable_));
   return Insert(std::move(m));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterTrustedPath(
     const std::string& name, const std::string& path) {
   RETURN_IF_ERROR(ValidateName(name));
-  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path));
+  // The operator's own meshes (the sample, the config's) are registered at
+  // every start, so their snapshots are a speed-up, written in the
+  // background, never a condition of serving.
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path, /*durable=*/false));
   return Insert(std::move(m));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterBytes(
     const std::string& name, const std::string& format, const std::string& bytes) {
   RETURN_IF_ERROR(ValidateName(name));
-  const uint64_t key = SourceHash(bytes, absl::AsciiStrToLower(format));
+  const std::string lower = absl::AsciiStrToLower(format);
+  const uint64_t key = SourceHash(bytes, lower);
   if (auto m = Restore(key, name, "upload")) {
     m->diagnostics.path = name;
+    m->format = lower;
     return Insert(std::move(m));
   }
   MeshDiagnostics diagnostics;
   auto soup = ReadTriangleSoupFromMemory(bytes, format, name, &diagnostics);
   ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics)));
-  SaveInBackground(m, key);
+  m->format = lower;
+  m->source_hash = key;
+  RETURN_IF_ERROR(Save(m, key, durable_));
   return Insert(std::move(m));
 }
 
@@ -121,7 +129,8 @@ MeshRegistry::~MeshRegistry() {
 
 absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(const std::string& name,
                                                                        const std::string& source,
-                                                                       const std::string& path) {
+                                                                       const std::string& path,
+                                                                       bool durable) {
   if (snapshot_dir_.empty()) {
     MeshDiagnostics diagnostics;
     auto soup = ReadTriangleSoup(path, &diagnostics);
@@ -130,15 +139,18 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(const std
   ASSIGN_OR_RETURN(const uint64_t key, SourceHashOfFile(path));
   if (auto m = Restore(key, name, source)) {
     m->diagnostics.path = path;
+    m->format = MeshFormatOfPath(path);
     return m;
   }
   MeshDiagnostics diagnostics;
   auto soup = ReadTriangleSoup(path, &diagnostics);
   ASSIGN_OR_RETURN(auto m, Finish(name, source, std::move(soup), std::move(diagnostics)));
+  m->format = MeshFormatOfPath(path);
+  m->source_hash = key;
   // A file rewritten while it was read must not be saved under either
   // version's key.
   auto after = SourceHashOfFile(path);
-  if (after.ok() && *after == key) SaveInBackground(m, key);
+  if (after.ok() && *after == key) RETURN_IF_ERROR(Save(m, key, durable));
   return m;
 }
 
@@ -152,8 +164,7 @@ std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::s
     // A missing snapshot is the common case; a damaged one is rebuilt and
     // replaced, and worth a line in the log.
     if (!absl::IsNotFound(restored.status())) {
-      std::fprintf(stderr, "geodesicd: ignoring mesh snapshot: %s\n",
-                   restored.status().ToString().c_str());
+      Log(LogLevel::kWarning, "mesh_snapshot_ignored", {{"error", restored.status().ToString()}});
     }
     return nullptr;
   }
@@ -162,12 +173,22 @@ std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::s
   auto m = Wrap(name, source, std::move(restored->mesh), restored->fingerprint,
                 std::move(restored->diagnostics));
   m->restored = true;
+  m->source_hash = key;
   return m;
 }
 
-void MeshRegistry::SaveInBackground(std::shared_ptr<const RegisteredMesh> m, uint64_t key) {
-  if (snapshot_dir_.empty()) return;
+absl::Status MeshRegistry::Save(std::shared_ptr<const RegisteredMesh> m, uint64_t key,
+                                bool durable) {
+  if (snapshot_dir_.empty()) return absl::OkStatus();
   const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
+  if (durable) {
+    absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
+    if (!s.ok()) {
+      return absl::Status(s.code(), absl::StrFormat("mesh '%s' could not be stored durably: %s",
+                                                    m->name, s.message()));
+    }
+    return s;
+  }
   absl::MutexLock lock(&saves_mu_);
   // Finished saves are dropped so the list stays as long as the saves in
   // flight.
@@ -177,10 +198,44 @@ void MeshRegistry::SaveInBackground(std::shared_ptr<const RegisteredMesh> m, uin
   saves_.push_back(std::async(std::launch::async, [m = std::move(m), key, path] {
     absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
     if (!s.ok()) {
-      std::fprintf(stderr, "geodesicd: could not save a snapshot of mesh '%s': %s\n",
-                   m->name.c_str(), s.ToString().c_str());
+      Log(LogLevel::kWarning, "mesh_snapshot_failed", {{"mesh", m->name}, {"error", s.ToString()}});
     }
   }));
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRecorded(
+    const std::string& name, const std::string& source, const std::string& format,
+    uint64_t source_hash, uint64_t fingerprint) {
+  RETURN_IF_ERROR(ValidateName(name));
+  std::shared_ptr<RegisteredMesh> m = Restore(source_hash, name, source);
+  if (m) {
+    m->format = format;
+  } else if (source == "upload") {
+    return absl::DataLossError(
+        absl::StrFormat("mesh '%s' was uploaded, and its snapshot %s is missing or damaged in %s",
+                        name, MeshSnapshotName(source_hash), snapshot_dir_));
+  } else {
+    std::string path = source;
+    if (!std::filesystem::path(source).is_absolute()) {
+      if (mesh_root_.empty()) {
+        return absl::FailedPreconditionError(absl::StrFormat(
+            "mesh '%s' came from %s under a mesh root, and this daemon has none", name, source));
+      }
+      path = (std::filesystem::path(mesh_root_) / source).string();
+    }
+    ASSIGN_OR_RETURN(m, LoadFile(name, source, path, durable_));
+  }
+  if (m->fingerprint != fingerprint) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "mesh '%s' from %s has fingerprint %016x, not the %016x recorded: the file changed", name,
+        source, m->fingerprint, fingerprint));
+  }
+  return Insert(std::move(m));
+}
+
+std::string MeshRegistry::SnapshotName(const RegisteredMesh& m) {
+  return MeshSnapshotName(m.source_hash);
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(

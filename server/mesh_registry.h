@@ -35,6 +35,9 @@ class LazySurfaceLocator {
 struct RegisteredMesh {
   std::string name;
   std::string source;  // path, or "upload"
+  std::string format;  // "obj", "off", "ply" or "stl"
+  // The key of its snapshot (core/mesh_snapshot.h): the source bytes' hash.
+  uint64_t source_hash = 0;
   uint64_t fingerprint = 0;
   std::shared_ptr<const Mesh> mesh;
   MeshDiagnostics diagnostics;
@@ -47,8 +50,15 @@ class MeshRegistry {
   // `snapshot_dir`: where built meshes are saved, keyed by their file's
   // bytes, and restored from when the same bytes are registered again
   // (core/mesh_snapshot.h); empty for never.
-  explicit MeshRegistry(std::string mesh_root, std::string snapshot_dir = {})
-      : mesh_root_(std::move(mesh_root)), snapshot_dir_(std::move(snapshot_dir)) {}
+  //
+  // With `durable`, a registration returns only once its snapshot is on disk
+  // (fsynced), so that a catalog entry recorded afterwards can always be
+  // restored, an upload included; otherwise snapshots are written in the
+  // background.
+  explicit MeshRegistry(std::string mesh_root, std::string snapshot_dir = {}, bool durable = false)
+      : mesh_root_(std::move(mesh_root)),
+        snapshot_dir_(std::move(snapshot_dir)),
+        durable_(durable) {}
   // Waits for snapshots still being written.
   ~MeshRegistry();
 
@@ -62,6 +72,18 @@ class MeshRegistry {
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterBytes(const std::string& name,
                                                                       const std::string& format,
                                                                       const std::string& bytes);
+  // A mesh a catalog recorded (server/catalog.h): from its snapshot, or,
+  // failing that, from its source file (under the mesh root, or an absolute
+  // path the operator gave). FAILED_PRECONDITION if what it finds is not
+  // the mesh recorded (another fingerprint); DATA_LOSS if an upload's
+  // snapshot is gone.
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRecorded(const std::string& name,
+                                                                         const std::string& source,
+                                                                         const std::string& format,
+                                                                         uint64_t source_hash,
+                                                                         uint64_t fingerprint);
+  // The snapshot file name of a mesh ("<source hash>.mesh").
+  static std::string SnapshotName(const RegisteredMesh& m);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;
   std::vector<std::shared_ptr<const RegisteredMesh>> List() const;
   absl::Status Remove(const std::string& name);
@@ -74,13 +96,16 @@ class MeshRegistry {
   // and saving one (in the background) when there was not.
   absl::StatusOr<std::shared_ptr<RegisteredMesh>> LoadFile(const std::string& name,
                                                            const std::string& source,
-                                                           const std::string& path);
+                                                           const std::string& path, bool durable);
   std::shared_ptr<RegisteredMesh> Restore(uint64_t key, const std::string& name,
                                           const std::string& source) const;
-  void SaveInBackground(std::shared_ptr<const RegisteredMesh> m, uint64_t key);
+  // Writes the snapshot: now if `durable` (failing the registration if it
+  // cannot), in the background otherwise.
+  absl::Status Save(std::shared_ptr<const RegisteredMesh> m, uint64_t key, bool durable);
 
   const std::string mesh_root_;
   const std::string snapshot_dir_;
+  const bool durable_;
   absl::Mutex saves_mu_;
   std::vector<std::future<void>> saves_ ABSL_GUARDED_BY(saves_mu_);
   mutable absl::Mutex mu_;

@@ -1,7 +1,11 @@
 #include "server/metrics.h"
 
+#include <cerrno>
+#include <cstring>
+
 #include "absl/strings/str_format.h"
 #include "httplib.h"
+#include "server/listen_socket.h"
 
 namespace geodesic::server {
 
@@ -63,10 +67,12 @@ std::string Metrics::Render() const {
 struct MetricsHttpServer::Impl {
   httplib::Server http;
   std::thread thread;
+  int port = 0;
 };
 
 std::unique_ptr<MetricsHttpServer> MetricsHttpServer::Start(const std::string& address,
                                                             const Metrics* metrics,
+                                                            std::function<bool()> ready,
                                                             std::string* error) {
   auto colon = address.rfind(':');
   if (colon == std::string::npos) {
@@ -77,17 +83,35 @@ std::unique_ptr<MetricsHttpServer> MetricsHttpServer::Start(const std::string& a
   const int port = std::atoi(address.c_str() + colon + 1);
   auto server = std::unique_ptr<MetricsHttpServer>(new MetricsHttpServer);
   server->impl_ = std::make_unique<Impl>();
-  server->impl_->http.Get("/metrics", [metrics](const httplib::Request&, httplib::Response& res) {
+  httplib::Server& http = server->impl_->http;
+  http.set_socket_options(ExclusiveListenSocket);
+  http.Get("/metrics", [metrics](const httplib::Request&, httplib::Response& res) {
     res.set_content(metrics->Render(), "text/plain; version=0.0.4");
   });
-  if (!server->impl_->http.bind_to_port(host.c_str(), port)) {
-    *error = "cannot listen on " + address;
+  // Liveness: the process answers. Readiness: it has restored what its
+  // catalog holds and can answer for it.
+  http.Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
+    res.set_content("ok\n", "text/plain");
+  });
+  http.Get("/readyz", [ready](const httplib::Request&, httplib::Response& res) {
+    const bool is_ready = !ready || ready();
+    res.status = is_ready ? 200 : 503;
+    res.set_content(is_ready ? "ready\n" : "restoring\n", "text/plain");
+  });
+  errno = 0;
+  int bound = port == 0 ? http.bind_to_any_port(host) : (http.bind_to_port(host, port) ? port : -1);
+  if (bound <= 0) {
+    *error =
+        "cannot listen on " + address + (errno ? std::string(": ") + std::strerror(errno) : "");
     return nullptr;
   }
+  server->impl_->port = bound;
   Impl* impl = server->impl_.get();
   impl->thread = std::thread([impl] { impl->http.listen_after_bind(); });
   return server;
 }
+
+int MetricsHttpServer::port() const { return impl_->port; }
 
 MetricsHttpServer::~MetricsHttpServer() {
   if (impl_) {

@@ -48,12 +48,17 @@ class Metrics {
   std::atomic<int> queue_depth_{0};
 };
 
-// Serves GET /metrics on host:port in a background thread until destroyed.
+// Serves GET /metrics, /healthz (200 while the process answers) and /readyz
+// (200 once `ready` says so, 503 before) on host:port (port 0: any free
+// port) in a background thread until destroyed. A port already taken is
+// refused, with the reason.
 class MetricsHttpServer {
  public:
   static std::unique_ptr<MetricsHttpServer> Start(const std::string& address,
-                                                  const Metrics* metrics, std::string* error);
+                                                  const Metrics* metrics,
+                                                  std::function<bool()> ready, std::string* error);
   ~MetricsHttpServer();
+  int port() const;
 
  private:
   struct Impl;

@@ -13,18 +13,26 @@
 #include <fstream>
 #include <map>
 #include <mutex>
+#include <set>
 #include <sstream>
 #include <thread>
 
 #include "CLI/CLI.hpp"
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
+#include "core/mesh_snapshot.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/grpcpp.h"
 #include "grpcpp/health_check_service_interface.h"
 #include "nlohmann/json.hpp"
+#include "server/byte_size.h"
+#include "server/catalog.h"
+#include "server/catalog_sync.h"
+#include "server/config_file.h"
+#include "server/disk_budget.h"
 #include "server/geodesic_service.h"
 #include "server/http_gateway.h"
+#include "server/log.h"
 #include "server/serve.h"
 
 namespace geodesic::server {
@@ -113,31 +121,6 @@ std::shared_ptr<grpc::ServerCredentials> ServerCredentials(const SecurityFlags& 
   return grpc::SslServerCredentials(options);
 }
 
-// TCP ports this process listens on, by file descriptor. MetricsHttpServer
-// does not say which port it bound, so with --metrics-listen HOST:0 the port
-// is the one listening socket that appeared while it started.
-std::map<int, int> ListeningPorts() {
-  std::map<int, int> ports;
-  std::error_code ec;
-  for (const auto& entry : std::filesystem::directory_iterator("/proc/self/fd", ec)) {
-    const int fd = std::atoi(entry.path().filename().c_str());
-    int listening = 0;
-    socklen_t length = sizeof(listening);
-    if (getsockopt(fd, SOL_SOCKET, SO_ACCEPTCONN, &listening, &length) != 0 || !listening) {
-      continue;
-    }
-    sockaddr_storage address{};
-    length = sizeof(address);
-    if (getsockname(fd, reinterpret_cast<sockaddr*>(&address), &length) != 0) continue;
-    if (address.ss_family == AF_INET) {
-      ports[fd] = ntohs(reinterpret_cast<const sockaddr_in&>(address).sin_port);
-    } else if (address.ss_family == AF_INET6) {
-      ports[fd] = ntohs(reinterpret_cast<const sockaddr_in6&>(address).sin6_port);
-    }
-  }
-  return ports;
-}
-
 // --port-file: {"grpc": P}, with "metrics": Q and "http": H when they listen, written once the
 // ports are bound, by rename so that a reader never sees half of it.
 bool WritePortFile(const std::string& path, int grpc_port, int metrics_port, int http_port) {
@@ -162,7 +145,8 @@ int RunServe(int argc, char** argv) {
   std::string http_listen;
   std::string listen = "127.0.0.1:50051", graph_dir = DefaultGraphDir(), mesh_root, metrics_listen,
               log_level = "info", sample;
-  uint64_t memory_limit = 0;
+  std::string memory_limit_text = "0", disk_limit_text = "0", config_path, log_format = "text";
+  double catalog_poll_seconds = 2;
   int build_threads = 0, build_workers = 1, query_threads = 0;
   bool exact_fans = false;
   ServiceLimits limits;
@@ -178,7 +162,20 @@ int RunServe(int argc, char** argv) {
   app.add_option("--graph-dir", graph_dir,
                  "where graphs, and snapshots of registered meshes, are written and read back");
   app.add_option("--mesh-root", mesh_root, "RegisterMesh paths must lie under this directory");
-  app.add_option("--memory-limit", memory_limit, "bytes of ready graphs to keep (0: no limit)");
+  app.add_option("--memory-limit", memory_limit_text,
+                 "bytes of ready graphs and their query scratch to keep, e.g. 6G or 512M (0: no "
+                 "limit)");
+  app.add_option("--disk-limit", disk_limit_text,
+                 "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
+                 "snapshots no catalog entry names go first, then catalogued ones (rebuilt when "
+                 "needed); never a file in use (0: no limit)");
+  app.add_option("--config", config_path,
+                 "YAML file of meshes to register and graphs to build at start (see "
+                 "server/config_file.h)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--catalog-poll-seconds", catalog_poll_seconds,
+                 "how often to follow the graph directory's catalog (meshes and graphs other "
+                 "replicas registered or unloaded), and to apply --disk-limit");
   app.add_option("--build-threads", build_threads, "threads per graph build (0: all cores)");
   app.add_option("--build-workers", build_workers, "graphs built at once");
   app.add_flag("--exact-fans", exact_fans,
@@ -198,8 +195,11 @@ int RunServe(int argc, char** argv) {
                  "port 0: any free port)");
   app.add_option("--metrics-listen", metrics_listen,
                  "serve Prometheus metrics on HOST:PORT (port 0: any free port)");
-  app.add_option("--log-level", log_level, "info (one line per request) or warning")
-      ->check(CLI::IsMember({"info", "warning"}));
+  app.add_option("--log-level", log_level, "debug, info (one line per request), warning or error")
+      ->check(CLI::IsMember({"debug", "info", "warning", "error"}));
+  app.add_option("--log-format", log_format,
+                 "text (timestamped key=value lines) or json (one object per line)")
+      ->check(CLI::IsMember({"text", "json"}));
   app.add_option("--sample-mesh", sample, "mesh registered as 'spot' at start (default: bundled)");
   app.add_flag("--no-sample", no_sample, "do not register the bundled sample mesh");
   app.add_option("--drain-seconds", drain_seconds, "grace period for running calls at shutdown");
@@ -220,7 +220,23 @@ int RunServe(int argc, char** argv) {
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
   }
-  limits.log_requests = log_level == "info";
+  SetLogLevel(*ParseLogLevel(log_level));
+  SetLogFormat(*ParseLogFormat(log_format));
+  limits.log_requests = LogEnabled(LogLevel::kInfo);
+  auto memory_limit = ParseByteSize(memory_limit_text, "--memory-limit");
+  auto disk_limit = ParseByteSize(disk_limit_text, "--disk-limit");
+  for (const auto* size : {&memory_limit, &disk_limit}) {
+    if (!size->ok()) {
+      std::fprintf(stderr, "geodesicd serve: %s\n", std::string(size->status().message()).c_str());
+      return 2;
+    }
+  }
+  absl::StatusOr<ServeConfig> config = ServeConfig{};
+  if (!config_path.empty()) config = LoadServeConfig(config_path);
+  if (!config.ok()) {
+    std::fprintf(stderr, "geodesicd serve: %s\n", std::string(config.status().message()).c_str());
+    return 2;
+  }
   limits.exact_fans = exact_fans;
   if (security.tls_cert.empty() != security.tls_key.empty()) {
     std::fprintf(stderr, "geodesicd serve: --tls-cert and --tls-key go together\n");
@@ -252,7 +268,8 @@ int RunServe(int argc, char** argv) {
   std::mutex health_mu;
   GraphCache::Options cache_options;
   cache_options.graph_dir = graph_dir;
-  cache_options.memory_limit = memory_limit;
+  cache_options.memory_limit = *memory_limit;
+  cache_options.on_file_used = MarkFileUsed;
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;
   cache_options.on_readiness = [&](const GraphKey& key, bool ready) {
@@ -261,8 +278,51 @@ int RunServe(int argc, char** argv) {
   };
   GraphCache graphs(cache_options);
   // Built meshes are saved beside the graphs, so a restarted daemon restores
-  // them rather than parsing and building them again.
-  MeshRegistry meshes(mesh_root, graph_dir);
+  // them rather than parsing and building them again; with a graph
+  // directory a registration returns once its snapshot is on disk, since
+  // the catalog then records it for restarts and replicas.
+  MeshRegistry meshes(mesh_root, graph_dir, /*durable=*/!graph_dir.empty());
+  std::unique_ptr<Catalog> catalog;
+  std::unique_ptr<CatalogSync> sync;
+  if (!graph_dir.empty()) {
+    catalog = std::make_unique<Catalog>(graph_dir);
+    sync = std::make_unique<CatalogSync>(
+        catalog.get(), CatalogSync::Hooks{
+                           .restore_mesh =
+                               [&](const CatalogMesh& m) {
+                                 return meshes
+                                     .RegisterRecorded(m.name, m.source, m.format, m.source_hash,
+                                                       m.fingerprint)
+                                     .status();
+                               },
+                           .drop_mesh =
+                               [&](const std::string& name) {
+                                 meshes.Remove(name).IgnoreError();
+                                 graphs.DropMesh(name);
+                               },
+                           .request_graph =
+                               [&](const std::string& mesh, const DggParams& params) {
+                                 if (auto m = meshes.Get(mesh); m.ok()) graphs.Request(*m, params);
+                               },
+                           .cancel_graph =
+                               [&](const std::string& mesh, const DggParams& params) {
+                                 graphs.Cancel({mesh, params}).IgnoreError();
+                               },
+                       });
+  }
+  std::atomic<bool> ready{false};
+  std::atomic<uint64_t> disk_removed{0}, disk_bytes{0};
+  metrics.AddGauge("geodesicd_ready", "1 once start-up restored what the catalog holds.",
+                   [&] { return ready ? 1.0 : 0.0; });
+  metrics.AddGauge("geodesicd_graph_dir_bytes", "Bytes of the files in --graph-dir.",
+                   [&] { return double(disk_bytes.load()); });
+  metrics.AddCounter("geodesicd_disk_files_removed_total",
+                     "Graph files and mesh snapshots removed to stay within --disk-limit.",
+                     [&] { return double(disk_removed.load()); });
+  if (sync) {
+    metrics.AddGauge("geodesicd_catalog_generation", "Generation of the catalog last followed.",
+                     [&] { return double(sync->generation()); });
+  }
   metrics.AddGauge("geodesicd_graph_resident_bytes",
                    "Resident bytes: graphs built in memory and landmark tables.",
                    [&] { return double(graphs.resident_bytes()); });
@@ -307,6 +367,8 @@ int RunServe(int argc, char** argv) {
   grpc::ServerBuilder builder;
   int bound_port = 0;
   builder.AddListeningPort(listen, credentials, &bound_port);
+  // A port taken by another daemon is refused (see listen_socket.h).
+  builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
   builder.RegisterService(&service);
   builder.SetMaxReceiveMessageSize(64 << 20);
   builder.SetMaxSendMessageSize(64 << 20);
@@ -318,32 +380,28 @@ int RunServe(int argc, char** argv) {
   builder.SetResourceQuota(quota);
   server = builder.BuildAndStart();
   if (!server || bound_port == 0) {
-    std::fprintf(stderr, "geodesicd serve: cannot listen on %s\n", listen.c_str());
+    std::fprintf(stderr, "geodesicd serve: cannot listen on %s: address in use or unavailable\n",
+                 listen.c_str());
     return 1;
   }
   {
     std::lock_guard<std::mutex> lock(health_mu);
     health = server->GetHealthCheckService();
-    health->SetServingStatus("", true);
-    health->SetServingStatus("geodesic.v1.Geodesic", true);
+    // Serving once start-up has restored what the catalog holds.
+    health->SetServingStatus("", false);
+    health->SetServingStatus("geodesic.v1.Geodesic", false);
   }
   std::unique_ptr<MetricsHttpServer> metrics_http;
   int metrics_port = 0;
   if (!metrics_listen.empty()) {
-    const std::map<int, int> before = ListeningPorts();
     std::string error;
-    metrics_http = MetricsHttpServer::Start(metrics_listen, &metrics, &error);
+    metrics_http = MetricsHttpServer::Start(
+        metrics_listen, &metrics, [&] { return ready.load(); }, &error);
     if (!metrics_http) {
       std::fprintf(stderr, "geodesicd serve: %s\n", error.c_str());
       return 1;
     }
-    for (const auto& [fd, port] : ListeningPorts()) {
-      if (!before.count(fd)) metrics_port = port;
-    }
-    if (metrics_port == 0 && !port_file.empty()) {
-      std::fprintf(stderr, "geodesicd serve: cannot tell which port --metrics-listen bound\n");
-      return 1;
-    }
+    metrics_port = metrics_http->port();
   }
   std::unique_ptr<HttpGateway> http;
   if (!http_listen.empty()) {
@@ -373,15 +431,118 @@ int RunServe(int argc, char** argv) {
                                                 : "mutual TLS",
                token.empty() ? "" : ", bearer token required", graph_dir.c_str(),
                mesh_root.empty() ? "(none)" : mesh_root.c_str());
-  if (sample_mesh.ok()) {
+  auto daemon_params = [&](double epsilon, bool pseudo) {
     DggParams params;
-    params.epsilon = limits.default_epsilon;
+    params.epsilon = epsilon;
+    params.pseudo_vertices = pseudo;
     params.exact_fans = exact_fans;
-    graphs.Request(*sample_mesh, params);
-  }
+    return params;
+  };
   signal(SIGTERM, OnSignal);
   signal(SIGINT, OnSignal);
+  // Start-up: what the catalog recorded (clients' meshes and graphs), what
+  // the config declares, and the sample's graph. Queries that arrive
+  // meanwhile restore what they name on demand (GeodesicService::FindMesh).
+  std::vector<GraphKey> restoring;
+  if (sync) {
+    if (absl::Status s = sync->Reconcile(); !s.ok()) {
+      Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
+      std::fprintf(stderr, "geodesicd serve: %s (fix or move the file; it is left as it is)\n",
+                   std::string(s.message()).c_str());
+      return 1;
+    }
+    if (auto state = catalog->Read(); state.ok()) {
+      for (const CatalogGraph& g : state->graphs) restoring.push_back({g.mesh, g.params});
+    }
+    service.UseCatalog(sync.get());
+  }
+  for (const DeclaredMesh& m : config->meshes) {
+    auto registered = std::filesystem::path(m.path).is_absolute()
+                          ? meshes.RegisterTrustedPath(m.name, m.path)
+                          : meshes.RegisterPath(m.name, m.path);
+    if (!registered.ok()) {
+      Log(LogLevel::kError, "config_mesh_failed",
+          {{"mesh", m.name}, {"path", m.path}, {"error", registered.status().ToString()}});
+    }
+  }
+  for (const DeclaredGraph& g : config->graphs) {
+    if (auto m = meshes.Get(g.mesh); m.ok()) {
+      const DggParams params = daemon_params(g.epsilon, g.pseudo_vertices);
+      graphs.Request(*m, params);
+      restoring.push_back({g.mesh, params});
+    }
+  }
+  if (sample_mesh.ok()) graphs.Request(*sample_mesh, daemon_params(limits.default_epsilon, false));
+  // Ready once every restored graph whose file was there is mapped (a
+  // missing or invalid one rebuilds in the background, and is not waited
+  // for), or after a minute at most.
+  const absl::Time restore_deadline = absl::Now() + absl::Seconds(60);
+  size_t restored_graphs = 0;
+  for (const GraphKey& key : restoring) {
+    auto status = graphs.Get(key);
+    while (status.ok() && !g_stop &&
+           (status->state == GraphState::kQueued || status->state == GraphState::kLoading) &&
+           absl::Now() < restore_deadline) {
+      status = graphs.WaitForChange(key, status->version, absl::Now() + absl::Milliseconds(200));
+    }
+    restored_graphs += status.ok() && status->state == GraphState::kReady;
+  }
+  ready = true;
+  {
+    std::lock_guard<std::mutex> lock(health_mu);
+    health->SetServingStatus("", true);
+    health->SetServingStatus("geodesic.v1.Geodesic", true);
+  }
+  Log(LogLevel::kInfo, "ready",
+      {{"meshes", meshes.List().size()},
+       {"graphs_ready", restored_graphs},
+       {"graphs_restoring", restoring.size()}});
+  // Follows the catalog (replicas' changes) and keeps --graph-dir in budget.
+  std::thread follower([&] {
+    while (!g_stop) {
+      for (int i = 0; i < catalog_poll_seconds * 10 && !g_stop; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      }
+      if (g_stop || graph_dir.empty()) continue;
+      if (absl::Status s = sync->Reconcile(); !s.ok()) {
+        Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
+      }
+      auto state = catalog->Read();
+      if (!state.ok()) continue;
+      std::set<std::string> catalogued;
+      std::map<std::string, uint64_t> fingerprints;
+      for (const CatalogMesh& m : state->meshes) {
+        catalogued.insert(MeshSnapshotName(m.source_hash));
+        fingerprints[m.name] = m.fingerprint;
+      }
+      for (const CatalogGraph& g : state->graphs) {
+        if (fingerprints.contains(g.mesh)) {
+          catalogued.insert(GraphFileName(fingerprints[g.mesh], g.params));
+        }
+      }
+      std::set<std::string> snapshots_in_use;
+      for (const auto& m : meshes.List()) snapshots_in_use.insert(MeshRegistry::SnapshotName(*m));
+      auto report = EnforceDiskLimit(graph_dir, *disk_limit, [&](const std::string& name) {
+        if (snapshots_in_use.contains(name) || graphs.FileInUse(name)) return FileRole::kInUse;
+        return catalogued.contains(name) ? FileRole::kCataloged : FileRole::kSpare;
+      });
+      if (!report.ok()) {
+        Log(LogLevel::kError, "disk_limit_failed", {{"error", report.status().ToString()}});
+        continue;
+      }
+      disk_bytes = report->bytes_after;
+      disk_removed += report->removed.size();
+      for (const std::string& name : report->removed) {
+        Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});
+      }
+      if (report->over_limit) {
+        Log(LogLevel::kWarning, "disk_over_limit",
+            {{"bytes", report->bytes_after}, {"limit", *disk_limit}});
+      }
+    }
+  });
   while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  follower.join();
   std::fprintf(stderr, "geodesicd: shutting down (draining up to %.0f s)\n", drain_seconds);
   {
     std::lock_guard<std::mutex> lock(health_mu);

@@ -1,0 +1,196 @@
+#!/usr/bin/env python3
+"""What operators rely on (#23): registered meshes and requested graphs
+survive SIGTERM and kill -9 and answer again at once, without rebuilding;
+two replicas on one graph directory share them; --disk-limit never removes a
+file in use; a port already taken is refused; sizes read as K/M/G; /healthz
+and /readyz; a --config file. Every daemon listens on 127.0.0.1 port 0, and
+every wait is bounded.
+
+Usage: durability_test.py BUILD_BIN_DIR SOURCE_DIR"""
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.error
+import urllib.request
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from daemon_ports import start_daemon  # noqa: E402
+
+bin_dir, src = sys.argv[1], sys.argv[2]
+data = os.path.join(src, "data")
+passes = failures = 0
+
+
+def check(name, ok, detail=""):
+    global passes, failures
+    print(("ok   " if ok else "FAIL ") + name + ("" if ok else f": {detail}"), flush=True)
+    passes += bool(ok)
+    failures += not ok
+
+
+def cli(port, *args, timeout=120):
+    r = subprocess.run([f"{bin_dir}/geodesic", "--server", f"127.0.0.1:{port}", "--json", *args],
+                       capture_output=True, text=True, timeout=timeout)
+    return r.returncode, (json.loads(r.stdout) if r.returncode == 0 and r.stdout.strip() else None), r.stderr
+
+
+def serve(work, graphs, *extra, metrics=False):
+    log = open(os.path.join(work, "daemon.log"), "a")
+    daemon, ports = start_daemon(bin_dir, work, ["--graph-dir", graphs, "--mesh-root", data,
+                                                 "--no-sample", "--log-level", "warning",
+                                                 "--catalog-poll-seconds", "0.5", *extra],
+                                 stderr=log, metrics=metrics)
+    return daemon, ports
+
+
+def stop(daemon, sig=signal.SIGTERM):
+    daemon.send_signal(sig)
+    daemon.wait(timeout=60)
+
+
+def distance_within(port, mesh, seconds):
+    """The first distance answer for `mesh` within `seconds`, or None."""
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        rc, out, _ = cli(port, "--mesh", mesh, "--eps", "0.01", "distance",
+                         "--from", "v:1", "--to", "v:2000", timeout=10)
+        if rc == 0:
+            return out[0]["distance"]
+        time.sleep(0.05)
+    return None
+
+
+with tempfile.TemporaryDirectory() as work:
+    graphs = os.path.join(work, "graphs")
+
+    # A client registers kitten and asks for its graph.
+    daemon, ports = serve(work, graphs)
+    port = ports["grpc"]
+    rc, _, err = cli(port, "--mesh", "kitten", "load", "spot.obj")
+    check("kitten registered", rc == 0, err)
+    rc, graph, err = cli(port, "--mesh", "kitten", "--eps", "0.01", "graph", "--wait")
+    check("its graph ready", rc == 0 and graph["state"] == "ready", err)
+    want = distance_within(port, "kitten", 10)
+
+    for how, sig in (("SIGTERM", signal.SIGTERM), ("kill -9", signal.SIGKILL)):
+        stop(daemon, sig)
+        started = time.time()
+        daemon, ports = serve(work, graphs)
+        got = distance_within(ports["grpc"], "kitten", 10)
+        elapsed = time.time() - started
+        check(f"after {how} kitten answers again within 2 s ({elapsed:.2f} s)",
+              got == want and elapsed < 2, f"{got} vs {want}")
+        rc, status, _ = cli(ports["grpc"], "--mesh", "kitten", "--eps", "0.01", "graph")
+        check(f"after {how} the graph was mapped, not rebuilt",
+              rc == 0 and status["from_file"] is True, status)
+
+    # A second replica on the same directory answers for kitten without the
+    # client registering anything, and follows an unload made on the first.
+    replica, replica_ports = serve(work, graphs)
+    got = distance_within(replica_ports["grpc"], "kitten", 10)
+    check("a replica answers for a mesh registered on another", got == want, got)
+    rc, _, err = cli(ports["grpc"], "--mesh", "puppy", "load", "spot.obj")
+    rc2, _, err2 = cli(ports["grpc"], "--mesh", "puppy", "--eps", "0.02", "graph", "--wait")
+    check("puppy registered and built on the first", rc == 0 and rc2 == 0, err + err2)
+    deadline, names = time.time() + 10, []
+    while time.time() < deadline and "puppy" not in names:
+        _, listed, _ = cli(replica_ports["grpc"], "meshes")
+        names = [m["name"] for m in listed or []]
+        time.sleep(0.2)
+    check("the replica follows a registration made on the first", "puppy" in names, names)
+    rc, _, err = cli(ports["grpc"], "--mesh", "puppy", "unload")
+    deadline = time.time() + 10
+    while time.time() < deadline and "puppy" in names:
+        _, listed, _ = cli(replica_ports["grpc"], "meshes")
+        names = [m["name"] for m in listed or []]
+        time.sleep(0.2)
+    check("and an unload", rc == 0 and "puppy" not in names, names)
+    stop(replica)
+
+    # The catalog is one versioned JSON file; what a client was told is
+    # ready is in it.
+    with open(os.path.join(graphs, "catalog.json")) as f:
+        catalog = json.load(f)
+    check("the catalog lists kitten and its graph",
+          [m["name"] for m in catalog["meshes"]] == ["kitten"] and
+          [(g["mesh"], g["epsilon"]) for g in catalog["graphs"]] == [("kitten", 0.01)], catalog)
+
+    # A second daemon on the same port is refused, by name.
+    r = subprocess.run([f"{bin_dir}/geodesicd", "serve", "--listen", f"127.0.0.1:{ports['grpc']}",
+                        "--graph-dir", os.path.join(work, "other"), "--no-sample"],
+                       capture_output=True, text=True, timeout=60)
+    check("a port already taken is refused", r.returncode != 0 and "cannot listen on" in r.stderr,
+          r.stderr[-300:])
+    stop(daemon)
+
+    # --disk-limit: spare files (graphs of meshes nobody registered, old
+    # snapshots) go, least recently used first; files in use stay.
+    for name, age in (("00000000000000aa-eps0.01-r2.dgg", 300), ("00000000000000bb.mesh", 200)):
+        path = os.path.join(graphs, name)
+        with open(path, "wb") as f:
+            f.write(b"x" * 4_000_000)
+        os.utime(path, (time.time() - age, time.time() - age))
+    # kitten's graph and snapshot are in use; puppy's graph (unloaded) is not.
+    in_use = sorted(f for f in os.listdir(graphs)
+                    if (f.endswith(".mesh") or "eps0.01-" in f) and "000000" not in f)
+    spare = [f for f in os.listdir(graphs) if "eps0.02-" in f]
+    daemon, ports = serve(work, graphs, "--disk-limit", "3M", "--memory-limit", "6G", metrics=True)
+    distance_within(ports["grpc"], "kitten", 10)
+    deadline = time.time() + 10
+    while time.time() < deadline and any("000000" in f for f in os.listdir(graphs)):
+        time.sleep(0.2)
+    left = os.listdir(graphs)
+    check("spare files removed to meet --disk-limit",
+          not any("000000" in f or f in spare for f in left), left)
+    check("files in use kept although over the limit", all(f in left for f in in_use), (in_use, left))
+    check("queries still answer", distance_within(ports["grpc"], "kitten", 5) == want)
+    metrics_url = f"http://127.0.0.1:{ports['metrics']}"
+    page = urllib.request.urlopen(metrics_url + "/metrics", timeout=10).read().decode()
+    check("disk use and removals are metrics",
+          "geodesicd_graph_dir_bytes " in page and
+          f"geodesicd_disk_files_removed_total {2 + len(spare)}" in page,
+          [l for l in page.splitlines() if "disk" in l])
+    for path, want_status in (("/healthz", 200), ("/readyz", 200)):
+        try:
+            status = urllib.request.urlopen(metrics_url + path, timeout=10).status
+        except urllib.error.HTTPError as e:
+            status = e.code
+        check(f"{path} answers {want_status}", status == want_status, status)
+    stop(daemon)
+
+    r = subprocess.run([f"{bin_dir}/geodesicd", "serve", "--listen", "127.0.0.1:0",
+                        "--memory-limit", "6 lots"], capture_output=True, text=True, timeout=60)
+    check("a bad size is refused by flag and value",
+          r.returncode != 0 and "--memory-limit: '6 lots' is not a size" in r.stderr, r.stderr)
+
+    # --config: meshes and graphs declared by the deployment.
+    config = os.path.join(work, "deploy.yaml")
+    with open(config, "w") as f:
+        f.write("meshes:\n  - name: declared\n    path: spot.obj\n"
+                "graphs:\n  - mesh: declared\n    eps: 0.02\n")
+    daemon, ports = serve(work, os.path.join(work, "config-graphs"), "--config", config)
+    deadline, state = time.time() + 60, None
+    while time.time() < deadline and state != "ready":
+        _, status, _ = cli(ports["grpc"], "--mesh", "declared", "--eps", "0.02", "graph")
+        state = status and status["state"]
+        time.sleep(0.2)
+    check("a --config mesh and graph are served", state == "ready", state)
+    stop(daemon)
+    bad = os.path.join(work, "bad.yaml")
+    with open(bad, "w") as f:
+        f.write("graphs:\n  - mesh: declared\n    eps: 0.02\n    pseudo: true\n")
+    r = subprocess.run([f"{bin_dir}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--config", bad],
+                       capture_output=True, text=True, timeout=60)
+    check("a bad --config is refused with file and line", r.returncode != 0 and "bad.yaml:" in r.stderr,
+          r.stderr)
+    if failures:
+        with open(os.path.join(work, "daemon.log")) as f:
+            print(f.read()[-4000:])
+
+print(f"{passes} passed, {failures} failed")
+sys.exit(1 if failures else 0)
