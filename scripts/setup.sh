@@ -28,6 +28,7 @@ PACKAGES=(
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-yaml python3-matplotlib openssl
+  python3-venv python3-pip python3-setuptools python3-wheel
 )
 
 $with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)

@@ -68,10 +68,11 @@ class ClientTest(unittest.TestCase):
 
     def test_distance_path_and_matrix_agree(self):
         d = self.client.distance("spot", "f:0:0.2,0.3,0.5", "v:1500", epsilon=0.01)
-        length, points = self.client.path("spot", "f:0:0.2,0.3,0.5", "v:1500", epsilon=0.01)
+        path = self.client.path("spot", "f:0:0.2,0.3,0.5", "v:1500", epsilon=0.01)
         self.assertGreater(d, 0)
-        self.assertLessEqual(length, d * (1 + 1e-6))
-        self.assertEqual(points[-1][0], "v:1500")
+        self.assertLessEqual(path.length, d * (1 + 1e-6))
+        self.assertEqual(path.points[-1], "v:1500")
+        self.assertEqual(path.xyz.shape, (len(path.points), 3))
         # The matrix comes from label-correcting fields, the pair from bidirectional search on
         # the augmented graph: different searches, so both are checked against the exact
         # distance (never below it, at most 1+eps above it) rather than against each other.
