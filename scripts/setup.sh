@@ -29,6 +29,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-yaml python3-matplotlib openssl
   libssl-dev libjs-three chromium chromium-driver python3-selenium curl
+  python3-venv python3-pip python3-setuptools python3-wheel
 )
 
 $with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)

@@ -117,16 +117,18 @@ class GatewayTest(unittest.TestCase):
         pairs = [["v:0", "v:1500"], ["f:0:0.2,0.3,0.5", "e:10:0.25"], ["v:7", "v:7"]]
         status, body = self.post("distance", {"pairs": pairs, "eps": EPS, "path": False})
         self.assertEqual(status, 200, body)
-        expected = [r.distance for r in self.client.distances("spot", pairs, epsilon=EPS)]
+        expected = list(self.client.distances("spot", [a for a, _ in pairs], [b for _, b in pairs],
+                                              epsilon=EPS))
         self.assertEqual(body["distances"], expected)
         self.assertEqual(body["distances"][2], 0)
         self.assertNotIn("paths", body)
 
         status, body = self.post("distance", {"pairs": pairs[:1], "eps": EPS, "path": True})
         self.assertEqual(status, 200, body)
-        [r] = self.client.distances("spot", pairs[:1], epsilon=EPS, with_path=True)
-        self.assertEqual(body["distances"], [r.distance])
-        self.assertEqual(body["paths"][0], [[p.xyz.x, p.xyz.y, p.xyz.z] for p in r.path.points])
+        distances, [path] = self.client.distances("spot", [pairs[0][0]], [pairs[0][1]], epsilon=EPS,
+                                                  with_path=True)
+        self.assertEqual(body["distances"], list(distances))
+        self.assertEqual(body["paths"][0], path.xyz.tolist())
 
         # xyz specs are snapped as the Snap RPC snaps them.
         [snapped] = self.client.snap("spot", [(0.1, 0.2, 0.3)])

@@ -85,10 +85,12 @@ class ClientTest(unittest.TestCase):
         # so the two agree within eps of the exact distance.
         source = "f:0:0.2,0.3,0.5"
         d = self.client.distance("spot", source, "v:1500", epsilon=eps)
-        length, points = self.client.path("spot", source, "v:1500", epsilon=eps)
+        path = self.client.path("spot", source, "v:1500", epsilon=eps)
+        length = path.length
         exact = self.exact_field(source)[1500]
         self.assertGreater(exact, 0)
-        self.assertEqual(points[-1][0], "v:1500")
+        self.assertEqual(path.points[-1], "v:1500")
+        self.assertEqual(path.xyz.shape, (len(path.points), 3))
         self.assertLessEqual(length, d * (1 + 1e-6))
         self.assertGreaterEqual(length, exact * (1 - 1e-9))
         self.assertLessEqual(d, exact * (1 + eps))

@@ -208,7 +208,8 @@ def main():
 
         # Memory stays flat across repeated queries on a resident graph.
         client.request_graph("spot", epsilon=0.01, wait=True)
-        rounds = lambda k: [client.distances("spot", PAIRS, 0.01, with_path=True)  # noqa: E731
+        froms, tos = zip(*PAIRS)
+        rounds = lambda k: [client.distances("spot", froms, tos, 0.01, with_path=True)  # noqa: E731
                             and client.field("spot", SOURCES[:1], 0.01) for _ in range(k)]
         rounds(300)
         before = rss_bytes(daemon.pid)

@@ -121,8 +121,8 @@ class ViewerTest(unittest.TestCase):
         self.assertGreater(shown, 0)
         # The distance shown is the gRPC answer for the same points, asked
         # with the path as the page asks (then it is the path's exact length).
-        [result] = self.client.distances("spot", [(a, c)], epsilon=EPS, with_path=True)
-        expected = result.distance
+        distances, _ = self.client.distances("spot", [a], [c], epsilon=EPS, with_path=True)
+        expected = float(distances[0])
         self.assertEqual(shown, expected)
         self.assertAlmostEqual(float(el.text), expected, delta=expected * 1e-7)
         b.save_screenshot(f"{OUT}/viewer_path.png")

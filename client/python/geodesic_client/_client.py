@@ -1,0 +1,356 @@
+"""The geodesicd client."""
+import random
+import re
+import time
+from typing import Any, Callable, Iterable, List, Optional, Tuple, Union
+
+import grpc
+import numpy as np
+
+from ._errors import GeodesicError, ResourceExhaustedError, from_rpc_error
+from ._points import Point, Points, format_point, to_message, to_messages
+from ._stubs import pb, rpc
+from ._types import Graph, GraphState, Path, RetryPolicy
+
+# The server's defaults (geodesicd serve --max-pairs, --max-sources; its gRPC
+# messages are limited to 64 MiB either way).
+DEFAULT_MAX_PAIRS = 10000
+DEFAULT_MAX_SOURCES = 1024
+DEFAULT_MAX_MESSAGE_BYTES = 64 << 20
+# Pairs per Distance call when paths are wanted: a path can hold thousands of
+# points, so that whole batches stay far below the message size.
+DEFAULT_PATH_BATCH = 256
+
+_LIMIT = re.compile(r"exceed the limit of (\d+)")
+
+
+class Client:
+    """A connection to one geodesicd (or a proxy in front of several).
+
+    Points are given as numpy arrays (see geodesic_client.Points): integer vertex ids,
+    FacePoints(face_ids, barycentrics), (N, 3) positions (snapped by the server), or spec
+    strings. Batches larger than the server's limits are split into several calls and the
+    results reassembled in order. Calls failing with UNAVAILABLE (a graph still building, the
+    server not reachable yet) are retried per `retry`. Failures raise GeodesicError subclasses
+    (which are grpc.RpcError); malformed arguments raise ValueError before any call.
+    """
+
+    def __init__(self, address: str = "127.0.0.1:50051", timeout: float = 600.0,
+                 token: Optional[str] = None, root_certificates: Optional[bytes] = None,
+                 private_key: Optional[bytes] = None, certificate_chain: Optional[bytes] = None,
+                 *, epsilon: float = 0.0, retry: RetryPolicy = RetryPolicy(),
+                 max_pairs: int = DEFAULT_MAX_PAIRS, max_sources: int = DEFAULT_MAX_SOURCES,
+                 max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
+                 path_batch: int = DEFAULT_PATH_BATCH):
+        """address: HOST:PORT. timeout: deadline of each call, seconds.
+        token: sent as "authorization: Bearer <token>" (geodesicd --auth-token-file).
+        root_certificates: PEM bytes of the CA that signed the server's certificate; turns TLS
+        on. private_key, certificate_chain: PEM bytes of a client certificate, for servers that
+        require one (--tls-client-ca).
+        epsilon: the graph accuracy used when a call gives none (0: the server's default).
+        max_pairs, max_sources: the server's --max-pairs and --max-sources; a lower limit
+        reported by the server is learnt from its error. max_message_bytes: the largest gRPC
+        message either side accepts."""
+        self._max_message = max_message_bytes
+        options = [("grpc.max_receive_message_length", max_message_bytes),
+                   ("grpc.max_send_message_length", max_message_bytes),
+                   # gRPC's own reconnect backoff would otherwise grow past the
+                   # retries' (to minutes), failing every retry fast.
+                   ("grpc.initial_reconnect_backoff_ms", int(1000 * retry.initial_backoff) or 1),
+                   ("grpc.min_reconnect_backoff_ms", int(1000 * retry.initial_backoff) or 1),
+                   ("grpc.max_reconnect_backoff_ms", int(1000 * retry.max_backoff) or 1)]
+        if root_certificates is not None:
+            credentials = grpc.ssl_channel_credentials(root_certificates, private_key,
+                                                       certificate_chain)
+            self._channel = grpc.secure_channel(address, credentials, options=options)
+        else:
+            self._channel = grpc.insecure_channel(address, options=options)
+        self._stub = rpc.GeodesicStub(self._channel)
+        self._auth = [("authorization", f"Bearer {token}")] if token else []
+        self.timeout = timeout
+        self.epsilon = epsilon
+        self.retry = retry
+        self.max_pairs = max_pairs
+        self.max_sources = max_sources
+        self.path_batch = path_batch
+
+    def close(self) -> None:
+        self._channel.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.close()
+
+    # -- plumbing -------------------------------------------------------------
+
+    def _meta(self, mesh: Optional[str]) -> List[Tuple[str, str]]:
+        # Proxies route by this header, so that a mesh's queries reach the
+        # replicas that hold its graph.
+        return ([("x-geodesic-mesh", mesh)] if mesh else []) + self._auth
+
+    def _eps(self, epsilon: Optional[float]) -> float:
+        return self.epsilon if epsilon is None else epsilon
+
+    def _call(self, name: str, run: Callable[[], Any]) -> Any:
+        """run() with retries of transient codes; failures become GeodesicError."""
+        delays = self.retry.delays()
+        while True:
+            try:
+                return run()
+            except grpc.RpcError as e:
+                error = from_rpc_error(e, name)
+                delay = next(delays, None) if error.code().name in self.retry.codes else None
+                if delay is None:
+                    raise error from None
+                time.sleep(random.uniform(delay / 2, delay))
+
+    def _unary(self, name: str, request: Any, mesh: Optional[str]) -> Any:
+        method = getattr(self._stub, name)
+        return self._call(name, lambda: method(request, timeout=self.timeout,
+                                                metadata=self._meta(mesh)))
+
+    def _resolve(self, mesh: str, points: Points) -> List[Any]:
+        """SurfacePoints for a point set, positions snapped in batches."""
+        messages = to_messages(points)
+        at = [i for i, m in enumerate(messages) if isinstance(m, pb.Vec3)]
+        for start in range(0, len(at), self.max_pairs):
+            chunk = at[start:start + self.max_pairs]
+            snapped = self._unary("Snap", pb.SnapRequest(mesh=mesh, positions=[messages[i] for i
+                                                                               in chunk]), mesh)
+            for i, p in zip(chunk, snapped.points):
+                messages[i] = p
+        return messages
+
+    def _resolve_one(self, mesh: str, point: Point) -> Any:
+        return self._resolve(mesh, [to_message(point)])[0]
+
+    @staticmethod
+    def _smaller_batch(error: GeodesicError, size: int) -> Optional[int]:
+        """The batch size to retry with after RESOURCE_EXHAUSTED, or None to give up."""
+        if not isinstance(error, ResourceExhaustedError):
+            return None
+        limit = _LIMIT.search(error.details())
+        if limit and 0 < int(limit.group(1)) < size:
+            return int(limit.group(1))
+        if "larger than max" in error.details() and size > 1:
+            return size // 2
+        return None
+
+    # -- meshes ---------------------------------------------------------------
+
+    def meshes(self) -> List[Any]:
+        """The registered meshes (geodesic.v1.Mesh messages)."""
+        return list(self._unary("ListMeshes", pb.ListMeshesRequest(), None).meshes)
+
+    def mesh(self, name: str) -> Any:
+        """One registered mesh, with its diagnostics (a geodesic.v1.Mesh)."""
+        return self._unary("GetMesh", pb.GetMeshRequest(name=name), name)
+
+    def register_mesh(self, name: str, path: str) -> Any:
+        """Registers a mesh from a file under the server's --mesh-root."""
+        return self._unary("RegisterMesh", pb.RegisterMeshRequest(name=name, path=path), name)
+
+    def unload_mesh(self, name: str) -> None:
+        """Forgets a mesh and drops its graphs from memory (their files stay)."""
+        self._unary("UnloadMesh", pb.UnloadMeshRequest(name=name), name)
+
+    def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Any:
+        """Uploads a local .obj/.off/.ply/.stl file and registers it under name."""
+        fmt = filename.rsplit(".", 1)[-1].lower()
+
+        def chunks():
+            with open(filename, "rb") as f:
+                first = True
+                while True:
+                    data = f.read(chunk_bytes)
+                    if not data and not first:
+                        return
+                    yield pb.UploadMeshRequest(name=name if first else "",
+                                               format=fmt if first else "", data=data)
+                    first = False
+
+        return self._call("UploadMesh", lambda: self._stub.UploadMesh(
+            chunks(), timeout=self.timeout, metadata=self._meta(name)))
+
+    # -- graphs ---------------------------------------------------------------
+
+    def request_graph(self, mesh: str, epsilon: Optional[float] = None, wait: bool = True,
+                      pseudo_vertices: bool = False) -> Graph:
+        """Requests the graph of mesh at epsilon; with wait, blocks until it is ready.
+
+        Raises RuntimeError if the graph failed or was cancelled while waiting.
+        """
+        request = pb.RequestGraphRequest(mesh=mesh, epsilon=self._eps(epsilon),
+                                         pseudo_vertices=pseudo_vertices)
+        g = self._unary("RequestGraph", request, mesh)
+        # Under memory pressure a graph can be evicted again before this
+        # client sees it ready; asking again brings it back from its file.
+        for _ in range(10 if wait else 0):
+            g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
+                pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon), timeout=self.timeout,
+                metadata=self._meta(mesh)), g))
+            if g.state != pb.GRAPH_STATE_EVICTED:
+                break
+            g = self._unary("RequestGraph", request, mesh)
+        graph = Graph._from_proto(g)
+        if wait and graph.state != GraphState.READY:
+            raise RuntimeError(f"graph for {mesh} at eps {graph.epsilon}: {graph.state.name} "
+                               f"{graph.error}")
+        return graph
+
+    @staticmethod
+    def _last(stream: Iterable[Any], default: Any) -> Any:
+        for item in stream:
+            default = item
+        return default
+
+    def graph(self, mesh: str, epsilon: Optional[float] = None) -> Graph:
+        """The state of the graph of mesh at epsilon."""
+        return Graph._from_proto(self._unary(
+            "GetGraph", pb.GetGraphRequest(mesh=mesh, epsilon=self._eps(epsilon)), mesh))
+
+    def graphs(self) -> List[Graph]:
+        """Every graph the server knows of."""
+        return [Graph._from_proto(g)
+                for g in self._unary("ListGraphs", pb.ListGraphsRequest(), None).graphs]
+
+    def cancel_graph(self, mesh: str, epsilon: Optional[float] = None) -> Graph:
+        """Cancels the build of a graph."""
+        return Graph._from_proto(self._unary(
+            "CancelGraph", pb.CancelGraphRequest(mesh=mesh, epsilon=self._eps(epsilon)), mesh))
+
+    # -- queries --------------------------------------------------------------
+
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = None,
+              max_distance: float = 0.0, targets: Optional[Any] = None, method: str = "lc",
+              nearest_source: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
+        """Distances from the nearest of the sources, as a float64 array (+inf: unreachable).
+
+        One value per vertex, or per target if targets (vertex ids) are given. With
+        nearest_source, also returns the index in sources of each value's nearest source.
+        More sources than the server's --max-sources are split into several fields and
+        combined by their minimum.
+        """
+        if isinstance(sources, (str, int, np.integer)):
+            sources = [sources]
+        points = self._resolve(mesh, sources)
+        if not points:
+            raise ValueError("field: give at least one source")
+        target_ids = [] if targets is None else to_messages_ids(targets)
+        values, labels = None, None
+        for start in range(0, len(points), self.max_sources):
+            req = pb.DistanceFieldRequest(
+                mesh=mesh, epsilon=self._eps(epsilon), max_distance=max_distance,
+                sources=points[start:start + self.max_sources], targets=target_ids,
+                method=method, nearest_source=nearest_source)
+            part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
+            if values is None:
+                values, labels = part, part_labels
+                if labels is not None:
+                    labels = labels.astype(np.int64)
+            else:
+                closer = part < values
+                values = np.where(closer, part, values)
+                if labels is not None:
+                    labels = np.where(closer, part_labels.astype(np.int64) + start, labels)
+        return (values, labels) if nearest_source else values
+
+    def _field_stream(self, req: Any) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+        values, labels = np.empty(0), None
+        for chunk in self._stub.DistanceField(req, timeout=self.timeout,
+                                              metadata=self._meta(req.mesh)):
+            if chunk.offset == 0 and len(values) != chunk.total:
+                values = np.empty(chunk.total, dtype=np.float64)
+                labels = np.empty(chunk.total, dtype=np.uint32) if req.nearest_source else None
+            end = chunk.offset + len(chunk.values)
+            values[chunk.offset:end] = chunk.values
+            if req.nearest_source:
+                labels[chunk.offset:end] = chunk.nearest_source
+        return values, labels
+
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = None,
+                  with_path: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
+        """Geodesic distances between a[i] and b[i], as a float64 array (+inf: unreachable).
+
+        a and b are point sets of the same length. With with_path, returns (distances, paths),
+        paths[i] a Path whose xyz is a (K, 3) array.
+        """
+        pa, pb_ = self._resolve(mesh, a), self._resolve(mesh, b)
+        if len(pa) != len(pb_):
+            raise ValueError(f"distances: {len(pa)} points in a but {len(pb_)} in b")
+        out = np.empty(len(pa), dtype=np.float64)
+        paths: List[Path] = []
+        i = 0
+        while i < len(pa):
+            batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
+            j = min(len(pa), i + batch)
+            req = pb.DistanceRequest(mesh=mesh, epsilon=self._eps(epsilon), with_path=with_path,
+                                     pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
+                                            for k in range(i, j)])
+            try:
+                resp = self._unary("Distance", req, mesh)
+            except GeodesicError as e:
+                smaller = self._smaller_batch(e, j - i)
+                if smaller is None:
+                    raise
+                if with_path:
+                    self.path_batch = smaller
+                if smaller < self.max_pairs and _LIMIT.search(e.details()):
+                    self.max_pairs = smaller
+                continue
+            out[i:j] = [r.distance for r in resp.results]
+            if with_path:
+                paths.extend(_path(r) for r in resp.results)
+            i = j
+        return (out, paths) if with_path else out
+
+    def distance(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None) -> float:
+        """Geodesic distance between two surface points (+inf if unreachable)."""
+        return float(self.distances(mesh, [to_message(a)], [to_message(b)], epsilon)[0])
+
+    def path(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None) -> Path:
+        """The geodesic path from a to b (unpacks as ``length, xyz = path``)."""
+        _, (p,) = self.distances(mesh, [to_message(a)], [to_message(b)], epsilon, with_path=True)
+        return p
+
+    def matrix(self, mesh: str, sources: Points, targets: Points,
+               epsilon: Optional[float] = None) -> np.ndarray:
+        """(len(sources), len(targets)) float64 array of distances, computed in tiles that fit
+        the server's limits."""
+        ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
+        out = np.empty((len(ps), len(pt)), dtype=np.float64)
+        cols = max(1, min(self.max_pairs, len(pt)))
+        # Half the message size: the repeated doubles plus their framing.
+        rows = max(1, min(self.max_sources, self._max_message // 2 // (8 * cols)))
+        for r in range(0, len(ps), rows):
+            for c in range(0, len(pt), cols):
+                resp = self._unary("Matrix", pb.MatrixRequest(
+                    mesh=mesh, epsilon=self._eps(epsilon), sources=ps[r:r + rows],
+                    targets=pt[c:c + cols]), mesh)
+                out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
+                    resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
+        return out
+
+    def snap(self, mesh: str, positions: Any) -> List[str]:
+        """Nearest surface points to (N, 3) positions, as spec strings."""
+        positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
+        return [format_point(p) for p in self._resolve(mesh, positions)]
+
+
+def to_messages_ids(targets: Any) -> List[int]:
+    ids = np.asarray(targets)
+    if ids.ndim != 1 or not (np.issubdtype(ids.dtype, np.integer) or ids.size == 0):
+        raise ValueError(f"targets: expected 1-D vertex ids, got shape {ids.shape} {ids.dtype}")
+    if ids.size and (ids.min() < 0 or ids.max() >= 2**32):
+        raise ValueError("targets: vertex ids must lie in [0, 2^32)")
+    return ids.astype(np.int64).tolist()
+
+
+def _path(result: Any) -> Path:
+    points = result.path.points
+    xyz = np.array([(p.xyz.x, p.xyz.y, p.xyz.z) for p in points],
+                   dtype=np.float64).reshape(len(points), 3)
+    length = result.path.length if result.reachable else float("inf")
+    return Path(length=length, xyz=xyz, points=[format_point(p.point) for p in points])
