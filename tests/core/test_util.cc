@@ -3,9 +3,11 @@
 #include <stdlib.h>
 #include <unistd.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <random>
 #include <tuple>
 
 namespace geodesic::testing {
@@ -78,6 +80,35 @@ Mesh PlanarGrid(int nx, int ny, double h) {
       } else {
         soup.triangles.push_back({id(i, j), id(i + 1, j), id(i, j + 1)});
         soup.triangles.push_back({id(i + 1, j), id(i + 1, j + 1), id(i, j + 1)});
+      }
+    }
+  }
+  return MustBuild(std::move(soup));
+}
+
+Mesh NoisyTorus(int nu, int nv, double stretch, uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<double> jitter(-0.35, 0.35), radius(0.85, 1.15), coin(0, 1);
+  TriangleSoup soup;
+  constexpr double kTwoPi = 6.283185307179586;
+  for (int i = 0; i < nu; ++i) {
+    for (int j = 0; j < nv; ++j) {
+      const double u = (i + jitter(rng)) * kTwoPi / nu, v = (j + jitter(rng)) * kTwoPi / nv;
+      const double r = 0.35 * radius(rng);
+      soup.positions.push_back({(1 + r * std::cos(v)) * std::cos(u),
+                                stretch * (1 + r * std::cos(v)) * std::sin(u), r * std::sin(v)});
+    }
+  }
+  auto id = [&](int i, int j) { return static_cast<VertexId>((i % nu) * nv + (j % nv)); };
+  for (int i = 0; i < nu; ++i) {
+    for (int j = 0; j < nv; ++j) {
+      const VertexId a = id(i, j), b = id(i + 1, j), c = id(i + 1, j + 1), d = id(i, j + 1);
+      if (coin(rng) < 0.5) {
+        soup.triangles.push_back({a, b, d});
+        soup.triangles.push_back({b, c, d});
+      } else {
+        soup.triangles.push_back({a, b, c});
+        soup.triangles.push_back({a, c, d});
       }
     }
   }

@@ -43,6 +43,11 @@ class TempDir {
 Mesh PlanarGrid(int nx, int ny, double h);
 // Axis-aligned unit cube, each square face split into 2 * k * k triangles.
 Mesh Cube(int k);
+// A genus-1 surface made to stress exact propagation: a torus of nu x nv
+// quads with jittered vertices and radii, one axis stretched by `stretch`,
+// and each quad's diagonal chosen at random, so about half the vertices are
+// saddles and many triangles are long and thin. Deterministic in `seed`.
+Mesh NoisyTorus(int nu, int nv, double stretch, uint32_t seed);
 // Mesh::Build that fails the test on error.
 Mesh MustBuild(TriangleSoup soup);
 
