@@ -824,7 +824,7 @@ absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& option
     d.mesh_error = std::string(mesh.status().message());
     if (!options.repair_non_manifold && !d.manifold) {
       return absl::InvalidArgumentError(absl::StrFormat(
-          "%s (non-manifold input is rejected; load with repair to split non-manifold vertices)",
+          "%s (non-manifold input is rejected; pass --repair-non-manifold to split non-manifold vertices)",
           mesh.status().message()));
     }
   }

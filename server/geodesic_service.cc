@@ -10,6 +10,7 @@
 #include "core/dgg_build.h"
 #include "core/status.h"
 #include "server/convert.h"
+#include "server/log.h"
 
 namespace geodesic::server {
 namespace {
@@ -143,9 +144,22 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   metrics_->Record(method, CodeName(status.error_code()), seconds);
   if (limits_.log_requests) {
-    std::fprintf(stderr, "geodesicd: method=%s mesh=%s code=%s ms=%.3f peer=%s%s%s\n", method,
-                 mesh.c_str(), CodeName(status.error_code()), 1e3 * seconds, ctx->peer().c_str(),
-                 status.ok() ? "" : " error=", status.error_message().c_str());
+    if (status.ok()) {
+      Log(LogLevel::kInfo, "request",
+          {{"method", method},
+           {"mesh", mesh},
+           {"code", "OK"},
+           {"ms", 1e3 * seconds},
+           {"peer", ctx->peer()}});
+    } else {
+      Log(LogLevel::kInfo, "request",
+          {{"method", method},
+           {"mesh", mesh},
+           {"code", CodeName(status.error_code())},
+           {"ms", 1e3 * seconds},
+           {"peer", ctx->peer()},
+           {"error", status.error_message()}});
+    }
   }
   return status;
 }

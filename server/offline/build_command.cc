@@ -171,6 +171,8 @@ int RunBuild(int argc, char** argv) {
                "stop)");
   app.add_flag("--json", json, "print a JSON object");
   app.add_flag("--quiet", quiet, "no progress bar");
+  bool repair = false;
+  AddRepairFlag(app, &repair);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -180,7 +182,7 @@ int RunBuild(int argc, char** argv) {
     return Fail("build", absl::InvalidArgumentError(
                              "--out is required (or --graph-dir, for a whole graph)"));
   }
-  auto mesh = LoadMeshOrError(mesh_path);
+  auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("build", mesh.status());
   DggBuildOptions options;
   options.params.epsilon = epsilon;
@@ -222,6 +224,8 @@ int RunMerge(int argc, char** argv) {
                "expect parts built with --prune (the parts' own record decides; a part that "
                "contradicts a flag given is refused)");
   app.add_flag("--exact-fans", exact_fans, "expect parts built with --exact-fans (as --prune)");
+  bool repair = false;
+  AddRepairFlag(app, &repair);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -230,7 +234,7 @@ int RunMerge(int argc, char** argv) {
   if (out_path.empty() && graph_dir.empty()) {
     return Fail("merge", absl::InvalidArgumentError("--out or --graph-dir is required"));
   }
-  auto mesh = LoadMeshOrError(mesh_path);
+  auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("merge", mesh.status());
   std::vector<DggCandidatePart> parts;
   for (const std::string& path : part_paths) {

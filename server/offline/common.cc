@@ -20,9 +20,18 @@ int Fail(const char* command, const absl::Status& status) {
   return 1;
 }
 
-absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path) {
-  ASSIGN_OR_RETURN(Mesh mesh, LoadMesh(path));
+absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path,
+                                                            bool repair_non_manifold) {
+  LoadOptions options;
+  options.repair_non_manifold = repair_non_manifold;
+  ASSIGN_OR_RETURN(Mesh mesh, LoadMesh(path, options));
   return std::make_shared<const Mesh>(std::move(mesh));
+}
+
+void AddRepairFlag(CLI::App& app, bool* repair) {
+  app.add_flag("--repair-non-manifold", *repair,
+               "split non-manifold vertices into one copy per fan (copies numbered after the "
+               "file's vertices) instead of refusing the mesh");
 }
 
 absl::StatusOr<PointResolver::Resolved> PointResolver::Resolve(const std::string& spec) {

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "CLI/CLI.hpp"
 #include "absl/status/statusor.h"
 #include "core/dgg_graph.h"
 #include "core/mesh.h"
@@ -19,7 +20,13 @@ namespace geodesic::offline {
 // Prints "geodesicd <command>: <status message>" to stderr; returns 1.
 int Fail(const char* command, const absl::Status& status);
 
-absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path);
+// With `repair_non_manifold`, non-manifold vertices are split into one copy
+// per fan (appended after the file's vertices) instead of refused.
+absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path,
+                                                            bool repair_non_manifold = false);
+
+// Adds --repair-non-manifold to a command that loads a mesh.
+void AddRepairFlag(CLI::App& app, bool* repair);
 
 // Parses point specs (v:ID, e:EDGE:T, f:FACE:B0,B1,B2, xyz:X,Y,Z) and
 // validates them against one mesh. Positions are snapped to the nearest

@@ -51,6 +51,8 @@ int RunDistance(int argc, char** argv) {
                  "density)")
       ->check(CLI::Range(0, 64));
   app.add_flag("--json", json, "print JSON");
+  bool repair = false;
+  AddRepairFlag(app, &repair);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -86,7 +88,7 @@ int RunDistance(int argc, char** argv) {
     return Fail("distance",
                 absl::InvalidArgumentError("--path-out writes one path: use --from and --to"));
   }
-  auto mesh = LoadMeshOrError(mesh_path);
+  auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("distance", mesh.status());
   auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
   if (!graph.ok()) return Fail("distance", graph.status());

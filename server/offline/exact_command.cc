@@ -26,6 +26,8 @@ int RunExact(int argc, char** argv) {
                  "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
   app.add_option("--max-distance", max_distance, "stop the wavefront at this distance");
   app.add_flag("--json", json, "print a JSON object");
+  bool repair = false;
+  AddRepairFlag(app, &repair);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -35,7 +37,7 @@ int RunExact(int argc, char** argv) {
     if (absl::Status s = CheckFieldPath(out_path, true); !s.ok()) return Fail("exact", s);
   }
   auto t0 = std::chrono::steady_clock::now();
-  auto mesh = LoadMeshOrError(mesh_path);
+  auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("exact", mesh.status());
   const double load_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -36,6 +36,8 @@ int RunField(int argc, char** argv) {
       ->check(CLI::IsMember({"lc", "dijkstra"}));
   app.add_option("--max-distance", max_distance, "only settle vertices within this distance");
   app.add_flag("--json", json, "print a JSON object");
+  bool repair = false;
+  AddRepairFlag(app, &repair);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -48,7 +50,7 @@ int RunField(int argc, char** argv) {
   if (!labels_path.empty()) {
     if (absl::Status s = CheckLabelPath(labels_path); !s.ok()) return Fail("field", s);
   }
-  auto mesh = LoadMeshOrError(mesh_path);
+  auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("field", mesh.status());
   auto t0 = std::chrono::steady_clock::now();
   auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);

@@ -38,7 +38,9 @@ int RunInfo(int argc, char** argv) {
     diagnostics.mesh_error = std::string(mesh.status().message());
   }
   std::fputs(json ? (diagnostics.ToJson() + "\n").c_str() : diagnostics.ToText().c_str(), stdout);
-  return 0;
+  // Scripts check the exit code: a mesh no query can use is a failure
+  // (the report above says why).
+  return mesh.ok() ? 0 : 3;
 }
 
 }  // namespace geodesic::offline

@@ -94,6 +94,25 @@ with tempfile.TemporaryDirectory() as work:
     with open(os.path.join(work, "p.csv")) as f:
         check("csv polyline has a header", f.readline().strip() == "x,y,z")
 
+    # A bow tie: two triangles that share only vertex 0, which is therefore
+    # non-manifold. info reports it and exits non-zero; build refuses it
+    # naming the vertex and the flag; with the flag the vertex is split.
+    bowtie = os.path.join(work, "bowtie.obj")
+    with open(bowtie, "w") as f:
+        f.write("v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n")
+    r = run("info", bowtie, expect_ok=False)
+    check("info exits non-zero for an unusable mesh", r.returncode == 3 and "non-manifold" in r.stdout,
+          r.stdout + r.stderr)
+    r = run("build", bowtie, "--eps", "0.1", "--out", os.path.join(work, "b.dgg"), expect_ok=False)
+    check("build refuses it, naming the vertex and the flag",
+          r.returncode != 0 and "vertex 0" in r.stderr and "--repair-non-manifold" in r.stderr, r.stderr)
+    b = json.loads(run("build", bowtie, "--eps", "0.1", "--out", os.path.join(work, "b.dgg"),
+                       "--repair-non-manifold", "--json").stdout)
+    check("with --repair-non-manifold the vertex is split", b["vertices"] == 6, b)
+    d = json.loads(run("distance", "--mesh", bowtie, "--repair-non-manifold", "--graph",
+                       os.path.join(work, "b.dgg"), "--from", "v:1", "--to", "v:2", "--json").stdout)
+    check("and the repaired mesh answers", abs(d["distance"] - 2 ** 0.5) < 1e-6, d)
+
     e = json.loads(run("exact", "--mesh", mesh, "--source", "xyz:0,0,0", "--json").stdout)
     check("exact reports the snap distance", e["snap_distance"] > 0)
 
