@@ -628,6 +628,29 @@ int CmdMatrix(const Common& c, const std::vector<std::string>& sources,
   return 0;
 }
 
+int CmdSample(const Common& c, uint32_t count, uint64_t seed) {
+  auto stub = Connect(c);
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::SamplePointsRequest req;
+  req.set_mesh(c.mesh);
+  req.set_epsilon(c.epsilon);
+  req.set_count(count);
+  req.set_seed(seed);
+  v1::SamplePointsResponse resp;
+  grpc::Status s = stub->SamplePoints(&ctx, req, &resp);
+  if (!s.ok()) return Fail(s);
+  if (c.json) {
+    PrintJson({{"vertices", std::vector<uint32_t>(resp.vertices().begin(), resp.vertices().end())},
+               {"covering_radius", resp.covering_radius()}});
+  } else {
+    std::printf("%d points, covering radius %.9g:", resp.vertices_size(), resp.covering_radius());
+    for (uint32_t v : resp.vertices()) std::printf(" v:%u", v);
+    std::printf("\n");
+  }
+  return 0;
+}
+
 int CmdSnap(const Common& c, const std::vector<std::string>& positions) {
   auto stub = Connect(c);
   std::vector<v1::SurfacePoint> points;
@@ -823,6 +846,12 @@ int main(int argc, char** argv) {
   std::vector<std::string> targets;
   matrix->add_option("--source", sources, "source points")->required();
   matrix->add_option("--target", targets, "target points")->required();
+  auto* sample = app.add_subcommand(
+      "sample", "geodesic farthest-point sampling: COUNT vertices spread over --mesh");
+  uint32_t sample_count = 0;
+  uint64_t sample_seed = 0;
+  sample->add_option("--count", sample_count, "points to choose")->required();
+  sample->add_option("--seed", sample_seed, "picks the first point (default 0)");
   auto* snap = app.add_subcommand("snap", "nearest surface point to positions X,Y,Z");
   std::vector<std::string> positions;
   snap->add_option("positions", positions, "X,Y,Z ...")->required();
@@ -861,6 +890,7 @@ int main(int argc, char** argv) {
   if (app.got_subcommand("path")) return CmdDistance(c, from, to, "", true, path_out);
   if (app.got_subcommand("matrix")) return CmdMatrix(c, sources, targets);
   if (app.got_subcommand("snap")) return CmdSnap(c, positions);
+  if (app.got_subcommand("sample")) return CmdSample(c, sample_count, sample_seed);
   if (app.got_subcommand("bench"))
     return CmdBench(c, concurrency, duration, count, bench_vertices, with_path, face_points);
   return 2;

@@ -502,4 +502,30 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
   });
 }
 
+grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
+                                           const v1::SamplePointsRequest* req,
+                                           v1::SamplePointsResponse* resp) {
+  return Handle("SamplePoints", ctx, req->mesh(), true, [&]() -> absl::Status {
+    // Each point costs a field: a count is bounded like a field's sources.
+    if (req->count() > static_cast<uint32_t>(limits_.max_pairs)) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "%u points exceed the limit of %d per call", req->count(), limits_.max_pairs));
+    }
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
+    ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key));
+    SampleOptions options;
+    options.seed = req->seed();
+    options.cancelled = Cancelled(ctx);
+    ASSIGN_OR_RETURN(SampleResult sample, engine->SamplePoints(req->count(), options));
+    resp->mutable_echo()->set_mesh(req->mesh());
+    resp->mutable_echo()->set_epsilon(key.params.epsilon);
+    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
+    resp->mutable_echo()->set_method("farthest-point");
+    for (VertexId v : sample.vertices) resp->add_vertices(v);
+    resp->set_covering_radius(sample.covering_radius);
+    return absl::OkStatus();
+  });
+}
+
 }  // namespace geodesic::server

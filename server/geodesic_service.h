@@ -66,6 +66,8 @@ class GeodesicService final : public v1::Geodesic::Service {
                         v1::DistanceResponse*) override;
   grpc::Status Matrix(grpc::ServerContext*, const v1::MatrixRequest*, v1::MatrixResponse*) override;
   grpc::Status Snap(grpc::ServerContext*, const v1::SnapRequest*, v1::SnapResponse*) override;
+  grpc::Status SamplePoints(grpc::ServerContext*, const v1::SamplePointsRequest*,
+                            v1::SamplePointsResponse*) override;
 
  private:
   template <typename Body>

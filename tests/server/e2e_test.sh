@@ -49,6 +49,13 @@ cli --eps 0.01 field --source v:7 --out "$work/f_daemon.f64" >/dev/null
 check "streamed field equals the offline field" cmp -s "$work/f_daemon.f64" "$work/f_offline.f64"
 plen=$(cli --json --eps 0.01 path --from v:1 --to v:2500 | json 'len(d[0]["path"])')
 check "path has points ($plen)" test "$plen" -gt 2
+# Farthest-point sampling on the server: distinct vertices, one per seed.
+s1=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
+s2=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
+check "sample: 6 distinct vertices, the same for one seed" \
+  test "$(python3 -c "print(len(set($s1)))")" = 6 -a "$s1" = "$s2"
+radius=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["covering_radius"]')
+check "sample: a finite covering radius ($radius)" python3 -c "import math,sys; sys.exit(not 0 < $radius < math.inf)"
 # Result files by extension, as the offline commands write them.
 cli --eps 0.01 field --source v:7 --source v:900 --out "$work/f_daemon.npy" --labels-out "$work/l_daemon.csv" >/dev/null
 "$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$graph" --source v:7 --source v:900 \
