@@ -82,12 +82,18 @@ def main():
                                 "--source", f"v:{s}", "--out", d_path], check=True,
                                capture_output=True)
                 e, d = np.fromfile(e_path), np.fromfile(d_path)
+                # A vertex the graph reaches and the exact engine does not is
+                # the worst miss of all.
+                unreached = int(np.sum(~np.isfinite(e) & np.isfinite(d)))
                 m = np.isfinite(e) & (e > 0)
                 over = (e[m] - d[m]) / d[m]
                 below = (np.linalg.norm(P[m] - P[s], axis=1) - e[m]) / e[m]
                 worst_over_dgg = max(worst_over_dgg, over.max())
                 worst_below_line = max(worst_below_line, below.max())
-                misses += int(np.sum(over > 1e-12) + np.sum(below > 1e-12))
+                misses += unreached + int(np.sum(over > 1e-12))
+                # Rounding: within 1e-10 of the straight line counts as on it
+                # (thin triangles unfold with ~1e-11 relative error).
+                misses += int(np.sum(below > 1e-10))
                 if k < args.cgal_sources:
                     prefix = os.path.join(work, "c")
                     subprocess.run([f"{args.bin}/cgal_peer", mesh, str(s), prefix], check=True,

@@ -39,6 +39,38 @@ TEST(ExactGeodesicTest, PlanarGridDistancesAreEuclidean) {
   }
 }
 
+// A flat strip of long thin triangles (aspect 120, as CAD meshes have):
+// geodesics along its grid lines run exactly along edges through collinear
+// flat vertices, which windows reach only in the limit. Every distance must
+// still be the straight line (before flat vertices radiated, whole lines of
+// vertices beyond such a run were unreached or long; blade_aniso).
+TEST(ExactGeodesicTest, ThinFlatStripAlongCollinearVertices) {
+  TriangleSoup soup;
+  const int nx = 60, ny = 4;
+  const double hx = 1.868, hy = 0.0155;
+  for (int j = 0; j <= ny; ++j) {
+    for (int i = 0; i <= nx; ++i) soup.positions.push_back({i * hx, j * hy, 0});
+  }
+  auto id = [&](int i, int j) { return static_cast<VertexId>(j * (nx + 1) + i); };
+  for (int j = 0; j < ny; ++j) {
+    for (int i = 0; i < nx; ++i) {
+      soup.triangles.push_back({id(i, j), id(i + 1, j), id(i + 1, j + 1)});
+      soup.triangles.push_back({id(i, j), id(i + 1, j + 1), id(i, j + 1)});
+    }
+  }
+  Mesh strip = testing::MustBuild(std::move(soup));
+  ExactGeodesic exact(strip);
+  for (VertexId source : {id(0, 2), id(0, 0), id(30, 2), id(5, 1)}) {
+    auto d = exact.Distances(SurfacePoint::Vertex(source));
+    ASSERT_OK(d);
+    for (VertexId v = 0; v < strip.num_vertices(); ++v) {
+      const double want = Distance(strip.position(source), strip.position(v));
+      if (v == source) continue;
+      EXPECT_LT(RelativeError((*d)[v], want), 1e-10) << "source " << source << " vertex " << v;
+    }
+  }
+}
+
 TEST(ExactGeodesicTest, PlanarGridFromFaceAndEdgePoints) {
   Mesh grid = PlanarGrid(16, 16, 0.25);
   ExactGeodesic exact(grid);

@@ -22,7 +22,7 @@ using testing::SharedDataAvailable;
 // Checks `sources` random vertices of `mesh`; returns the worst relative
 // excess of exact over DGG (negative: never above).
 void ExpectExactFieldsHold(std::shared_ptr<const Mesh> mesh, int sources, uint32_t seed,
-                           const std::string& name) {
+                           const std::string& name, std::vector<VertexId> also = {}) {
   DggBuildOptions options;
   options.params.epsilon = 1e-2;
   auto graph = BuildDgg(*mesh, options);
@@ -35,7 +35,9 @@ void ExpectExactFieldsHold(std::shared_ptr<const Mesh> mesh, int sources, uint32
     if (!mesh->is_isolated(v)) usable.push_back(v);
   }
   for (int k = 0; k < sources; ++k) {
-    const VertexId s = usable[std::uniform_int_distribution<size_t>(0, usable.size() - 1)(rng)];
+    also.push_back(usable[std::uniform_int_distribution<size_t>(0, usable.size() - 1)(rng)]);
+  }
+  for (const VertexId s : also) {
     const SurfacePoint source = SurfacePoint::Vertex(s);
     auto e = exact.Distances(source);
     ASSERT_OK(e);
@@ -68,7 +70,12 @@ TEST_P(ExactPropertyTest, AtLeastStraightAtMostTheGraphOnSharedMeshes) {
   ASSERT_TRUE(SharedDataAvailable()) << "missing " << testing::SharedPath("meshes/MANIFEST.md");
   auto loaded = LoadMesh(testing::SharedMeshPath(GetParam()));
   ASSERT_OK(loaded);
-  ExpectExactFieldsHold(std::make_shared<const Mesh>(std::move(loaded).value()), 4, 17, GetParam());
+  // blade_aniso, source 6513: a run of collinear flat vertices along thin
+  // triangles left vertices beyond it unreached (+inf) or 2.9% long.
+  std::vector<VertexId> also;
+  if (GetParam() == "blade_aniso") also = {6513};
+  ExpectExactFieldsHold(std::make_shared<const Mesh>(std::move(loaded).value()), 4, 17, GetParam(),
+                        also);
 }
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, ExactPropertyTest,
