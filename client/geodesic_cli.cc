@@ -15,6 +15,7 @@
 #include <thread>
 
 #include "CLI/CLI.hpp"
+#include "absl/status/status.h"
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "core/mesh_io.h"
@@ -105,27 +106,9 @@ void Prepare(grpc::ClientContext* ctx, const Common& c) {
 }
 
 int Fail(const grpc::Status& s) {
-  static const char* kNames[] = {"OK",
-                                 "CANCELLED",
-                                 "UNKNOWN",
-                                 "INVALID_ARGUMENT",
-                                 "DEADLINE_EXCEEDED",
-                                 "NOT_FOUND",
-                                 "ALREADY_EXISTS",
-                                 "PERMISSION_DENIED",
-                                 "RESOURCE_EXHAUSTED",
-                                 "FAILED_PRECONDITION",
-                                 "ABORTED",
-                                 "OUT_OF_RANGE",
-                                 "UNIMPLEMENTED",
-                                 "INTERNAL",
-                                 "UNAVAILABLE",
-                                 "DATA_LOSS",
-                                 "UNAUTHENTICATED"};
-  int code = s.error_code();
-  std::fprintf(stderr, "geodesic: %s: %s\n", code >= 0 && code < 17 ? kNames[code] : "?",
-               s.error_message().c_str());
-  return code == grpc::StatusCode::UNAVAILABLE ? 3 : 1;
+  const std::string code = absl::StatusCodeToString(static_cast<absl::StatusCode>(s.error_code()));
+  std::fprintf(stderr, "geodesic: %s: %s\n", code.c_str(), s.error_message().c_str());
+  return s.error_code() == grpc::StatusCode::UNAVAILABLE ? 3 : 1;
 }
 
 int FailText(const std::string& message) {
