@@ -290,7 +290,7 @@ int CmdUnload(const Common& c) {
   return 0;
 }
 
-int CmdLoad(const Common& c, const std::string& path, const std::string& upload) {
+int CmdLoad(const Common& c, const std::string& path, const std::string& upload, bool repair) {
   auto stub = Connect(c);
   grpc::ClientContext ctx;
   Prepare(&ctx, c);
@@ -309,6 +309,7 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload)
       if (first) {
         chunk.set_name(c.mesh);
         chunk.set_format(ext);
+        chunk.set_repair_non_manifold(repair);
         first = false;
       }
       chunk.set_data(buffer.data(), in.gcount());
@@ -320,6 +321,7 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload)
     v1::RegisterMeshRequest req;
     req.set_name(c.mesh);
     req.set_path(path);
+    req.set_repair_non_manifold(repair);
     s = stub->RegisterMesh(&ctx, req, &resp);
   }
   if (!s.ok()) return Fail(s);
@@ -327,6 +329,15 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload)
     PrintJson({{"name", resp.name()},
                {"fingerprint", resp.fingerprint()},
                {"restored", resp.restored()},
+               {"repair_non_manifold", resp.repair_non_manifold()},
+               {"vertex_copies",
+                [&] {
+                  Json copies = Json::array();
+                  for (const auto& copy : resp.vertex_copies()) {
+                    copies.push_back({{"original", copy.original()}, {"copy", copy.copy()}});
+                  }
+                  return copies;
+                }()},
                {"diagnostics", DiagnosticsJson(resp.diagnostics())}});
   } else {
     std::printf("registered %s: %lu vertices, %lu faces, fingerprint %s%s\n", resp.name().c_str(),
@@ -787,6 +798,9 @@ int main(int argc, char** argv) {
   std::string load_path, upload;
   load->add_option("path", load_path, "path relative to the server's --mesh-root");
   load->add_option("--upload", upload, "upload this local file instead");
+  bool repair = false;
+  load->add_flag("--repair-non-manifold", repair,
+                 "split non-manifold vertices into one copy per fan (listed) instead of refusing");
   app.add_subcommand("unload",
                      "unregister --mesh and drop its graphs (here and, through the "
                      "shared catalog, on every replica)");
@@ -862,7 +876,7 @@ int main(int argc, char** argv) {
     if (mesh_option->count() == 0) {
       c.mesh = std::filesystem::path(upload.empty() ? load_path : upload).stem().string();
     }
-    return CmdLoad(c, load_path, upload);
+    return CmdLoad(c, load_path, upload, repair);
   }
   if (app.got_subcommand("unload")) return CmdUnload(c);
   if (app.got_subcommand("graph")) return CmdGraph(c, wait, pseudo, cancel);

@@ -782,16 +782,12 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
   }
 }
 
-namespace {
-
-// Splits every non-manifold vertex into one copy per fan of its corners;
-// copies are appended after the file's vertices so file ids are unchanged.
-uint64_t SplitNonManifoldVertices(TriangleSoup* soup) {
+std::vector<VertexCopy> SplitNonManifoldVertices(TriangleSoup* soup) {
   const size_t nf = soup->triangles.size();
   DisjointSets corners = CornerFans(*soup, SortedEdgeUses(*soup));
   absl::flat_hash_map<uint64_t, VertexId> copy_of;  // (vertex, fan root) -> id
   std::vector<uint32_t> first_root(soup->positions.size(), kNone);
-  uint64_t split = 0;
+  std::vector<VertexCopy> copies;
   for (uint32_t c = 0; c < 3 * nf; ++c) {
     VertexId& v = soup->triangles[c / 3][c % 3];
     uint32_t r = corners.Find(c);
@@ -801,14 +797,12 @@ uint64_t SplitNonManifoldVertices(TriangleSoup* soup) {
         copy_of.emplace((uint64_t{v} << 32) | r, static_cast<VertexId>(soup->positions.size()));
     if (inserted) {
       soup->positions.push_back(soup->positions[v]);
-      ++split;
+      copies.push_back({v, it->second});
     }
     v = it->second;
   }
-  return split;
+  return copies;
 }
-
-}  // namespace
 
 absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& options,
                               MeshDiagnostics* diagnostics) {

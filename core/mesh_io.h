@@ -52,6 +52,17 @@ struct LoadOptions {
   bool repair_non_manifold = false;
 };
 
+// A vertex that SplitNonManifoldVertices added: a copy of `original` for one
+// of its fans.
+struct VertexCopy {
+  VertexId original;
+  VertexId copy;
+};
+// Splits every non-manifold vertex into one copy per fan of its corners;
+// copies are appended after the file's vertices so file ids are unchanged.
+// Returns the copies made (none for a manifold soup).
+std::vector<VertexCopy> SplitNonManifoldVertices(TriangleSoup* soup);
+
 // The format a path names by its extension, lower case ("ply" for a.PLY).
 std::string MeshFormatOfPath(const std::string& path);
 

@@ -70,7 +70,7 @@ absl::StatusOr<GraphKey> GeodesicService::Key(const std::string& mesh, double ep
 absl::Status GeodesicService::Record(const RegisteredMesh& m, bool existed) {
   if (!catalog_) return absl::OkStatus();
   absl::Status s = catalog_->RecordMesh(
-      {m.name, m.source, m.format, m.source_hash, m.fingerprint, /*repair_non_manifold=*/false});
+      {m.name, m.source, m.format, m.source_hash, m.fingerprint, m.repair_non_manifold});
   // Not recorded, not registered: a client told of an error must not find
   // the mesh answering here and gone after a restart.
   if (!s.ok() && !existed) meshes_->Remove(m.name).IgnoreError();
@@ -154,6 +154,12 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
   out->set_fingerprint(absl::StrFormat("%016x", m.fingerprint));
   out->set_source(m.source);
   out->set_restored(m.restored);
+  out->set_repair_non_manifold(m.repair_non_manifold);
+  for (const VertexCopy& c : m.vertex_copies) {
+    auto* copy = out->add_vertex_copies();
+    copy->set_original(c.original);
+    copy->set_copy(c.copy);
+  }
   auto* d = out->mutable_diagnostics();
   d->set_vertices(m.diagnostics.vertices);
   d->set_faces(m.diagnostics.faces);
@@ -174,7 +180,7 @@ grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
                                            const v1::RegisterMeshRequest* req, v1::Mesh* resp) {
   return Handle("RegisterMesh", ctx, req->name(), false, [&]() -> absl::Status {
     const bool existed = meshes_->Get(req->name()).ok();
-    auto m = meshes_->RegisterPath(req->name(), req->path());
+    auto m = meshes_->RegisterPath(req->name(), req->path(), req->repair_non_manifold());
     if (!m.ok()) return m.status();
     RETURN_IF_ERROR(Record(**m, existed));
     FillMesh(**m, resp);
@@ -186,11 +192,13 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
                                          grpc::ServerReader<v1::UploadMeshRequest>* reader,
                                          v1::Mesh* resp) {
   std::string name, format, bytes;
+  bool repair = false;
   return Handle("UploadMesh", ctx, name, false, [&]() -> absl::Status {
     v1::UploadMeshRequest chunk;
     while (reader->Read(&chunk)) {
       if (!chunk.name().empty()) name = chunk.name();
       if (!chunk.format().empty()) format = chunk.format();
+      repair |= chunk.repair_non_manifold();
       if (bytes.size() + chunk.data().size() > limits_.max_upload_bytes) {
         return absl::ResourceExhaustedError(absl::StrFormat(
             "upload exceeds the limit of %u bytes (--max-upload-bytes)", limits_.max_upload_bytes));
@@ -198,7 +206,7 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
       bytes += chunk.data();
     }
     const bool existed = meshes_->Get(name).ok();
-    auto m = meshes_->RegisterBytes(name, format, bytes);
+    auto m = meshes_->RegisterBytes(name, format, bytes, repair);
     if (!m.ok()) return m.status();
     RETURN_IF_ERROR(Record(**m, existed));
     FillMesh(**m, resp);

@@ -4,6 +4,8 @@
 #include <cstdio>
 #include <filesystem>
 #include <future>
+#include <map>
+#include <tuple>
 
 #include "absl/status/status.h"
 #include "absl/strings/ascii.h"
@@ -32,17 +34,54 @@ std::shared_ptr<RegisteredMesh> Wrap(const std::string& name, const std::string&
 absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(const std::string& name,
                                                        const std::string& source,
                                                        absl::StatusOr<TriangleSoup> soup,
-                                                       MeshDiagnostics diagnostics) {
+                                                       MeshDiagnostics diagnostics, bool repair) {
   if (!soup.ok()) return soup.status();
-  // The diagnostics and the mesh need only the soup, and each takes about
-  // half of a large mesh's registration: one runs beside the other (the
-  // mesh gets its own copy of the soup).
+  // The diagnostics (of the file as it is) and the mesh need only the soup,
+  // and each takes about half of a large mesh's registration: one runs
+  // beside the other (the mesh gets its own copy of the soup).
   auto diagnosed = std::async(std::launch::async, [&] { ComputeDiagnostics(*soup, &diagnostics); });
-  auto mesh = Mesh::Build(*soup, source);
+  TriangleSoup built = *soup;
+  std::vector<VertexCopy> copies;
+  if (repair) copies = SplitNonManifoldVertices(&built);
+  auto mesh = Mesh::Build(std::move(built), source);
   diagnosed.wait();
-  if (!mesh.ok()) return mesh.status();
+  if (!mesh.ok()) {
+    if (!repair && !diagnostics.manifold) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s (register with repair_non_manifold to split non-manifold vertices)",
+                          mesh.status().message()));
+    }
+    return mesh.status();
+  }
   const uint64_t fingerprint = MeshFingerprint(*mesh);
-  return Wrap(name, source, std::move(mesh).value(), fingerprint, std::move(diagnostics));
+  auto m = Wrap(name, source, std::move(mesh).value(), fingerprint, std::move(diagnostics));
+  m->repair_non_manifold = repair;
+  m->vertex_copies = std::move(copies);
+  return m;
+}
+
+// A repaired mesh is another mesh than the file's: its snapshot has a key
+// of its own.
+uint64_t SnapshotKey(uint64_t source_hash, bool repair) {
+  return repair ? source_hash ^ 0x9e3779b97f4a7c15ULL : source_hash;
+}
+
+// The copies a restored repaired mesh holds: vertices past the file's own,
+// each at the position of the original it copies.
+std::vector<VertexCopy> CopiesOf(const Mesh& mesh, uint64_t file_vertices) {
+  std::vector<VertexCopy> copies;
+  if (mesh.num_vertices() <= file_vertices) return copies;
+  std::map<std::tuple<double, double, double>, VertexId> original;
+  for (VertexId v = 0; v < file_vertices; ++v) {
+    const Vec3& p = mesh.position(v);
+    original.emplace(std::make_tuple(p.x, p.y, p.z), v);
+  }
+  for (VertexId v = file_vertices; v < mesh.num_vertices(); ++v) {
+    const Vec3& p = mesh.position(v);
+    auto it = original.find(std::make_tuple(p.x, p.y, p.z));
+    if (it != original.end()) copies.push_back({it->second, v});
+  }
+  return copies;
 }
 
 }  // namespace
@@ -67,7 +106,7 @@ absl::Status MeshRegistry::ValidateName(const std::string& name) {
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterPath(
-    const std::string& name, const std::string& relative_path) {
+    const std::string& name, const std::string& relative_path, bool repair) {
   RETURN_IF_ERROR(ValidateName(name));
   if (mesh_root_.empty()) {
     return absl::PermissionDeniedError("the server has no --mesh-root: register by upload");
@@ -89,33 +128,33 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterPath
     return absl::PermissionDeniedError(
         absl::StrFormat("'%s' leads outside the mesh root", relative_path));
   }
-  ASSIGN_OR_RETURN(auto m, LoadFile(name, relative_path, resolved.string(), durable_));
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, relative_path, resolved.string(), durable_, repair));
   return Insert(std::move(m));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterTrustedPath(
-    const std::string& name, const std::string& path) {
+    const std::string& name, const std::string& path, bool repair) {
   RETURN_IF_ERROR(ValidateName(name));
   // The operator's own meshes (the sample, the config's) are registered at
   // every start, so their snapshots are a speed-up, written in the
   // background, never a condition of serving.
-  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path, /*durable=*/false));
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path, /*durable=*/false, repair));
   return Insert(std::move(m));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterBytes(
-    const std::string& name, const std::string& format, const std::string& bytes) {
+    const std::string& name, const std::string& format, const std::string& bytes, bool repair) {
   RETURN_IF_ERROR(ValidateName(name));
   const std::string lower = absl::AsciiStrToLower(format);
-  const uint64_t key = SourceHash(bytes, lower);
-  if (auto m = Restore(key, name, "upload")) {
+  const uint64_t key = SnapshotKey(SourceHash(bytes, lower), repair);
+  if (auto m = Restore(key, name, "upload", repair)) {
     m->diagnostics.path = name;
     m->format = lower;
     return Insert(std::move(m));
   }
   MeshDiagnostics diagnostics;
   auto soup = ReadTriangleSoupFromMemory(bytes, format, name, &diagnostics);
-  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics)));
+  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair));
   m->format = lower;
   m->source_hash = key;
   RETURN_IF_ERROR(Save(m, key, durable_));
@@ -130,32 +169,34 @@ MeshRegistry::~MeshRegistry() {
 absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(const std::string& name,
                                                                        const std::string& source,
                                                                        const std::string& path,
-                                                                       bool durable) {
+                                                                       bool durable, bool repair) {
   if (snapshot_dir_.empty()) {
     MeshDiagnostics diagnostics;
     auto soup = ReadTriangleSoup(path, &diagnostics);
-    return Finish(name, source, std::move(soup), std::move(diagnostics));
+    return Finish(name, source, std::move(soup), std::move(diagnostics), repair);
   }
-  ASSIGN_OR_RETURN(const uint64_t key, SourceHashOfFile(path));
-  if (auto m = Restore(key, name, source)) {
+  ASSIGN_OR_RETURN(const uint64_t file_key, SourceHashOfFile(path));
+  const uint64_t key = SnapshotKey(file_key, repair);
+  if (auto m = Restore(key, name, source, repair)) {
     m->diagnostics.path = path;
     m->format = MeshFormatOfPath(path);
     return m;
   }
   MeshDiagnostics diagnostics;
   auto soup = ReadTriangleSoup(path, &diagnostics);
-  ASSIGN_OR_RETURN(auto m, Finish(name, source, std::move(soup), std::move(diagnostics)));
+  ASSIGN_OR_RETURN(auto m, Finish(name, source, std::move(soup), std::move(diagnostics), repair));
   m->format = MeshFormatOfPath(path);
   m->source_hash = key;
   // A file rewritten while it was read must not be saved under either
   // version's key.
   auto after = SourceHashOfFile(path);
-  if (after.ok() && *after == key) RETURN_IF_ERROR(Save(m, key, durable));
+  if (after.ok() && *after == file_key) RETURN_IF_ERROR(Save(m, key, durable));
   return m;
 }
 
 std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::string& name,
-                                                      const std::string& source) const {
+                                                      const std::string& source,
+                                                      bool repair) const {
   if (snapshot_dir_.empty()) return nullptr;
   const auto start = std::chrono::steady_clock::now();
   const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
@@ -174,6 +215,8 @@ std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::s
                 std::move(restored->diagnostics));
   m->restored = true;
   m->source_hash = key;
+  m->repair_non_manifold = repair;
+  if (repair) m->vertex_copies = CopiesOf(*m->mesh, m->diagnostics.vertices);
   return m;
 }
 
@@ -206,9 +249,9 @@ absl::Status MeshRegistry::Save(std::shared_ptr<const RegisteredMesh> m, uint64_
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRecorded(
     const std::string& name, const std::string& source, const std::string& format,
-    uint64_t source_hash, uint64_t fingerprint) {
+    uint64_t source_hash, uint64_t fingerprint, bool repair) {
   RETURN_IF_ERROR(ValidateName(name));
-  std::shared_ptr<RegisteredMesh> m = Restore(source_hash, name, source);
+  std::shared_ptr<RegisteredMesh> m = Restore(source_hash, name, source, repair);
   if (m) {
     m->format = format;
   } else if (source == "upload") {
@@ -224,7 +267,7 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterReco
       }
       path = (std::filesystem::path(mesh_root_) / source).string();
     }
-    ASSIGN_OR_RETURN(m, LoadFile(name, source, path, durable_));
+    ASSIGN_OR_RETURN(m, LoadFile(name, source, path, durable_, repair));
   }
   if (m->fingerprint != fingerprint) {
     return absl::FailedPreconditionError(absl::StrFormat(

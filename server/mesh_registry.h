@@ -43,6 +43,10 @@ struct RegisteredMesh {
   MeshDiagnostics diagnostics;
   std::shared_ptr<const LazySurfaceLocator> locator;
   bool restored = false;  // from a snapshot, not parsed and built
+  // Registered with non-manifold vertices split; the copies made (ids past
+  // the file's vertices).
+  bool repair_non_manifold = false;
+  std::vector<VertexCopy> vertex_copies;
 };
 
 class MeshRegistry {
@@ -65,23 +69,23 @@ class MeshRegistry {
   // `relative_path` must stay inside the mesh root once symbolic links are
   // resolved (PERMISSION_DENIED otherwise).
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterPath(
-      const std::string& name, const std::string& relative_path);
+      const std::string& name, const std::string& relative_path, bool repair = false);
   // Registers an absolute path the operator chose (the bundled sample).
-  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterTrustedPath(
-      const std::string& name, const std::string& path);
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterTrustedPath(const std::string& name,
+                                                                            const std::string& path,
+                                                                            bool repair = false);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterBytes(const std::string& name,
                                                                       const std::string& format,
-                                                                      const std::string& bytes);
+                                                                      const std::string& bytes,
+                                                                      bool repair = false);
   // A mesh a catalog recorded (server/catalog.h): from its snapshot, or,
   // failing that, from its source file (under the mesh root, or an absolute
   // path the operator gave). FAILED_PRECONDITION if what it finds is not
   // the mesh recorded (another fingerprint); DATA_LOSS if an upload's
   // snapshot is gone.
-  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRecorded(const std::string& name,
-                                                                         const std::string& source,
-                                                                         const std::string& format,
-                                                                         uint64_t source_hash,
-                                                                         uint64_t fingerprint);
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRecorded(
+      const std::string& name, const std::string& source, const std::string& format,
+      uint64_t source_hash, uint64_t fingerprint, bool repair);
   // The snapshot file name of a mesh ("<source hash>.mesh").
   static std::string SnapshotName(const RegisteredMesh& m);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;
@@ -96,9 +100,10 @@ class MeshRegistry {
   // and saving one (in the background) when there was not.
   absl::StatusOr<std::shared_ptr<RegisteredMesh>> LoadFile(const std::string& name,
                                                            const std::string& source,
-                                                           const std::string& path, bool durable);
+                                                           const std::string& path, bool durable,
+                                                           bool repair);
   std::shared_ptr<RegisteredMesh> Restore(uint64_t key, const std::string& name,
-                                          const std::string& source) const;
+                                          const std::string& source, bool repair) const;
   // Writes the snapshot: now if `durable` (failing the registration if it
   // cannot), in the background otherwise.
   absl::Status Save(std::shared_ptr<const RegisteredMesh> m, uint64_t key, bool durable);

@@ -292,7 +292,7 @@ int RunServe(int argc, char** argv) {
                                [&](const CatalogMesh& m) {
                                  return meshes
                                      .RegisterRecorded(m.name, m.source, m.format, m.source_hash,
-                                                       m.fingerprint)
+                                                       m.fingerprint, m.repair_non_manifold)
                                      .status();
                                },
                            .drop_mesh =
@@ -458,8 +458,8 @@ int RunServe(int argc, char** argv) {
   }
   for (const DeclaredMesh& m : config->meshes) {
     auto registered = std::filesystem::path(m.path).is_absolute()
-                          ? meshes.RegisterTrustedPath(m.name, m.path)
-                          : meshes.RegisterPath(m.name, m.path);
+                          ? meshes.RegisterTrustedPath(m.name, m.path, m.repair_non_manifold)
+                          : meshes.RegisterPath(m.name, m.path, m.repair_non_manifold);
     if (!registered.ok()) {
       Log(LogLevel::kError, "config_mesh_failed",
           {{"mesh", m.name}, {"path", m.path}, {"error", registered.status().ToString()}});

@@ -49,6 +49,16 @@ cli --eps 0.01 field --source v:7 --out "$work/f_daemon.f64" >/dev/null
 check "streamed field equals the offline field" cmp -s "$work/f_daemon.f64" "$work/f_offline.f64"
 plen=$(cli --json --eps 0.01 path --from v:1 --to v:2500 | json 'len(d[0]["path"])')
 check "path has points ($plen)" test "$plen" -gt 2
+# A non-manifold upload (a bow tie: two triangles sharing only a vertex) is
+# refused naming the vertex, and registered with repair, the copy listed.
+printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n' > "$work/bowtie.obj"
+cli load --upload "$work/bowtie.obj" 2>"$work/e_bowtie"
+check "a non-manifold upload is refused, naming the vertex" \
+  grep -q "INVALID_ARGUMENT.*vertex 0 is non-manifold.*repair_non_manifold" "$work/e_bowtie"
+copies=$(cli --json load --upload "$work/bowtie.obj" --repair-non-manifold | json 'd["vertex_copies"]')
+check "with repair it registers, listing the copy ($copies)" \
+  test "$copies" = "[{'original': 0, 'copy': 5}]"
+cli --mesh bowtie unload >/dev/null
 # Farthest-point sampling on the server: distinct vertices, one per seed.
 s1=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
 s2=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
