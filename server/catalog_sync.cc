@@ -7,8 +7,11 @@
 namespace geodesic::server {
 
 absl::Status CatalogSync::Reconcile() {
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Read());
+  // Read under the lock: a state read before a Record* that then applied a
+  // newer one would undo that change here (cancel the graph just requested).
   absl::MutexLock lock(&mu_);
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Read());
+  if (state.generation < generation_) return absl::OkStatus();  // older than what we applied
   return ApplyLocked(state);
 }
 

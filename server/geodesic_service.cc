@@ -122,6 +122,13 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
     if (is_query) metrics_->SetQueueDepth(inflight_.load());
     status = ToGrpc(body());
     if (is_query) inflight_.fetch_sub(1);
+    // A solve stopped because the call's deadline passed reports that, not a
+    // cancellation by the client.
+    if (status.error_code() == grpc::StatusCode::CANCELLED && !ctx->IsCancelled() &&
+        ctx->deadline() < std::chrono::system_clock::now()) {
+      status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
+                            "deadline exceeded: " + status.error_message());
+    }
   }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();

@@ -6,7 +6,9 @@
 
 #include <filesystem>
 #include <fstream>
+#include <mutex>
 #include <set>
+#include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "gmock/gmock.h"
@@ -162,6 +164,44 @@ TEST_F(CatalogSyncTest, AMeshReplacedElsewhereIsRestoredAgain) {
   ASSERT_TRUE(sync_b.Reconcile().ok());
   EXPECT_THAT(b.meshes, ElementsAre(Pair("kitten", 9u)));
   EXPECT_THAT(b.graphs, IsEmpty());  // the old mesh's graph went with it
+}
+
+// Reconcile racing Record*: whatever order they run in, a graph just
+// recorded is never cancelled by a catalog read before it was written.
+TEST_F(CatalogSyncTest, ReconcileNeverUndoesAConcurrentRecord) {
+  Catalog catalog(dir_);
+  FakeDaemon d;
+  std::mutex hooks_mu;
+  CatalogSync::Hooks hooks = d.Hooks();
+  auto locked = [&](auto f) {
+    return [&, f](auto&&... args) {
+      std::lock_guard<std::mutex> lock(hooks_mu);
+      return f(args...);
+    };
+  };
+  hooks.restore_mesh = locked(hooks.restore_mesh);
+  hooks.drop_mesh = locked(hooks.drop_mesh);
+  hooks.request_graph = locked(hooks.request_graph);
+  int cancels = 0;
+  hooks.cancel_graph = [&](const std::string&, const DggParams&) {
+    std::lock_guard<std::mutex> lock(hooks_mu);
+    ++cancels;
+  };
+  CatalogSync sync(&catalog, hooks);
+  std::atomic<bool> done{false};
+  std::thread follower([&] {
+    while (!done) EXPECT_TRUE(sync.Reconcile().ok());
+  });
+  for (int i = 0; i < 200; ++i) {
+    const std::string name = absl::StrCat("m", i % 3);
+    ASSERT_TRUE(sync.RecordMesh(MeshNamed(name)).ok());
+    ASSERT_TRUE(sync.RecordGraph(name, Eps(1e-2)).ok());
+    auto forgot = sync.ForgetMesh(name);
+    ASSERT_TRUE(forgot.ok() && *forgot);
+  }
+  done = true;
+  follower.join();
+  EXPECT_EQ(cancels, 0);
 }
 
 TEST_F(CatalogSyncTest, LocalOnlyMeshesAreLeftAlone) {
