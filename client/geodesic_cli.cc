@@ -146,9 +146,13 @@ bool ParsePoint(const std::string& text, v1::SurfacePoint* out, v1::Vec3* positi
 }
 
 // Resolves point specs, snapping xyz positions through the server.
+// `snap_distances`, if given, gets for each spec how far its xyz: position
+// was from the surface point it snapped to (null for other specs).
 bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<std::string>& specs,
-                   std::vector<v1::SurfacePoint>* out, int* rc) {
+                   std::vector<v1::SurfacePoint>* out, int* rc,
+                   std::vector<nlohmann::ordered_json>* snap_distances = nullptr) {
   out->assign(specs.size(), {});
+  if (snap_distances) snap_distances->assign(specs.size(), nullptr);
   v1::SnapRequest snap;
   snap.set_mesh(c.mesh);
   std::vector<size_t> snapped;
@@ -174,7 +178,12 @@ bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<
     *rc = Fail(s);
     return false;
   }
-  for (size_t k = 0; k < snapped.size(); ++k) (*out)[snapped[k]] = resp.points(k);
+  for (size_t k = 0; k < snapped.size(); ++k) {
+    (*out)[snapped[k]] = resp.points(k);
+    if (snap_distances && k < static_cast<size_t>(resp.distances_size())) {
+      (*snap_distances)[snapped[k]] = resp.distances(k);
+    }
+  }
   return true;
 }
 
@@ -524,7 +533,8 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   }
   std::vector<v1::SurfacePoint> points;
   int rc = 0;
-  if (!ResolvePoints(stub.get(), c, specs, &points, &rc)) return rc;
+  std::vector<Json> snap_distances;
+  if (!ResolvePoints(stub.get(), c, specs, &points, &rc, &snap_distances)) return rc;
   v1::DistanceRequest req;
   req.set_mesh(c.mesh);
   req.set_epsilon(c.epsilon);
@@ -558,7 +568,9 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
       Json result = {{"from", specs[2 * i]},
                      {"to", specs[2 * i + 1]},
                      {"distance", r.distance()},
-                     {"reachable", r.reachable()}};
+                     {"reachable", r.reachable()},
+                     {"from_snap_distance", snap_distances[2 * i]},
+                     {"to_snap_distance", snap_distances[2 * i + 1]}};
       if (with_path) {
         Json path = Json::array();
         for (const auto& q : r.path().points()) {
@@ -651,13 +663,17 @@ int CmdSnap(const Common& c, const std::vector<std::string>& positions) {
   std::vector<std::string> specs;
   for (const auto& p : positions) specs.push_back(p.rfind("xyz:", 0) == 0 ? p : "xyz:" + p);
   int rc = 0;
-  if (!ResolvePoints(stub.get(), c, specs, &points, &rc)) return rc;
+  std::vector<Json> distances;
+  if (!ResolvePoints(stub.get(), c, specs, &points, &rc, &distances)) return rc;
   Json snapped = Json::array();
   for (size_t i = 0; i < points.size(); ++i) {
     if (c.json) {
-      snapped.push_back({{"position", specs[i]}, {"point", PointText(points[i])}});
+      snapped.push_back({{"position", specs[i]},
+                         {"point", PointText(points[i])},
+                         {"snap_distance", distances[i]}});
     } else {
-      std::printf("%s -> %s\n", specs[i].c_str(), PointText(points[i]).c_str());
+      std::printf("%s -> %s (%s from the surface)\n", specs[i].c_str(),
+                  PointText(points[i]).c_str(), distances[i].dump().c_str());
     }
   }
   if (c.json) PrintJson(snapped);

@@ -492,9 +492,11 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
     auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
     for (const auto& p : req->positions()) {
-      auto s = (*m)->locator->Snap({p.x(), p.y(), p.z()});
+      const Vec3 position{p.x(), p.y(), p.z()};
+      auto s = (*m)->locator->Snap(position);
       if (!s.ok()) return s.status();
       *resp->add_points() = ToProto(*s);
+      resp->add_distances(geodesic::Distance(position, PositionOf(*(*m)->mesh, *s)));
     }
     return absl::OkStatus();
   });

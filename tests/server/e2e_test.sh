@@ -59,6 +59,11 @@ copies=$(cli --json load --upload "$work/bowtie.obj" --repair-non-manifold | jso
 check "with repair it registers, listing the copy ($copies)" \
   test "$copies" = "[{'original': 0, 'copy': 5}]"
 cli --mesh bowtie unload >/dev/null
+# xyz: points report how far they were snapped, as the offline commands do.
+snapd=$(cli --json --eps 0.01 distance --from v:1 --to xyz:0.3,0.1,0 | json 'd[0]["to_snap_distance"]')
+offd=$("$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$graph" --from v:1 \
+  --to xyz:0.3,0.1,0 --json | json 'd["to_snap_distance"]')
+check "snap distance reported ($snapd) and equal to the offline one" test "$snapd" = "$offd"
 # Farthest-point sampling on the server: distinct vertices, one per seed.
 s1=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
 s2=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
