@@ -9,6 +9,8 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstring>
+#include <functional>
 #include <limits>
 #include <mutex>
 #include <numbers>
@@ -17,10 +19,12 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "core/candidate_runs.h"
 #include "core/dgg_graph_internal.h"
 #include "core/exact_geodesic.h"
 #include "core/fan.h"
 #include "core/geodesic_shooting.h"
+#include "core/large_array.h"
 #include "core/status.h"
 
 namespace geodesic {
@@ -84,17 +88,68 @@ struct EdgeKey {
   }
 };
 
-// Adjacency lists in compressed form.
+// The build numbers its nodes as the graph does (DggGraph): vertices in
+// spatial order, then pseudo vertices. Doing so from the candidates on lets
+// every later phase work on the graph's own arrays, in place.
+struct NodeOrder {
+  std::vector<uint32_t> vertex_of_node, node_of_vertex;
+  explicit NodeOrder(const Mesh& mesh);
+  uint32_t vertices() const { return vertex_of_node.size(); }
+  // A vertex or pseudo vertex id (pseudo vertices are numbered after the
+  // vertices) to its node, and back.
+  uint32_t node(uint32_t id) const { return id < vertices() ? node_of_vertex[id] : id; }
+  uint32_t id(uint32_t node) const { return node < vertices() ? vertex_of_node[node] : node; }
+};
+
+// Adjacency lists in compressed form, by node, each sorted by target node.
 struct Adjacency {
   std::vector<uint64_t> offsets;
-  std::vector<DggHalfEdge> edges;
+  LargeArray<DggHalfEdge> edges;
+  uint32_t rows() const { return offsets.size() - 1; }
   std::span<const DggHalfEdge> of(uint32_t u) const {
     return {edges.data() + offsets[u], edges.data() + offsets[u + 1]};
   }
   std::span<DggHalfEdge> of(uint32_t u) {
     return {edges.data() + offsets[u], edges.data() + offsets[u + 1]};
   }
+  // Moves every row to its place under `grown` (as many rows or more, none
+  // shorter), in place; what follows a row's old end there is unset.
+  void Grow(std::vector<uint64_t> grown) {
+    edges.resize(grown.back());
+    for (uint32_t u = rows(); u-- > 0;) {
+      std::memmove(static_cast<void*>(edges.data() + grown[u]), edges.data() + offsets[u],
+                   (offsets[u + 1] - offsets[u]) * sizeof(DggHalfEdge));
+    }
+    offsets = std::move(grown);
+  }
 };
+
+// The edge to `to` in a row sorted by target, or null.
+template <typename Edge>
+Edge* Find(std::span<Edge> row, uint32_t to) {
+  auto it = std::lower_bound(row.begin(), row.end(), to,
+                             [](const DggHalfEdge& e, uint32_t id) { return e.to < id; });
+  return it != row.end() && it->to == to ? &*it : nullptr;
+}
+
+// The edge `e` of node `from`, seen from its other end.
+DggHalfEdge Reversed(const DggHalfEdge& e, uint32_t from) {
+  return {from, e.weight, e.angle_there, e.angle_here};
+}
+
+template <typename Less>
+void SortRows(Adjacency& adj, Less less) {
+  tbb::parallel_for(uint32_t{0}, adj.rows(), [&](uint32_t u) {
+    auto row = adj.of(u);
+    std::sort(row.begin(), row.end(), less);
+  });
+}
+
+bool ByTarget(const DggHalfEdge& a, const DggHalfEdge& b) { return a.to < b.to; }
+
+// Feeds every source's candidate list to a visitor (CandidateRuns::Drain, or
+// the parts of a distributed build).
+using CandidateFeed = std::function<absl::Status(const CandidateRuns::Visitor&)>;
 
 class Progress {
  public:
@@ -175,84 +230,144 @@ std::vector<uint32_t> SpatialOrder(const Mesh& mesh, uint32_t begin, uint32_t en
   return order;
 }
 
+NodeOrder::NodeOrder(const Mesh& mesh)
+    : vertex_of_node(SpatialOrder(mesh, 0, mesh.num_vertices())) {
+  node_of_vertex.resize(vertex_of_node.size());
+  for (uint32_t u = 0; u < vertex_of_node.size(); ++u) node_of_vertex[vertex_of_node[u]] = u;
+}
+
+// The first error of many threads.
+class FirstError {
+ public:
+  void Set(absl::Status s) {
+    std::lock_guard<std::mutex> lock(mu_);
+    if (status_.ok()) status_ = std::move(s);
+    failed_ = true;
+  }
+  bool failed() const { return failed_.load(std::memory_order_relaxed); }
+  absl::Status status() {
+    std::lock_guard<std::mutex> lock(mu_);
+    return status_;
+  }
+
+ private:
+  std::mutex mu_;
+  absl::Status status_;
+  std::atomic<bool> failed_{false};
+};
+
 // Phase 1 (section 4.2.1): the direct geodesics from every vertex, each window
-// stopped at Theorem 2's d_max. Returns, per vertex, candidates sorted by id.
-// Sources [begin, end) only; element i of the result belongs to begin + i.
-std::vector<std::vector<DggHalfEdge>> ComputeCandidates(const Mesh& mesh, double candidate_epsilon,
-                                                        bool stop_at_corners, uint32_t begin,
-                                                        uint32_t end, Progress& progress,
-                                                        double progress_end,
-                                                        uint64_t* windows_created) {
-  std::vector<std::vector<DggHalfEdge>> candidates(end - begin);
+// stopped at Theorem 2's d_max, into `runs`, each list sorted by vertex id.
+// Sources [begin, end) only.
+absl::Status ComputeCandidates(const Mesh& mesh, double candidate_epsilon, bool stop_at_corners,
+                               uint32_t begin, uint32_t end, Progress& progress,
+                               double progress_end, uint64_t* windows_created,
+                               CandidateRuns& runs) {
   const FaceFrames frames(mesh);
-  tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
-      [&] { return std::make_unique<ExactGeodesic>(mesh, &frames); });
+  struct Local {
+    std::unique_ptr<ExactGeodesic> engine;
+    std::vector<DggHalfEdge> found;
+  };
+  tbb::enumerable_thread_specific<Local> locals([&] {
+    return Local{std::make_unique<ExactGeodesic>(mesh, &frames), {}};
+  });
   std::atomic<uint64_t> windows{0};
+  FirstError error;
   const std::vector<uint32_t> order = SpatialOrder(mesh, begin, end);
   ParallelFor(end - begin, progress, "candidates", 0.0, progress_end, [&](uint32_t k) {
-    const uint32_t i = order[k];
-    const uint32_t s = begin + i;
-    if (mesh.is_isolated(s)) return;
-    ExactGeodesic& engine = *engines.local();
+    const uint32_t s = begin + order[k];
+    if (mesh.is_isolated(s) || error.failed()) return;
+    Local& local = locals.local();
     DirectOptions options;
     options.epsilon = candidate_epsilon;
     options.stop_at_corners = stop_at_corners;
-    auto hits = engine.DirectGeodesics(SurfacePoint::Vertex(s), options);
+    auto hits = local.engine->DirectGeodesics(SurfacePoint::Vertex(s), options);
     if (!hits.ok()) return;  // a validated vertex source cannot fail
-    windows.fetch_add(engine.stats().windows_created, std::memory_order_relaxed);
-    auto& out = candidates[i];
-    out.reserve(hits->size());
+    windows.fetch_add(local.engine->stats().windows_created, std::memory_order_relaxed);
+    local.found.clear();
     const double period_s = mesh.total_angle(s);
     for (const DirectHit& h : *hits) {
-      out.push_back({h.vertex, RoundUp(h.distance), Normalized(h.angle_at_source, period_s),
-                     Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
+      local.found.push_back({h.vertex, RoundUp(h.distance), Normalized(h.angle_at_source, period_s),
+                             Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
     }
+    if (absl::Status added = runs.Add(s, local.found); !added.ok()) error.Set(std::move(added));
   });
   *windows_created = windows.load();
-  return candidates;
+  return error.status();
 }
 
 // An edge found from either end is an edge; its length is the shorter of the
-// two direct paths found, with that path's directions.
-Adjacency Symmetrize(std::vector<std::vector<DggHalfEdge>> out) {
-  const uint32_t n = out.size();
-  std::vector<uint64_t> in_offsets(n + 1, 0);
-  for (uint32_t s = 0; s < n; ++s)
-    for (const auto& e : out[s]) ++in_offsets[e.to + 1];
-  for (uint32_t v = 0; v < n; ++v) in_offsets[v + 1] += in_offsets[v];
-  std::vector<DggHalfEdge> in(in_offsets[n]);
-  {
-    std::vector<uint64_t> fill(in_offsets.begin(), in_offsets.end() - 1);
-    for (uint32_t s = 0; s < n; ++s) {
-      for (const auto& e : out[s]) in[fill[e.to]++] = {s, e.weight, e.angle_there, e.angle_here};
-    }
-  }
+// two direct paths found (the source's own on a tie), with that path's
+// directions. Rows are first filled with what their own source found, then
+// edges found from the other end only are appended: each row grows in place.
+absl::StatusOr<Adjacency> Symmetrize(const NodeOrder& order, std::span<const uint32_t> counts,
+                                     const CandidateFeed& feed) {
+  const uint32_t n = counts.size();
   Adjacency adj;
   adj.offsets.assign(n + 1, 0);
-  std::vector<std::vector<DggHalfEdge>> merged(n);
-  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
-    const auto& a = out[s];
-    std::span<const DggHalfEdge> b(in.data() + in_offsets[s], in.data() + in_offsets[s + 1]);
-    auto& m = merged[s];
-    m.reserve(a.size() + b.size());
-    size_t i = 0, j = 0;
-    while (i < a.size() || j < b.size()) {
-      if (j == b.size() || (i < a.size() && a[i].to < b[j].to)) {
-        m.push_back(a[i++]);
-      } else if (i == a.size() || b[j].to < a[i].to) {
-        m.push_back(b[j++]);
-      } else {
-        m.push_back(b[j].weight < a[i].weight ? b[j] : a[i]);
-        ++i, ++j;
+  for (uint32_t u = 0; u < n; ++u) {
+    adj.offsets[u + 1] = adj.offsets[u] + counts[order.vertex_of_node[u]];
+  }
+  adj.edges.resize(adj.offsets[n]);
+  RETURN_IF_ERROR(feed([&](uint32_t s, std::span<const DggHalfEdge> found) {
+    DggHalfEdge* row = adj.of(order.node_of_vertex[s]).data();
+    for (const DggHalfEdge& e : found)
+      *row++ = {order.node_of_vertex[e.to], e.weight, e.angle_here, e.angle_there};
+  }));
+  SortRows(adj, ByTarget);
+
+  // Edges found from both ends take the strictly shorter reverse; edges
+  // found from one end are counted at the other. Only weights and angles
+  // are rewritten, so concurrent searches by target stay sound; an edge's
+  // two copies cannot both be the shorter one.
+  std::vector<uint32_t> missing(n, 0);
+  {
+    std::vector<uint8_t> take_reverse(adj.edges.size(), 0);
+    tbb::parallel_for(uint32_t{0}, n, [&](uint32_t t) {
+      for (const DggHalfEdge& e : adj.of(t)) {
+        const DggHalfEdge* back = Find(std::as_const(adj).of(e.to), t);
+        if (!back) {
+          std::atomic_ref<uint32_t>(missing[e.to]).fetch_add(1, std::memory_order_relaxed);
+        } else if (e.weight < back->weight) {
+          take_reverse[back - adj.edges.data()] = 1;
+        }
       }
+    });
+    tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
+      auto row = adj.of(s);
+      for (uint32_t i = 0; i < row.size(); ++i) {
+        if (!take_reverse[adj.offsets[s] + i]) continue;
+        const DggHalfEdge& shorter = *Find(std::as_const(adj).of(row[i].to), s);
+        row[i].weight = shorter.weight;
+        row[i].angle_here = shorter.angle_there;
+        row[i].angle_there = shorter.angle_here;
+      }
+    });
+  }
+
+  std::vector<uint32_t> own(n);
+  std::vector<uint64_t> grown(n + 1, 0);
+  for (uint32_t u = 0; u < n; ++u) {
+    own[u] = adj.offsets[u + 1] - adj.offsets[u];
+    grown[u + 1] = grown[u] + own[u] + missing[u];
+  }
+  adj.Grow(std::move(grown));
+  auto own_of = [&](uint32_t u) {
+    return std::span<const DggHalfEdge>(adj.edges.data() + adj.offsets[u], own[u]);
+  };
+  std::fill(missing.begin(), missing.end(), 0);  // now: how many appended
+  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t t) {
+    for (const DggHalfEdge& e : own_of(t)) {
+      if (Find(own_of(e.to), t)) continue;
+      const uint32_t k =
+          std::atomic_ref<uint32_t>(missing[e.to]).fetch_add(1, std::memory_order_relaxed);
+      adj.edges[adj.offsets[e.to] + own[e.to] + k] = Reversed(e, t);
     }
   });
-  out = {};
-  for (uint32_t s = 0; s < n; ++s) adj.offsets[s + 1] = adj.offsets[s] + merged[s].size();
-  adj.edges.resize(adj.offsets[n]);
-  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
-    std::copy(merged[s].begin(), merged[s].end(), adj.edges.begin() + adj.offsets[s]);
-    merged[s] = {};
+  tbb::parallel_for(uint32_t{0}, n, [&](uint32_t u) {
+    auto row = adj.of(u);
+    std::sort(row.begin() + own[u], row.end(), ByTarget);
+    std::inplace_merge(row.begin(), row.begin() + own[u], row.end(), ByTarget);
   });
   return adj;
 }
@@ -265,9 +380,9 @@ Adjacency Symmetrize(std::vector<std::vector<DggHalfEdge>> out) {
 // path must also turn only within the fans (fan.h) at its relays, so that the
 // fan-restricted solver can follow it; the fans used here are slightly
 // narrower than the solver's so that rounding cannot break that promise.
-std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, double epsilon,
-                                   Progress& progress) {
-  const uint32_t n = adj.offsets.size() - 1;
+std::vector<uint8_t> FindRedundant(const Mesh& mesh, const NodeOrder& order, const Adjacency& adj,
+                                   double epsilon, Progress& progress) {
+  const uint32_t n = adj.rows();
   const double prune_epsilon = PruningBudget(epsilon);
   std::vector<uint8_t> redundant(adj.edges.size(), 0);
   struct Scratch {
@@ -300,7 +415,7 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
       sc.stamp[nbrs[i].to] = sc.current;
       sc.local[nbrs[i].to] = i;
       sc.dist[i] = nbrs[i].weight;
-      sc.bottleneck[i] = EdgeKey::Of(nbrs[i].weight, s, nbrs[i].to);
+      sc.bottleneck[i] = EdgeKey::Of(nbrs[i].weight, order.id(s), order.id(nbrs[i].to));
       sc.arrival[i] = nbrs[i].angle_there;
       sc.heap.push_back({-sc.dist[i], i});
     }
@@ -313,8 +428,8 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
       if (-neg > sc.dist[i]) continue;
       const uint32_t u = nbrs[i].to;
       const bool is_vertex = u < mesh.num_vertices();
-      const double period = is_vertex ? mesh.total_angle(u) : kTwoPi;
-      const bool boundary = is_vertex && mesh.is_boundary(u);
+      const double period = is_vertex ? mesh.total_angle(order.id(u)) : kTwoPi;
+      const bool boundary = is_vertex && mesh.is_boundary(order.id(u));
       for (const DggHalfEdge& e : adj.of(u)) {
         if (e.to == s || sc.stamp[e.to] != sc.current) continue;
         if (!InFan(sc.arrival[i], e.angle_here, period, boundary, epsilon, kPruningFanScale)) {
@@ -322,8 +437,8 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
         }
         const uint32_t j = sc.local[e.to];
         const double through = sc.dist[i] + e.weight;
-        const EdgeKey own = EdgeKey::Of(nbrs[j].weight, s, e.to);
-        EdgeKey b = std::max(sc.bottleneck[i], EdgeKey::Of(e.weight, u, e.to));
+        const EdgeKey own = EdgeKey::Of(nbrs[j].weight, order.id(s), order.id(e.to));
+        EdgeKey b = std::max(sc.bottleneck[i], EdgeKey::Of(e.weight, order.id(u), order.id(e.to)));
         if (!(b < own)) continue;
         if (through <= (1 + prune_epsilon) * nbrs[j].weight) redundant[base + j] = 1;
         if (through < sc.dist[j]) {
@@ -339,32 +454,24 @@ std::vector<uint8_t> FindRedundant(const Mesh& mesh, const Adjacency& adj, doubl
   return redundant;
 }
 
-// Keeps an edge unless either end found it redundant.
-Adjacency DropRedundant(const Adjacency& adj, const std::vector<uint8_t>& redundant) {
-  const uint32_t n = adj.offsets.size() - 1;
-  auto reverse_index = [&](uint32_t s, uint32_t u) -> uint64_t {
-    auto list = adj.of(u);
-    auto it = std::lower_bound(list.begin(), list.end(), s,
-                               [](const DggHalfEdge& e, uint32_t id) { return e.to < id; });
-    return adj.offsets[u] + (it - list.begin());
-  };
+// Keeps an edge unless either end found it redundant, in place.
+void DropRedundant(Adjacency& adj, const std::vector<uint8_t>& redundant) {
+  const uint32_t n = adj.rows();
   std::vector<uint8_t> keep(adj.edges.size(), 0);
   tbb::parallel_for(uint32_t{0}, n, [&](uint32_t s) {
     for (uint64_t i = adj.offsets[s]; i < adj.offsets[s + 1]; ++i) {
-      keep[i] = !redundant[i] && !redundant[reverse_index(s, adj.edges[i].to)];
+      const DggHalfEdge* back = Find(std::as_const(adj).of(adj.edges[i].to), s);
+      keep[i] = !redundant[i] && !redundant[back - adj.edges.data()];
     }
   });
-  Adjacency out;
-  out.offsets.assign(n + 1, 0);
+  uint64_t kept = 0, from = 0;
   for (uint32_t s = 0; s < n; ++s) {
-    uint64_t count = 0;
-    for (uint64_t i = adj.offsets[s]; i < adj.offsets[s + 1]; ++i) count += keep[i];
-    out.offsets[s + 1] = out.offsets[s] + count;
+    for (; from < adj.offsets[s + 1]; ++from) {
+      if (keep[from]) adj.edges[kept++] = adj.edges[from];
+    }
+    adj.offsets[s + 1] = kept;
   }
-  out.edges.reserve(out.offsets[n]);
-  for (uint64_t i = 0; i < adj.edges.size(); ++i)
-    if (keep[i]) out.edges.push_back(adj.edges[i]);
-  return out;
+  adj.edges.resize(kept);
 }
 
 // Phase 3 (section 4.3, ADDPSEUDOVERTICESANDEDGES): where the candidate
@@ -378,9 +485,9 @@ struct PseudoVertex {
   std::vector<DggHalfEdge> edges;  // to mesh vertices
 };
 
-std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const Adjacency& candidates,
-                                            double epsilon, double candidate_epsilon,
-                                            Progress& progress) {
+std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const NodeOrder& order,
+                                            const Adjacency& candidates, double epsilon,
+                                            double candidate_epsilon, Progress& progress) {
   const uint32_t n = mesh.num_vertices();
   const double step = std::sqrt(epsilon);
   const double threshold = std::sqrt(2 * epsilon);
@@ -388,7 +495,7 @@ std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const Adjacency& c
   tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
       [&] { return std::make_unique<ExactGeodesic>(mesh); });
   ParallelFor(n, progress, "pseudo", 0.7, 0.8, [&](uint32_t s) {
-    auto cand = candidates.of(s);
+    auto cand = candidates.of(order.node(s));
     if (cand.empty()) return;
     const double period = mesh.total_angle(s);
     const double to_raw = period / kTwoPi;
@@ -440,16 +547,17 @@ std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const Adjacency& c
         const double served = (1 + candidate_epsilon) * end->length;
         const bool redundant = std::any_of(hits->begin(), hits->end(), [&](const DirectHit& h) {
           if (h.vertex == s || h.distance >= served) return false;
-          auto it = std::lower_bound(cand.begin(), cand.end(), h.vertex,
-                                     [](const DggHalfEdge& e, uint32_t v) { return e.to < v; });
-          return it != cand.end() && it->to == h.vertex && it->weight + h.distance <= served;
+          const DggHalfEdge* edge = Find(cand, order.node(h.vertex));
+          return edge && edge->weight + h.distance <= served;
         });
         if (redundant) continue;
         PseudoVertex p{end->point, {}};
         for (const DirectHit& h : *hits) {
-          p.edges.push_back({h.vertex, RoundUp(h.distance), Normalized(h.angle_at_source, kTwoPi),
+          p.edges.push_back({order.node(h.vertex), RoundUp(h.distance),
+                             Normalized(h.angle_at_source, kTwoPi),
                              Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
         }
+        std::sort(p.edges.begin(), p.edges.end(), ByTarget);  // rows are sorted by node
         per_vertex[s].push_back(std::move(p));
       }
     }
@@ -461,37 +569,27 @@ std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const Adjacency& c
 }
 
 // Joins pseudo vertices (nodes n, n+1, ...) and their edges, seen from both
-// ends, to the candidate graph, keeping every list sorted by node id.
-Adjacency WithPseudoVertices(const Adjacency& cand, const std::vector<PseudoVertex>& pseudo) {
-  if (pseudo.empty()) return cand;
-  const uint32_t n = cand.offsets.size() - 1;
-  const uint32_t nodes = n + pseudo.size();
-  std::vector<std::vector<DggHalfEdge>> extra(n);
+// ends, to the candidate graph in place, keeping every row sorted by node.
+void AddPseudoRows(Adjacency& adj, const std::vector<PseudoVertex>& pseudo) {
+  if (pseudo.empty()) return;
+  const uint32_t n = adj.rows();
+  std::vector<uint64_t> cursor(n), grown(n + pseudo.size() + 1, 0);
+  for (const PseudoVertex& p : pseudo) {
+    for (const DggHalfEdge& e : p.edges) ++grown[e.to + 1];
+  }
+  for (uint32_t u = 0; u < n; ++u) {
+    cursor[u] = grown[u] + (adj.offsets[u + 1] - adj.offsets[u]);
+    grown[u + 1] += cursor[u];
+  }
+  for (uint32_t i = 0; i < pseudo.size(); ++i)
+    grown[n + i + 1] = grown[n + i] + pseudo[i].edges.size();
+  adj.Grow(std::move(grown));
+  // Pseudo ids are above every vertex's node: appending keeps the order.
   for (uint32_t i = 0; i < pseudo.size(); ++i) {
-    for (const auto& e : pseudo[i].edges) {
-      extra[e.to].push_back({n + i, e.weight, e.angle_there, e.angle_here});
-    }
+    const auto& edges = pseudo[i].edges;
+    for (const DggHalfEdge& e : edges) adj.edges[cursor[e.to]++] = Reversed(e, n + i);
+    std::copy(edges.begin(), edges.end(), adj.of(n + i).begin());
   }
-  Adjacency out;
-  out.offsets.assign(nodes + 1, 0);
-  for (uint32_t u = 0; u < nodes; ++u) {
-    const size_t size = u < n ? cand.of(u).size() + extra[u].size() : pseudo[u - n].edges.size();
-    out.offsets[u + 1] = out.offsets[u] + size;
-  }
-  out.edges.resize(out.offsets[nodes]);
-  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
-    auto dst = out.edges.begin() + out.offsets[u];
-    if (u < n) {
-      auto own = cand.of(u);
-      // Pseudo ids are above every vertex id: appending keeps the order.
-      dst = std::copy(own.begin(), own.end(), dst);
-      std::copy(extra[u].begin(), extra[u].end(), dst);
-    } else {
-      const auto& edges = pseudo[u - n].edges;
-      std::copy(edges.begin(), edges.end(), dst);
-    }
-  });
-  return out;
 }
 
 // Fans that no shortest path leaves. The turn u -> v -> w is left out of the
@@ -529,25 +627,27 @@ FanRange CircularHull(std::span<const uint32_t> kept, uint32_t degree) {
 
 class FanBuilder {
  public:
-  explicit FanBuilder(const DggGraphArrays& a)
-      : a_(a), nodes_(a.offsets.size() - 1), fans_(a.edges.size()) {}
+  explicit FanBuilder(DggGraphArrays& a) : a_(a), nodes_(a.offsets.size() - 1) {}
 
-  // Fans from paths of at most two edges.
+  // Fans from paths of at most two edges, into the edges. The pass reads
+  // only the edges' targets and weights.
   void TwoEdgePass() {
-    tbb::parallel_for(tbb::blocked_range<uint32_t>(0, nodes_, 64),
-                      [&](const tbb::blocked_range<uint32_t>& r) {
-                        Scratch& sc = Local();
-                        for (uint32_t u = r.begin(); u != r.end(); ++u) {
-                          CollectTurns(sc, u);
-                          KeepTurns(sc, u, sc.best);
-                          Clear(sc);
-                        }
-                      });
+    tbb::parallel_for(
+        tbb::blocked_range<uint32_t>(0, nodes_, 64), [&](const tbb::blocked_range<uint32_t>& r) {
+          Scratch& sc = Local();
+          for (uint32_t u = r.begin(); u != r.end(); ++u) {
+            CollectTurns(sc, u);
+            KeepTurns(sc, u, sc.best, [&](uint64_t i, FanRange fan) { a_.edges[i].fan = fan; });
+            Clear(sc);
+          }
+        });
   }
 
   // Fans from exact distances inside each node's two-edge neighbourhood,
-  // searched along the fans in `a` (sound ones: the first pass's).
+  // searched along the fans in the edges (sound ones: the first pass's),
+  // then stored there.
   void ExactPass(Progress& progress) {
+    std::vector<FanRange> fans(a_.edges.size());
     ParallelFor(nodes_, progress, "fans", 0.95, 1.0, [&](uint32_t u) {
       Scratch& sc = Local();
       if (sc.exact.size() < nodes_) {
@@ -580,14 +680,13 @@ class FanBuilder {
       }
       // A node the fan-restricted search missed keeps its two-edge bound.
       for (uint32_t y : sc.ring_nodes()) sc.exact[y] = std::min(sc.exact[y], sc.best[y]);
-      KeepTurns(sc, u, sc.exact);
+      KeepTurns(sc, u, sc.exact, [&](uint64_t i, FanRange fan) { fans[i] = fan; });
       for (uint32_t y : sc.ring_nodes()) sc.exact[y] = kUnknown;
       Clear(sc);
     });
+    if (progress.cancelled()) return;
+    for (uint64_t i = 0; i < fans.size(); ++i) a_.edges[i].fan = fans[i];
   }
-
-  // The fans found, indexed like the edges.
-  const std::vector<FanRange>& fans() const { return fans_; }
 
  private:
   static constexpr double kUnknown = std::numeric_limits<double>::infinity();
@@ -663,9 +762,10 @@ class FanBuilder {
     sc.ring_size = ring;
   }
 
-  // The fans of u's edges: each keeps the turns that no path in `shortest`
-  // (per node of the ring) beats.
-  void KeepTurns(Scratch& sc, uint32_t u, const std::vector<double>& shortest) {
+  // The fans of u's edges, each passed to store(edge index, fan): each keeps
+  // the turns that no path in `shortest` (per node of the ring) beats.
+  template <typename Store>
+  void KeepTurns(Scratch& sc, uint32_t u, const std::vector<double>& shortest, Store store) {
     const auto edges = of(u);
     const Turn* t = sc.turns.data();
     const Turn* const end = t + sc.turns_size;
@@ -674,8 +774,8 @@ class FanBuilder {
       for (; t != end && t->edge == i; ++t) {
         if (shortest[t->y] >= t->length * kStrictlyShorter) sc.kept.push_back(t->k);
       }
-      fans_[a_.offsets[u] + i] =
-          CircularHull(sc.kept, static_cast<uint32_t>(of(edges[i].target).size()));
+      store(a_.offsets[u] + i,
+            CircularHull(sc.kept, static_cast<uint32_t>(of(edges[i].target).size())));
     }
   }
 
@@ -684,60 +784,34 @@ class FanBuilder {
     sc.ring_size = sc.turns_size = 0;
   }
 
-  const DggGraphArrays& a_;
+  DggGraphArrays& a_;
   const uint32_t nodes_;
-  std::vector<FanRange> fans_;
   tbb::enumerable_thread_specific<Scratch> scratch_;
 };
 
 void ShortcutFreeFans(DggGraphArrays& a, bool exact, Progress& progress) {
   FanBuilder builder(a);
-  auto store = [&] {
-    for (uint64_t i = 0; i < a.edges.size(); ++i) a.edges[i].fan = builder.fans()[i];
-  };
   builder.TwoEdgePass();
-  store();
-  if (!exact) return;
-  builder.ExactPass(progress);
-  if (!progress.cancelled()) store();
+  if (exact) builder.ExactPass(progress);
 }
 
-// Phase 4 (section 5.1.2): number the nodes in spatial order (DggGraph), sort
-// each node's edges by polar angle and give every directed edge u -> v the
-// range of v's edges that a shortest path arriving along it can continue on.
-DggGraphArrays Finalize(const Mesh& mesh, const Adjacency& kept,
-                        const std::vector<PseudoVertex>& pseudo, bool exact_fans,
-                        Progress& progress) {
-  const uint32_t n = mesh.num_vertices();
-  const uint32_t nodes = kept.offsets.size() - 1;
-  DggGraphArrays a;
-  a.vertex_of_node = SpatialOrder(mesh, 0, n);
-  a.node_of_vertex.resize(n);
-  for (uint32_t u = 0; u < n; ++u) a.node_of_vertex[a.vertex_of_node[u]] = u;
-  // Pseudo vertices keep their places after the vertices.
-  auto node_of = [&](uint32_t id) { return id < n ? a.node_of_vertex[id] : id; };
-  auto id_of = [&](uint32_t node) { return node < n ? a.vertex_of_node[node] : node; };
-  std::vector<std::vector<DggHalfEdge>> lists(nodes);
-  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
-    auto e = kept.of(id_of(u));
-    lists[u].assign(e.begin(), e.end());
-    for (DggHalfEdge& h : lists[u]) h.to = node_of(h.to);
-    std::sort(lists[u].begin(), lists[u].end(), [](const DggHalfEdge& a, const DggHalfEdge& b) {
-      return a.angle_here < b.angle_here || (a.angle_here == b.angle_here && a.to < b.to);
-    });
+// Phase 4 (section 5.1.2): sort each node's edges by polar angle and give
+// every directed edge u -> v the range of v's edges that a shortest path
+// arriving along it can continue on. The edges become the graph's in place.
+DggGraphArrays Finalize(Adjacency kept, NodeOrder order, const std::vector<PseudoVertex>& pseudo,
+                        bool exact_fans, Progress& progress) {
+  SortRows(kept, [](const DggHalfEdge& a, const DggHalfEdge& b) {
+    return a.angle_here < b.angle_here || (a.angle_here == b.angle_here && a.to < b.to);
   });
-  a.offsets.assign(nodes + 1, 0);
-  for (uint32_t u = 0; u < nodes; ++u) a.offsets[u + 1] = a.offsets[u] + lists[u].size();
-  const uint64_t m = a.offsets[nodes];
-  a.edges.resize(m);
-  a.angles.resize(m);
-  tbb::parallel_for(uint32_t{0}, nodes, [&](uint32_t u) {
-    uint64_t i = a.offsets[u];
-    for (const auto& e : lists[u]) {
-      a.edges[i] = {e.to, e.weight, {}};
-      a.angles[i] = e.angle_here;
-      ++i;
-    }
+  DggGraphArrays a;
+  a.vertex_of_node = std::move(order.vertex_of_node);
+  a.node_of_vertex = std::move(order.node_of_vertex);
+  a.angles.resize(kept.edges.size());
+  tbb::parallel_for(uint64_t{0}, uint64_t{kept.edges.size()},
+                    [&](uint64_t i) { a.angles[i] = kept.edges[i].angle_here; });
+  a.offsets = std::move(kept.offsets);
+  a.edges = std::move(kept.edges).TransformInPlace<DggEdge>([](const DggHalfEdge& h) {
+    return DggEdge{h.to, h.weight, {}};
   });
   ShortcutFreeFans(a, exact_fans, progress);
   a.pseudo_points.reserve(pseudo.size());
@@ -774,43 +848,43 @@ absl::Status CheckBuildParams(const DggParams& params) {
   return absl::OkStatus();
 }
 
-// Phases 2-4 on the candidates of every vertex: pseudo vertices, pruning,
-// fans. Runs inside the caller's arena.
-std::shared_ptr<const DggGraph> FinishBuild(const Mesh& mesh,
-                                            std::vector<std::vector<DggHalfEdge>> candidates,
-                                            const DggParams& params, Progress& progress,
-                                            DggBuildStats& st) {
+// Phases 2-4 on the candidates of every vertex (`counts` long lists, by
+// vertex, fed by `feed`): pseudo vertices, pruning, fans. Runs inside the
+// caller's arena; null when cancelled.
+absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(const Mesh& mesh,
+                                                            std::span<const uint32_t> counts,
+                                                            const CandidateFeed& feed,
+                                                            const DggParams& params,
+                                                            Progress& progress, DggBuildStats& st) {
   const double epsilon = params.epsilon;
   const bool prune = params.prune_redundant, exact_fans = params.exact_fans;
   auto t = std::chrono::steady_clock::now();
-  for (const auto& c : candidates) st.found_edges += c.size();
-  Adjacency cand = Symmetrize(std::move(candidates));
+  NodeOrder order(mesh);
+  for (uint32_t c : counts) st.found_edges += c;
+  ASSIGN_OR_RETURN(Adjacency cand, Symmetrize(order, counts, feed));
   st.candidate_edges = cand.edges.size() / 2;
   st.candidate_seconds += Seconds(t);
 
   t = std::chrono::steady_clock::now();
   std::vector<PseudoVertex> pseudo;
   if (params.pseudo_vertices) {
-    pseudo = AddPseudoVertices(mesh, cand, epsilon, CandidateBudget(epsilon, prune), progress);
+    pseudo =
+        AddPseudoVertices(mesh, order, cand, epsilon, CandidateBudget(epsilon, prune), progress);
     if (progress.cancelled()) return nullptr;
-    cand = WithPseudoVertices(cand, pseudo);
+    AddPseudoRows(cand, pseudo);
   }
   st.pseudo_seconds = Seconds(t);
 
   t = std::chrono::steady_clock::now();
-  Adjacency kept;
   if (prune) {
-    auto redundant = FindRedundant(mesh, cand, epsilon, progress);
+    auto redundant = FindRedundant(mesh, order, cand, epsilon, progress);
     if (progress.cancelled()) return nullptr;
-    kept = DropRedundant(cand, redundant);
-    cand = {};
-  } else {
-    kept = std::move(cand);
+    DropRedundant(cand, redundant);
   }
   st.pruning_seconds = Seconds(t);
 
   t = std::chrono::steady_clock::now();
-  DggGraphArrays arrays = Finalize(mesh, kept, pseudo, exact_fans, progress);
+  DggGraphArrays arrays = Finalize(std::move(cand), std::move(order), pseudo, exact_fans, progress);
   if (progress.cancelled()) return nullptr;
   st.fan_seconds = Seconds(t);
   const uint32_t nodes = mesh.num_vertices() + pseudo.size();
@@ -880,14 +954,22 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   const auto start = std::chrono::steady_clock::now();
   Progress progress(options);
   BuildArena arena(options);
-  std::shared_ptr<const DggGraph> graph;
+  absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
   arena.execute([&] {
-    auto candidates = ComputeCandidates(
+    CandidateRuns runs(mesh.num_vertices(), options.candidate_memory_limit, options.spill_dir);
+    absl::Status computed = ComputeCandidates(
         mesh, CandidateBudget(options.params.epsilon, options.params.prune_redundant),
-        options.stop_at_corners, 0, mesh.num_vertices(), progress, 0.7, &st.windows_created);
+        options.stop_at_corners, 0, mesh.num_vertices(), progress, 0.7, &st.windows_created, runs);
     st.candidate_seconds = Seconds(start);
+    st.spilled_bytes = runs.spilled_bytes();  // Drain spills no more
+    if (!computed.ok()) {
+      graph = computed;
+      return;
+    }
     if (progress.cancelled()) return;
-    graph = FinishBuild(mesh, std::move(candidates), options.params, progress, st);
+    graph = FinishBuild(
+        mesh, runs.counts(), [&](const auto& visit) { return runs.Drain(visit); }, options.params,
+        progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
@@ -911,61 +993,74 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   part.end = n * (index + 1) / count;
   Progress progress(options);
   BuildArena arena(options);
-  std::vector<std::vector<DggHalfEdge>> candidates;
+  CandidateRuns runs(n, options.candidate_memory_limit, options.spill_dir);
+  absl::Status computed;
   arena.execute([&] {
-    candidates = ComputeCandidates(
+    computed = ComputeCandidates(
         mesh, CandidateBudget(options.params.epsilon, options.params.prune_redundant),
-        options.stop_at_corners, part.begin, part.end, progress, 1.0, &part.windows_created);
+        options.stop_at_corners, part.begin, part.end, progress, 1.0, &part.windows_created, runs);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
+  RETURN_IF_ERROR(computed);
   part.offsets.assign(1, 0);
-  for (const auto& c : candidates) part.offsets.push_back(part.offsets.back() + c.size());
-  part.edges.reserve(part.offsets.back());
-  for (const auto& c : candidates) part.edges.insert(part.edges.end(), c.begin(), c.end());
+  for (uint32_t s = part.begin; s < part.end; ++s) {
+    part.offsets.push_back(part.offsets.back() + runs.counts()[s]);
+  }
+  part.edges.resize(part.offsets.back());
+  RETURN_IF_ERROR(runs.Drain([&](uint32_t s, std::span<const DggHalfEdge> edges) {
+    std::copy(edges.begin(), edges.end(), part.edges.begin() + part.offsets[s - part.begin]);
+  }));
   return part;
 }
 
+namespace {
+
+// The edges of a part loaded for a merge: in range and of finite length.
+absl::Status CheckPartEdges(const DggCandidatePart& p, uint32_t n, const std::string& name) {
+  for (const DggHalfEdge& e : p.edges) {
+    if (e.to >= n || !(e.weight >= 0) || !std::isfinite(e.weight)) {
+      return absl::FailedPreconditionError(
+          absl::StrFormat("%s holds an edge to vertex %u of length %g", name, e.to, e.weight));
+    }
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
 absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
-                                                              std::vector<DggCandidatePart> parts,
+                                                              std::vector<DggPartSource> parts,
                                                               const DggBuildOptions& options,
                                                               DggBuildStats* stats) {
   if (parts.empty()) return absl::InvalidArgumentError("no parts to merge");
   const uint32_t n = mesh.num_vertices();
   const uint64_t fingerprint = MeshFingerprint(mesh);
-  const DggParams params = parts[0].params;
+  const DggParams params = parts[0].index.params;
   RETURN_IF_ERROR(CheckBuildParams(params));
   for (size_t i = 0; i < parts.size(); ++i) {
-    const DggCandidatePart& p = parts[i];
+    const DggCandidatePart& p = parts[i].index;
+    const std::string part = absl::StrFormat("%s (vertices %u..%u)", parts[i].name, p.begin, p.end);
     if (p.mesh_fingerprint != fingerprint || p.num_vertices != n) {
-      return absl::FailedPreconditionError(absl::StrFormat(
-          "part %u (vertices %u..%u) was built for another mesh", i, p.begin, p.end));
+      return absl::FailedPreconditionError(absl::StrCat(part, " was built for another mesh"));
     }
-    RETURN_IF_ERROR(CheckSameParams(
-        params, p.params,
-        absl::StrFormat("part %u (vertices %u..%u), unlike part 0,", i, p.begin, p.end)));
+    RETURN_IF_ERROR(
+        CheckSameParams(params, p.params, absl::StrCat(part, ", unlike ", parts[0].name, ",")));
     if (p.begin > p.end || p.end > n || p.offsets.size() != p.end - p.begin + 1 ||
-        p.offsets.front() != 0 || p.offsets.back() != p.edges.size() ||
-        !std::is_sorted(p.offsets.begin(), p.offsets.end())) {
-      return absl::FailedPreconditionError(
-          absl::StrFormat("part %u (vertices %u..%u) is inconsistent", i, p.begin, p.end));
-    }
-    for (const DggHalfEdge& e : p.edges) {
-      if (e.to >= n || !(e.weight >= 0) || !std::isfinite(e.weight)) {
-        return absl::FailedPreconditionError(
-            absl::StrFormat("part %u holds an edge to vertex %u of length %g", i, e.to, e.weight));
-      }
+        p.offsets.front() != 0 || !std::is_sorted(p.offsets.begin(), p.offsets.end())) {
+      return absl::FailedPreconditionError(absl::StrCat(part, " is inconsistent"));
     }
   }
   std::sort(parts.begin(), parts.end(),
-            [](const auto& a, const auto& b) { return a.begin < b.begin; });
+            [](const auto& a, const auto& b) { return a.index.begin < b.index.begin; });
   uint32_t covered = 0;
-  for (const DggCandidatePart& p : parts) {
-    if (p.begin != covered) {
+  for (const DggPartSource& p : parts) {
+    if (p.index.begin != covered) {
       return absl::FailedPreconditionError(
-          p.begin > covered ? absl::StrFormat("no part covers vertices %u..%u", covered, p.begin)
-                            : absl::StrFormat("two parts cover vertex %u", p.begin));
+          p.index.begin > covered
+              ? absl::StrFormat("no part covers vertices %u..%u", covered, p.index.begin)
+              : absl::StrFormat("two parts cover vertex %u", p.index.begin));
     }
-    covered = p.end;
+    covered = p.index.end;
   }
   if (covered != n) {
     return absl::FailedPreconditionError(
@@ -976,22 +1071,55 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   DggBuildStats& st = stats ? *stats : local;
   st = {};
   const auto start = std::chrono::steady_clock::now();
-  std::vector<std::vector<DggHalfEdge>> candidates(n);
-  for (DggCandidatePart& p : parts) {
-    st.windows_created += p.windows_created;
-    for (uint32_t s = p.begin; s < p.end; ++s) {
-      const size_t i = s - p.begin;
-      candidates[s].assign(p.edges.begin() + p.offsets[i], p.edges.begin() + p.offsets[i + 1]);
+  std::vector<uint32_t> counts(n);
+  for (const DggPartSource& p : parts) {
+    for (uint32_t s = p.index.begin; s < p.index.end; ++s) {
+      const size_t i = s - p.index.begin;
+      counts[s] = p.index.offsets[i + 1] - p.index.offsets[i];
     }
-    p = {};
   }
+  auto feed = [&](const CandidateRuns::Visitor& visit) -> absl::Status {
+    for (DggPartSource& source : parts) {
+      ASSIGN_OR_RETURN(DggCandidatePart p, source.load());
+      if (p.begin != source.index.begin || p.offsets != source.index.offsets ||
+          p.edges.size() != p.offsets.back()) {
+        return absl::FailedPreconditionError(
+            absl::StrCat(source.name, " changed while it was being merged"));
+      }
+      RETURN_IF_ERROR(CheckPartEdges(p, n, source.name));
+      st.windows_created += p.windows_created;
+      for (uint32_t s = p.begin; s < p.end; ++s) {
+        const size_t i = s - p.begin;
+        visit(s, {p.edges.data() + p.offsets[i], p.edges.data() + p.offsets[i + 1]});
+      }
+      source = {};
+    }
+    return absl::OkStatus();
+  };
   Progress progress(options);
   BuildArena arena(options);
-  std::shared_ptr<const DggGraph> graph;
-  arena.execute([&] { graph = FinishBuild(mesh, std::move(candidates), params, progress, st); });
+  absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
+  arena.execute([&] { graph = FinishBuild(mesh, counts, feed, params, progress, st); });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
   return graph;
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
+                                                              std::vector<DggCandidatePart> parts,
+                                                              const DggBuildOptions& options,
+                                                              DggBuildStats* stats) {
+  std::vector<DggPartSource> sources;
+  for (size_t i = 0; i < parts.size(); ++i) {
+    std::vector<DggHalfEdge> edges = std::move(parts[i].edges);
+    DggCandidatePart index = parts[i];
+    auto whole = std::make_shared<DggCandidatePart>(std::move(parts[i]));
+    whole->edges = std::move(edges);
+    sources.push_back(
+        {absl::StrFormat("part %u", i), std::move(index),
+         [whole]() -> absl::StatusOr<DggCandidatePart> { return std::move(*whole); }});
+  }
+  return MergeDggParts(mesh, std::move(sources), options, stats);
 }
 
 }  // namespace geodesic

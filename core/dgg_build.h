@@ -6,6 +6,7 @@
 
 #include <functional>
 #include <memory>
+#include <string>
 #include <string_view>
 #include <vector>
 
@@ -24,6 +25,12 @@ struct DggBuildOptions {
   // already serves (DirectOptions::stop_at_corners). False: plain Algorithm
   // 1, for benchmarks; the graph may differ, the accuracy bound does not.
   bool stop_at_corners = true;
+  // Bytes of candidate edges the candidate phase keeps in memory (0: no
+  // limit); beyond it they go to an unlinked file in spill_dir (the current
+  // directory when empty) and are read back once, in a stream. The rest of
+  // the build works on one edge array the size of the graph's, in place.
+  uint64_t candidate_memory_limit = 0;
+  std::string spill_dir;
   // Called now and then from any build thread with the current phase
   // ("candidates", "pruning", "pseudo", "fans") and the fraction of the whole
   // build done, in [0, 1]. Returning false cancels the build (CANCELLED).
@@ -45,6 +52,7 @@ struct DggBuildStats {
   uint64_t found_edges = 0;
   uint64_t edges = 0;            // undirected, in the final graph
   uint64_t windows_created = 0;  // by the candidate propagation, all sources
+  uint64_t spilled_bytes = 0;    // candidate runs that went to disk
   uint32_t pseudo_vertices = 0;
   uint32_t max_degree = 0;
   double average_degree = 0;
@@ -92,10 +100,24 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
                                                        const DggBuildOptions& options,
                                                        uint32_t index, uint32_t count);
 
+// A part to merge, loaded only when the merge reaches it, so that a merge
+// holds one part at a time beside the graph it makes.
+struct DggPartSource {
+  std::string name;        // for messages: the part's file
+  DggCandidatePart index;  // everything but the edges
+  // The whole part; its offsets must equal the index's.
+  std::function<absl::StatusOr<DggCandidatePart>()> load;
+};
+
 // Joins parts (in any order) that together cover every vertex exactly once,
 // all built for this mesh with the same parameters, which the graph takes
 // (options.params is ignored). FAILED_PRECONDITION names the part at fault
 // and, for parameters, the field that differs.
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
+                                                              std::vector<DggPartSource> parts,
+                                                              const DggBuildOptions& options,
+                                                              DggBuildStats* stats = nullptr);
+// The same for parts in memory, named by their position.
 absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
                                                               std::vector<DggCandidatePart> parts,
                                                               const DggBuildOptions& options,

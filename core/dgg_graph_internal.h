@@ -8,12 +8,13 @@
 #include <vector>
 
 #include "core/dgg_graph.h"
+#include "core/large_array.h"
 
 namespace geodesic {
 
 struct DggGraphArrays {
   std::vector<uint64_t> offsets;
-  std::vector<DggEdge> edges;
+  LargeArray<DggEdge> edges;  // the build's edge array, in place
   std::vector<float> angles;
   std::vector<SurfacePoint> pseudo_points;
   std::vector<uint32_t> node_of_vertex;

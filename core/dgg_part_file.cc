@@ -5,6 +5,7 @@
 
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
+#include "core/status.h"
 #include "xxhash.h"
 
 namespace geodesic {
@@ -70,10 +71,13 @@ absl::Status WriteDggPart(const DggCandidatePart& part, const std::string& path)
   return std::move(*file).Commit();
 }
 
-absl::StatusOr<DggCandidatePart> ReadDggPart(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
+namespace {
+
+// Reads a part's header and offsets, checking everything but the payload
+// checksum; `in` is left after the offsets.
+absl::StatusOr<DggCandidatePart> ReadIndex(std::ifstream& in, const std::string& path,
+                                           PartHeader& h) {
   if (!in) return ErrnoStatus("cannot open", path);
-  PartHeader h;
   if (!in.read(reinterpret_cast<char*>(&h), sizeof(h))) {
     return absl::DataLossError(absl::StrFormat("%s is too short for a part file header", path));
   }
@@ -105,9 +109,30 @@ absl::StatusOr<DggCandidatePart> ReadDggPart(const std::string& path) {
   part.end = h.end;
   part.windows_created = h.windows_created;
   part.offsets.resize(h.end - h.begin + 1);
-  part.edges.resize(h.num_edges);
   in.seekg(sizeof(h));
   in.read(reinterpret_cast<char*>(part.offsets.data()), part.offsets.size() * sizeof(uint64_t));
+  if (!in) return absl::DataLossError(absl::StrFormat("%s: read failed", path));
+  if (part.offsets.back() != h.num_edges) {
+    return absl::DataLossError(
+        absl::StrFormat("%s: the offsets end at %u, not at the %u edges held", path,
+                        part.offsets.back(), h.num_edges));
+  }
+  return part;
+}
+
+}  // namespace
+
+absl::StatusOr<DggCandidatePart> ReadDggPartIndex(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  PartHeader h;
+  return ReadIndex(in, path, h);
+}
+
+absl::StatusOr<DggCandidatePart> ReadDggPart(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  PartHeader h;
+  ASSIGN_OR_RETURN(DggCandidatePart part, ReadIndex(in, path, h));
+  part.edges.resize(h.num_edges);
   in.read(reinterpret_cast<char*>(part.edges.data()), part.edges.size() * sizeof(DggHalfEdge));
   if (!in) return absl::DataLossError(absl::StrFormat("%s: read failed", path));
   if (PayloadChecksum(part) != h.payload_checksum) {

@@ -22,6 +22,11 @@ absl::Status WriteDggPart(const DggCandidatePart& part, const std::string& path)
 // another format version; messages name the path.
 absl::StatusOr<DggCandidatePart> ReadDggPart(const std::string& path);
 
+// The part without its edges (offsets, parameters, range), for a merge to
+// check parts against each other before loading any; ReadDggPart verifies
+// the edges' checksum when they are loaded.
+absl::StatusOr<DggCandidatePart> ReadDggPartIndex(const std::string& path);
+
 }  // namespace geodesic
 
 #endif  // GEODESIC_CORE_DGG_PART_FILE_H_

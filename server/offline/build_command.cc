@@ -18,6 +18,7 @@
 #include "core/dgg_build.h"
 #include "core/dgg_part_file.h"
 #include "core/graph_file.h"
+#include "server/byte_size.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
@@ -80,6 +81,7 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                {"windows_per_source", double(stats.windows_created) / std::max<size_t>(n, 1)},
                {"average_fan", stats.average_fan},
                {"peak_memory_bytes", PeakMemoryBytes()},
+               {"spilled_bytes", stats.spilled_bytes},
                {"file_bytes", file_bytes}});
   } else {
     std::printf(
@@ -171,12 +173,23 @@ int RunBuild(int argc, char** argv) {
                "stop)");
   app.add_flag("--json", json, "print a JSON object");
   app.add_flag("--quiet", quiet, "no progress bar");
+  std::string memory_limit;
+  app.add_option("--build-memory-limit", memory_limit,
+                 "candidate edges kept in memory (e.g. 4G); beyond it they go to an unlinked "
+                 "file beside the output and are read back once. The graph itself is held once, "
+                 "in place (default: no limit)");
   bool repair = false;
   AddRepairFlag(app, &repair);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
     return app.exit(e);
+  }
+  uint64_t candidate_memory_limit = 0;
+  if (!memory_limit.empty()) {
+    auto parsed = server::ParseByteSize(memory_limit, "--build-memory-limit");
+    if (!parsed.ok()) return Fail("build", parsed.status());
+    candidate_memory_limit = *parsed;
   }
   if (out_path.empty() && (graph_dir.empty() || !part.empty())) {
     return Fail("build", absl::InvalidArgumentError(
@@ -192,6 +205,9 @@ int RunBuild(int argc, char** argv) {
   options.params.prune_redundant = prune;
   options.params.exact_fans = exact_fans;
   options.progress = ProgressBar(!json && !quiet);
+  options.candidate_memory_limit = candidate_memory_limit;
+  options.spill_dir =
+      out_path.empty() ? graph_dir : std::filesystem::path(out_path).parent_path().string();
   if (!part.empty()) return BuildPart(**mesh, options, part, out_path, json);
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
@@ -236,21 +252,21 @@ int RunMerge(int argc, char** argv) {
   }
   auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("merge", mesh.status());
-  std::vector<DggCandidatePart> parts;
+  std::vector<DggPartSource> parts;
   for (const std::string& path : part_paths) {
-    auto part = ReadDggPart(path);
-    if (!part.ok()) return Fail("merge", part.status());
-    parts.push_back(*std::move(part));
+    auto index = ReadDggPartIndex(path);
+    if (!index.ok()) return Fail("merge", index.status());
+    parts.push_back({path, *std::move(index), [path] { return ReadDggPart(path); }});
   }
   // The parts carry the whole build record and the graph takes it; the
   // flags, where given, only say what the caller expects of them.
-  for (size_t i = 0; i < parts.size(); ++i) {
-    const DggParams& p = parts[i].params;
+  for (const DggPartSource& part : parts) {
+    const DggParams& p = part.index.params;
     if ((app.count("--prune") && p.prune_redundant != prune) ||
         (app.count("--exact-fans") && p.exact_fans != exact_fans)) {
       return Fail("merge", absl::FailedPreconditionError(absl::StrFormat(
-                               "%s was built with %s, which the flags given contradict",
-                               part_paths[i], DescribeParams(p))));
+                               "%s was built with %s, which the flags given contradict", part.name,
+                               DescribeParams(p))));
     }
   }
   DggBuildOptions options;
@@ -259,12 +275,7 @@ int RunMerge(int argc, char** argv) {
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
-  if (!graph.ok()) {
-    // Core names parts by their position among the files given.
-    return Fail("merge", absl::Status(graph.status().code(),
-                                      absl::StrCat(graph.status().message(), " (parts in order: ",
-                                                   absl::StrJoin(part_paths, ", "), ")")));
-  }
+  if (!graph.ok()) return Fail("merge", graph.status());
   return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json);
 }
 
