@@ -178,6 +178,14 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   return m;
 }
 
+uint64_t Mesh::memory_bytes() const {
+  auto bytes = [](const auto& v) { return uint64_t{v.capacity()} * sizeof(v[0]); };
+  return bytes(a_.positions) + bytes(a_.corners) + bytes(a_.twin) + bytes(a_.edge) +
+         bytes(a_.edge_halfedge) + bytes(a_.length) + bytes(a_.corner_angle) +
+         bytes(a_.polar_angle) + bytes(a_.vertex_halfedge) + bytes(a_.total_angle) +
+         bytes(a_.flags);
+}
+
 absl::Status Mesh::CheckConsistency() const {
   // next and prev are arithmetic on ids, so only the stored arrays can
   // disagree. Faces are walked corner by corner: no division per half-edge.

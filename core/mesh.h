@@ -124,6 +124,8 @@ class Mesh {
   // Structural consistency checks (twin of twin, next cycles, angle
   // sums); used by tests and by graph validation.
   absl::Status CheckConsistency() const;
+  // Bytes the mesh's arrays hold, for memory budgets.
+  uint64_t memory_bytes() const;
 
   // Everything a built mesh holds, for saving it and restoring it without
   // rebuilding (core/mesh_snapshot.h).

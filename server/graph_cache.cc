@@ -405,8 +405,9 @@ void GraphCache::Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e,
 
 void GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
   if (options_.memory_limit == 0) return;
+  const uint64_t outside = options_.resident_bytes_outside ? options_.resident_bytes_outside() : 0;
   while (true) {
-    uint64_t total = 0;
+    uint64_t total = outside;
     std::shared_ptr<Entry> victim;
     const GraphKey* victim_key = nullptr;
     for (auto& [key, e] : entries_) {

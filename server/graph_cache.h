@@ -113,10 +113,15 @@ class GraphMaker {
 class GraphCache {
  public:
   struct Options {
-    std::string graph_dir;      // empty: graphs are not persisted
-    uint64_t memory_limit = 0;  // bytes of ready graphs; 0: no limit
-    int build_workers = 1;      // graphs built at once
-    int build_threads = 0;      // threads per build (0: all cores)
+    std::string graph_dir;  // empty: graphs are not persisted
+    // Bytes of ready graphs, their landmarks and query scratch, and
+    // resident_bytes_outside; 0: no limit.
+    uint64_t memory_limit = 0;
+    // Memory the limit covers that the cache cannot evict (the registered
+    // meshes): ready graphs make room for it.
+    std::function<uint64_t()> resident_bytes_outside;
+    int build_workers = 1;  // graphs built at once
+    int build_threads = 0;  // threads per build (0: all cores)
     // Called whenever a graph becomes ready or stops being, outside the lock.
     std::function<void(const GraphKey&, bool ready)> on_readiness;
     // Called with a graph's file when it is mapped or written (for the

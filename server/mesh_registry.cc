@@ -7,6 +7,7 @@
 #include <map>
 #include <tuple>
 
+#include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
@@ -310,6 +311,16 @@ std::vector<std::shared_ptr<const RegisteredMesh>> MeshRegistry::List() const {
   std::vector<std::shared_ptr<const RegisteredMesh>> out;
   for (const auto& [name, m] : meshes_) out.push_back(m);
   return out;
+}
+
+uint64_t MeshRegistry::resident_bytes() const {
+  absl::MutexLock lock(&mu_);
+  absl::flat_hash_set<const Mesh*> counted;
+  uint64_t total = 0;
+  for (const auto& [name, m] : meshes_) {
+    if (counted.insert(m->mesh.get()).second) total += m->mesh->memory_bytes();
+  }
+  return total;
 }
 
 absl::Status MeshRegistry::Remove(const std::string& name) {

@@ -90,6 +90,8 @@ class MeshRegistry {
   static std::string SnapshotName(const RegisteredMesh& m);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;
   std::vector<std::shared_ptr<const RegisteredMesh>> List() const;
+  // Bytes of the registered meshes (each mesh once, however many names).
+  uint64_t resident_bytes() const;
   absl::Status Remove(const std::string& name);
 
   static absl::Status ValidateName(const std::string& name);

@@ -163,8 +163,9 @@ int RunServe(int argc, char** argv) {
                  "where graphs, and snapshots of registered meshes, are written and read back");
   app.add_option("--mesh-root", mesh_root, "RegisterMesh paths must lie under this directory");
   app.add_option("--memory-limit", memory_limit_text,
-                 "bytes of ready graphs and their query scratch to keep, e.g. 6G or 512M (0: no "
-                 "limit)");
+                 "bytes of registered meshes, ready graphs and their query scratch to keep, e.g. "
+                 "6G or 512M: least recently used graphs no query holds are evicted to stay "
+                 "within it; meshes are not (0: no limit)");
   app.add_option("--disk-limit", disk_limit_text,
                  "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
                  "snapshots no catalog entry names go first, then catalogued ones (rebuilt when "
@@ -266,9 +267,15 @@ int RunServe(int argc, char** argv) {
   std::unique_ptr<grpc::Server> server;
   grpc::HealthCheckServiceInterface* health = nullptr;
   std::mutex health_mu;
+  // Built meshes are saved beside the graphs, so a restarted daemon restores
+  // them rather than parsing and building them again; with a graph
+  // directory a registration returns once its snapshot is on disk, since
+  // the catalog then records it for restarts and replicas.
+  MeshRegistry meshes(mesh_root, graph_dir, /*durable=*/!graph_dir.empty());
   GraphCache::Options cache_options;
   cache_options.graph_dir = graph_dir;
   cache_options.memory_limit = *memory_limit;
+  cache_options.resident_bytes_outside = [&meshes] { return meshes.resident_bytes(); };
   cache_options.on_file_used = MarkFileUsed;
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;
@@ -277,11 +284,6 @@ int RunServe(int argc, char** argv) {
     if (health) health->SetServingStatus(ServiceName(key), ready);
   };
   GraphCache graphs(cache_options);
-  // Built meshes are saved beside the graphs, so a restarted daemon restores
-  // them rather than parsing and building them again; with a graph
-  // directory a registration returns once its snapshot is on disk, since
-  // the catalog then records it for restarts and replicas.
-  MeshRegistry meshes(mesh_root, graph_dir, /*durable=*/!graph_dir.empty());
   std::unique_ptr<Catalog> catalog;
   std::unique_ptr<CatalogSync> sync;
   if (!graph_dir.empty()) {
@@ -326,6 +328,9 @@ int RunServe(int argc, char** argv) {
   metrics.AddGauge("geodesicd_graph_resident_bytes",
                    "Resident bytes: graphs built in memory and landmark tables.",
                    [&] { return double(graphs.resident_bytes()); });
+  metrics.AddGauge("geodesicd_mesh_resident_bytes",
+                   "Bytes of registered meshes (counted in --memory-limit, never evicted).",
+                   [&] { return double(meshes.resident_bytes()); });
   metrics.AddGauge("geodesicd_graph_mapped_bytes", "Bytes of memory-mapped graphs.",
                    [&] { return double(graphs.mapped_bytes()); });
   metrics.AddGauge("geodesicd_builds_running", "Graph builds running.",

@@ -4,6 +4,7 @@
 
 #include <unistd.h>
 
+#include <atomic>
 #include <filesystem>
 #include <fstream>
 
@@ -111,6 +112,7 @@ class GraphCacheTest : public ::testing::Test {
     GraphCache::Options options;
     if (persist) options.graph_dir = dir_;
     options.memory_limit = memory_limit;
+    options.resident_bytes_outside = [this] { return outside_bytes_.load(); };
     options.build_threads = 1;
     options.maker = maker_;
     // The callback asks the cache that calls it (not cache_, which the test
@@ -157,6 +159,7 @@ class GraphCacheTest : public ::testing::Test {
   fs::path dir_;
   std::shared_ptr<HeldMaker> maker_;
   std::unique_ptr<GraphCache> cache_;
+  std::atomic<uint64_t> outside_bytes_{0};  // "meshes" the limit covers
   absl::Mutex notices_mu_;
   std::vector<std::string> notices_;
 };
@@ -344,6 +347,26 @@ TEST_F(GraphCacheTest, EvictionSparesHeldGraphsAndEvictedOnesComeBackFromTheirFi
   EXPECT_TRUE(WaitFor(evicted, GraphState::kReady).from_file);
   EXPECT_THAT(Notices(),
               ::testing::Contains(absl::StrCat("grid@", evicted.params.epsilon, " gone")));
+}
+
+// Meshes count against --memory-limit: graphs that fit beside no meshes are
+// evicted once the meshes take the room.
+TEST_F(GraphCacheTest, MeshBytesCountAgainstTheMemoryLimit) {
+  auto mesh = GridMesh("grid", 8);
+  GraphCache& cache = Cache(true, /*memory_limit=*/64 << 20);
+  const GraphKey a{"grid", Eps(0.05)}, b{"grid", Eps(0.1)}, c{"grid", Eps(0.2)};
+  cache.Request(mesh, a.params);
+  WaitFor(a, GraphState::kReady);
+  cache.Request(mesh, b.params);
+  WaitFor(b, GraphState::kReady);
+  EXPECT_EQ(cache.evictions(), 0u);  // two small graphs fit
+  outside_bytes_ = 64 << 20;         // the meshes now fill the limit
+  cache.Request(mesh, c.params);
+  WaitFor(c, GraphState::kReady);
+  EXPECT_EQ(cache.evictions(), 2u);  // all but the graph just made ready
+  EXPECT_EQ(cache.Get(a)->state, GraphState::kEvicted);
+  EXPECT_EQ(cache.Get(b)->state, GraphState::kEvicted);
+  EXPECT_EQ(cache.Get(c)->state, GraphState::kReady);
 }
 
 TEST_F(GraphCacheTest, AnInvalidFileIsMovedAsideAndRebuilt) {
