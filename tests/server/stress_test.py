@@ -27,6 +27,12 @@ from geodesic_client import Client  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 MESH = f"{SRC}/data/spot.obj"
+# Bytes of --memory-limit left for spot and the churning uploads of it
+# (about 0.8 MB each as built).
+MESH_ALLOWANCE = 4 << 20
+# The gauges of what --memory-limit covers.
+COUNTED = ("mesh_resident_bytes", "graph_resident_bytes", "graph_mapped_bytes",
+           "query_scratch_bytes")
 EPSILONS = (0.01, 0.02)
 SOURCES = ["v:0", "v:777", "f:100:0.2,0.3,0.5", "e:40:0.25"]
 PAIRS = [("v:1", "v:2000"), ("f:3:0.2,0.3,0.5", "v:100"), ("v:2929", "e:500:0.5"),
@@ -58,6 +64,13 @@ def offline_truth(work):
                                 pairs_file, "--json")):
             truth[("pair", eps, r["from"], r["to"])] = r["distance"]
     return truth
+
+
+def gauge(metrics_text, name):
+    for line in metrics_text.splitlines():
+        if line.startswith(name + " "):
+            return float(line.split()[-1])
+    raise AssertionError(f"{name} missing from /metrics")
 
 
 def rss_bytes(pid):
@@ -156,12 +169,14 @@ def main():
     try:
         truth = offline_truth(work)
         graph_bytes = sum(os.path.getsize(f"{work}/offline-{e}.dgg") for e in EPSILONS)
-        # Room for the two graphs of spot but not also the churning mesh's:
-        # each of its builds evicts the least recently used graph.
+        # Room for the two graphs of spot and the meshes but not also the
+        # churning mesh's graph: each of its builds evicts the least recently
+        # used graph.
+        memory_limit = int(graph_bytes * 1.1) + MESH_ALLOWANCE
         daemon, ports = start_daemon(
             BIN, work,
             ["--graph-dir", f"{work}/graphs", "--mesh-root", f"{SRC}/data", "--log-level",
-             "warning", "--memory-limit", str(int(graph_bytes * 1.1)), "--max-inflight", "6"],
+             "warning", "--memory-limit", str(memory_limit), "--max-inflight", "6"],
             stderr=open(f"{work}/daemon.log", "w"), metrics=True)
         port, metrics_port = ports["grpc"], ports["metrics"]
         client = Client(f"127.0.0.1:{port}", timeout=60)
@@ -204,6 +219,19 @@ def main():
         print(f"graphs evicted: {evictions:.0f}")
         if evictions == 0:
             print("FAIL no graph was evicted: the memory limit was not exercised")
+            ok = False
+        # What the limit covers is counted, and stays within it but for the
+        # one graph a build just made ready (never evicted at once).
+        counted = {name: gauge(metrics, f"geodesicd_{name}") for name in COUNTED}
+        print("counted bytes:", json.dumps(counted, sort_keys=True))
+        for name in ("mesh_resident_bytes", "query_scratch_bytes"):
+            if counted[name] <= 0:
+                print(f"FAIL geodesicd_{name} is {counted[name]}: not counted")
+                ok = False
+        largest_graph = max(os.path.getsize(f"{work}/offline-{e}.dgg") for e in EPSILONS)
+        if sum(counted.values()) > memory_limit + largest_graph:
+            print(f"FAIL counted memory {sum(counted.values()):.0f} exceeds the limit "
+                  f"{memory_limit} by more than one graph ({largest_graph})")
             ok = False
 
         # Memory stays flat across repeated queries on a resident graph.
