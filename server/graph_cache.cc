@@ -299,6 +299,9 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey
   DggBuildOptions options;
   options.params = key.params;
   options.threads = options_.build_threads;
+  options.candidate_memory_limit = options_.build_memory_limit;
+  options.spill_dir = options_.graph_dir.empty() ? std::filesystem::temp_directory_path().string()
+                                                 : options_.graph_dir;
   int logged_quarter = 0;
   options.progress = [&](std::string_view phase, double fraction) {
     absl::MutexLock lock(&mu_);

@@ -122,6 +122,9 @@ class GraphCache {
     std::function<uint64_t()> resident_bytes_outside;
     int build_workers = 1;  // graphs built at once
     int build_threads = 0;  // threads per build (0: all cores)
+    // Candidate edges a build keeps in memory before spilling them to an
+    // unlinked file in graph_dir (DggBuildOptions); 0: no limit.
+    uint64_t build_memory_limit = 0;
     // Called whenever a graph becomes ready or stops being, outside the lock.
     std::function<void(const GraphKey&, bool ready)> on_readiness;
     // Called with a graph's file when it is mapped or written (for the

@@ -178,6 +178,11 @@ int RunServe(int argc, char** argv) {
                  "how often to follow the graph directory's catalog (meshes and graphs other "
                  "replicas registered or unloaded), and to apply --disk-limit");
   app.add_option("--build-threads", build_threads, "threads per graph build (0: all cores)");
+  std::string build_memory_limit_text = "0";
+  app.add_option("--build-memory-limit", build_memory_limit_text,
+                 "candidate edges a build keeps in memory, e.g. 2G; beyond it they go to an "
+                 "unlinked file in --graph-dir (the system's temporary directory without one) "
+                 "(0: no limit)");
   app.add_option("--build-workers", build_workers, "graphs built at once");
   app.add_flag("--exact-fans", exact_fans,
                "build graphs with fans from exact local distances: 2-3x faster fields, longer "
@@ -226,7 +231,8 @@ int RunServe(int argc, char** argv) {
   limits.log_requests = LogEnabled(LogLevel::kInfo);
   auto memory_limit = ParseByteSize(memory_limit_text, "--memory-limit");
   auto disk_limit = ParseByteSize(disk_limit_text, "--disk-limit");
-  for (const auto* size : {&memory_limit, &disk_limit}) {
+  auto build_memory_limit = ParseByteSize(build_memory_limit_text, "--build-memory-limit");
+  for (const auto* size : {&memory_limit, &disk_limit, &build_memory_limit}) {
     if (!size->ok()) {
       std::fprintf(stderr, "geodesicd serve: %s\n", std::string(size->status().message()).c_str());
       return 2;
@@ -279,6 +285,7 @@ int RunServe(int argc, char** argv) {
   cache_options.on_file_used = MarkFileUsed;
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;
+  cache_options.build_memory_limit = *build_memory_limit;
   cache_options.on_readiness = [&](const GraphKey& key, bool ready) {
     std::lock_guard<std::mutex> lock(health_mu);
     if (health) health->SetServingStatus(ServiceName(key), ready);
