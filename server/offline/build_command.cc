@@ -81,6 +81,7 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                {"windows_per_source", double(stats.windows_created) / std::max<size_t>(n, 1)},
                {"average_fan", stats.average_fan},
                {"peak_memory_bytes", PeakMemoryBytes()},
+               {"mesh_bytes", mesh.memory_bytes()},
                {"spilled_bytes", stats.spilled_bytes},
                {"file_bytes", file_bytes}});
   } else {
