@@ -13,6 +13,7 @@
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "tbb/parallel_for.h"
+#include "tbb/task_arena.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -62,8 +63,13 @@ TEST(CandidateRunsTest, SpillsBeyondTheBudgetAndDrainsEveryListOnce) {
   };
   CandidateRuns runs(kSources, /*memory_budget=*/1, dir.path());
   std::atomic<int> failures{0};
-  tbb::parallel_for(uint32_t{0}, kSources, [&](uint32_t s) {
-    if (!runs.Add(s, list_of(s)).ok()) ++failures;
+  // Two threads, whatever the machine: the ~9.6 MB of lists must fill at least
+  // one 1 MB chunk per thread, or nothing would be sealed and spilled.
+  tbb::task_arena two_threads(2);
+  two_threads.execute([&] {
+    tbb::parallel_for(uint32_t{0}, kSources, [&](uint32_t s) {
+      if (!runs.Add(s, list_of(s)).ok()) ++failures;
+    });
   });
   ASSERT_EQ(failures, 0);
   EXPECT_GT(runs.spilled_bytes(), 0u);
