@@ -37,7 +37,14 @@ int RunInfo(int argc, char** argv) {
   if (!mesh.ok() && diagnostics.mesh_error.empty()) {
     diagnostics.mesh_error = std::string(mesh.status().message());
   }
-  std::fputs(json ? (diagnostics.ToJson() + "\n").c_str() : diagnostics.ToText().c_str(), stdout);
+  if (json) {
+    Json report = Json::parse(diagnostics.ToJson());
+    // What the mesh holds once loaded: sizes --memory-limit before any build.
+    if (mesh.ok()) report["mesh_bytes"] = mesh->memory_bytes();
+    PrintJson(report);
+  } else {
+    std::fputs(diagnostics.ToText().c_str(), stdout);
+  }
   // Scripts check the exit code: a mesh no query can use is a failure
   // (the report above says why).
   return mesh.ok() ? 0 : 3;

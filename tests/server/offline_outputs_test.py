@@ -33,8 +33,13 @@ def run(*args, expect_ok=True):
 
 with tempfile.TemporaryDirectory() as work:
     graph = os.path.join(work, "g.dgg")
-    run("build", mesh, "--eps", "1e-2", "--out", graph)
+    built = json.loads(run("build", mesh, "--eps", "1e-2", "--out", graph, "--json").stdout)
     common = ["--mesh", mesh, "--graph", graph]
+
+    # info tells what the mesh will hold in memory before anything is built.
+    info = json.loads(run("info", mesh, "--json").stdout)
+    check("info and build report the same mesh bytes",
+          info["mesh_bytes"] == built["mesh_bytes"] > info["vertices"] * 3 * 8, (info, built))
 
     # One field in every format: the same numbers.
     for ext in ("f64", "npy", "csv", "ply"):
