@@ -705,6 +705,14 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   return absl::OkStatus();
 }
 
+uint64_t ExactGeodesic::memory_bytes() const {
+  auto bytes = [](const auto& v) { return uint64_t{v.capacity()} * sizeof(v[0]); };
+  return sizeof(*this) + bytes(dist_) + bytes(via_window_) + bytes(via_vertex_) +
+         bytes(angle_src_) + bytes(angle_vtx_) + bytes(emitted_) + bytes(route_) +
+         bytes(excluded_) + bytes(touched_) + bytes(windows_) + bytes(free_windows_) +
+         heap_.memory_bytes();
+}
+
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,
                                                              const ExactOptions& options) {
   RETURN_IF_ERROR(Run(source, Mode::kFull, options.max_distance, &options.targets,

@@ -155,6 +155,10 @@ class ExactGeodesic {
   };
   absl::StatusOr<std::vector<TracePoint>> Trace(const SurfacePoint& target) const;
 
+  // What the engine holds between runs: its per-vertex state and the
+  // window and queue buffers it keeps for the next run.
+  uint64_t memory_bytes() const;
+
   const ExactStats& stats() const { return stats_; }
   const Mesh& mesh() const { return mesh_; }
 

@@ -40,7 +40,7 @@ GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
                                std::shared_ptr<const DggGraph> graph)
     : mesh_(std::move(mesh)),
       graph_(std::move(graph)),
-      scratch_(mesh_.get(), std::max<int>(2, std::thread::hardware_concurrency())) {
+      scratch_(std::max<int>(2, std::thread::hardware_concurrency())) {
   buckets_ = BucketShapeOf(*graph_);
   node_xyz_.resize(graph_->num_nodes());
   for (uint32_t u = 0; u < node_xyz_.size(); ++u) {

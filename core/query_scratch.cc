@@ -15,8 +15,11 @@ void PairTable::Reset(uint32_t nodes) {
   records_.clear();
   if (index_.size() < nodes) index_.resize(nodes, 0);
   // A query that touched a large part of the graph leaves a large vector;
-  // the next ones rarely need it.
-  if (records_.capacity() > 4 * kKeptRecords || records_.capacity() == 0) {
+  // the next ones rarely need it. Up to the index's own size (4 bytes per
+  // node) it stays: freeing and regrowing it on every long query on a large
+  // graph cost more than the search's page faults.
+  const size_t keep = std::max<size_t>(kKeptRecords, nodes * sizeof(uint32_t) / sizeof(Record));
+  if (records_.capacity() > keep || records_.capacity() == 0) {
     std::vector<Record>().swap(records_);
     records_.reserve(kKeptRecords);
   }
@@ -30,13 +33,11 @@ void QueryScratch::PrepareField(size_t nodes) {
   }
 }
 
-uint64_t QueryScratch::bytes(const Mesh& mesh) const {
+uint64_t QueryScratch::bytes() const {
   uint64_t total = sizeof(*this) + pairs.bytes();
   total += dist.capacity() * sizeof(double) + fan.capacity() * sizeof(FanRange) +
            label.capacity() * sizeof(uint32_t);
-  // The exact engine keeps about six per-vertex arrays (distances, the
-  // window and vertex each was reached by, angles, flags).
-  if (exact) total += mesh.num_vertices() * uint64_t{40};
+  if (exact) total += exact->memory_bytes();
   return total;
 }
 
@@ -55,7 +56,7 @@ ScratchPool::Lease ScratchPool::Acquire() {
 
 void ScratchPool::Release(std::unique_ptr<QueryScratch> scratch, uint64_t counted) {
   in_use_.fetch_sub(1, std::memory_order_relaxed);
-  const uint64_t size = scratch->bytes(*mesh_);
+  const uint64_t size = scratch->bytes();
   std::lock_guard<std::mutex> lock(mu_);
   uint64_t total = bytes_.load(std::memory_order_relaxed) - counted;
   if (static_cast<int>(idle_.size()) < keep_idle_) {

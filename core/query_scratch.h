@@ -110,9 +110,8 @@ struct QueryScratch {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);
     return *exact;
   }
-  // What this scratch holds (the exact engine's own buffers, which grow with
-  // the propagation, are estimated at their per-vertex size).
-  uint64_t bytes(const Mesh& mesh) const;
+  // What this scratch holds, the exact engine's buffers included.
+  uint64_t bytes() const;
 };
 
 // The scratch of one engine's queries in flight.
@@ -121,7 +120,7 @@ class ScratchPool {
   // `keep_idle`: scratches kept for later queries once released; beyond
   // them a released scratch is freed, so a burst of concurrent queries does
   // not pin its peak memory for good.
-  ScratchPool(const Mesh* mesh, int keep_idle) : mesh_(mesh), keep_idle_(keep_idle) {}
+  explicit ScratchPool(int keep_idle) : keep_idle_(keep_idle) {}
 
   class Lease {
    public:
@@ -156,7 +155,6 @@ class ScratchPool {
   };
   void Release(std::unique_ptr<QueryScratch> scratch, uint64_t counted);
 
-  const Mesh* mesh_;
   const int keep_idle_;
   // std::mutex, not absl::Mutex: Debian's Abseil is not built for
   // ThreadSanitizer, which then cannot see its locking, and every query

@@ -29,6 +29,11 @@ class RadixHeap {
  public:
   bool empty() const { return size_ == 0; }
   size_t size() const { return size_; }
+  uint64_t memory_bytes() const {
+    uint64_t total = 0;
+    for (const auto& bucket : buckets_) total += bucket.capacity() * sizeof(Entry);
+    return total;
+  }
 
   void Clear() {
     for (auto& bucket : buckets_) bucket.clear();

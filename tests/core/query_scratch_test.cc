@@ -50,8 +50,7 @@ TEST(PairTableTest, RecordsSurviveGrowthAndResetForgetsThem) {
 }
 
 TEST(ScratchPoolTest, LeasesAreDistinctAndIdleOnesAreKeptUpToTheLimit) {
-  const Mesh mesh = testing::PlanarGrid(4, 4, 1.0);
-  ScratchPool pool(&mesh, 1);
+  ScratchPool pool(1);
   {
     ScratchPool::Lease a = pool.Acquire();
     ScratchPool::Lease b = pool.Acquire();
@@ -84,6 +83,12 @@ TEST(ScratchPoolTest, EngineScratchIsCountedAndPairsStaySmall) {
   // No field arrays: 4 bytes per node and the records a query touches.
   EXPECT_LT(pairs_only.scratch_bytes(), mesh->num_vertices() * 4u + 300 * 1024u);
   EXPECT_GT(pairs_only.scratch_bytes(), 0u);
+  // A face point joins the graph by exact propagation: the engine's
+  // per-vertex state (distances, angles, provenance: over 40 bytes a vertex)
+  // is counted as it is, not estimated.
+  const SurfacePoint inside = SurfacePoint::Face(100, 0.2, 0.3, 0.5);
+  ASSERT_OK(pairs_only.Distance(inside, SurfacePoint::Vertex(300), {}));
+  EXPECT_GE(pairs_only.scratch_bytes(), mesh->num_vertices() * 40u);
   GeodesicEngine fields(mesh, *graph);
   const SurfacePoint source = SurfacePoint::Vertex(7);
   ASSERT_OK(fields.Field(absl::MakeConstSpan(&source, 1), {}));
