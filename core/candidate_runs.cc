@@ -56,7 +56,7 @@ absl::Status CandidateRuns::Add(uint32_t source, std::span<const DggHalfEdge> ed
   std::byte* at = chunk->bytes.data() + chunk->used;
   const RecordHeader header{source, static_cast<uint32_t>(edges.size())};
   std::memcpy(at, &header, sizeof(header));
-  std::memcpy(at + sizeof(header), edges.data(), edges.size_bytes());
+  if (!edges.empty()) std::memcpy(at + sizeof(header), edges.data(), edges.size_bytes());
   chunk->used += bytes;
   return absl::OkStatus();
 }

@@ -117,8 +117,10 @@ struct Adjacency {
   void Grow(std::vector<uint64_t> grown) {
     edges.resize(grown.back());
     for (uint32_t u = rows(); u-- > 0;) {
+      const uint64_t count = offsets[u + 1] - offsets[u];
+      if (count == 0) continue;  // and an empty array has no data() to move
       std::memmove(static_cast<void*>(edges.data() + grown[u]), edges.data() + offsets[u],
-                   (offsets[u + 1] - offsets[u]) * sizeof(DggHalfEdge));
+                   count * sizeof(DggHalfEdge));
     }
     offsets = std::move(grown);
   }

@@ -79,7 +79,9 @@ TEST(CandidateRunsTest, SpillsBeyondTheBudgetAndDrainsEveryListOnce) {
     ++seen[s];
     const auto want = list_of(s);
     ASSERT_EQ(edges.size(), want.size()) << s;
-    EXPECT_EQ(std::memcmp(edges.data(), want.data(), edges.size_bytes()), 0) << s;
+    if (!want.empty()) {
+      EXPECT_EQ(std::memcmp(edges.data(), want.data(), edges.size_bytes()), 0) << s;
+    }
   }));
   EXPECT_EQ(seen.size(), kSources);
   for (const auto& [s, times] : seen) EXPECT_EQ(times, 1) << s;
