@@ -45,6 +45,12 @@ uint32_t Farthest(const std::vector<double>& key) {
 
 }  // namespace
 
+uint64_t Landmarks::ComputeBytes(const DggGraph& graph, int count) {
+  const uint64_t per_node = uint64_t(std::max(count, 0)) * sizeof(float) +
+                            2 * sizeof(double) /* nearest, dist */ + sizeof(FanRange);
+  return graph.num_nodes() * per_node;
+}
+
 absl::StatusOr<std::unique_ptr<const Landmarks>> Landmarks::Compute(
     const DggGraph& graph, int count, const std::function<bool()>& cancelled) {
   if (count <= 0) return absl::InvalidArgumentError("landmark count must be positive");

@@ -41,6 +41,9 @@ class Landmarks {
     return {distance_.data() + static_cast<size_t>(node) * count_, static_cast<size_t>(count_)};
   }
   uint64_t byte_size() const { return distance_.size() * sizeof(float); }
+  // What Compute holds while it runs: the distances it keeps and the
+  // per-node arrays of its searches, for counting them before they exist.
+  static uint64_t ComputeBytes(const DggGraph& graph, int count);
 
  private:
   int count_ = 0;

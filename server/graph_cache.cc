@@ -5,6 +5,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "core/landmarks.h"
 #include "server/log.h"
 
 namespace geodesic::server {
@@ -258,11 +259,21 @@ void GraphCache::Run(const GraphKey& key) {
   if (!engine) return;
   // Landmarks cut the nodes a point-to-point query settles several times;
   // queries that arrive before they are ready use straight-line bounds.
-  absl::Status landmarks =
-      engine->PrepareLandmarks(engine->DefaultLandmarkCount(), [e] { return e->cancel.load(); });
+  const int landmark_count = engine->DefaultLandmarkCount();
   Notices notices;
   {
     absl::MutexLock lock(&mu_);
+    if (!Current(key, *e) || e->engine != engine) return;
+    e->landmarks_pending = Landmarks::ComputeBytes(engine->graph(), landmark_count);
+    EvictOverBudget(key, notices);
+  }
+  Announce(notices);
+  notices.clear();
+  absl::Status landmarks =
+      engine->PrepareLandmarks(landmark_count, [e] { return e->cancel.load(); });
+  {
+    absl::MutexLock lock(&mu_);
+    e->landmarks_pending = 0;
     if (!landmarks.ok() || !Current(key, *e) || e->engine != engine) return;
     e->status.landmark_bytes = engine->landmark_bytes();
     ++e->status.version;
@@ -415,7 +426,8 @@ void GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
     const GraphKey* victim_key = nullptr;
     for (auto& [key, e] : entries_) {
       if (e->status.state != GraphState::kReady) continue;
-      total += e->status.bytes + e->status.landmark_bytes + e->engine->scratch_bytes();
+      total += e->status.bytes + e->status.landmark_bytes + e->landmarks_pending +
+               e->engine->scratch_bytes();
       // Only graphs no query holds; never the one just made ready.
       if (key == keep || e->engine.use_count() > 1) continue;
       if (!victim || e->last_used < victim->last_used) {
@@ -547,7 +559,8 @@ uint64_t GraphCache::resident_bytes() const {
   uint64_t total = 0;
   for (const auto& [key, e] : entries_) {
     if (e->status.state != GraphState::kReady) continue;
-    total += e->status.landmark_bytes + (e->status.mapped ? 0 : e->status.bytes);
+    total +=
+        e->status.landmark_bytes + e->landmarks_pending + (e->status.mapped ? 0 : e->status.bytes);
   }
   return total;
 }

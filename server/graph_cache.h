@@ -178,6 +178,9 @@ class GraphCache {
     std::string path;  // in --graph-dir, or empty
     std::atomic<bool> cancel{false};
     absl::Time last_used;
+    // Landmarks being computed, counted from the start: on a large graph
+    // they fill in for minutes, and other graphs make room for them first.
+    uint64_t landmarks_pending = 0;
   };
   // A readiness change to announce once the lock is released.
   struct Notice {
