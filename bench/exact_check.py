@@ -24,16 +24,9 @@ import time
 
 import numpy as np
 
+from truth_meshes import DEFAULT_MESHES, mesh_path
+
 HERE = os.path.dirname(os.path.abspath(__file__))
-DEFAULT_MESHES = "eight,spot,blade_aniso,camelhead,fertility,bunny,armadillo,igea"
-
-
-def mesh_path(shared, name):
-    for ext in (".off", ".obj", ".ply"):
-        p = os.path.join(shared, "meshes", name + ext)
-        if os.path.exists(p):
-            return p
-    raise SystemExit(f"no mesh {name} in {shared}/meshes")
 
 
 def positions(bin_dir, mesh, work):
