@@ -2,8 +2,9 @@
 """Offline checks of the deployment files (no kubectl, docker or hadolint here):
 every Kubernetes YAML document parses and has what its kind needs, the
 kustomizations list files that exist, probes are native gRPC probes on the
-serving port, the Dockerfile is multi-stage with a non-root user and a health
-check, and the nginx configuration routes by the mesh header.
+serving port, HTTP is served and exposed where it is listened on, the Dockerfile
+is multi-stage with a non-root user, a health check and the viewer's files and
+three.js, and the nginx configuration routes by the mesh header.
 
 Usage: manifests_test.py SOURCE_DIR
 """
@@ -40,6 +41,9 @@ def check_pod_spec(where, spec, serving_port=None):
             args = " ".join(c.get("args", []))
             m = re.search(r"--listen=\S+:(\d+)", args)
             need(m and int(m.group(1)) == serving_port, f"{name}: --listen is not the probed port")
+            m = re.search(r"--http-listen=\S+:(\d+)", args)
+            need(m and ports.get("http") == int(m.group(1)),
+                 f"{name}: no container port named http for --http-listen")
     sc = spec.get("securityContext", {})
     need(sc.get("runAsNonRoot") is True, f"{where}: pods must run as non-root")
 
@@ -70,6 +74,8 @@ def check_document(path, doc):
                  f"{where}: an Indexed Job must pass its index to --part")
     elif kind == "Service":
         need(spec.get("ports"), f"{where}: no ports")
+        targets = {p.get("targetPort") for p in spec.get("ports", [])}
+        need({"grpc", "http"} <= targets, f"{where}: does not expose both grpc and http")
     elif kind == "PodDisruptionBudget":
         need("maxUnavailable" in spec or "minAvailable" in spec, f"{where}: no budget")
     elif kind not in ("ConfigMap", "PersistentVolumeClaim"):
@@ -102,6 +108,18 @@ def main():
     need(re.search(r"^VOLUME\s.*graphs", docker, re.M), "Dockerfile: the graph directory is not a volume")
     need(not re.search(r"apt-get install(?!.*--no-install-recommends)", docker),
          "Dockerfile: apt-get install without --no-install-recommends")
+    # The viewer needs its files (the installed layout) and Debian's three.js.
+    http = re.search(r'"--http-listen",\s*"\S+:(\d+)"', docker)
+    need(http, "Dockerfile: the entrypoint does not serve HTTP (--http-listen)")
+    if http:
+        exposed = re.search(r"^EXPOSE\s+(.*)$", docker, re.M)
+        need(exposed and http.group(1) in exposed.group(1).split(),
+             f"Dockerfile: HTTP port {http.group(1)} is not exposed")
+    runtime = docker[docker.rfind("\nFROM"):]
+    need("libjs-three" in runtime, "Dockerfile: the runtime stage lacks libjs-three")
+    need(re.search(r"cmake --install build --prefix (\S+)", docker) and
+         re.search(r"^COPY --from=build /opt/geodesicd/? /usr/local/?$", runtime, re.M),
+         "Dockerfile: the runtime does not copy the installed layout into /usr/local")
 
     nginx = open(os.path.join(DEPLOY, "nginx", "geodesicd.conf")).read()
     need("hash $http_x_geodesic_mesh consistent" in nginx, "nginx: not hashing the mesh header")
