@@ -34,6 +34,9 @@ struct Common {
   std::string server = "127.0.0.1:50051";
   std::string mesh = "spot";
   double epsilon = 0;
+  // The graph with pseudo vertices rather than the plain one of --eps: a
+  // separate graph, for graph requests and queries alike.
+  bool pseudo_vertices = false;
   bool json = false;
   double timeout = 600;
   // Security: TLS when a CA is given; a client certificate for mutual TLS;
@@ -253,7 +256,8 @@ Json GraphJson(const v1::Graph& g) {
           {"nodes", g.nodes()},
           {"edges", g.edges()},
           {"build_seconds", g.build_seconds()},
-          {"landmark_bytes", g.landmark_bytes()}};
+          {"landmark_bytes", g.landmark_bytes()},
+          {"pseudo_vertices", g.pseudo_vertices()}};
 }
 
 int CmdMeshes(const Common& c) {
@@ -356,7 +360,7 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
   return 0;
 }
 
-int CmdGraph(const Common& c, bool wait, bool pseudo, bool cancel) {
+int CmdGraph(const Common& c, bool wait, bool cancel) {
   auto stub = Connect(c);
   v1::Graph g;
   {
@@ -367,12 +371,13 @@ int CmdGraph(const Common& c, bool wait, bool pseudo, bool cancel) {
       v1::CancelGraphRequest req;
       req.set_mesh(c.mesh);
       req.set_epsilon(c.epsilon);
+      req.set_pseudo_vertices(c.pseudo_vertices);
       s = stub->CancelGraph(&ctx, req, &g);
     } else {
       v1::RequestGraphRequest req;
       req.set_mesh(c.mesh);
       req.set_epsilon(c.epsilon);
-      req.set_pseudo_vertices(pseudo);
+      req.set_pseudo_vertices(c.pseudo_vertices);
       s = stub->RequestGraph(&ctx, req, &g);
     }
     if (!s.ok()) return Fail(s);
@@ -383,6 +388,7 @@ int CmdGraph(const Common& c, bool wait, bool pseudo, bool cancel) {
     v1::GetGraphRequest req;
     req.set_mesh(c.mesh);
     req.set_epsilon(g.epsilon());
+    req.set_pseudo_vertices(g.pseudo_vertices());
     auto reader = stub->WatchGraph(&ctx, req);
     const bool bar = !c.json && isatty(STDERR_FILENO);
     while (reader->Read(&g)) {
@@ -400,10 +406,10 @@ int CmdGraph(const Common& c, bool wait, bool pseudo, bool cancel) {
   if (c.json) {
     PrintJson(GraphJson(g));
   } else {
-    std::printf("graph %s at eps %g: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
-                g.mesh().c_str(), g.epsilon(), StateName(g.state()), g.error().empty() ? "" : ": ",
-                g.error().c_str(), g.nodes(), g.edges(), g.bytes(),
-                g.from_file() ? ", mapped from the graph directory" : "");
+    std::printf("graph %s at eps %g%s: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
+                g.mesh().c_str(), g.epsilon(), g.pseudo_vertices() ? " with pseudo vertices" : "",
+                StateName(g.state()), g.error().empty() ? "" : ": ", g.error().c_str(), g.nodes(),
+                g.edges(), g.bytes(), g.from_file() ? ", mapped from the graph directory" : "");
   }
   return g.state() == v1::GRAPH_STATE_FAILED ? 1 : 0;
 }
@@ -421,9 +427,9 @@ int CmdStatus(const Common& c) {
     if (c.json) {
       list.push_back(GraphJson(g));
     } else {
-      std::printf("%-16s eps %-8g %-10s %5.1f%% %12lu bytes %s%s\n", g.mesh().c_str(), g.epsilon(),
-                  StateName(g.state()), 100 * g.progress(), g.bytes(),
-                  g.mapped() ? "mapped" : "resident",
+      std::printf("%-16s eps %-8g %-7s %-10s %5.1f%% %12lu bytes %s%s\n", g.mesh().c_str(),
+                  g.epsilon(), g.pseudo_vertices() ? "pseudo" : "", StateName(g.state()),
+                  100 * g.progress(), g.bytes(), g.mapped() ? "mapped" : "resident",
                   g.error().empty() ? "" : (" " + g.error()).c_str());
     }
   }
@@ -459,6 +465,7 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
   v1::DistanceFieldRequest req;
   req.set_mesh(c.mesh);
   req.set_epsilon(c.epsilon);
+  req.set_pseudo_vertices(c.pseudo_vertices);
   req.set_max_distance(radius);
   req.set_method(method);
   req.set_float32(f32);
@@ -538,6 +545,7 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   v1::DistanceRequest req;
   req.set_mesh(c.mesh);
   req.set_epsilon(c.epsilon);
+  req.set_pseudo_vertices(c.pseudo_vertices);
   req.set_with_path(with_path);
   for (size_t i = 0; i + 1 < points.size(); i += 2) {
     auto* p = req.add_pairs();
@@ -592,8 +600,8 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   if (c.json) {
     PrintJson(results);
   } else {
-    std::printf("(%d pairs in %.2f ms, eps %g)\n", resp.results_size(), 1e3 * seconds,
-                resp.echo().epsilon());
+    std::printf("(%d pairs in %.2f ms, eps %g%s)\n", resp.results_size(), 1e3 * seconds,
+                resp.echo().epsilon(), resp.echo().pseudo_vertices() ? ", pseudo vertices" : "");
   }
   return 0;
 }
@@ -608,6 +616,7 @@ int CmdMatrix(const Common& c, const std::vector<std::string>& sources,
   v1::MatrixRequest req;
   req.set_mesh(c.mesh);
   req.set_epsilon(c.epsilon);
+  req.set_pseudo_vertices(c.pseudo_vertices);
   for (auto& p : s_points) *req.add_sources() = p;
   for (auto& p : t_points) *req.add_targets() = p;
   grpc::ClientContext ctx;
@@ -641,6 +650,7 @@ int CmdSample(const Common& c, uint32_t count, uint64_t seed) {
   v1::SamplePointsRequest req;
   req.set_mesh(c.mesh);
   req.set_epsilon(c.epsilon);
+  req.set_pseudo_vertices(c.pseudo_vertices);
   req.set_count(count);
   req.set_seed(seed);
   v1::SamplePointsResponse resp;
@@ -732,6 +742,7 @@ int CmdBench(const Common& c, int concurrency, double duration, int count, uint3
         v1::DistanceRequest req;
         req.set_mesh(c.mesh);
         req.set_epsilon(c.epsilon);
+        req.set_pseudo_vertices(c.pseudo_vertices);
         req.set_with_path(with_path);
         auto* p = req.add_pairs();
         pick(p->mutable_from());
@@ -796,6 +807,10 @@ int main(int argc, char** argv) {
       app.add_option("--mesh", c.mesh, "mesh name ('load' defaults to the file's stem)")
           ->capture_default_str();
   app.add_option("--eps", c.epsilon, "graph accuracy (0: the server's default)");
+  constexpr const char* kPseudoHelp =
+      "the graph with pseudo vertices (anisotropic meshes), a separate graph from the plain one "
+      "of --eps";
+  app.add_flag("--pseudo-vertices", c.pseudo_vertices, kPseudoHelp);
   app.add_flag("--json", c.json, "machine-readable output");
   app.add_option("--timeout", c.timeout, "deadline per call, seconds");
   app.add_option("--tls-ca", c.tls_ca, "PEM CA certificate of the server: connect with TLS")
@@ -821,9 +836,8 @@ int main(int argc, char** argv) {
                      "unregister --mesh and drop its graphs (here and, through the "
                      "shared catalog, on every replica)");
   auto* graph = app.add_subcommand("graph", "request the graph of --mesh at --eps");
-  bool wait = false, pseudo = false, cancel = false;
+  bool wait = false, cancel = false;
   graph->add_flag("--wait", wait, "wait for it, with a progress bar");
-  graph->add_flag("--pseudo-vertices", pseudo, "build with pseudo vertices (anisotropic meshes)");
   graph->add_flag("--cancel", cancel, "cancel its build");
   app.add_subcommand("status", "list graphs and their state");
   auto* field = app.add_subcommand("field", "distance field");
@@ -880,6 +894,11 @@ int main(int argc, char** argv) {
   bench->add_flag("--face-points", face_points,
                   "random points inside faces (each end then joined to the graph by its own "
                   "exact direct geodesics) instead of random vertices");
+  // Also accepted after the subcommand, where `graph --pseudo-vertices` has
+  // always been.
+  for (CLI::App* sub : {graph, field, distance, path, matrix, sample, bench}) {
+    sub->add_flag("--pseudo-vertices", c.pseudo_vertices, kPseudoHelp);
+  }
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {
@@ -895,7 +914,7 @@ int main(int argc, char** argv) {
     return CmdLoad(c, load_path, upload, repair);
   }
   if (app.got_subcommand("unload")) return CmdUnload(c);
-  if (app.got_subcommand("graph")) return CmdGraph(c, wait, pseudo, cancel);
+  if (app.got_subcommand("graph")) return CmdGraph(c, wait, cancel);
   if (app.got_subcommand("status")) return CmdStatus(c);
   if (app.got_subcommand("field"))
     return CmdField(c, sources, out, labels_out, radius, method, f32, mesh_file);

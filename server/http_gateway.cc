@@ -182,6 +182,51 @@ grpc::Status BoolField(const json& body, const char* key, bool* out) {
   return grpc::Status::OK;
 }
 
+// Which graph a query asks: "eps" (0: the server's default) and
+// "pseudo_vertices" (the graph with pseudo vertices, a separate graph).
+struct GraphChoice {
+  double epsilon = 0;
+  bool pseudo_vertices = false;
+};
+
+grpc::Status BodyGraph(const json& body, GraphChoice* out) {
+  if (grpc::Status s = BodyEpsilon(body, &out->epsilon); !s.ok()) return s;
+  return BoolField(body, "pseudo_vertices", &out->pseudo_vertices);
+}
+
+// A request for `mesh` on the graph the body chooses.
+template <typename Request>
+grpc::Status ForGraphOf(const std::string& mesh, const json& body, Request* req) {
+  GraphChoice graph;
+  if (grpc::Status s = BodyGraph(body, &graph); !s.ok()) return s;
+  req->set_mesh(mesh);
+  req->set_epsilon(graph.epsilon);
+  req->set_pseudo_vertices(graph.pseudo_vertices);
+  return grpc::Status::OK;
+}
+
+// The same from the query string: ?eps=E&pseudo_vertices=true.
+grpc::Status QueryGraph(const httplib::Request& req, GraphChoice* out) {
+  if (grpc::Status s = QueryEpsilon(req, &out->epsilon); !s.ok()) return s;
+  out->pseudo_vertices = false;
+  if (!req.has_param("pseudo_vertices")) return grpc::Status::OK;
+  const std::string text = req.get_param_value("pseudo_vertices");
+  if (text == "true" || text == "1") {
+    out->pseudo_vertices = true;
+  } else if (text != "false" && text != "0") {
+    return Invalid(
+        absl::StrFormat("query parameter pseudo_vertices=%s: expected true or false", text));
+  }
+  return grpc::Status::OK;
+}
+
+// What every query's answer says about the graph that gave it.
+void AddEcho(const v1::QueryEcho& echo, json* out) {
+  (*out)["eps"] = echo.epsilon();
+  (*out)["method"] = echo.method();
+  (*out)["pseudo_vertices"] = echo.pseudo_vertices();
+}
+
 grpc::Status ArrayField(const json& body, const char* key, const json** out) {
   auto it = body.find(key);
   if (it == body.end() || !it->is_array()) {
@@ -222,7 +267,8 @@ json GraphJson(const v1::Graph& g) {
           {"nodes", g.nodes()},
           {"edges", g.edges()},
           {"build_seconds", g.build_seconds()},
-          {"last_used_unix_ms", g.last_used_unix_ms()}};
+          {"last_used_unix_ms", g.last_used_unix_ms()},
+          {"pseudo_vertices", g.pseudo_vertices()}};
 }
 
 json MeshJson(const v1::Mesh& m) {
@@ -371,13 +417,7 @@ struct HttpGateway::Impl {
   grpc::Status RequestGraph(const Call& call, const std::string& mesh, const json& body,
                             json* out) {
     v1::RequestGraphRequest req;
-    req.set_mesh(mesh);
-    double eps;
-    bool pseudo;
-    if (grpc::Status s = BodyEpsilon(body, &eps); !s.ok()) return s;
-    if (grpc::Status s = BoolField(body, "pseudo_vertices", &pseudo); !s.ok()) return s;
-    req.set_epsilon(eps);
-    req.set_pseudo_vertices(pseudo);
+    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     v1::Graph g;
     grpc::Status s = stub->RequestGraph(call.Context().get(), req, &g);
     if (s.ok()) *out = GraphJson(g);
@@ -386,19 +426,21 @@ struct HttpGateway::Impl {
 
   grpc::Status GetGraph(const Call& call, const std::string& mesh, const httplib::Request& http,
                         bool cancel, json* out) {
-    double eps;
-    if (grpc::Status s = QueryEpsilon(http, &eps); !s.ok()) return s;
+    GraphChoice graph;
+    if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
     v1::Graph g;
     grpc::Status s;
     if (cancel) {
       v1::CancelGraphRequest req;
       req.set_mesh(mesh);
-      req.set_epsilon(eps);
+      req.set_epsilon(graph.epsilon);
+      req.set_pseudo_vertices(graph.pseudo_vertices);
       s = stub->CancelGraph(call.Context().get(), req, &g);
     } else {
       v1::GetGraphRequest req;
       req.set_mesh(mesh);
-      req.set_epsilon(eps);
+      req.set_epsilon(graph.epsilon);
+      req.set_pseudo_vertices(graph.pseudo_vertices);
       s = stub->GetGraph(call.Context().get(), req, &g);
     }
     if (s.ok()) *out = GraphJson(g);
@@ -417,12 +459,9 @@ struct HttpGateway::Impl {
 
   grpc::Status Distance(const Call& call, const std::string& mesh, const json& body, json* out) {
     v1::DistanceRequest req;
-    req.set_mesh(mesh);
-    double eps;
     bool with_path;
-    if (grpc::Status s = BodyEpsilon(body, &eps); !s.ok()) return s;
+    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     if (grpc::Status s = BoolField(body, "path", &with_path); !s.ok()) return s;
-    req.set_epsilon(eps);
     req.set_with_path(with_path);
     const json* pairs;
     if (grpc::Status s = ArrayField(body, "pairs", &pairs); !s.ok()) return s;
@@ -456,21 +495,17 @@ struct HttpGateway::Impl {
       }
       paths.push_back(std::move(path));
     }
-    *out = {{"distances", std::move(distances)},
-            {"eps", resp.echo().epsilon()},
-            {"method", resp.echo().method()}};
+    *out = {{"distances", std::move(distances)}};
+    AddEcho(resp.echo(), out);
     if (with_path) (*out)["paths"] = std::move(paths);
     return s;
   }
 
   grpc::Status Field(const Call& call, const std::string& mesh, const json& body, json* out) {
     v1::DistanceFieldRequest req;
-    req.set_mesh(mesh);
-    double eps;
     bool nearest;
-    if (grpc::Status s = BodyEpsilon(body, &eps); !s.ok()) return s;
+    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     if (grpc::Status s = BoolField(body, "nearest_source", &nearest); !s.ok()) return s;
-    req.set_epsilon(eps);
     req.set_nearest_source(nearest);
     if (auto it = body.find("max_distance"); it != body.end() && !it->is_null()) {
       if (!it->is_number()) return Invalid("\"max_distance\" must be a number");
@@ -515,18 +550,15 @@ struct HttpGateway::Impl {
     if (!s.ok()) return s;
     json distances = json::array();
     for (double d : values) distances.push_back(JsonDistance(d));
-    *out = {
-        {"distances", std::move(distances)}, {"eps", echo.epsilon()}, {"method", echo.method()}};
+    *out = {{"distances", std::move(distances)}};
+    AddEcho(echo, out);
     if (nearest) (*out)["nearest_source"] = nearest_source;
     return s;
   }
 
   grpc::Status Matrix(const Call& call, const std::string& mesh, const json& body, json* out) {
     v1::MatrixRequest req;
-    req.set_mesh(mesh);
-    double eps;
-    if (grpc::Status s = BodyEpsilon(body, &eps); !s.ok()) return s;
-    req.set_epsilon(eps);
+    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     std::vector<v1::SurfacePoint> sources, targets;
     if (grpc::Status s = Specs(call, mesh, body, "sources", "source", &sources); !s.ok()) return s;
     if (grpc::Status s = Specs(call, mesh, body, "targets", "target", &targets); !s.ok()) return s;
@@ -547,9 +579,30 @@ struct HttpGateway::Impl {
       }
       rows.push_back(std::move(row));
     }
-    *out = {{"distances", std::move(rows)},
-            {"eps", resp.echo().epsilon()},
-            {"method", resp.echo().method()}};
+    *out = {{"distances", std::move(rows)}};
+    AddEcho(resp.echo(), out);
+    return s;
+  }
+
+  grpc::Status Sample(const Call& call, const std::string& mesh, const json& body, json* out) {
+    v1::SamplePointsRequest req;
+    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
+    auto count = body.find("count");
+    if (count == body.end() || !count->is_number_unsigned() ||
+        count->get<uint64_t>() > UINT32_MAX) {
+      return Invalid("\"count\" must be a number of points, at least 1");
+    }
+    req.set_count(count->get<uint32_t>());
+    if (auto seed = body.find("seed"); seed != body.end() && !seed->is_null()) {
+      if (!seed->is_number_unsigned()) return Invalid("\"seed\" must be a non-negative integer");
+      req.set_seed(seed->get<uint64_t>());
+    }
+    v1::SamplePointsResponse resp;
+    grpc::Status s = stub->SamplePoints(call.Context().get(), req, &resp);
+    if (!s.ok()) return s;
+    *out = {{"vertices", resp.vertices()},
+            {"covering_radius", JsonDistance(resp.covering_radius())}};
+    AddEcho(resp.echo(), out);
     return s;
   }
 
@@ -776,6 +829,7 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
       {R"(/v1/meshes/([^/]+)/field)", &Impl::Field},
       {R"(/v1/meshes/([^/]+)/matrix)", &Impl::Matrix},
       {R"(/v1/meshes/([^/]+)/snap)", &Impl::Snap},
+      {R"(/v1/meshes/([^/]+)/sample)", &Impl::Sample},
   };
   for (const auto& [pattern, handler] : posts) {
     http.Post(pattern, [g, handler = handler](const httplib::Request& req, httplib::Response& res) {

@@ -49,6 +49,22 @@ cli --eps 0.01 field --source v:7 --out "$work/f_daemon.f64" >/dev/null
 check "streamed field equals the offline field" cmp -s "$work/f_daemon.f64" "$work/f_offline.f64"
 plen=$(cli --json --eps 0.01 path --from v:1 --to v:2500 | json 'len(d[0]["path"])')
 check "path has points ($plen)" test "$plen" -gt 2
+# The graph with pseudo vertices is its own graph: --wait watches it (not the
+# plain one of the same eps), status tells the two apart, and its queries
+# equal the offline ones on its file.
+state=$(cli --json --eps 0.01 graph --pseudo-vertices --wait | json 'd["state"], d["pseudo_vertices"]')
+check "pseudo-vertex graph builds to ready, watched as itself" test "$state" = "ready True"
+check "status lists the pseudo-vertex graph beside the plain one" \
+  test "$(cli --json status | json 'sorted(g["pseudo_vertices"] for g in d if g["epsilon"] == 0.01)')" = "[False, True]"
+pgraph=$(ls "$work"/graphs/*eps0.01-pseudo-r*.dgg)
+cli --eps 0.01 field --pseudo-vertices --source v:7 --out "$work/pf_daemon.f64" >/dev/null
+"$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$pgraph" --source v:7 --out "$work/pf_offline.f64" >/dev/null
+check "pseudo-vertex field equals the offline one" cmp -s "$work/pf_daemon.f64" "$work/pf_offline.f64"
+check "and differs from the plain graph's field" bash -c "! cmp -s '$work/pf_daemon.f64' '$work/f_daemon.f64'"
+pd=$(cli --json --eps 0.01 --pseudo-vertices distance --from f:10:0.2,0.3,0.5 --to v:2000 | json 'd[0]["distance"]')
+poff=$("$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$pgraph" \
+  --from f:10:0.2,0.3,0.5 --to v:2000 --json | json 'd["distance"]')
+check "pseudo-vertex distance equals the offline one ($pd)" test "$pd" = "$poff"
 # A non-manifold upload (a bow tie: two triangles sharing only a vertex) is
 # refused naming the vertex, and registered with repair, the copy listed.
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n' > "$work/bowtie.obj"

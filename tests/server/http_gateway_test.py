@@ -113,6 +113,71 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200)
         self.assertEqual((len(geo["positions"]), len(geo["faces"])), (3 * 2930, 3 * 5856))
 
+    def graph_when_done(self, query):
+        """GET .../graph?QUERY until the graph is no longer queued or building."""
+        deadline = time.time() + 120
+        while True:
+            status, graph = curl(f"{self.base}/v1/meshes/spot/graph?{query}")
+            if status != 200 or graph["state"] not in ("QUEUED", "BUILDING", "LOADING"):
+                return status, graph
+            if time.time() > deadline:
+                self.fail(f"graph {query} still {graph['state']} after 120 s")
+            time.sleep(0.1)
+
+    def test_pseudo_vertex_graph_over_http_equals_grpc(self):
+        # The graph with pseudo vertices is its own graph: requested, watched and
+        # queried by pseudo_vertices, never confused with the plain one of the same eps.
+        status, graph = self.post("graph", {"eps": EPS, "pseudo_vertices": True})
+        self.assertEqual(status, 200, graph)
+        self.assertTrue(graph["pseudo_vertices"])
+        status, graph = self.graph_when_done(f"eps={EPS}&pseudo_vertices=true")
+        self.assertEqual((status, graph["state"]), (200, "READY"), graph)
+        self.assertTrue(graph["pseudo_vertices"])
+        self.assertGreater(graph["nodes"], 2930)
+        status, plain = curl(f"{self.base}/v1/meshes/spot/graph?eps={EPS}&pseudo_vertices=false")
+        self.assertEqual((status, plain["nodes"], plain["pseudo_vertices"]), (200, 2930, False))
+        status, body = curl(f"{self.base}/v1/meshes/spot/graph?eps={EPS}&pseudo_vertices=yes")
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn("pseudo_vertices=yes", body["error"]["message"])
+
+        pairs = [["v:0", "v:1500"], ["f:0:0.2,0.3,0.5", "e:10:0.25"]]
+        a, b = [p for p, _ in pairs], [q for _, q in pairs]
+        status, body = self.post("distance", {"pairs": pairs, "eps": EPS, "pseudo_vertices": True})
+        self.assertEqual(status, 200, body)
+        self.assertTrue(body["pseudo_vertices"])
+        self.assertEqual(body["distances"],
+                         list(self.client.distances("spot", a, b, epsilon=EPS, pseudo_vertices=True)))
+        status, plain = self.post("distance", {"pairs": pairs, "eps": EPS})
+        self.assertFalse(plain["pseudo_vertices"])
+        self.assertEqual(plain["distances"], list(self.client.distances("spot", a, b, epsilon=EPS)))
+
+        status, body = self.post("field", {"sources": ["v:3"], "eps": EPS, "pseudo_vertices": True})
+        self.assertEqual(status, 200, body)
+        self.assertTrue(body["pseudo_vertices"])
+        self.assertEqual(body["distances"], inf_to_none(
+            self.client.field("spot", ["v:3"], epsilon=EPS, pseudo_vertices=True)))
+        status, body = self.post("matrix", {"sources": a, "targets": b, "eps": EPS,
+                                            "pseudo_vertices": True})
+        self.assertEqual(status, 200, body)
+        self.assertTrue(body["pseudo_vertices"])
+        self.assertEqual(body["distances"], self.client.matrix(
+            "spot", a, b, epsilon=EPS, pseudo_vertices=True).tolist())
+
+    def test_sample_equals_grpc(self):
+        status, body = self.post("sample", {"count": 5, "seed": 3, "eps": EPS})
+        self.assertEqual(status, 200, body)
+        vertices, radius = self.client.sample_points("spot", 5, seed=3, epsilon=EPS)
+        self.assertEqual(body["vertices"], vertices.tolist())
+        self.assertEqual(body["covering_radius"], radius)
+        self.assertEqual((body["eps"], body["pseudo_vertices"]), (EPS, False))
+        status, body = self.post("sample", {"count": 0, "eps": EPS})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = self.post("sample", {"seed": 1, "eps": EPS})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn('"count"', body["error"]["message"])
+        status, body = self.post("sample", {"count": 2, "seed": -1, "eps": EPS})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+
     def test_distance_equals_grpc(self):
         pairs = [["v:0", "v:1500"], ["f:0:0.2,0.3,0.5", "e:10:0.25"], ["v:7", "v:7"]]
         status, body = self.post("distance", {"pairs": pairs, "eps": EPS, "path": False})
@@ -202,7 +267,8 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200)
         self.assertTrue(spec["openapi"].startswith("3."))
         for path in ["/v1/meshes", "/v1/meshes/{name}/graph", "/v1/meshes/{name}/distance",
-                     "/v1/meshes/{name}/field", "/v1/meshes/{name}/matrix"]:
+                     "/v1/meshes/{name}/field", "/v1/meshes/{name}/matrix",
+                     "/v1/meshes/{name}/snap", "/v1/meshes/{name}/sample"]:
             self.assertIn(path, spec["paths"])
         page = subprocess.run(["curl", "-sS", f"{self.base}/"], capture_output=True,
                               check=True).stdout.decode()

@@ -3,6 +3,7 @@
 
 Usage: python_client_test.py BUILD_BIN_DIR SOURCE_DIR
 """
+import json
 import os
 import shutil
 import subprocess
@@ -16,7 +17,7 @@ import numpy as np
 BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
-from geodesic_client import Client  # noqa: E402
+from geodesic_client import Client, GraphState  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 
@@ -44,8 +45,9 @@ class ClientTest(unittest.TestCase):
         cls.daemon.wait(timeout=30)
         shutil.rmtree(cls.work)
 
-    def graph_file(self):
-        return [f for f in os.listdir(f"{self.work}/graphs") if "eps0.01" in f][0]
+    def graph_file(self, pseudo_vertices=False):
+        return [f for f in os.listdir(f"{self.work}/graphs")
+                if "eps0.01-" in f and ("-pseudo" in f) == pseudo_vertices][0]
 
     def test_field_is_a_numpy_array_equal_to_the_offline_field(self):
         field = self.client.field("spot", ["v:3"], epsilon=0.01)
@@ -95,6 +97,50 @@ class ClientTest(unittest.TestCase):
         self.assertGreaterEqual(length, exact * (1 - 1e-9))
         self.assertLessEqual(d, exact * (1 + eps))
         self.assertAlmostEqual(length, d, delta=eps * exact)
+
+    def test_pseudo_vertex_graph_is_its_own_graph(self):
+        # Requested with wait, the client watches the pseudo graph, not the plain one.
+        g = self.client.request_graph("spot", epsilon=0.01, wait=True, pseudo_vertices=True)
+        self.assertEqual(g.state, GraphState.READY)
+        self.assertTrue(g.pseudo_vertices)
+        self.assertGreater(g.nodes, 2930)
+        plain = self.client.graph("spot", epsilon=0.01)
+        self.assertEqual((plain.pseudo_vertices, plain.nodes), (False, 2930))
+        self.assertEqual(self.client.graph("spot", epsilon=0.01, pseudo_vertices=True).nodes, g.nodes)
+        listed = {(x.epsilon, x.pseudo_vertices) for x in self.client.graphs() if x.mesh == "spot"}
+        self.assertLessEqual({(0.01, False), (0.01, True)}, listed)
+
+        # Its answers are those of its file, queried offline.
+        graph = f"{self.work}/graphs/{self.graph_file(pseudo_vertices=True)}"
+        field = self.client.field("spot", ["v:3"], epsilon=0.01, pseudo_vertices=True)
+        out = f"{self.work}/offline-pseudo.f64"
+        subprocess.run([f"{BIN}/geodesicd", "field", "--mesh", f"{SRC}/data/spot.obj", "--graph",
+                        graph, "--source", "v:3", "--out", out], check=True, capture_output=True)
+        np.testing.assert_array_equal(field, np.fromfile(out))
+        a, b = "f:0:0.2,0.3,0.5", "v:1500"
+        d = self.client.distance("spot", a, b, epsilon=0.01, pseudo_vertices=True)
+        offline = subprocess.run([f"{BIN}/geodesicd", "distance", "--mesh", f"{SRC}/data/spot.obj",
+                                  "--graph", graph, "--from", a, "--to", b, "--json"],
+                                 check=True, capture_output=True, text=True)
+        self.assertAlmostEqual(d, json.loads(offline.stdout)["distance"], delta=1e-9 * d)
+        m = self.client.matrix("spot", [a], [b], epsilon=0.01, pseudo_vertices=True)
+        self.assertAlmostEqual(m[0, 0], d, delta=1e-9 * d)
+        self.assertAlmostEqual(
+            self.client.path("spot", a, b, epsilon=0.01, pseudo_vertices=True).length, d,
+            delta=0.01 * d)
+
+    def test_sample_points_cover_the_mesh(self):
+        vertices, radius = self.client.sample_points("spot", 8, seed=5, epsilon=0.01)
+        self.assertEqual((vertices.dtype, vertices.shape), (np.uint32, (8,)))
+        self.assertEqual(len(set(vertices.tolist())), 8)
+        again, _ = self.client.sample_points("spot", 8, seed=5, epsilon=0.01)
+        np.testing.assert_array_equal(vertices, again)
+        # The covering radius is the farthest any vertex lies from its nearest sample.
+        field = self.client.field("spot", [f"v:{v}" for v in vertices], epsilon=0.01)
+        self.assertAlmostEqual(radius, field.max(), delta=1e-12 * radius)
+        # Each point after the first is the farthest from those before it.
+        before = self.client.field("spot", [f"v:{v}" for v in vertices[:4]], epsilon=0.01)
+        self.assertAlmostEqual(before[vertices[4]], before.max(), delta=1e-12 * before.max())
 
     def test_snap_and_positions(self):
         (snapped,) = self.client.snap("spot", [(0.1, 0.2, 0.3)])

@@ -189,8 +189,8 @@ class Client:
         # client sees it ready; asking again brings it back from its file.
         for _ in range(10 if wait else 0):
             g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
-                pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon), timeout=self.timeout,
-                metadata=self._meta(mesh)), g))
+                pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon, pseudo_vertices=pseudo_vertices),
+                timeout=self.timeout, metadata=self._meta(mesh)), g))
             if g.state != pb.GRAPH_STATE_EVICTED:
                 break
             g = self._unary("RequestGraph", request, mesh)
@@ -206,26 +206,32 @@ class Client:
             default = item
         return default
 
-    def graph(self, mesh: str, epsilon: Optional[float] = None) -> Graph:
+    def graph(self, mesh: str, epsilon: Optional[float] = None,
+              pseudo_vertices: bool = False) -> Graph:
         """The state of the graph of mesh at epsilon."""
-        return Graph._from_proto(self._unary(
-            "GetGraph", pb.GetGraphRequest(mesh=mesh, epsilon=self._eps(epsilon)), mesh))
+        return Graph._from_proto(self._unary("GetGraph", pb.GetGraphRequest(
+            mesh=mesh, epsilon=self._eps(epsilon), pseudo_vertices=pseudo_vertices), mesh))
 
     def graphs(self) -> List[Graph]:
         """Every graph the server knows of."""
         return [Graph._from_proto(g)
                 for g in self._unary("ListGraphs", pb.ListGraphsRequest(), None).graphs]
 
-    def cancel_graph(self, mesh: str, epsilon: Optional[float] = None) -> Graph:
+    def cancel_graph(self, mesh: str, epsilon: Optional[float] = None,
+                     pseudo_vertices: bool = False) -> Graph:
         """Cancels the build of a graph."""
-        return Graph._from_proto(self._unary(
-            "CancelGraph", pb.CancelGraphRequest(mesh=mesh, epsilon=self._eps(epsilon)), mesh))
+        return Graph._from_proto(self._unary("CancelGraph", pb.CancelGraphRequest(
+            mesh=mesh, epsilon=self._eps(epsilon), pseudo_vertices=pseudo_vertices), mesh))
 
     # -- queries --------------------------------------------------------------
+    # Every query takes pseudo_vertices: True asks the graph with pseudo
+    # vertices (request_graph(..., pseudo_vertices=True)) instead of the
+    # plain one of the same epsilon.
 
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = None,
               max_distance: float = 0.0, targets: Optional[Any] = None, method: str = "lc",
-              nearest_source: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
+              nearest_source: bool = False, pseudo_vertices: bool = False
+              ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
         """Distances from the nearest of the sources, as a float64 array (+inf: unreachable).
 
         One value per vertex, or per target if targets (vertex ids) are given. With
@@ -244,7 +250,7 @@ class Client:
             req = pb.DistanceFieldRequest(
                 mesh=mesh, epsilon=self._eps(epsilon), max_distance=max_distance,
                 sources=points[start:start + self.max_sources], targets=target_ids,
-                method=method, nearest_source=nearest_source)
+                method=method, nearest_source=nearest_source, pseudo_vertices=pseudo_vertices)
             part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
             if values is None:
                 values, labels = part, part_labels
@@ -271,7 +277,8 @@ class Client:
         return values, labels
 
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = None,
-                  with_path: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
+                  with_path: bool = False, pseudo_vertices: bool = False
+                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
         """Geodesic distances between a[i] and b[i], as a float64 array (+inf: unreachable).
 
         a and b are point sets of the same length. With with_path, returns (distances, paths),
@@ -287,7 +294,7 @@ class Client:
             batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
             j = min(len(pa), i + batch)
             req = pb.DistanceRequest(mesh=mesh, epsilon=self._eps(epsilon), with_path=with_path,
-                                     pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
+                                     pseudo_vertices=pseudo_vertices, pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
                                             for k in range(i, j)])
             try:
                 resp = self._unary("Distance", req, mesh)
@@ -306,17 +313,21 @@ class Client:
             i = j
         return (out, paths) if with_path else out
 
-    def distance(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None) -> float:
+    def distance(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None,
+                 pseudo_vertices: bool = False) -> float:
         """Geodesic distance between two surface points (+inf if unreachable)."""
-        return float(self.distances(mesh, [to_message(a)], [to_message(b)], epsilon)[0])
+        return float(self.distances(mesh, [to_message(a)], [to_message(b)], epsilon,
+                                    pseudo_vertices=pseudo_vertices)[0])
 
-    def path(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None) -> Path:
+    def path(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None,
+             pseudo_vertices: bool = False) -> Path:
         """The geodesic path from a to b (unpacks as ``length, xyz = path``)."""
-        _, (p,) = self.distances(mesh, [to_message(a)], [to_message(b)], epsilon, with_path=True)
+        _, (p,) = self.distances(mesh, [to_message(a)], [to_message(b)], epsilon, with_path=True,
+                                 pseudo_vertices=pseudo_vertices)
         return p
 
     def matrix(self, mesh: str, sources: Points, targets: Points,
-               epsilon: Optional[float] = None) -> np.ndarray:
+               epsilon: Optional[float] = None, pseudo_vertices: bool = False) -> np.ndarray:
         """(len(sources), len(targets)) float64 array of distances, computed in tiles that fit
         the server's limits."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
@@ -328,7 +339,7 @@ class Client:
             for c in range(0, len(pt), cols):
                 resp = self._unary("Matrix", pb.MatrixRequest(
                     mesh=mesh, epsilon=self._eps(epsilon), sources=ps[r:r + rows],
-                    targets=pt[c:c + cols]), mesh)
+                    targets=pt[c:c + cols], pseudo_vertices=pseudo_vertices), mesh)
                 out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
                     resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
         return out
@@ -337,6 +348,17 @@ class Client:
         """Nearest surface points to (N, 3) positions, as spec strings."""
         positions = np.asarray(positions, dtype=np.float64).reshape(-1, 3)
         return [format_point(p) for p in self._resolve(mesh, positions)]
+
+    def sample_points(self, mesh: str, count: int, seed: int = 0,
+                      epsilon: Optional[float] = None,
+                      pseudo_vertices: bool = False) -> Tuple[np.ndarray, float]:
+        """Geodesic farthest-point sampling: (vertex ids as a uint32 array, in the order chosen,
+        covering radius), every vertex lying within the covering radius (graph distance) of a
+        sample (+inf while a component has none). The seed picks the first vertex."""
+        resp = self._unary("SamplePoints", pb.SamplePointsRequest(
+            mesh=mesh, epsilon=self._eps(epsilon), count=count, seed=seed,
+            pseudo_vertices=pseudo_vertices), mesh)
+        return np.asarray(resp.vertices, dtype=np.uint32), float(resp.covering_radius)
 
 
 def to_messages_ids(targets: Any) -> List[int]:

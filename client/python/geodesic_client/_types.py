@@ -50,13 +50,16 @@ class Graph:
     build_seconds: float = 0.0
     mapped: bool = False
     from_file: bool = False
+    # The graph with pseudo vertices (anisotropic meshes) rather than the
+    # plain one of this epsilon: the two are separate graphs on the server.
+    pseudo_vertices: bool = False
 
     @classmethod
     def _from_proto(cls, g) -> "Graph":
         return cls(mesh=g.mesh, epsilon=g.epsilon, state=GraphState._from_proto(g.state),
                    phase=g.phase, progress=g.progress, error=g.error, bytes=g.bytes,
                    nodes=g.nodes, edges=g.edges, build_seconds=g.build_seconds, mapped=g.mapped,
-                   from_file=g.from_file)
+                   from_file=g.from_file, pseudo_vertices=g.pseudo_vertices)
 
 
 @dataclass(frozen=True)
