@@ -101,7 +101,8 @@ def measure(args, name, target, scale, work):
 
 
 def main():
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(description=__doc__,
+                                formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--meshes", default=DEFAULT_MESHES)
     p.add_argument("--eps", default="1e-2,1e-3")
     p.add_argument("--scales", default="1,0.8,0.7")

@@ -64,7 +64,8 @@ def main():
                 status, body = get(http, "/v1/meshes")
                 meshes = json.loads(body).get("meshes", []) if status == 200 else []
                 need(any(m.get("name") == "spot" for m in meshes),
-                     f"GET /v1/meshes: the bundled sample mesh is not served ({status} {body[:200]!r})")
+                     f"GET /v1/meshes: the bundled sample mesh is not served "
+                     f"({status} {body[:200]!r})")
                 status, body = get(http, "/")
                 need(status == 200 and b"viewer.js" in body,
                      f"GET /: not the viewer's page ({status} {body[:200]!r})")

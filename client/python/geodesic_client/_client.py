@@ -294,7 +294,8 @@ class Client:
             batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
             j = min(len(pa), i + batch)
             req = pb.DistanceRequest(mesh=mesh, epsilon=self._eps(epsilon), with_path=with_path,
-                                     pseudo_vertices=pseudo_vertices, pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
+                                     pseudo_vertices=pseudo_vertices,
+                                     pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
                                             for k in range(i, j)])
             try:
                 resp = self._unary("Distance", req, mesh)
