@@ -77,6 +77,12 @@ async function api(method, path, body) {
 }
 
 function eps() { return Number($('eps').value); }
+// The graph every request asks for: the plain one of this ε, or the one
+// with pseudo vertices (a separate graph on the server).
+function graphChoice() { return { eps: eps(), pseudo_vertices: $('pseudo').checked }; }
+function graphQuery() {
+  return `eps=${encodeURIComponent(eps())}&pseudo_vertices=${$('pseudo').checked}`;
+}
 function mode() { return document.querySelector('input[name=mode]:checked').value; }
 const meshPath = (suffix) => `v1/meshes/${encodeURIComponent(state.mesh)}/${suffix}`;
 
@@ -157,12 +163,12 @@ async function selectMesh(name) {
 async function requestGraph() {
   const generation = ++state.watch;
   try {
-    let g = await api('POST', meshPath('graph'), { eps: eps() });
+    let g = await api('POST', meshPath('graph'), graphChoice());
     while (generation === state.watch) {
       showGraph(g);
       if (!['QUEUED', 'BUILDING', 'LOADING'].includes(g.state)) break;
       await new Promise((r) => setTimeout(r, 300));
-      g = await api('GET', `${meshPath('graph')}?eps=${encodeURIComponent(eps())}`);
+      g = await api('GET', `${meshPath('graph')}?${graphQuery()}`);
     }
   } catch (e) {
     status(e.message);
@@ -172,16 +178,18 @@ async function requestGraph() {
 function showGraph(g) {
   const el = $('graph-state');
   el.dataset.state = g.state;
+  el.dataset.pseudo = String(Boolean(g.pseudo_vertices));
   const detail = g.state === 'READY' ? `${g.edges} edges` : g.phase || '';
   el.textContent = `${g.state.toLowerCase()}${detail ? ` (${detail})` : ''}${g.error ? `: ${g.error}` : ''}`;
   $('progress').value = g.state === 'READY' ? 1 : g.progress;
 }
 
-function setDistance(value, from = '', to = '') {
+function setDistance(value, from = '', to = '', pseudo = false) {
   const el = $('distance');
   el.dataset.value = value === null ? '' : String(value);
   el.dataset.from = from;
   el.dataset.to = to;
+  el.dataset.pseudo = String(pseudo);
   el.textContent = value === null ? '–' : value.toPrecision(8);
 }
 
@@ -225,14 +233,15 @@ async function onPick(event) {
   if (state.picks.length < 2) return;
   const [from, to] = state.picks;
   try {
-    const r = await api('POST', meshPath('distance'), { pairs: [[from, to]], eps: eps(), path: true });
+    const r = await api('POST', meshPath('distance'),
+                        { pairs: [[from, to]], ...graphChoice(), path: true });
     const d = r.distances[0];
     if (d === null) {
       setDistance(null);
       status('unreachable: the points lie on different components');
       return;
     }
-    setDistance(d, from, to);
+    setDistance(d, from, to, r.pseudo_vertices);
     const pts = r.paths[0].map((xyz) => new THREE.Vector3(...xyz));
     const line = new THREE.Line(new THREE.BufferGeometry().setFromPoints(pts),
                                 new THREE.LineBasicMaterial({ color: 0xc0392b, linewidth: 2 }));
@@ -248,7 +257,8 @@ async function showField(p) {
   clearOverlays();
   marker(p.point, 0x000000);
   try {
-    const { distances } = await api('POST', meshPath('field'), { sources: [p.spec], eps: eps() });
+    const { distances } = await api('POST', meshPath('field'),
+                                    { sources: [p.spec], ...graphChoice() });
     let max = 0;
     for (const d of distances) if (d !== null && d > max) max = d;
     const uv = state.object.geometry.getAttribute('uv');
@@ -276,6 +286,7 @@ canvas.addEventListener('pointerup', (e) => {
 $('mesh').addEventListener('change', (e) => selectMesh(e.target.value).catch((x) => status(x.message)));
 $('build').addEventListener('click', () => requestGraph());
 $('eps').addEventListener('change', () => state.mesh && requestGraph());
+$('pseudo').addEventListener('change', () => state.mesh && requestGraph());
 // A token typed after a 401 retries the listing; kept for this tab only.
 $('token').value = sessionStorage.getItem('geodesicd-token') || '';
 $('token').addEventListener('change', () => {

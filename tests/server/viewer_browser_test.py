@@ -140,6 +140,25 @@ class ViewerTest(unittest.TestCase):
         b.save_screenshot(f"{OUT}/viewer_field.png")
         self.assertEqual(b.find_element(By.ID, "status").text, "")
 
+        # Ticking "pseudo vertices" requests that graph and asks every query
+        # of it: a path then equals the gRPC answer on the pseudo-vertex graph.
+        b.find_element(By.ID, "pseudo").click()
+        self.wait(lambda d: d.find_element(By.ID, "graph-state").get_attribute("data-pseudo")
+                  == "true" and d.find_element(By.ID, "graph-state").get_attribute("data-state")
+                  == "READY", seconds=120, what="the pseudo-vertex graph to be ready")
+        b.find_element(By.ID, "mode-path").click()
+        self.click_canvas(-40, -10)
+        self.click_canvas(60, 40)
+        el = self.wait(lambda d: d.find_element(By.ID, "distance")
+                       if d.find_element(By.ID, "distance").get_attribute("data-value") else False,
+                       what="the distance on the pseudo-vertex graph")
+        self.assertEqual(el.get_attribute("data-pseudo"), "true")
+        a, c = el.get_attribute("data-from"), el.get_attribute("data-to")
+        distances, _ = self.client.distances("spot", [a], [c], epsilon=EPS, with_path=True,
+                                             pseudo_vertices=True)
+        self.assertEqual(float(el.get_attribute("data-value")), float(distances[0]))
+        self.assertEqual(b.find_element(By.ID, "status").text, "")
+
 
 if __name__ == "__main__":
     unittest.main(argv=sys.argv[:1], verbosity=2)
