@@ -1,9 +1,7 @@
 #include "core/dgg_build.h"
 
 #include <tbb/enumerable_thread_specific.h>
-#include <tbb/global_control.h>
 #include <tbb/parallel_for.h>
-#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <atomic>
@@ -26,6 +24,7 @@
 #include "core/geodesic_shooting.h"
 #include "core/large_array.h"
 #include "core/status.h"
+#include "core/thread_arena.h"
 
 namespace geodesic {
 namespace {
@@ -903,38 +902,6 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(const Mesh& mesh,
                                      MeshFingerprint(mesh));
 }
 
-[[maybe_unused]] int ThreadCount(const DggBuildOptions& options) {
-  return options.threads > 0 ? options.threads : tbb::info::default_concurrency();
-}
-
-// The arena a build runs in. Debian's libtbb is not built with TSan, which
-// then cannot see how TBB hands split ranges between its threads and reports
-// that bookkeeping as races; TSan builds (GEODESIC_TSAN) therefore keep TBB
-// to the calling thread, and what TSan checks is the concurrency written here
-// (queries and landmarks on shared graphs).
-class BuildArena {
- public:
-  explicit BuildArena(const DggBuildOptions& options)
-#ifdef GEODESIC_TSAN
-      : one_thread_(tbb::global_control::max_allowed_parallelism, 1),
-        arena_(1)
-#else
-      : arena_(ThreadCount(options))
-#endif
-  {
-  }
-  template <typename F>
-  void execute(F&& f) {
-    arena_.execute(std::forward<F>(f));
-  }
-
- private:
-#ifdef GEODESIC_TSAN
-  tbb::global_control one_thread_;
-#endif
-  tbb::task_arena arena_;
-};
-
 }  // namespace
 
 uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon) {
@@ -955,7 +922,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   st = {};
   const auto start = std::chrono::steady_clock::now();
   Progress progress(options);
-  BuildArena arena(options);
+  ThreadArena arena(options.threads);
   absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
   arena.execute([&] {
     CandidateRuns runs(mesh.num_vertices(), options.candidate_memory_limit, options.spill_dir);
@@ -994,7 +961,7 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   part.begin = n * index / count;
   part.end = n * (index + 1) / count;
   Progress progress(options);
-  BuildArena arena(options);
+  ThreadArena arena(options.threads);
   CandidateRuns runs(n, options.candidate_memory_limit, options.spill_dir);
   absl::Status computed;
   arena.execute([&] {
@@ -1099,7 +1066,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
     return absl::OkStatus();
   };
   Progress progress(options);
-  BuildArena arena(options);
+  ThreadArena arena(options.threads);
   absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
   arena.execute([&] { graph = FinishBuild(mesh, counts, feed, params, progress, st); });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
