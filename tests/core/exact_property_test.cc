@@ -6,12 +6,9 @@
 // and generated genus-1 meshes with many saddles and thin triangles;
 // bench/exact_check.py runs 50 sources per shared mesh and compares with
 // CGAL's exact solver.
-#include <random>
-
+#include "core/accuracy_check.h"
 #include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
 #include "core/mesh_io.h"
-#include "core/queries.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -19,48 +16,26 @@ namespace {
 
 using testing::SharedDataAvailable;
 
-// Checks `sources` random vertices of `mesh`; returns the worst relative
-// excess of exact over DGG (negative: never above).
+// Checks `sources` random vertices of `mesh` drawn with `seed`, and `also`.
 void ExpectExactFieldsHold(std::shared_ptr<const Mesh> mesh, int sources, uint32_t seed,
                            const std::string& name, std::vector<VertexId> also = {}) {
   DggBuildOptions options;
   options.params.epsilon = 1e-2;
   auto graph = BuildDgg(*mesh, options);
   ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
-  ExactGeodesic exact(*mesh);
-  std::mt19937 rng(seed);
-  std::vector<VertexId> usable;
-  for (VertexId v = 0; v < mesh->num_vertices(); ++v) {
-    if (!mesh->is_isolated(v)) usable.push_back(v);
-  }
-  for (int k = 0; k < sources; ++k) {
-    also.push_back(usable[std::uniform_int_distribution<size_t>(0, usable.size() - 1)(rng)]);
-  }
-  for (const VertexId s : also) {
-    const SurfacePoint source = SurfacePoint::Vertex(s);
-    auto e = exact.Distances(source);
-    ASSERT_OK(e);
-    auto d = engine.Field(absl::MakeConstSpan(&source, 1), {});
-    ASSERT_OK(d);
-    int reported = 0;
-    for (VertexId v = 0; v < mesh->num_vertices(); ++v) {
-      const double ev = (*e)[v], dv = d->distance[v];
-      if (ev == kInfinity) {
-        EXPECT_EQ(dv, kInfinity) << name << " source " << s << " vertex " << v;
-        continue;
-      }
-      const double straight = Distance(mesh->position(s), mesh->position(v));
-      if (ev < straight * (1 - 1e-12) && reported++ < 3) {
-        ADD_FAILURE() << name << " source " << s << " vertex " << v << ": exact " << ev
-                      << " below the straight line " << straight;
-      }
-      if (ev > dv * (1 + 1e-12) && reported++ < 3) {
-        ADD_FAILURE() << name << " source " << s << " vertex " << v << ": exact " << ev
-                      << " above the DGG's " << dv << " (" << (ev - dv) / dv
-                      << " relative): a missed geodesic";
-      }
-    }
+  for (VertexId v : RandomSurfaceVertices(*mesh, sources, seed)) also.push_back(v);
+  std::vector<SurfacePoint> points;
+  for (VertexId s : also) points.push_back(SurfacePoint::Vertex(s));
+  auto checks = CheckAgainstExact(mesh, *graph, points);
+  ASSERT_OK(checks);
+  for (const SourceCheck& c : *checks) {
+    const FieldComparison& f = c.comparison;
+    EXPECT_TRUE(f.sound()) << name << " source " << FormatSurfacePoint(c.source) << ": "
+                           << f.below_exact << " exact distances above the DGG's (missed "
+                           << "geodesics; first at vertex " << f.first_below_exact << "), "
+                           << f.below_straight << " below the straight line, " << f.exact_unreached
+                           << " unreached by the exact engine only, " << f.graph_unreached
+                           << " by the graph only";
   }
 }
 
