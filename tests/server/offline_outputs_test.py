@@ -118,6 +118,40 @@ with tempfile.TemporaryDirectory() as work:
                        os.path.join(work, "b.dgg"), "--from", "v:1", "--to", "v:2", "--json").stdout)
     check("and the repaired mesh answers", abs(d["distance"] - 2 ** 0.5) < 1e-6, d)
 
+    # check: the graph against the exact engine at every vertex. Its own
+    # figures must agree with the fields the other commands write.
+    c = json.loads(run("check", *common, "--sources", "3", "--seed", "5", "--json").stdout)
+    check("check is sound and within the contract on the sample",
+          c["sound"] and c["within_limit"] and 0 < c["max_error_eps"] <= 1.5
+          and 0 < c["mean_error_eps"] <= 0.3 and len(c["sources"]) == 3, c)
+    check("check compares every vertex but the source",
+          all(r["compared"] == info["vertices"] - 1 for r in c["sources"]), c["sources"])
+    again = json.loads(run("check", *common, "--sources", "3", "--seed", "5", "--json").stdout)
+    check("the same seed, the same sources and figures",
+          [r["source"] for r in again["sources"]] == [r["source"] for r in c["sources"]]
+          and again["max_error_eps"] == c["max_error_eps"])
+    worst = max(c["sources"], key=lambda r: r["max_error_eps"])
+    run("exact", "--mesh", mesh, "--source", worst["source"], "--out",
+        os.path.join(work, "e.f64"))
+    run("field", *common, "--source", worst["source"], "--out", os.path.join(work, "g.f64"))
+    ex = np.fromfile(os.path.join(work, "e.f64"), dtype="<f8")
+    gr = np.fromfile(os.path.join(work, "g.f64"), dtype="<f8")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(ex > 0, (gr - ex) / ex, 0.0)
+    check("check's worst error is the one exact and field give",
+          abs(rel.max() / built["epsilon"] - worst["max_error_eps"]) < 1e-9
+          and int(rel.argmax()) == worst["worst_vertex"], (rel.max(), worst))
+    only = json.loads(run("check", *common, "--source", "f:0:0.2,0.3,0.5", "--json").stdout)
+    check("--source alone checks only that point",
+          [r["source"][:4] for r in only["sources"]] == ["f:0:"] and only["sound"], only)
+    r = run("check", *common, "--sources", "3", "--fail-above", "0.05", expect_ok=False)
+    check("--fail-above fails past the limit, naming the worst vertex",
+          r.returncode == 1 and "exceeds --fail-above 0.05" in r.stderr and "vertex" in r.stderr,
+          r.stderr)
+    r = run("check", "--mesh", bowtie, "--repair-non-manifold", "--graph", graph, expect_ok=False)
+    check("check refuses a graph of another mesh",
+          r.returncode == 1 and "another mesh" in r.stderr, r.stderr)
+
     e = json.loads(run("exact", "--mesh", mesh, "--source", "xyz:0,0,0", "--json").stdout)
     check("exact reports the snap distance", e["snap_distance"] > 0)
 

@@ -1,0 +1,189 @@
+// geodesicd check: what a graph delivers on its own mesh, against the exact
+// engine, from seeded random vertices or given sources.
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+
+#include "CLI/CLI.hpp"
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/accuracy_check.h"
+#include "core/graph_file.h"
+#include "server/offline/commands.h"
+#include "server/offline/common.h"
+
+namespace geodesic::offline {
+namespace {
+
+// A vertex id, or null when there is none.
+Json VertexJson(VertexId v) { return v == kNone ? Json(nullptr) : Json(v); }
+
+// The first inequality that must hold and does not, in words.
+std::string Violation(const SourceCheck& c) {
+  const std::string source = FormatSurfacePoint(c.source);
+  const FieldComparison& f = c.comparison;
+  if (f.below_exact) {
+    return absl::StrFormat(
+        "source %s: %d vertices have a graph distance below the exact one (first: vertex %u)",
+        source, f.below_exact, f.first_below_exact);
+  }
+  if (f.below_straight) {
+    return absl::StrFormat("source %s: %d exact distances are below the straight line", source,
+                           f.below_straight);
+  }
+  if (f.graph_unreached) {
+    return absl::StrFormat(
+        "source %s: the graph leaves %d vertices unreached that the surface "
+        "connects",
+        source, f.graph_unreached);
+  }
+  if (f.exact_unreached) {
+    return absl::StrFormat(
+        "source %s: the exact engine leaves %d vertices unreached that the "
+        "graph reaches",
+        source, f.exact_unreached);
+  }
+  return absl::StrFormat("source %s: its own distance is not 0", source);
+}
+
+}  // namespace
+
+int RunCheck(int argc, char** argv) {
+  CLI::App app{
+      "Measure a graph's error on its own mesh against exact geodesic distances, at "
+      "every vertex, from seeded random vertices or given sources",
+      "geodesicd check"};
+  std::string mesh_path, graph_path;
+  std::vector<std::string> source_specs;
+  int random_sources = 8, threads = 0;
+  uint64_t seed = 1;
+  double fail_above = 0;
+  bool json = false;
+  app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
+  app.add_option("--graph", graph_path, "graph file (geodesicd build)")->required();
+  auto* random_option =
+      app.add_option("--sources", random_sources,
+                     "random vertex sources (default 8; 0 with --source: only those)")
+          ->check(CLI::NonNegativeNumber);
+  app.add_option("--seed", seed, "seed of the random sources (the same seed, the same vertices)");
+  app.add_option("--source", source_specs,
+                 "also check from this point: v:ID, e:EDGE:T, f:FACE:B0,B1,B2 or xyz:X,Y,Z; "
+                 "repeat for several (with --source alone, no random sources are added)");
+  app.add_option("--threads", threads, "sources checked at once (0: all cores)");
+  app.add_option("--fail-above", fail_above,
+                 "exit 1 when the largest error exceeds this many eps (e.g. 1 or 1.5)")
+      ->check(CLI::PositiveNumber);
+  app.add_flag("--json", json, "print a JSON object");
+  bool repair = false;
+  AddRepairFlag(app, &repair);
+  try {
+    app.parse(argc, argv);
+  } catch (const CLI::ParseError& e) {
+    return app.exit(e);
+  }
+  if (!source_specs.empty() && random_option->count() == 0) random_sources = 0;
+  auto mesh = LoadMeshOrError(mesh_path, repair);
+  if (!mesh.ok()) return Fail("check", mesh.status());
+  auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
+  if (!graph.ok()) return Fail("check", graph.status());
+  std::vector<SurfacePoint> sources;
+  for (VertexId v : RandomSurfaceVertices(**mesh, random_sources, seed)) {
+    sources.push_back(SurfacePoint::Vertex(v));
+  }
+  PointResolver resolver(**mesh);
+  for (const std::string& spec : source_specs) {
+    auto p = resolver.Resolve(spec);
+    if (!p.ok()) return Fail("check", p.status());
+    sources.push_back(p->point);
+  }
+  if (sources.empty()) {
+    return Fail("check", absl::InvalidArgumentError("no sources: the mesh has no faces, or "
+                                                    "--sources 0 was given without --source"));
+  }
+
+  const auto start = std::chrono::steady_clock::now();
+  AccuracyCheckOptions options;
+  options.threads = threads;
+  auto checks = CheckAgainstExact(*mesh, *graph, sources, options);
+  if (!checks.ok()) return Fail("check", checks.status());
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+
+  const double eps = (*graph)->params().epsilon;
+  uint64_t compared = 0;
+  double total = 0, max_error = 0;
+  const SourceCheck* worst = nullptr;
+  const SourceCheck* unsound = nullptr;
+  Json rows = Json::array();
+  for (const SourceCheck& c : *checks) {
+    const FieldComparison& f = c.comparison;
+    compared += f.compared;
+    total += f.mean_error * f.compared;
+    if (f.compared && (!worst || f.max_error > max_error)) {
+      worst = &c;
+      max_error = f.max_error;
+    }
+    if (!unsound && !f.sound()) unsound = &c;
+    rows.push_back({{"source", FormatSurfacePoint(c.source)},
+                    {"compared", f.compared},
+                    {"max_error_eps", f.max_error / eps},
+                    {"worst_vertex", VertexJson(f.worst_vertex)},
+                    {"mean_error_eps", f.mean_error / eps},
+                    {"below_exact", f.below_exact},
+                    {"first_below_exact", VertexJson(f.first_below_exact)},
+                    {"graph_unreached", f.graph_unreached},
+                    {"exact_unreached", f.exact_unreached},
+                    {"below_straight", f.below_straight},
+                    {"source_nonzero", f.source_nonzero},
+                    {"exact_seconds", c.exact_seconds},
+                    {"graph_seconds", c.graph_seconds}});
+  }
+  const double mean_error = compared ? total / compared : 0;
+  const bool within = fail_above == 0 || max_error <= fail_above * eps;
+  if (json) {
+    Json out = {
+        {"mesh", mesh_path},
+        {"graph", graph_path},
+        {"epsilon", eps},
+        {"vertices", (*mesh)->num_vertices()},
+        {"seed", seed},
+        {"compared", compared},
+        {"max_error_eps", max_error / eps},
+        {"mean_error_eps", mean_error / eps},
+        {"worst_source", worst ? Json(FormatSurfacePoint(worst->source)) : Json(nullptr)},
+        {"worst_vertex", worst ? VertexJson(worst->comparison.worst_vertex) : Json(nullptr)},
+        {"sound", unsound == nullptr},
+        {"fail_above_eps", fail_above > 0 ? Json(fail_above) : Json(nullptr)},
+        {"within_limit", within},
+        {"seconds", seconds},
+        {"sources", rows}};
+    PrintJson(out);
+  } else {
+    std::printf("%-24s %10s %12s %12s %8s\n", "source", "vertices", "max (eps)", "mean (eps)",
+                "worst");
+    for (const SourceCheck& c : *checks) {
+      const FieldComparison& f = c.comparison;
+      std::printf("%-24s %10llu %12.4f %12.4f %8s%s\n", FormatSurfacePoint(c.source).c_str(),
+                  static_cast<unsigned long long>(f.compared), f.max_error / eps,
+                  f.mean_error / eps,
+                  f.worst_vertex == kNone ? "-" : absl::StrCat(f.worst_vertex).c_str(),
+                  f.sound() ? "" : "  UNSOUND");
+    }
+    std::printf(
+        "graph eps %g: max %.4f eps, mean %.4f eps over %llu vertex distances from %zu "
+        "sources (%.1f s)\n",
+        eps, max_error / eps, mean_error / eps, static_cast<unsigned long long>(compared),
+        checks->size(), seconds);
+  }
+  if (unsound) return Fail("check", absl::InternalError(Violation(*unsound)));
+  if (!within) {
+    return Fail("check", absl::OutOfRangeError(absl::StrFormat(
+                             "the largest error, %.4f eps (source %s, vertex %u), exceeds "
+                             "--fail-above %g",
+                             max_error / eps, FormatSurfacePoint(worst->source),
+                             worst->comparison.worst_vertex, fail_above)));
+  }
+  return 0;
+}
+
+}  // namespace geodesic::offline
