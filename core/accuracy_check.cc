@@ -49,6 +49,7 @@ FieldComparison CompareFields(const Mesh& mesh, const SurfacePoint& source,
       c.max_error = error;
       c.worst_vertex = v;
     }
+    if (c.compared == 1 || error < c.min_error) c.min_error = error;
   }
   c.mean_error = c.compared ? total / c.compared : 0;
   return c;

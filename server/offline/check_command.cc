@@ -111,12 +111,13 @@ int RunCheck(int argc, char** argv) {
 
   const double eps = (*graph)->params().epsilon;
   uint64_t compared = 0;
-  double total = 0, max_error = 0;
+  double total = 0, max_error = 0, min_error = 0;
   const SourceCheck* worst = nullptr;
   const SourceCheck* unsound = nullptr;
   Json rows = Json::array();
   for (const SourceCheck& c : *checks) {
     const FieldComparison& f = c.comparison;
+    if (f.compared && (compared == 0 || f.min_error < min_error)) min_error = f.min_error;
     compared += f.compared;
     total += f.mean_error * f.compared;
     if (f.compared && (!worst || f.max_error > max_error)) {
@@ -129,6 +130,7 @@ int RunCheck(int argc, char** argv) {
                     {"max_error_eps", f.max_error / eps},
                     {"worst_vertex", VertexJson(f.worst_vertex)},
                     {"mean_error_eps", f.mean_error / eps},
+                    {"min_error", f.min_error},
                     {"below_exact", f.below_exact},
                     {"first_below_exact", VertexJson(f.first_below_exact)},
                     {"graph_unreached", f.graph_unreached},
@@ -152,6 +154,7 @@ int RunCheck(int argc, char** argv) {
         {"mean_error_eps", mean_error / eps},
         {"worst_source", worst ? Json(FormatSurfacePoint(worst->source)) : Json(nullptr)},
         {"worst_vertex", worst ? VertexJson(worst->comparison.worst_vertex) : Json(nullptr)},
+        {"min_error", min_error},
         {"sound", unsound == nullptr},
         {"fail_above_eps", fail_above > 0 ? Json(fail_above) : Json(nullptr)},
         {"within_limit", within},

@@ -40,6 +40,7 @@ TEST(CompareFieldsTest, MeasuresRelativeErrorsOverReachedVertices) {
   EXPECT_EQ(c.compared, f.mesh->num_vertices() - 1);  // all but the source
   EXPECT_NEAR(c.max_error, 0.02, 1e-12);
   EXPECT_EQ(c.worst_vertex, 3u);
+  EXPECT_EQ(c.min_error, 0);
   EXPECT_NEAR(c.mean_error, 0.03 / c.compared, 1e-12);
 }
 
@@ -138,6 +139,7 @@ TEST(CheckAgainstExactTest, GraphOfAShrunkenMeshIsCaughtBelowExact) {
   const FieldComparison& c = (*checks)[0].comparison;
   EXPECT_FALSE(c.sound());
   EXPECT_EQ(c.below_exact, c.compared);
+  EXPECT_NEAR(c.min_error, -0.1, 1e-6);  // where the graph path is straight
   // Every graph distance is 0.9 of one within 1.5% of exact: -10% to -8.6%.
   EXPECT_GE(c.max_error, -0.1 - 1e-9);
   EXPECT_LE(c.max_error, -0.086);
