@@ -4,7 +4,8 @@ every Kubernetes YAML document parses and has what its kind needs, the
 kustomizations list files that exist, probes are native gRPC probes on the
 serving port, HTTP is served and exposed where it is listened on, the Dockerfile
 is multi-stage with a non-root user, a health check and the viewer's files and
-three.js, and the nginx configuration routes by the mesh header.
+three.js, and the nginx configuration routes by the mesh header (gRPC) and
+the mesh in the URL (HTTP).
 
 Usage: manifests_test.py SOURCE_DIR
 """
@@ -124,6 +125,8 @@ def main():
     nginx = open(os.path.join(DEPLOY, "nginx", "geodesicd.conf")).read()
     need("hash $http_x_geodesic_mesh consistent" in nginx, "nginx: not hashing the mesh header")
     need("grpc_pass" in nginx and "http2" in nginx, "nginx: not proxying gRPC over HTTP/2")
+    need("hash $geodesic_url_mesh consistent" in nginx and "proxy_pass http://geodesicd_http" in nginx
+         and "listen 8080;" in nginx, "nginx: not routing HTTP by the mesh in the URL")
 
     unit = open(os.path.join(DEPLOY, "systemd", "geodesicd.service")).read()
     for key in ("ExecStart=", "DynamicUser=yes", "ProtectSystem=strict", "StateDirectory="):
