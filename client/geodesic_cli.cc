@@ -899,11 +899,7 @@ int main(int argc, char** argv) {
   for (CLI::App* sub : {graph, field, distance, path, matrix, sample, bench}) {
     sub->add_flag("--pseudo-vertices", c.pseudo_vertices, kPseudoHelp);
   }
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   if (!LoadSecurity(c)) return 2;
   if (app.got_subcommand("meshes")) return CmdMeshes(c);
   if (app.got_subcommand("load")) {

@@ -229,11 +229,7 @@ int RunServe(int argc, char** argv) {
                  "file holding a bearer token every geodesic.v1 call must send as "
                  "'authorization: Bearer <token>' (health and reflection stay open)")
       ->check(CLI::ExistingFile);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   SetLogLevel(*ParseLogLevel(log_level));
   SetLogFormat(*ParseLogFormat(log_format));
   limits.log_requests = LogEnabled(LogLevel::kInfo);

@@ -181,11 +181,7 @@ int RunBuild(int argc, char** argv) {
                  "in place (default: no limit)");
   bool repair = false;
   AddRepairFlag(app, &repair);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   uint64_t candidate_memory_limit = 0;
   if (!memory_limit.empty()) {
     auto parsed = server::ParseByteSize(memory_limit, "--build-memory-limit");
@@ -243,11 +239,7 @@ int RunMerge(int argc, char** argv) {
   app.add_flag("--exact-fans", exact_fans, "expect parts built with --exact-fans (as --prune)");
   bool repair = false;
   AddRepairFlag(app, &repair);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   if (out_path.empty() && graph_dir.empty()) {
     return Fail("merge", absl::InvalidArgumentError("--out or --graph-dir is required"));
   }

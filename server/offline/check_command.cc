@@ -76,11 +76,7 @@ int RunCheck(int argc, char** argv) {
   app.add_flag("--json", json, "print a JSON object");
   bool repair = false;
   AddRepairFlag(app, &repair);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   if (!source_specs.empty() && random_option->count() == 0) random_sources = 0;
   auto mesh = LoadMeshOrError(mesh_path, repair);
   if (!mesh.ok()) return Fail("check", mesh.status());

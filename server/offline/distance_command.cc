@@ -53,11 +53,7 @@ int RunDistance(int argc, char** argv) {
   app.add_flag("--json", json, "print JSON");
   bool repair = false;
   AddRepairFlag(app, &repair);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   std::vector<std::pair<std::string, std::string>> pairs;
   if (!pairs_path.empty()) {
     std::ifstream in(pairs_path);

@@ -38,11 +38,7 @@ int RunField(int argc, char** argv) {
   app.add_flag("--json", json, "print a JSON object");
   bool repair = false;
   AddRepairFlag(app, &repair);
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   // A bad output name is refused before minutes of work, not after.
   if (!out_path.empty()) {
     if (absl::Status s = CheckFieldPath(out_path, true); !s.ok()) return Fail("field", s);

@@ -19,11 +19,7 @@ int RunInfo(int argc, char** argv) {
   app.add_flag("--json", json, "print a JSON object");
   app.add_flag("--repair-non-manifold", repair,
                "split non-manifold vertices before checking usability");
-  try {
-    app.parse(argc, argv);
-  } catch (const CLI::ParseError& e) {
-    return app.exit(e);
-  }
+  CLI11_PARSE(app, argc, argv);
   if (path.size() > 4 && path.compare(path.size() - 4, 4, ".dgg") == 0) {
     return RunGraphInfo(path, json);
   }
