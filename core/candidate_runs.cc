@@ -1,15 +1,20 @@
 #include "core/candidate_runs.h"
 
 #include <fcntl.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+#include <tbb/task_arena.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <cstring>
+#include <vector>
 
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
 #include "core/status.h"
+#include "core/thread_arena.h"
 
 namespace geodesic {
 namespace {
@@ -95,13 +100,29 @@ absl::Status CandidateRuns::OpenSpillFile() {
 }
 
 void CandidateRuns::VisitChunk(const std::byte* data, size_t bytes, const Visitor& visit) {
+  // Records have their own lengths: find where each starts (a walk over the
+  // headers only), then copy them out in parallel. Sequential copying was a
+  // twentieth of a two-thread build (armadillo at 1e-3).
+  std::vector<size_t> starts;
   for (size_t at = 0; at < bytes;) {
     RecordHeader header;
     std::memcpy(&header, data + at, sizeof(header));
-    const auto* edges = reinterpret_cast<const DggHalfEdge*>(data + at + sizeof(header));
-    visit(header.source, {edges, header.count});
+    starts.push_back(at);
     at += RecordBytes(header.count);
   }
+  ThreadArena arena(tbb::this_task_arena::max_concurrency());
+  arena.execute([&] {
+    tbb::parallel_for(
+        tbb::blocked_range<size_t>(0, starts.size(), 64), [&](const tbb::blocked_range<size_t>& r) {
+          for (size_t i = r.begin(); i != r.end(); ++i) {
+            RecordHeader header;
+            std::memcpy(&header, data + starts[i], sizeof(header));
+            const auto* edges =
+                reinterpret_cast<const DggHalfEdge*>(data + starts[i] + sizeof(header));
+            visit(header.source, {edges, header.count});
+          }
+        });
+  });
 }
 
 absl::Status CandidateRuns::Drain(const Visitor& visit) {

@@ -42,8 +42,9 @@ class CandidateRuns {
   uint64_t spilled_bytes() const { return spilled_bytes_; }
 
   // Calls visit(source, edges) once for every list added, in no particular
-  // order, and releases the runs as it goes. Call once, from one thread,
-  // after every Add has returned.
+  // order and from as many threads as the calling arena has (so `visit` must
+  // be safe to run for different sources at once), and releases the runs as
+  // it goes. Call once, from one thread, after every Add has returned.
   using Visitor = std::function<void(uint32_t source, std::span<const DggHalfEdge> edges)>;
   absl::Status Drain(const Visitor& visit);
 
@@ -55,6 +56,7 @@ class CandidateRuns {
   struct Spilled {
     uint64_t offset, bytes;
   };
+  // Visits the chunk's records in parallel, in the caller's arena.
   static void VisitChunk(const std::byte* data, size_t bytes, const Visitor& visit);
   absl::Status Seal(std::unique_ptr<Chunk> chunk);  // takes the lock
   absl::Status OpenSpillFile();                     // with the lock held

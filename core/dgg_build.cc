@@ -976,9 +976,13 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
     part.offsets.push_back(part.offsets.back() + runs.counts()[s]);
   }
   part.edges.resize(part.offsets.back());
-  RETURN_IF_ERROR(runs.Drain([&](uint32_t s, std::span<const DggHalfEdge> edges) {
-    std::copy(edges.begin(), edges.end(), part.edges.begin() + part.offsets[s - part.begin]);
-  }));
+  absl::Status drained;
+  arena.execute([&] {
+    drained = runs.Drain([&](uint32_t s, std::span<const DggHalfEdge> edges) {
+      std::copy(edges.begin(), edges.end(), part.edges.begin() + part.offsets[s - part.begin]);
+    });
+  });
+  RETURN_IF_ERROR(drained);
   return part;
 }
 
