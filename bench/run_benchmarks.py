@@ -261,6 +261,9 @@ def write_plots(rows, plot_dir):
     return files
 
 
+HAND_WRITTEN = ("notes.md", "daemon.md", "measurements.md")
+
+
 def write_markdown(rows, command, seconds, plots):
     out = ["# Benchmarks\n"]
     regenerate = f"`{command}` (this run took {seconds / 60:.1f} min)"
@@ -336,9 +339,10 @@ def write_markdown(rows, command, seconds, plots):
         out.append("\n## Plots\n")
         out.extend(f"![{f}](bench/plots/{f})" for f in plots)
     # Hand-written analysis and the figures of other commands live in
-    # bench/notes.md and bench/daemon.md (bench/daemon_bench.py) and are
-    # carried over verbatim.
-    for name in ("notes.md", "daemon.md"):
+    # bench/notes.md, bench/daemon.md (bench/daemon_bench.py) and
+    # bench/measurements.md (hand-run measurements) and are carried over
+    # verbatim; tests/bench_docs_test.py checks that nothing else is kept.
+    for name in HAND_WRITTEN:
         path = os.path.join(ROOT, "bench", name)
         if os.path.exists(path):
             out.append("")
