@@ -16,7 +16,8 @@ src = sys.argv[1]
 script = open(os.path.join(src, "bench", "run_benchmarks.py")).read()
 tree = ast.parse(script)
 hand = next(ast.literal_eval(node.value) for node in ast.walk(tree)
-            if isinstance(node, ast.Assign) and getattr(node.targets[0], "id", "") == "HAND_WRITTEN")
+            if isinstance(node, ast.Assign)
+            and getattr(node.targets[0], "id", "") == "HAND_WRITTEN")
 generated = set(re.findall(r'"(?:\\n)?## ([^"\\]+)', script))
 
 problems = []
