@@ -110,6 +110,8 @@ void CandidateRuns::VisitChunk(const std::byte* data, size_t bytes, const Visito
     starts.push_back(at);
     at += RecordBytes(header.count);
   }
+  // An arena of the caller's width, not the caller's arena itself: a caller
+  // outside any arena then still gets ThreadArena's one thread under TSan.
   ThreadArena arena(tbb::this_task_arena::max_concurrency());
   arena.execute([&] {
     tbb::parallel_for(

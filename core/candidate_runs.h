@@ -56,7 +56,8 @@ class CandidateRuns {
   struct Spilled {
     uint64_t offset, bytes;
   };
-  // Visits the chunk's records in parallel, in the caller's arena.
+  // Visits the chunk's records in parallel, on as many threads as the
+  // caller's arena has.
   static void VisitChunk(const std::byte* data, size_t bytes, const Visitor& visit);
   absl::Status Seal(std::unique_ptr<Chunk> chunk);  // takes the lock
   absl::Status OpenSpillFile();                     // with the lock held
