@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/strings/escaping.h"
 #include "absl/strings/str_format.h"
 #include "core/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
@@ -73,6 +74,18 @@ grpc::Status FromAbsl(const absl::Status& s) {
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
 }
 
+// JSON text of a reply. Error messages quote request paths and values, which
+// need not be UTF-8: those bytes become U+FFFD instead of an exception.
+std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
+
+// An offending request value as an error message quotes it: at most 80
+// characters, so a huge body is not echoed back (or logged) whole.
+std::string Quote(const json& j) {
+  std::string text = Dump(j);
+  if (text.size() > 80) text = text.substr(0, 77) + "...";
+  return text;
+}
+
 void WriteError(const grpc::Status& s, httplib::Response& res) {
   res.status = HttpStatus(s.error_code());
   if (s.error_code() == grpc::StatusCode::UNAUTHENTICATED) {
@@ -81,7 +94,18 @@ void WriteError(const grpc::Status& s, httplib::Response& res) {
     res.set_header("Retry-After", "1");
   }
   json body = {{"error", {{"code", CodeName(s.error_code())}, {"message", s.error_message()}}}};
-  res.set_content(body.dump(), "application/json");
+  res.set_content(Dump(body), "application/json");
+}
+
+// Whether text is UTF-8, as protobuf requires of every string field (the
+// JSON library's strict serialiser checks it).
+bool IsUtf8(const std::string& text) {
+  try {
+    (void)json(text).dump();
+    return true;
+  } catch (const json::type_error&) {
+    return false;
+  }
 }
 
 // +inf (unreachable) has no JSON form: null stands for it.
@@ -102,6 +126,14 @@ class Call {
       }
     }
     auth_ = auth;
+    for (size_t i = 1; i < req.matches.size(); ++i) {
+      if (!IsUtf8(req.matches[i])) {
+        status_ = grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
+                               absl::StrFormat("path segment '%s' is not UTF-8",
+                                               absl::CHexEscape(req.matches[i].str())));
+        return;
+      }
+    }
     if (req.has_param("timeout")) {
       const std::string text = req.get_param_value("timeout");
       char* end = nullptr;
@@ -137,10 +169,42 @@ class Call {
   grpc::Status status_;
 };
 
+// The deepest nesting of arrays and objects in JSON text (brackets inside
+// strings do not count). Reading and copying a value recurses once per
+// level, so a body of 100,000 nested brackets would overflow the stack.
+size_t NestingDepth(std::string_view text) {
+  size_t depth = 0, deepest = 0;
+  bool in_string = false, escaped = false;
+  for (char c : text) {
+    if (in_string) {
+      if (escaped) {
+        escaped = false;
+      } else if (c == '\\') {
+        escaped = true;
+      } else if (c == '"') {
+        in_string = false;
+      }
+    } else if (c == '"') {
+      in_string = true;
+    } else if (c == '[' || c == '{') {
+      deepest = std::max(deepest, ++depth);
+    } else if ((c == ']' || c == '}') && depth > 0) {
+      --depth;
+    }
+  }
+  return deepest;
+}
+
+constexpr size_t kMaxNesting = 64;
+
 grpc::Status ParseBody(const httplib::Request& req, json* body) {
   if (req.body.empty()) {
     *body = json::object();
     return grpc::Status::OK;
+  }
+  if (NestingDepth(req.body) > kMaxNesting) {
+    return Invalid(absl::StrFormat("request body nests arrays and objects deeper than %u levels",
+                                   kMaxNesting));
   }
   *body = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
   if (body->is_discarded()) return Invalid("request body is not valid JSON");
@@ -156,7 +220,11 @@ grpc::Status BodyEpsilon(const json& body, double* eps) {
     auto it = body.find(key);
     if (it == body.end() || it->is_null()) continue;
     if (!it->is_number()) return Invalid(absl::StrFormat("\"%s\" must be a number", key));
-    *eps = it->get<double>();
+    const double value = it->get<double>();
+    if (*eps != 0 && value != *eps) {
+      return Invalid(absl::StrFormat("\"eps\" (%g) and \"epsilon\" (%g) disagree", *eps, value));
+    }
+    *eps = value;
   }
   return grpc::Status::OK;
 }
@@ -314,7 +382,7 @@ struct HttpGateway::Impl {
         if (s.get<uint64_t>() > UINT32_MAX) {
           return grpc::Status(
               grpc::StatusCode::OUT_OF_RANGE,
-              absl::StrFormat("%s %u: vertex id %s is out of range", what, i, s.dump()));
+              absl::StrFormat("%s %u: vertex id %s is out of range", what, i, Quote(s)));
         }
         (*out)[i].set_vertex(s.get<uint32_t>());
         continue;
@@ -323,7 +391,7 @@ struct HttpGateway::Impl {
         return Invalid(
             absl::StrFormat("%s %u: expected a point spec string such as \"v:12\", "
                             "got %s",
-                            what, i, s.dump()));
+                            what, i, Quote(s)));
       }
       auto spec = ParseSurfacePointSpec(s.get<std::string>());
       if (!spec.ok()) {
@@ -470,7 +538,7 @@ struct HttpGateway::Impl {
       const json& pair = (*pairs)[i];
       if (!pair.is_array() || pair.size() != 2) {
         return Invalid(
-            absl::StrFormat("pair %u: expected [\"SPEC\", \"SPEC\"], got %s", i, pair.dump()));
+            absl::StrFormat("pair %u: expected [\"SPEC\", \"SPEC\"], got %s", i, Quote(pair)));
       }
       ends.push_back(pair[0]);
       ends.push_back(pair[1]);
@@ -520,7 +588,7 @@ struct HttpGateway::Impl {
       for (size_t i = 0; i < it->size(); ++i) {
         const json& t = (*it)[i];
         if (!t.is_number_unsigned() || t.get<uint64_t>() > UINT32_MAX) {
-          return Invalid(absl::StrFormat("target %u: %s is not a vertex id", i, t.dump()));
+          return Invalid(absl::StrFormat("target %u: %s is not a vertex id", i, Quote(t)));
         }
         req.add_targets(t.get<uint32_t>());
       }
@@ -615,7 +683,7 @@ struct HttpGateway::Impl {
       const json& p = (*positions)[i];
       if (!p.is_array() || p.size() != 3 || !p[0].is_number() || !p[1].is_number() ||
           !p[2].is_number()) {
-        return Invalid(absl::StrFormat("position %u: expected [x, y, z], got %s", i, p.dump()));
+        return Invalid(absl::StrFormat("position %u: expected [x, y, z], got %s", i, Quote(p)));
       }
       auto* q = req.add_positions();
       q->set_x(p[0].get<double>());
@@ -647,7 +715,7 @@ void Reply(const httplib::Request& req, httplib::Response& res,
   }
   if (!s.ok()) return WriteError(s, res);
   res.set_header("Cache-Control", "no-store");
-  res.set_content(out.dump(), "application/json");
+  res.set_content(Dump(out), "application/json");
 }
 
 // Handlers of POST bodies: the body is parsed before the RPC.
@@ -750,7 +818,16 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
   http.set_error_handler([max = options.max_body_bytes, web_root](const httplib::Request& req,
                                                                   httplib::Response& res) {
     if (!res.body.empty()) return;
-    if (res.status == 413) {
+    if (res.status == 413 &&
+        req.get_header_value("Content-Type").starts_with("application/x-www-form-urlencoded")) {
+      // The HTTP library caps form bodies at 8 KiB whatever our limit is.
+      WriteError(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                              "a body sent as application/x-www-form-urlencoded (curl -d's "
+                              "default) is limited to 8192 bytes; send it with Content-Type: "
+                              "application/json"),
+                 res);
+      res.status = 413;
+    } else if (res.status == 413) {
       WriteError(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
                               absl::StrFormat("request body over the limit of %u bytes", max)),
                  res);

@@ -253,6 +253,33 @@ class GatewayTest(unittest.TestCase):
         status, body = curl(f"{self.base}/v1/no/such/route")
         self.assert_error(status, body, 404, "NOT_FOUND")
 
+    def test_hostile_requests_get_errors_and_the_server_keeps_serving(self):
+        # Bytes that are not UTF-8 in the path, quoted by the 404's message.
+        status, body = curl(f"{self.base}/v1/nosuch%FF")
+        self.assert_error(status, body, 404, "NOT_FOUND")
+        status, body = curl(f"{self.base}/v1/meshes/%FF/graph?eps={EPS}")
+        self.assertEqual(status // 100, 4, body)
+        # 100,000 nested arrays: refused by depth, not by a stack overflow.
+        deep = '{"positions": [' + "[" * 100_000 + "]" * 100_000 + "]}"
+        status, body = self.post("snap", None, raw=deep)
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn("64 levels", body["error"]["message"])
+        # A huge offending value is quoted, not echoed whole.
+        status, body = self.post("snap", {"positions": [["x" * 100_000]]})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertLess(len(body["error"]["message"]), 300)
+        status, body = self.post("field", {"sources": ["v:1"], "eps": EPS, "epsilon": 0.02})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn("disagree", body["error"]["message"])
+        # curl -d's form content type is capped by the HTTP library: say so.
+        status, body = curl(f"{self.base}/v1/meshes/spot/field", "POST", token=TOKEN,
+                            extra=["--data-binary", json.dumps(
+                                {"sources": ["v:1"] * 2000, "eps": EPS})])
+        self.assert_error(status, body, 413, "RESOURCE_EXHAUSTED")
+        self.assertIn("Content-Type: application/json", body["error"]["message"])
+        status, body = self.post("field", {"sources": ["v:1"], "eps": EPS})
+        self.assertEqual(status, 200, body)
+
     def test_bearer_token_is_required(self):
         for token in (None, "wrong"):
             status, body = curl(f"{self.base}/v1/meshes", token=token)
