@@ -39,6 +39,11 @@
 namespace geodesic::server {
 namespace {
 
+// --disk-limit leaves files written this recently: the catalog it reads may
+// not list them yet, and replicas sharing the directory write files this
+// daemon does not know about.
+constexpr auto kDiskGrace = std::chrono::minutes(2);
+
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
@@ -525,10 +530,13 @@ int RunServe(int argc, char** argv) {
       }
       auto state = catalog->Read();
       if (!state.ok()) continue;
-      std::set<std::string> catalogued;
+      std::set<std::string> catalogued, uploads;
       std::map<std::string, uint64_t> fingerprints;
       for (const CatalogMesh& m : state->meshes) {
         catalogued.insert(MeshSnapshotName(m.source_hash));
+        // A restart rebuilds a catalogued file from its source, except an
+        // uploaded mesh's snapshot: that is the only copy.
+        if (m.source == "upload") uploads.insert(MeshSnapshotName(m.source_hash));
         fingerprints[m.name] = m.fingerprint;
       }
       for (const CatalogGraph& g : state->graphs) {
@@ -536,10 +544,20 @@ int RunServe(int argc, char** argv) {
           catalogued.insert(GraphFileName(fingerprints[g.mesh], g.params));
         }
       }
-      std::set<std::string> snapshots_in_use;
-      for (const auto& m : meshes.List()) snapshots_in_use.insert(MeshRegistry::SnapshotName(*m));
       auto report = EnforceDiskLimit(graph_dir, *disk_limit, [&](const std::string& name) {
-        if (snapshots_in_use.contains(name) || graphs.FileInUse(name)) return FileRole::kInUse;
+        if (uploads.contains(name) || graphs.FileInUse(name)) return FileRole::kInUse;
+        // Asked afresh each time, as EnforceDiskLimit asks again just before
+        // removing: a mesh registered since the listing has its snapshot.
+        for (const auto& m : meshes.List()) {
+          if (MeshRegistry::SnapshotName(*m) == name) return FileRole::kInUse;
+        }
+        // A recent file may not be in the catalog read above yet (kDiskGrace).
+        std::error_code ec;
+        const auto written =
+            std::filesystem::last_write_time(std::filesystem::path(graph_dir) / name, ec);
+        if (ec || std::filesystem::file_time_type::clock::now() - written < kDiskGrace) {
+          return FileRole::kInUse;
+        }
         return catalogued.contains(name) ? FileRole::kCataloged : FileRole::kSpare;
       });
       if (!report.ok()) {
