@@ -310,8 +310,13 @@ grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (catalog_) RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params).status());
     auto g = graphs_->Cancel(key);
+    // A ready graph has no operation to cancel: it stays catalogued and
+    // served. Anything else is forgotten, also when only another replica
+    // requested it.
+    const bool ready =
+        g.ok() && (g->state == GraphState::kReady || g->state == GraphState::kEvicted);
+    if (catalog_ && !ready) RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params).status());
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
     return absl::OkStatus();

@@ -49,6 +49,16 @@ bool LegalTransition(GraphState from, GraphState to) {
   return kLegal[static_cast<int>(from)][static_cast<int>(to)];
 }
 
+namespace {
+
+// No worker holds an entry in these states.
+bool Finished(GraphState s) {
+  return s == GraphState::kReady || s == GraphState::kFailed || s == GraphState::kCancelled ||
+         s == GraphState::kEvicted;
+}
+
+}  // namespace
+
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Open(const std::string& path,
                                                                  const Mesh& mesh,
                                                                  const DggParams& params,
@@ -159,7 +169,11 @@ GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
   absl::MutexLock lock(&mu_);
   GraphKey key{mesh->name, params};
   auto& slot = entries_[key];
-  if (slot && slot->mesh->fingerprint == mesh->fingerprint) {
+  // An entry whose cancel a worker has not acted on yet would end cancelled
+  // although this request was answered as building: it is replaced below.
+  const bool cancelling = slot && slot->cancel && slot->status.state != GraphState::kQueued &&
+                          !Finished(slot->status.state);
+  if (slot && slot->mesh->fingerprint == mesh->fingerprint && !cancelling) {
     Entry& e = *slot;
     Touch(e);
     const GraphState s = e.status.state;
@@ -173,8 +187,9 @@ GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
     }
     return e.status;  // single flight: join the running or finished operation
   }
-  // New, or the mesh was registered again with other contents: a new entry,
-  // so that an operation still running for the old one publishes nothing.
+  // New, being cancelled, or the mesh was registered again with other
+  // contents: a new entry, so that an operation still running for the old
+  // one publishes nothing.
   auto e = std::make_shared<Entry>();
   e->mesh = std::move(mesh);
   e->path = GraphPath(e->mesh->fingerprint, params);
@@ -476,6 +491,10 @@ absl::StatusOr<GraphStatus> GraphCache::Cancel(const GraphKey& key) {
     return absl::NotFoundError(absl::StrFormat("%s was never requested", Describe(key)));
   }
   Entry& e = *it->second;
+  // A finished operation has nothing to cancel: a ready graph stays served
+  // (an evicted one is mapped again on use), and no landmark preparation of
+  // it is stopped.
+  if (Finished(e.status.state)) return e.status;
   e.cancel = true;
   // A queued entry has no worker to notice; one at work ends in cancelled
   // at its next step.

@@ -289,6 +289,42 @@ TEST_F(GraphCacheTest, CancelDuringEachStepEndsCancelledAndARequestStartsAgain) 
   }
 }
 
+// A request that comes between a cancel and the worker's noticing it was
+// answered as under way: it must end ready, not cancelled.
+TEST_F(GraphCacheTest, ARequestRightAfterACancelEndsReady) {
+  for (HeldMaker::Step step : {HeldMaker::kBuild, HeldMaker::kWrite}) {
+    SCOPED_TRACE(step);
+    maker_ = std::make_shared<HeldMaker>();
+    auto mesh = GridMesh("grid", 5);
+    const GraphKey key{"grid", Eps(0.05)};
+    Cache();
+    maker_->Hold(step);
+    cache_->Request(mesh, key.params);
+    maker_->AwaitReached(step);
+    ASSERT_TRUE(cache_->Cancel(key).ok());
+    const GraphStatus again = cache_->Request(mesh, key.params);
+    EXPECT_EQ(again.state, GraphState::kQueued);
+    maker_->Release(step);
+    WaitFor(key, GraphState::kReady);
+    EXPECT_TRUE(cache_->Acquire(key).ok());
+    cache_.reset();
+    fs::remove_all(dir_);
+  }
+}
+
+TEST_F(GraphCacheTest, CancellingAReadyGraphChangesNothing) {
+  auto mesh = GridMesh("grid", 5);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache(false);
+  cache.Request(mesh, key.params);
+  WaitFor(key, GraphState::kReady);
+  auto cancelled = cache.Cancel(key);
+  ASSERT_TRUE(cancelled.ok());
+  EXPECT_EQ(cancelled->state, GraphState::kReady);
+  EXPECT_TRUE(cache.Acquire(key).ok());
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+}
+
 TEST_F(GraphCacheTest, CancelWhileQueuedNeedsNoWorker) {
   auto mesh = GridMesh("grid", 5);
   GraphCache& cache = Cache(false);
