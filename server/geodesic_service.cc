@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <string_view>
 
+#include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
@@ -120,8 +121,11 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
                                      limits_.max_inflight));
   } else {
     if (is_query) metrics_->SetQueueDepth(inflight_.load());
+    // Released however body() ends, so a throw cannot leak a query slot.
+    absl::Cleanup release = [&] {
+      if (is_query) inflight_.fetch_sub(1);
+    };
     status = ToGrpc(body());
-    if (is_query) inflight_.fetch_sub(1);
     // A solve stopped because the call's deadline passed reports that, not a
     // cancellation by the client.
     if (status.error_code() == grpc::StatusCode::CANCELLED && !ctx->IsCancelled() &&

@@ -35,7 +35,10 @@ std::string QuoteIfNeeded(std::string_view value) {
   if (!value.empty() && value.find_first_of(" \t\n\"=") == std::string_view::npos) {
     return std::string(value);
   }
-  return nlohmann::json(std::string(value)).dump();
+  // Values may quote client input that is not UTF-8 (an uploaded file's
+  // bytes in an error): those bytes print as U+FFFD rather than throw.
+  return nlohmann::json(std::string(value))
+      .dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
 }
 
 }  // namespace
