@@ -10,6 +10,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <limits>
 #include <mutex>
 #include <sstream>
 #include <thread>
@@ -83,8 +84,10 @@ bool LoadSecurity(Common& c) {
   return true;
 }
 
-// `connected`: wait (up to the call timeout) until the connection is up, so
-// that a call timed after it measures the call, not the handshake.
+// `connected`: wait (up to 5 s, and at most the call timeout) until the
+// connection is up, so that a call timed after it measures the call, not the
+// handshake. A server that is down fails the call after that, not after a
+// whole --timeout.
 std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = false) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(256 << 20);
@@ -95,7 +98,7 @@ std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = fa
     // A failure shows up, with its reason, in the call that follows.
     (void)channel->WaitForConnected(
         std::chrono::system_clock::now() +
-        std::chrono::milliseconds(static_cast<int64_t>(c.timeout * 1000)));
+        std::chrono::milliseconds(static_cast<int64_t>(std::min(c.timeout, 5.0) * 1000)));
   }
   return v1::Geodesic::NewStub(channel);
 }
@@ -106,6 +109,20 @@ void Prepare(grpc::ClientContext* ctx, const Common& c) {
   if (!c.token.empty()) ctx->AddMetadata("authorization", "Bearer " + c.token);
   ctx->set_deadline(std::chrono::system_clock::now() +
                     std::chrono::milliseconds(static_cast<int64_t>(c.timeout * 1000)));
+}
+
+// A number in [low, high] (NaN is not), as a CLI11 check.
+CLI::Validator NumberIn(double low, double high, const std::string& what) {
+  return CLI::Validator(
+      [=](std::string& text) -> std::string {
+        try {
+          const double v = std::stod(text);
+          if (v >= low && v <= high) return "";
+        } catch (const std::exception&) {
+        }
+        return what + ", got '" + text + "'";
+      },
+      what);
 }
 
 int Fail(const grpc::Status& s) {
@@ -530,10 +547,9 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   auto stub = Connect(c);
   std::vector<std::string> specs;
   if (!pairs_file.empty()) {
-    std::ifstream in(pairs_file);
-    if (!in) return FailText("cannot read " + pairs_file);
-    std::string a, b;
-    while (in >> a >> b) specs.push_back(a), specs.push_back(b);
+    auto pairs = ReadSpecPairs(pairs_file);
+    if (!pairs.ok()) return FailText(std::string(pairs.status().message()));
+    for (auto& [a, b] : *pairs) specs.push_back(a), specs.push_back(b);
   } else {
     if (from.empty() || to.empty()) return FailText("give --from and --to, or --pairs FILE");
     specs = {from, to};
@@ -812,7 +828,8 @@ int main(int argc, char** argv) {
       "of --eps";
   app.add_flag("--pseudo-vertices", c.pseudo_vertices, kPseudoHelp);
   app.add_flag("--json", c.json, "machine-readable output");
-  app.add_option("--timeout", c.timeout, "deadline per call, seconds");
+  app.add_option("--timeout", c.timeout, "deadline per call, seconds")
+      ->check(NumberIn(1e-3, 1e6, "seconds in [0.001, 1e6]"));
   app.add_option("--tls-ca", c.tls_ca, "PEM CA certificate of the server: connect with TLS")
       ->check(CLI::ExistingFile);
   app.add_option("--tls-cert", c.tls_cert, "PEM client certificate (servers with --tls-client-ca)")
@@ -853,7 +870,8 @@ int main(int argc, char** argv) {
                     "write each vertex's nearest source (geodesic Voronoi regions) as .npy, .csv "
                     "or .u32");
   field->add_option("--mesh-file", mesh_file, "local copy of the mesh, for .ply output");
-  field->add_option("--radius", radius, "only vertices within this distance");
+  field->add_option("--radius", radius, "only vertices within this distance (0: no limit)")
+      ->check(NumberIn(0, std::numeric_limits<double>::infinity(), "a distance, 0 or more"));
   field->add_option("--method", method,
                     "lc (default: each vertex relaxes only the fan of the edge it was reached by) "
                     "or dijkstra (every edge); both give the graph's shortest distances");

@@ -2,6 +2,8 @@
 
 #include <charconv>
 #include <cmath>
+#include <fstream>
+#include <sstream>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -189,6 +191,26 @@ Vec3 PositionOf(const Mesh& mesh, const SurfacePoint& p) {
              mesh.position(mesh.face_vertex(p.id, 2)) * p.bary[2];
   }
   return {};
+}
+
+absl::StatusOr<std::vector<SpecPair>> ReadSpecPairs(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrFormat("cannot read %s", path));
+  std::vector<SpecPair> pairs;
+  std::string line;
+  for (size_t number = 1; std::getline(in, line); ++number) {
+    std::istringstream fields(line);
+    std::vector<std::string> specs;
+    for (std::string spec; fields >> spec;) specs.push_back(spec);
+    if (specs.empty()) continue;
+    if (specs.size() != 2) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s line %u: expected two points, found %u", path, number, specs.size()));
+    }
+    pairs.push_back({specs[0], specs[1]});
+  }
+  if (in.bad()) return absl::DataLossError(absl::StrFormat("error reading %s", path));
+  return pairs;
 }
 
 }  // namespace geodesic

@@ -21,6 +21,8 @@
 #include <cstdint>
 #include <string>
 #include <string_view>
+#include <utility>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/mesh.h"
@@ -51,6 +53,13 @@ struct SurfacePointSpec {
 // Parses the text form above; INVALID_ARGUMENT names the bad part.
 absl::StatusOr<SurfacePointSpec> ParseSurfacePointSpec(std::string_view text);
 std::string FormatSurfacePoint(const SurfacePoint& p);
+
+// A pairs file: one pair of point specs per line, separated by white space;
+// blank lines are skipped. A line with one spec or more than two is
+// INVALID_ARGUMENT naming the file and line, so no pair is dropped or made
+// up silently. The specs are not parsed here.
+using SpecPair = std::pair<std::string, std::string>;
+absl::StatusOr<std::vector<SpecPair>> ReadSpecPairs(const std::string& path);
 
 // Checks ids against the mesh (OUT_OF_RANGE) and coordinates (INVALID_ARGUMENT:
 // NaN, negative, not summing to 1 within 1e-6, t outside [0, 1]).

@@ -25,6 +25,18 @@ int Fail(const char* command, const absl::Status& status);
 absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path,
                                                             bool repair_non_manifold = false);
 
+// A distance limit: a number above zero (inf allowed), never NaN.
+inline const CLI::Validator kPositiveDistance(
+    [](std::string& text) -> std::string {
+      try {
+        const double v = std::stod(text);
+        if (v > 0) return "";
+      } catch (const std::exception&) {
+      }
+      return "must be a distance above 0, got '" + text + "'";
+    },
+    "DISTANCE > 0");
+
 // Adds --repair-non-manifold to a command that loads a mesh.
 void AddRepairFlag(CLI::App& app, bool* repair);
 

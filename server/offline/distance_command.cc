@@ -1,9 +1,7 @@
 // geodesicd distance: point-to-point distances (and paths) on a DGG.
 #include <chrono>
 #include <cstdio>
-#include <fstream>
 #include <optional>
-#include <sstream>
 
 #include "CLI/CLI.hpp"
 #include "absl/strings/str_format.h"
@@ -56,21 +54,9 @@ int RunDistance(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   std::vector<std::pair<std::string, std::string>> pairs;
   if (!pairs_path.empty()) {
-    std::ifstream in(pairs_path);
-    if (!in) return Fail("distance", absl::NotFoundError("cannot read " + pairs_path));
-    std::string line;
-    size_t number = 0;
-    while (std::getline(in, line)) {
-      ++number;
-      std::istringstream fields(line);
-      std::string a, b;
-      if (!(fields >> a)) continue;  // blank line
-      if (!(fields >> b)) {
-        return Fail("distance", absl::InvalidArgumentError(absl::StrFormat(
-                                    "%s line %u: expected two points", pairs_path, number)));
-      }
-      pairs.push_back({a, b});
-    }
+    auto read = ReadSpecPairs(pairs_path);
+    if (!read.ok()) return Fail("distance", read.status());
+    pairs = *std::move(read);
   } else if (!from.empty() && !to.empty()) {
     if (!path_out.empty()) {
       if (absl::Status s = CheckPolylinePath(path_out); !s.ok()) return Fail("distance", s);

@@ -34,7 +34,8 @@ int RunField(int argc, char** argv) {
                  "lc (default: each vertex relaxes only the fan of the edge it was reached by) or "
                  "dijkstra (every edge); both give the graph's shortest distances")
       ->check(CLI::IsMember({"lc", "dijkstra"}));
-  app.add_option("--max-distance", max_distance, "only settle vertices within this distance");
+  app.add_option("--max-distance", max_distance, "only settle vertices within this distance")
+      ->check(kPositiveDistance);
   app.add_flag("--json", json, "print a JSON object");
   bool repair = false;
   AddRepairFlag(app, &repair);

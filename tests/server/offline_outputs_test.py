@@ -79,6 +79,21 @@ with tempfile.TemporaryDirectory() as work:
             expect_ok=False)
     check("labels refuse .f64", r.returncode != 0 and ".npy, .csv, .u32" in r.stderr, r.stderr)
 
+    # A pairs file line without exactly two points is refused by file and
+    # line, never dropped or truncated silently.
+    bad_pairs = os.path.join(work, "bad.pairs")
+    with open(bad_pairs, "w") as f:
+        f.write("v:0 v:10\n\nv:1 v:2 v:3\n")
+    r = run("distance", *common, "--pairs", bad_pairs, expect_ok=False)
+    check("a pairs line with three points is refused by line",
+          r.returncode != 0 and "bad.pairs line 3: expected two points, found 3" in r.stderr,
+          r.stderr)
+    for value in ("-1", "0", "nan"):
+        r = run("field", *common, "--source", "v:0", "--max-distance", value, "--out",
+                os.path.join(work, "m.f64"), expect_ok=False)
+        check(f"field refuses --max-distance {value}",
+              r.returncode != 0 and "--max-distance" in r.stderr, r.stderr)
+
     # A path as a polyline: its segments add up to the distance reported.
     out = run("distance", *common, "--from", "f:0:0.2,0.3,0.5", "--to", "xyz:0.3,0.1,0",
               "--path-out", os.path.join(work, "p.obj"), "--json").stdout
