@@ -149,6 +149,21 @@ class ClientTest(unittest.TestCase):
         d = self.client.distance("spot", "xyz:0.1,0.2,0.3", snapped, epsilon=0.01)
         self.assertAlmostEqual(d, 0.0, places=9)
 
+    def test_batches_shrink_to_a_small_message_limit(self):
+        # Each "larger than max" answer must shrink the next batch: it once
+        # resent the same batch forever.
+        rng = np.random.default_rng(3)
+        faces = rng.integers(0, 5000, 200)
+        bary = rng.dirichlet([1, 1, 1], 200)
+        specs = [f"f:{f}:{b[0]!r},{b[1]!r},{1 - b[0] - b[1]!r}" for f, b in zip(faces, bary)]
+        want = self.client.distances("spot", specs[:100], specs[100:], epsilon=0.01)
+        with Client(f"127.0.0.1:{self.port}", timeout=60, max_message_bytes=4096) as small:
+            got = small.distances("spot", specs[:100], specs[100:], epsilon=0.01)
+        # An ulp apart at most: a search that meets at another node (before
+        # and after the landmarks are ready) adds the same edges in another
+        # order.
+        np.testing.assert_allclose(got, want, rtol=1e-14)
+
     def test_errors_carry_codes(self):
         with self.assertRaises(grpc.RpcError) as e:
             self.client.distance("spot", "v:999999", "v:1", epsilon=0.01)

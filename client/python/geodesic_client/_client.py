@@ -290,8 +290,10 @@ class Client:
         out = np.empty(len(pa), dtype=np.float64)
         paths: List[Path] = []
         i = 0
+        # Shrinks with every "too large" answer, so a retry never repeats a
+        # batch the server (or the channel) refused.
+        batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
         while i < len(pa):
-            batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
             j = min(len(pa), i + batch)
             req = pb.DistanceRequest(mesh=mesh, epsilon=self._eps(epsilon), with_path=with_path,
                                      pseudo_vertices=pseudo_vertices,
@@ -303,6 +305,7 @@ class Client:
                 smaller = self._smaller_batch(e, j - i)
                 if smaller is None:
                     raise
+                batch = smaller
                 if with_path:
                     self.path_batch = smaller
                 if smaller < self.max_pairs and _LIMIT.search(e.details()):
