@@ -496,7 +496,9 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
                                    v1::SnapResponse* resp) {
   return Handle("Snap", ctx, req->mesh(), true, [&]() -> absl::Status {
     if (req->positions_size() > limits_.max_pairs) {
-      return absl::ResourceExhaustedError("too many positions in one call");
+      return absl::ResourceExhaustedError(
+          absl::StrFormat("%d positions exceed the limit of %d per call", req->positions_size(),
+                          limits_.max_pairs));
     }
     auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();

@@ -179,10 +179,12 @@ int RunServe(int argc, char** argv) {
                  "bytes of registered meshes, ready graphs and their query scratch to keep, e.g. "
                  "6G or 512M: least recently used graphs no query holds are evicted to stay "
                  "within it; meshes are not (0: no limit)");
-  app.add_option("--disk-limit", disk_limit_text,
-                 "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
-                 "snapshots no catalog entry names go first, then catalogued ones (rebuilt when "
-                 "needed); never a file in use (0: no limit)");
+  app.add_option(
+      "--disk-limit", disk_limit_text,
+      "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
+      "snapshots no catalog entry names go first, then catalogued ones (rebuilt when "
+      "needed); never a file in use, an uploaded mesh's snapshot or a file written in the "
+      "last two minutes (0: no limit)");
   app.add_option("--config", config_path,
                  "YAML file of meshes to register and graphs to build at start (see "
                  "server/config_file.h)")

@@ -164,6 +164,37 @@ class ClientTest(unittest.TestCase):
         # order.
         np.testing.assert_allclose(got, want, rtol=1e-14)
 
+    def test_lower_server_limits_are_learnt_by_every_call(self):
+        # A daemon with tighter limits than the client's defaults: matrix,
+        # field and snap split their work as distances does.
+        work = tempfile.mkdtemp()
+        daemon, ports = start_daemon(
+            BIN, work, ["--graph-dir", f"{work}/g", "--mesh-root", f"{SRC}/data", "--log-level", "error",
+                        "--max-pairs", "50", "--max-sources", "4"])
+        try:
+            with Client(f"127.0.0.1:{ports['grpc']}", timeout=60) as tight:
+                for _ in range(100):
+                    try:
+                        tight.meshes()
+                        break
+                    except grpc.RpcError:
+                        time.sleep(0.1)
+                tight.request_graph("spot", epsilon=0.01, wait=True)
+                targets = np.arange(0, 2930, 14)[:200]
+                got = tight.matrix("spot", [0, 7, 900], targets, epsilon=0.01)
+                want = self.client.matrix("spot", [0, 7, 900], targets, epsilon=0.01)
+                np.testing.assert_allclose(got, want, rtol=1e-14)
+                sources = list(range(0, 2930, 293))  # 10
+                np.testing.assert_array_equal(tight.field("spot", sources, epsilon=0.01),
+                                              self.client.field("spot", sources, epsilon=0.01))
+                positions = np.random.default_rng(5).normal(size=(200, 3)) * 0.5
+                self.assertEqual(tight.snap("spot", positions), self.client.snap("spot", positions))
+                self.assertEqual((tight.max_pairs, tight.max_sources), (50, 4))
+        finally:
+            daemon.terminate()
+            daemon.wait(timeout=30)
+            shutil.rmtree(work)
+
     def test_errors_carry_codes(self):
         with self.assertRaises(grpc.RpcError) as e:
             self.client.distance("spot", "v:999999", "v:1", epsilon=0.01)

@@ -22,6 +22,7 @@ DEFAULT_MAX_MESSAGE_BYTES = 64 << 20
 DEFAULT_PATH_BATCH = 256
 
 _LIMIT = re.compile(r"exceed the limit of (\d+)")
+_MATRIX_LIMITS = re.compile(r"limits \((\d+) sources, (\d+) targets\)")
 
 
 class Client:
@@ -115,16 +116,34 @@ class Client:
         """SurfacePoints for a point set, positions snapped in batches."""
         messages = to_messages(points)
         at = [i for i, m in enumerate(messages) if isinstance(m, pb.Vec3)]
-        for start in range(0, len(at), self.max_pairs):
+        start = 0
+        while start < len(at):
             chunk = at[start:start + self.max_pairs]
-            snapped = self._unary("Snap", pb.SnapRequest(mesh=mesh, positions=[messages[i] for i
-                                                                               in chunk]), mesh)
+            try:
+                snapped = self._unary("Snap", pb.SnapRequest(
+                    mesh=mesh, positions=[messages[i] for i in chunk]), mesh)
+            except GeodesicError as e:
+                if self._learn_limit(e, "max_pairs", len(chunk)):
+                    continue
+                raise
             for i, p in zip(chunk, snapped.points):
                 messages[i] = p
+            start += len(chunk)
         return messages
 
     def _resolve_one(self, mesh: str, point: Point) -> Any:
         return self._resolve(mesh, [to_message(point)])[0]
+
+    def _learn_limit(self, error: GeodesicError, attr: str, size: int) -> bool:
+        """After RESOURCE_EXHAUSTED naming a server limit below `size`, lowers self.<attr> to
+        it and returns True (retry); otherwise False."""
+        limit = _LIMIT.search(error.details() or "")
+        if not isinstance(error, ResourceExhaustedError) or not limit:
+            return False
+        if not 0 < int(limit.group(1)) < size:
+            return False
+        setattr(self, attr, int(limit.group(1)))
+        return True
 
     @staticmethod
     def _smaller_batch(error: GeodesicError, size: int) -> Optional[int]:
@@ -246,12 +265,19 @@ class Client:
             raise ValueError("field: give at least one source")
         target_ids = [] if targets is None else to_messages_ids(targets)
         values, labels = None, None
-        for start in range(0, len(points), self.max_sources):
+        start = 0
+        while start < len(points):
+            batch = points[start:start + self.max_sources]
             req = pb.DistanceFieldRequest(
                 mesh=mesh, epsilon=self._eps(epsilon), max_distance=max_distance,
-                sources=points[start:start + self.max_sources], targets=target_ids,
+                sources=batch, targets=target_ids,
                 method=method, nearest_source=nearest_source, pseudo_vertices=pseudo_vertices)
-            part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
+            try:
+                part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
+            except GeodesicError as e:
+                if self._learn_limit(e, "max_sources", len(batch)):
+                    continue
+                raise
             if values is None:
                 values, labels = part, part_labels
                 if labels is not None:
@@ -261,6 +287,7 @@ class Client:
                 values = np.where(closer, part, values)
                 if labels is not None:
                     labels = np.where(closer, part_labels.astype(np.int64) + start, labels)
+            start += len(batch)
         return (values, labels) if nearest_source else values
 
     def _field_stream(self, req: Any) -> Tuple[np.ndarray, Optional[np.ndarray]]:
@@ -336,17 +363,29 @@ class Client:
         the server's limits."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
         out = np.empty((len(ps), len(pt)), dtype=np.float64)
-        cols = max(1, min(self.max_pairs, len(pt)))
-        # Half the message size: the repeated doubles plus their framing.
-        rows = max(1, min(self.max_sources, self._max_message // 2 // (8 * cols)))
-        for r in range(0, len(ps), rows):
-            for c in range(0, len(pt), cols):
-                resp = self._unary("Matrix", pb.MatrixRequest(
-                    mesh=mesh, epsilon=self._eps(epsilon), sources=ps[r:r + rows],
-                    targets=pt[c:c + cols], pseudo_vertices=pseudo_vertices), mesh)
-                out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
-                    resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
-        return out
+        while True:
+            cols = max(1, min(self.max_pairs, len(pt)))
+            # Half the message size: the repeated doubles plus their framing.
+            rows = max(1, min(self.max_sources, self._max_message // 2 // (8 * cols)))
+            try:
+                for r in range(0, len(ps), rows):
+                    for c in range(0, len(pt), cols):
+                        resp = self._unary("Matrix", pb.MatrixRequest(
+                            mesh=mesh, epsilon=self._eps(epsilon), sources=ps[r:r + rows],
+                            targets=pt[c:c + cols], pseudo_vertices=pseudo_vertices), mesh)
+                        out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
+                            resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
+                return out
+            except ResourceExhaustedError as e:
+                # The server's own limits, learnt: tile again with them.
+                limits = _MATRIX_LIMITS.search(e.details() or "")
+                if not limits:
+                    raise
+                max_sources, max_targets = (int(x) for x in limits.groups())
+                if not (0 < max_sources < self.max_sources or 0 < max_targets < self.max_pairs):
+                    raise
+                self.max_sources = min(self.max_sources, max(1, max_sources))
+                self.max_pairs = min(self.max_pairs, max(1, max_targets))
 
     def snap(self, mesh: str, positions: Any) -> List[str]:
         """Nearest surface points to (N, 3) positions, as spec strings."""
