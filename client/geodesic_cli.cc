@@ -402,6 +402,9 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
   if (wait && !cancel) {
     grpc::ClientContext ctx;
     Prepare(&ctx, c);
+    // --timeout bounds each call, not a build: a large mesh's takes minutes.
+    // The stream ends when the graph is ready, failed or cancelled.
+    ctx.set_deadline(std::chrono::system_clock::time_point::max());
     v1::GetGraphRequest req;
     req.set_mesh(c.mesh);
     req.set_epsilon(g.epsilon());

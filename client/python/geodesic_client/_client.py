@@ -206,10 +206,12 @@ class Client:
         g = self._unary("RequestGraph", request, mesh)
         # Under memory pressure a graph can be evicted again before this
         # client sees it ready; asking again brings it back from its file.
+        # The watch has no deadline: `timeout` bounds calls, not a build,
+        # and the stream ends when the graph is ready, failed or cancelled.
         for _ in range(10 if wait else 0):
             g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
                 pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon, pseudo_vertices=pseudo_vertices),
-                timeout=self.timeout, metadata=self._meta(mesh)), g))
+                timeout=None, metadata=self._meta(mesh)), g))
             if g.state != pb.GRAPH_STATE_EVICTED:
                 break
             g = self._unary("RequestGraph", request, mesh)
