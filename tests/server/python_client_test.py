@@ -185,8 +185,11 @@ class ClientTest(unittest.TestCase):
                 want = self.client.matrix("spot", [0, 7, 900], targets, epsilon=0.01)
                 np.testing.assert_allclose(got, want, rtol=1e-14)
                 sources = list(range(0, 2930, 293))  # 10
-                np.testing.assert_array_equal(tight.field("spot", sources, epsilon=0.01),
-                                              self.client.field("spot", sources, epsilon=0.01))
+                # The minimum of three partial fields: equal up to an ulp where
+                # two sources tie.
+                np.testing.assert_allclose(tight.field("spot", sources, epsilon=0.01),
+                                           self.client.field("spot", sources, epsilon=0.01),
+                                           rtol=1e-14)
                 positions = np.random.default_rng(5).normal(size=(200, 3)) * 0.5
                 self.assertEqual(tight.snap("spot", positions), self.client.snap("spot", positions))
                 self.assertEqual((tight.max_pairs, tight.max_sources), (50, 4))
