@@ -329,8 +329,13 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
   if (!upload.empty()) {
     std::ifstream in(upload, std::ios::binary);
     if (!in) return FailText("cannot read " + upload);
+    // The format is the file's extension: say so here rather than send the
+    // whole path as a format.
+    const std::string ext = std::filesystem::path(upload).extension().string();
+    if (ext.size() < 2) {
+      return FailText(upload + " has no extension naming its format (.obj, .off, .ply or .stl)");
+    }
     auto writer = stub->UploadMesh(&ctx, &resp);
-    std::string ext = upload.substr(upload.rfind('.') + 1);
     std::vector<char> buffer(1 << 20);
     bool first = true;
     while (in || first) {
@@ -338,7 +343,7 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
       v1::UploadMeshRequest chunk;
       if (first) {
         chunk.set_name(c.mesh);
-        chunk.set_format(ext);
+        chunk.set_format(ext.substr(1));
         chunk.set_repair_non_manifold(repair);
         first = false;
       }
@@ -916,10 +921,12 @@ int main(int argc, char** argv) {
                   "random points inside faces (each end then joined to the graph by its own "
                   "exact direct geodesics) instead of random vertices");
   // Also accepted after the subcommand, where `graph --pseudo-vertices` has
-  // always been.
+  // always been, and where the offline commands take --json.
   for (CLI::App* sub : {graph, field, distance, path, matrix, sample, bench}) {
     sub->add_flag("--pseudo-vertices", c.pseudo_vertices, kPseudoHelp);
   }
+  for (CLI::App* sub : app.get_subcommands({}))
+    sub->add_flag("--json", c.json, "machine-readable output");
   CLI11_PARSE(app, argc, argv);
   if (!LoadSecurity(c)) return 2;
   if (app.got_subcommand("meshes")) return CmdMeshes(c);

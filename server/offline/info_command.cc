@@ -36,7 +36,8 @@ int RunInfo(int argc, char** argv) {
   if (json) {
     Json report = Json::parse(diagnostics.ToJson());
     // What the mesh holds once loaded: sizes --memory-limit before any build.
-    if (mesh.ok()) report["mesh_bytes"] = mesh->memory_bytes();
+    // null for a mesh that cannot be used: the key is part of the contract.
+    report["mesh_bytes"] = mesh.ok() ? Json(mesh->memory_bytes()) : Json(nullptr);
     PrintJson(report);
   } else {
     std::fputs(diagnostics.ToText().c_str(), stdout);

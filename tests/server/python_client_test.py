@@ -198,6 +198,16 @@ class ClientTest(unittest.TestCase):
             daemon.wait(timeout=30)
             shutil.rmtree(work)
 
+    def test_one_position_is_one_source_and_a_missing_upload_names_the_file(self):
+        one = self.client.field("spot", np.array([0.1, 0.2, 0.3]), epsilon=0.01)
+        np.testing.assert_array_equal(
+            one, self.client.field("spot", [[0.1, 0.2, 0.3]], epsilon=0.01))
+        self.assertEqual(one.shape, (2930,))
+        with self.assertRaises(FileNotFoundError):
+            self.client.upload_mesh("ghost", f"{self.work}/no-such-file.obj")
+        with self.assertRaisesRegex(ValueError, "no extension"):
+            self.client.upload_mesh("ghost", f"{SRC}/README.md"[:-3])
+
     def test_errors_carry_codes(self):
         with self.assertRaises(grpc.RpcError) as e:
             self.client.distance("spot", "v:999999", "v:1", epsilon=0.01)

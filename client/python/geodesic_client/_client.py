@@ -1,4 +1,5 @@
 """The geodesicd client."""
+import os
 import random
 import re
 import time
@@ -177,7 +178,15 @@ class Client:
 
     def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Any:
         """Uploads a local .obj/.off/.ply/.stl file and registers it under name."""
-        fmt = filename.rsplit(".", 1)[-1].lower()
+        fmt = os.path.splitext(filename)[1][1:].lower()
+        if not fmt:
+            raise ValueError(f"upload_mesh: {filename} has no extension naming its format "
+                             "(.obj, .off, .ply or .stl)")
+        # Opened before the call, so a missing file raises here by name
+        # instead of inside gRPC's request iterator ("Exception iterating
+        # requests!").
+        with open(filename, "rb"):
+            pass
 
         def chunks():
             with open(filename, "rb") as f:
@@ -262,6 +271,9 @@ class Client:
         """
         if isinstance(sources, (str, int, np.integer)):
             sources = [sources]
+        elif _is_position(sources):
+            sources = np.asarray(sources, dtype=np.float64).reshape(1, 3)
+
         points = self._resolve(mesh, sources)
         if not points:
             raise ValueError("field: give at least one source")
@@ -404,6 +416,15 @@ class Client:
             mesh=mesh, epsilon=self._eps(epsilon), count=count, seed=seed,
             pseudo_vertices=pseudo_vertices), mesh)
         return np.asarray(resp.vertices, dtype=np.uint32), float(resp.covering_radius)
+
+
+def _is_position(value: Any) -> bool:
+    """One (x, y, z) position given as a 3-vector of floats (a list of three ints are vertex
+    ids)."""
+    if isinstance(value, np.ndarray):
+        return value.shape == (3,) and np.issubdtype(value.dtype, np.floating)
+    return (isinstance(value, list) and len(value) == 3 and
+            all(isinstance(x, (float, np.floating)) for x in value))
 
 
 def to_messages_ids(targets: Any) -> List[int]:
