@@ -695,7 +695,9 @@ struct HttpGateway::Impl {
     if (!s.ok()) return s;
     json points = json::array();
     for (const auto& p : resp.points()) points.push_back(FormatProtoPoint(p));
-    *out = {{"points", std::move(points)}};
+    json distances = json::array();
+    for (double d : resp.distances()) distances.push_back(JsonDistance(d));
+    *out = {{"points", std::move(points)}, {"distances", std::move(distances)}};
     return s;
   }
 };

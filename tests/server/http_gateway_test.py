@@ -201,6 +201,26 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200, body)
         self.assertEqual(body["distances"], [self.client.distance("spot", snapped, "v:9", EPS)])
 
+    def test_snap_equals_grpc_and_says_how_far_each_position_was(self):
+        status, geo = curl(f"{self.base}/v1/meshes/spot/geometry")
+        self.assertEqual(status, 200)
+        on_surface = geo["positions"][27:30]  # vertex 9
+        lifted = [on_surface[0], on_surface[1], on_surface[2] + 0.25]
+        status, body = self.post("snap", {"positions": [on_surface, lifted]})
+        self.assertEqual(status, 200, body)
+        self.assertEqual(len(body["points"]), 2)
+        # Both print round-trip exact numbers, C++ with 17 digits, Python the shortest.
+        def parsed(spec):
+            kind, element, *rest = spec.split(":")
+            return kind, int(element), [float(x) for x in rest[0].split(",")] if rest else []
+        self.assertEqual([parsed(p) for p in body["points"]],
+                         [parsed(p) for p in self.client.snap("spot", [on_surface, lifted])])
+        near, far = body["distances"]
+        self.assertLessEqual(near, 1e-12)
+        # Vertex 9 is 0.25 from the lifted position, so the nearest point is no farther.
+        self.assertGreater(far, 0)
+        self.assertLessEqual(far, 0.25 * (1 + 1e-12))
+
     def test_field_equals_grpc_with_null_where_unreachable(self):
         sources = ["v:3", "f:100:0.1,0.1,0.8"]
         status, body = self.post("field", {"sources": sources, "eps": EPS})
