@@ -5,10 +5,13 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <map>
 #include <system_error>
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
+#include "core/graph_file.h"
+#include "core/mesh_snapshot.h"
 
 namespace geodesic::server {
 namespace {
@@ -27,6 +30,31 @@ bool Removable(const std::string& name) {
 }
 
 }  // namespace
+
+CatalogFiles FilesOf(const CatalogState& state) {
+  CatalogFiles files;
+  std::map<std::string, uint64_t> fingerprints;
+  for (const CatalogMesh& m : state.meshes) {
+    files.catalogued.insert(MeshSnapshotName(m.source_hash));
+    if (m.source == "upload") files.uploads.insert(MeshSnapshotName(m.source_hash));
+    fingerprints[m.name] = m.fingerprint;
+  }
+  for (const CatalogGraph& g : state.graphs) {
+    if (auto it = fingerprints.find(g.mesh); it != fingerprints.end()) {
+      files.catalogued.insert(GraphFileName(it->second, g.params));
+    }
+  }
+  return files;
+}
+
+FileRole GraphDirFileRole(const std::string& dir, const std::string& name,
+                          const CatalogFiles& files, bool in_use, std::chrono::seconds grace) {
+  if (in_use || files.uploads.contains(name)) return FileRole::kInUse;
+  std::error_code ec;
+  const auto written = fs::last_write_time(fs::path(dir) / name, ec);
+  if (ec || fs::file_time_type::clock::now() - written < grace) return FileRole::kInUse;
+  return files.catalogued.contains(name) ? FileRole::kCataloged : FileRole::kSpare;
+}
 
 absl::StatusOr<uint64_t> DirectoryBytes(const std::string& dir) {
   std::error_code ec;

@@ -12,12 +12,15 @@
 #ifndef GEODESIC_SERVER_DISK_BUDGET_H_
 #define GEODESIC_SERVER_DISK_BUDGET_H_
 
+#include <chrono>
 #include <cstdint>
 #include <functional>
+#include <set>
 #include <string>
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "server/catalog.h"
 
 namespace geodesic::server {
 
@@ -40,6 +43,21 @@ struct DiskReport {
 absl::StatusOr<DiskReport> EnforceDiskLimit(
     const std::string& dir, uint64_t limit,
     const std::function<FileRole(const std::string&)>& role);
+
+// The graph directory's files a catalog names.
+struct CatalogFiles {
+  std::set<std::string> catalogued;  // made again by a restart if removed...
+  std::set<std::string> uploads;     // ...except uploaded meshes' snapshots: the only copy
+};
+CatalogFiles FilesOf(const CatalogState& state);
+
+// The daemon's rule for file `name` in `dir`, given the catalog read before
+// the sweep: in use if `in_use` says so, if it is an upload's snapshot, or
+// if it was written less than `grace` ago (or its time cannot be read),
+// since a registration or a replica's file may not be in that catalog yet;
+// then catalogued, then spare.
+FileRole GraphDirFileRole(const std::string& dir, const std::string& name,
+                          const CatalogFiles& files, bool in_use, std::chrono::seconds grace);
 
 // The total size of the directory's regular files.
 absl::StatusOr<uint64_t> DirectoryBytes(const std::string& dir);

@@ -532,35 +532,13 @@ int RunServe(int argc, char** argv) {
       }
       auto state = catalog->Read();
       if (!state.ok()) continue;
-      std::set<std::string> catalogued, uploads;
-      std::map<std::string, uint64_t> fingerprints;
-      for (const CatalogMesh& m : state->meshes) {
-        catalogued.insert(MeshSnapshotName(m.source_hash));
-        // A restart rebuilds a catalogued file from its source, except an
-        // uploaded mesh's snapshot: that is the only copy.
-        if (m.source == "upload") uploads.insert(MeshSnapshotName(m.source_hash));
-        fingerprints[m.name] = m.fingerprint;
-      }
-      for (const CatalogGraph& g : state->graphs) {
-        if (fingerprints.contains(g.mesh)) {
-          catalogued.insert(GraphFileName(fingerprints[g.mesh], g.params));
-        }
-      }
+      const CatalogFiles files = FilesOf(*state);
       auto report = EnforceDiskLimit(graph_dir, *disk_limit, [&](const std::string& name) {
-        if (uploads.contains(name) || graphs.FileInUse(name)) return FileRole::kInUse;
         // Asked afresh each time, as EnforceDiskLimit asks again just before
         // removing: a mesh registered since the listing has its snapshot.
-        for (const auto& m : meshes.List()) {
-          if (MeshRegistry::SnapshotName(*m) == name) return FileRole::kInUse;
-        }
-        // A recent file may not be in the catalog read above yet (kDiskGrace).
-        std::error_code ec;
-        const auto written =
-            std::filesystem::last_write_time(std::filesystem::path(graph_dir) / name, ec);
-        if (ec || std::filesystem::file_time_type::clock::now() - written < kDiskGrace) {
-          return FileRole::kInUse;
-        }
-        return catalogued.contains(name) ? FileRole::kCataloged : FileRole::kSpare;
+        bool in_use = graphs.FileInUse(name);
+        for (const auto& m : meshes.List()) in_use |= MeshRegistry::SnapshotName(*m) == name;
+        return GraphDirFileRole(graph_dir, name, files, in_use, kDiskGrace);
       });
       if (!report.ok()) {
         Log(LogLevel::kError, "disk_limit_failed", {{"error", report.status().ToString()}});

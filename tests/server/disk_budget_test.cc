@@ -9,6 +9,8 @@
 #include <map>
 
 #include "absl/strings/str_cat.h"
+#include "core/graph_file.h"
+#include "core/mesh_snapshot.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
@@ -18,6 +20,7 @@ namespace {
 namespace fs = std::filesystem;
 using ::testing::ElementsAre;
 using ::testing::IsEmpty;
+using ::testing::UnorderedElementsAre;
 
 class DiskBudgetTest : public ::testing::Test {
  protected:
@@ -126,6 +129,58 @@ TEST_F(DiskBudgetTest, MarkFileUsedMovesAFileToTheBackOfTheLine) {
   auto report = Enforce(150);
   ASSERT_TRUE(report.ok()) << report.status();
   EXPECT_THAT(report->removed, ElementsAre("b.dgg"));
+}
+
+// The daemon's rule (serve --disk-limit) on a catalog with a mesh from a
+// path, an uploaded one and a graph, against the files actually there.
+class GraphDirRuleTest : public DiskBudgetTest {
+ protected:
+  void SetUp() override {
+    DiskBudgetTest::SetUp();
+    DggParams params;
+    params.epsilon = 1e-2;
+    state_.meshes = {{"scan", "scan.obj", "obj", 1, 10, false},
+                     {"sent", "upload", "ply", 2, 20, false}};
+    state_.graphs = {{"scan", params}, {"unloaded", params}};
+    files_ = FilesOf(state_);
+    scan_graph_ = GraphFileName(10, params);
+  }
+  FileRole Role(const std::string& name, bool in_use = false) {
+    return GraphDirFileRole(dir_, name, files_, in_use, kGrace);
+  }
+
+  static constexpr std::chrono::seconds kGrace{120};
+  CatalogState state_;
+  CatalogFiles files_;
+  std::string scan_graph_;
+};
+
+TEST_F(GraphDirRuleTest, TheCatalogNamesSnapshotsAndGraphsAndUploadsApart) {
+  EXPECT_THAT(files_.catalogued,
+              UnorderedElementsAre(MeshSnapshotName(1), MeshSnapshotName(2), scan_graph_));
+  EXPECT_THAT(files_.uploads, ElementsAre(MeshSnapshotName(2)));
+}
+
+TEST_F(GraphDirRuleTest, UploadsRecentFilesAndFilesInUseAreNeverRemoved) {
+  Add(MeshSnapshotName(1), 100, 900, FileRole::kCataloged);
+  Add(MeshSnapshotName(2), 100, 900, FileRole::kInUse);  // an upload: the only copy
+  Add(scan_graph_, 100, 800, FileRole::kCataloged);
+  Add("mapped.dgg", 100, 900, FileRole::kInUse);
+  Add("from-a-replica.dgg", 100, 30, FileRole::kInUse);  // younger than the grace
+  Add("forgotten.dgg", 100, 700, FileRole::kSpare);
+  for (const auto& [name, role] : roles_) {
+    EXPECT_EQ(Role(name, name == "mapped.dgg"), role) << name;
+  }
+  EXPECT_EQ(Role("vanished.dgg"), FileRole::kInUse);  // no time to go by
+
+  auto report = EnforceDiskLimit(
+      dir_, 1, [&](const std::string& name) { return Role(name, name == "mapped.dgg"); });
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_THAT(report->removed, ElementsAre("forgotten.dgg", MeshSnapshotName(1), scan_graph_));
+  EXPECT_TRUE(report->over_limit);
+  EXPECT_TRUE(Exists(MeshSnapshotName(2)));
+  EXPECT_TRUE(Exists("mapped.dgg"));
+  EXPECT_TRUE(Exists("from-a-replica.dgg"));
 }
 
 }  // namespace
