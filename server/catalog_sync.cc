@@ -15,6 +15,13 @@ absl::Status CatalogSync::Reconcile() {
   return ApplyLocked(state);
 }
 
+absl::Status CatalogSync::ReconcileIfChanged() {
+  absl::MutexLock lock(&mu_);
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Read());
+  if (state.generation <= generation_) return absl::OkStatus();
+  return ApplyLocked(state);
+}
+
 absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
   generation_ = state.generation;
   listed_.clear();
@@ -31,6 +38,8 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
     std::erase_if(graphs_, [&](const auto& g) { return g.first == it->first; });
     it = meshes_.erase(it);
   }
+  // A failure to restore what the catalog no longer lists is no news.
+  std::erase_if(failures_, [&](const auto& f) { return !state.FindMesh(f.first); });
   for (const CatalogMesh& m : state.meshes) {
     if (meshes_.contains(m.name)) continue;
     absl::Status s = hooks_.restore_mesh(m);
@@ -132,6 +141,13 @@ bool CatalogSync::Catalogued(const std::string& mesh) const {
 std::map<std::string, std::string> CatalogSync::failures() const {
   absl::MutexLock lock(&mu_);
   return failures_;
+}
+
+std::optional<std::string> CatalogSync::Failure(const std::string& mesh) const {
+  absl::MutexLock lock(&mu_);
+  auto it = failures_.find(mesh);
+  if (it == failures_.end()) return std::nullopt;
+  return it->second;
 }
 
 uint64_t CatalogSync::generation() const {

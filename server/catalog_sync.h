@@ -18,6 +18,7 @@
 
 #include <functional>
 #include <map>
+#include <optional>
 #include <set>
 #include <string>
 #include <utility>
@@ -48,6 +49,11 @@ class CatalogSync {
   // (unreadable, damaged); a mesh that fails to restore is reported by
   // failures() and tried again at the next call.
   absl::Status Reconcile();
+  // Reconcile, but only if the catalog changed since it was last applied:
+  // the cheap path for a query naming what this daemon lacks, so a stream
+  // of such queries reads the catalog without loading, again and again,
+  // a mesh that failed to restore (Reconcile alone retries those).
+  absl::Status ReconcileIfChanged();
 
   // A client registered `mesh`, already loaded here: records it. If the
   // catalog has a mesh of that name with another fingerprint (registered
@@ -67,6 +73,8 @@ class CatalogSync {
   bool Catalogued(const std::string& mesh) const;
   // Meshes that could not be restored, with the reason.
   std::map<std::string, std::string> failures() const;
+  // The reason `mesh` could not be restored, if it could not.
+  std::optional<std::string> Failure(const std::string& mesh) const;
   uint64_t generation() const;
 
  private:

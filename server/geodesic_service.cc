@@ -2,6 +2,7 @@
 
 #include <chrono>
 #include <cstdio>
+#include <optional>
 #include <string_view>
 
 #include "absl/cleanup/cleanup.h"
@@ -83,8 +84,16 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> GeodesicService::FindMesh(
   auto m = meshes_->Get(name);
   if (m.ok() || !absl::IsNotFound(m.status()) || !catalog_) return m;
   // Registered on another replica sharing the graph directory, perhaps.
-  RETURN_IF_ERROR(catalog_->Reconcile());
-  return meshes_->Get(name);
+  RETURN_IF_ERROR(catalog_->ReconcileIfChanged());
+  m = meshes_->Get(name);
+  if (m.ok() || !absl::IsNotFound(m.status())) return m;
+  if (std::optional<std::string> failure = catalog_->Failure(name)) {
+    return absl::UnavailableError(absl::StrFormat(
+        "mesh '%s' is in the catalog but could not be restored here (%s); the server tries "
+        "again as it follows the catalog, or unload the mesh and register it again",
+        name, *failure));
+  }
+  return m;
 }
 
 absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEngine(
@@ -93,7 +102,7 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
   if (engine.ok() || !catalog_ || graphs_->Get(key).ok()) return engine;
   // Requested on another replica, perhaps: follow the catalog, and give a
   // graph that only needs mapping from its file the moment that takes.
-  RETURN_IF_ERROR(catalog_->Reconcile());
+  RETURN_IF_ERROR(catalog_->ReconcileIfChanged());
   auto status = graphs_->Get(key);
   const absl::Time deadline = absl::Now() + absl::Seconds(2);
   while (status.ok() &&

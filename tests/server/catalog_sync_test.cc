@@ -140,6 +140,38 @@ TEST_F(CatalogSyncTest, ARestartRestoresMeshesAndThenTheirGraphs) {
   EXPECT_THAT(sync.failures(), IsEmpty());
 }
 
+// Queries naming what a daemon lacks reconcile only when the catalog
+// changed: a mesh that failed to restore is not loaded again per query.
+TEST_F(CatalogSyncTest, ReconcileIfChangedRetriesNothingUntilTheCatalogChanges) {
+  Catalog catalog_a(dir_), catalog_b(dir_);
+  FakeDaemon a, b;
+  b.unrestorable = {"broken"};
+  CatalogSync sync_a(&catalog_a, a.Hooks()), sync_b(&catalog_b, b.Hooks());
+  a.meshes["broken"] = 1;
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("broken", 1)).ok());
+
+  ASSERT_TRUE(sync_b.ReconcileIfChanged().ok());
+  EXPECT_EQ(b.restores, 1);
+  EXPECT_THAT(sync_b.Failure("broken"), ::testing::Optional(::testing::HasSubstr("damaged")));
+  EXPECT_EQ(sync_b.Failure("other"), std::nullopt);
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(sync_b.ReconcileIfChanged().ok());
+  EXPECT_EQ(b.restores, 1);
+
+  a.meshes["fine"] = 2;  // a change: applied, and the failed restore tried again
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("fine", 2)).ok());
+  ASSERT_TRUE(sync_b.ReconcileIfChanged().ok());
+  EXPECT_THAT(b.meshes, ElementsAre(Pair("fine", 2u)));
+  EXPECT_EQ(b.restores, 3);
+  ASSERT_TRUE(sync_b.Reconcile().ok());  // the follower's Reconcile always retries
+  EXPECT_EQ(b.restores, 4);
+
+  // Unloaded elsewhere: its failure is forgotten with it.
+  ASSERT_TRUE(sync_a.ForgetMesh("broken").ok());
+  ASSERT_TRUE(sync_b.ReconcileIfChanged().ok());
+  EXPECT_EQ(sync_b.Failure("broken"), std::nullopt);
+  EXPECT_THAT(sync_b.failures(), IsEmpty());
+}
+
 TEST_F(CatalogSyncTest, ANameTakenElsewhereWithOtherContentsIsRefused) {
   Catalog catalog_a(dir_), catalog_b(dir_);
   FakeDaemon a, b;

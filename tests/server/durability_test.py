@@ -165,6 +165,37 @@ with tempfile.TemporaryDirectory() as work:
         check(f"{path} answers {want_status}", status == want_status, status)
     stop(daemon)
 
+    # An uploaded mesh whose snapshot (its only copy) is lost while the daemon
+    # is down: queries say so, and unloading and uploading again recovers.
+    lost = os.path.join(work, "lost-graphs")
+    daemon, ports = serve(work, lost)
+    rc, _, err = cli(ports["grpc"], "--mesh", "sent", "load", "--upload", os.path.join(data, "spot.obj"))
+    check("sent uploaded", rc == 0, err)
+    stop(daemon)
+    for f in os.listdir(lost):
+        if f.endswith(".mesh"):
+            os.remove(os.path.join(lost, f))
+    daemon, ports = serve(work, lost)
+    for _ in range(3):  # each a catalog read, not another restore
+        rc, _, err = cli(ports["grpc"], "--mesh", "sent", "--eps", "0.01", "distance",
+                         "--from", "v:1", "--to", "v:2000")
+    check("a mesh that failed to restore is named as such",
+          rc != 0 and "UNAVAILABLE" in err and "could not be restored here" in err, err)
+    with open(os.path.join(work, "daemon.log")) as f:
+        restore_failures = f.read().count("catalog_mesh_restore_failed")
+    check("and its restore is not retried by every query", restore_failures <= 2, restore_failures)
+    rc, _, err = cli(ports["grpc"], "--mesh", "sent", "unload")
+    _, _, gone = cli(ports["grpc"], "--mesh", "sent", "--eps", "0.01", "distance",
+                     "--from", "v:1", "--to", "v:2000")
+    check("once unloaded it is simply not found", "NOT_FOUND" in gone, gone)
+    rc2, _, err2 = cli(ports["grpc"], "--mesh", "sent", "load", "--upload",
+                       os.path.join(data, "spot.obj"))
+    rc3, _, err3 = cli(ports["grpc"], "--mesh", "sent", "--eps", "0.01", "graph", "--wait")
+    check("unloading and uploading again recovers it",
+          rc == 0 and rc2 == 0 and rc3 == 0 and distance_within(ports["grpc"], "sent", 10) == want,
+          err + err2 + err3)
+    stop(daemon)
+
     r = subprocess.run([f"{bin_dir}/geodesicd", "serve", "--listen", "127.0.0.1:0",
                         "--memory-limit", "6 lots"], capture_output=True, text=True, timeout=60)
     check("a bad size is refused by flag and value",
