@@ -199,6 +199,7 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
 grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
                                            const v1::RegisterMeshRequest* req, v1::Mesh* resp) {
   return Handle("RegisterMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    NameLocks::Hold hold(names_, req->name());
     const bool existed = meshes_->Get(req->name()).ok();
     auto m = meshes_->RegisterPath(req->name(), req->path(), req->repair_non_manifold());
     if (!m.ok()) return m.status();
@@ -225,6 +226,7 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
       }
       bytes += chunk.data();
     }
+    NameLocks::Hold hold(names_, name);
     const bool existed = meshes_->Get(name).ok();
     auto m = meshes_->RegisterBytes(name, format, bytes, repair);
     if (!m.ok()) return m.status();
@@ -255,6 +257,7 @@ grpc::Status GeodesicService::GetMesh(grpc::ServerContext* ctx, const v1::GetMes
 grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::UnloadMeshRequest* req,
                                          v1::UnloadMeshResponse*) {
   return Handle("UnloadMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    NameLocks::Hold hold(names_, req->name());
     // The catalog first: once it no longer lists the mesh, no restart or
     // replica brings it back.
     bool catalogued = false;
@@ -270,6 +273,7 @@ grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::Unl
 grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
                                            const v1::RequestGraphRequest* req, v1::Graph* resp) {
   return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
+    NameLocks::Hold hold(names_, req->mesh());
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     const double eps = key.params.epsilon;
     auto m = FindMesh(req->mesh());
@@ -322,6 +326,7 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
 grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
+    NameLocks::Hold hold(names_, req->mesh());
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     auto g = graphs_->Cancel(key);
     // A ready graph has no operation to cancel: it stays catalogued and

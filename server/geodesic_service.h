@@ -12,6 +12,7 @@
 #include "server/graph_cache.h"
 #include "server/mesh_registry.h"
 #include "server/metrics.h"
+#include "server/name_locks.h"
 
 namespace geodesic::server {
 
@@ -96,6 +97,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   ServiceLimits limits_;
   std::string bearer_token_;
   CatalogSync* catalog_ = nullptr;
+  NameLocks names_;  // a mesh's changes, one at a time
   std::atomic<int> inflight_{0};
 };
 

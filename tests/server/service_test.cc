@@ -4,7 +4,9 @@
 #include <grpcpp/grpcpp.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <filesystem>
+#include <thread>
 
 #include "absl/strings/str_cat.h"
 #include "core/mesh_io.h"
@@ -242,6 +244,60 @@ TEST_F(ServiceTest, UnloadDropsTheMeshAndItsGraphs) {
   ASSERT_TRUE(stub_->ListGraphs(&ctx, {}, &list).ok());
   EXPECT_EQ(list.graphs_size(), 0);
   EXPECT_EQ(registry_->Get("spot").status().code(), absl::StatusCode::kNotFound);
+}
+
+// A registration and an unload of one name, raced again and again with a
+// catalog: whichever goes last, the registry and the catalog agree, so a
+// client told "registered" is never answered "not found" (nor, after a
+// restart, does an unloaded mesh come back).
+TEST_F(ServiceTest, RaceOfRegisterAndUnloadLeavesRegistryAndCatalogAgreeing) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / absl::StrCat("service_test.", getpid());
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  Catalog catalog(dir.string());
+  CatalogSync sync(
+      &catalog,
+      {.restore_mesh =
+           [&](const CatalogMesh& m) { return registry_->RegisterPath(m.name, m.source).status(); },
+       .drop_mesh = [&](const std::string& name) { registry_->Remove(name).IgnoreError(); },
+       .request_graph = [](const std::string&, const DggParams&) {},
+       .cancel_graph = [](const std::string&, const DggParams&) {}});
+  service_->UseCatalog(&sync);
+  auto register_raced = [&] {
+    grpc::ClientContext ctx;
+    v1::RegisterMeshRequest req;
+    req.set_name("raced");
+    req.set_path("spot.obj");
+    v1::Mesh mesh;
+    stub_->RegisterMesh(&ctx, req, &mesh);
+  };
+  auto unload_raced = [&] {
+    grpc::ClientContext ctx;
+    v1::UnloadMeshRequest req;
+    req.set_name("raced");
+    v1::UnloadMeshResponse resp;
+    stub_->UnloadMesh(&ctx, req, &resp);
+  };
+  // The unload starts later and later in the registration, so that some
+  // round lands in its last step, between loading and recording.
+  const auto begin = std::chrono::steady_clock::now();
+  register_raced();
+  const auto registration = std::chrono::steady_clock::now() - begin;
+  constexpr int kRounds = 100;
+  for (int round = 0; round < kRounds; ++round) {
+    unload_raced();
+    std::thread registrar(register_raced);
+    std::this_thread::sleep_for(registration * 1.5 * round / kRounds);
+    unload_raced();
+    registrar.join();
+    auto state = catalog.Read();
+    ASSERT_TRUE(state.ok()) << state.status();
+    ASSERT_EQ(registry_->Get("raced").ok(), state->FindMesh("raced") != nullptr)
+        << "round " << round;
+  }
+  service_->UseCatalog(nullptr);
+  std::filesystem::remove_all(dir);
 }
 
 // The exposition parsed line by line: every series has HELP and TYPE, and

@@ -1,0 +1,48 @@
+// One name's holders take turns; other names are not held up.
+#include "server/name_locks.h"
+
+#include <atomic>
+#include <chrono>
+#include <future>
+#include <thread>
+#include <vector>
+
+#include "gtest/gtest.h"
+
+namespace geodesic::server {
+namespace {
+
+TEST(NameLocksTest, HoldersOfOneNameTakeTurns) {
+  NameLocks locks;
+  std::atomic<int> inside{0}, most{0};
+  std::vector<std::thread> threads;
+  for (int t = 0; t < 4; ++t) {
+    threads.emplace_back([&] {
+      for (int i = 0; i < 200; ++i) {
+        NameLocks::Hold hold(locks, "mesh");
+        const int now = ++inside;
+        int seen = most.load();
+        while (now > seen && !most.compare_exchange_weak(seen, now)) {
+        }
+        std::this_thread::yield();
+        --inside;
+      }
+    });
+  }
+  for (auto& t : threads) t.join();
+  EXPECT_EQ(most.load(), 1);
+}
+
+TEST(NameLocksTest, AnotherNameIsNotHeldUpAndTheNameIsFreedOnRelease) {
+  NameLocks locks;
+  auto hold_a = std::make_unique<NameLocks::Hold>(locks, "a");
+  auto other = std::async(std::launch::async, [&] { NameLocks::Hold hold(locks, "b"); });
+  ASSERT_EQ(other.wait_for(std::chrono::seconds(10)), std::future_status::ready);
+  auto same = std::async(std::launch::async, [&] { NameLocks::Hold hold(locks, "a"); });
+  EXPECT_EQ(same.wait_for(std::chrono::milliseconds(100)), std::future_status::timeout);
+  hold_a.reset();
+  EXPECT_EQ(same.wait_for(std::chrono::seconds(10)), std::future_status::ready);
+}
+
+}  // namespace
+}  // namespace geodesic::server
