@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numeric>
 #include <random>
 #include <span>
@@ -338,6 +339,52 @@ std::vector<uint8_t> ActiveLandmarks(const Endpoint ends[2], const Landmarks& la
 
 }  // namespace
 
+namespace {
+
+// The weight of the edge u -> v (u's list is short: a scan).
+float EdgeWeight(const DggGraph& g, uint32_t u, uint32_t v) {
+  auto offsets = g.offsets();
+  auto edges = g.edges();
+  for (uint64_t i = offsets[u]; i < offsets[u + 1]; ++i) {
+    if (edges[i].target == v) return edges[i].weight;
+  }
+  return std::numeric_limits<float>::infinity();  // not reached: the search used it
+}
+
+// The length of the bidirectional search's path through `meet`, summed from
+// the first end point to the second, hop by hop, as a field from the first
+// point sums it. The search's own total adds the second half in the other
+// order, which may round differently: this way a matrix entry (one field per
+// row) equals the pair's distance to the last bit when both find one path.
+double SumAlongPath(const DggGraph& g, const Endpoint ends[2], PairTable& at, uint32_t meet) {
+  std::vector<uint32_t> chain;
+  uint32_t via = kViaSource;
+  for (uint32_t u = meet; u != kViaSource && u != kViaTemporary;) {
+    chain.push_back(u);
+    via = at.Find(u)->pred[0];
+    u = via;
+  }
+  std::reverse(chain.begin(), chain.end());
+  auto join_weight = [](const Endpoint& end, uint32_t node) {
+    for (const TemporaryEdge& e : end.edges) {
+      if (e.node == node) return e.weight;
+    }
+    return kInfinity;  // not reached: the node was joined by one of them
+  };
+  double d = via == kViaTemporary ? join_weight(ends[0], chain.front()) : 0.0;
+  for (size_t k = 0; k + 1 < chain.size(); ++k) d += EdgeWeight(g, chain[k], chain[k + 1]);
+  uint32_t u = meet;
+  for (uint32_t next = at.Find(u)->pred[1]; next != kViaSource && next != kViaTemporary;
+       next = at.Find(u)->pred[1]) {
+    d += EdgeWeight(g, u, next);
+    u = next;
+  }
+  if (at.Find(u)->pred[1] == kViaTemporary) d += join_weight(ends[1], u);
+  return d;
+}
+
+}  // namespace
+
 absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
                                                     const SurfacePoint& raw_b,
                                                     const PairOptions& options) const {
@@ -467,6 +514,9 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     }
   }
   result.distance = mu;
+  if (meet != kNone && mu < best) {
+    result.distance = std::min(best, SumAlongPath(g, ends, at, meet));
+  }
   if (!options.want_path || mu == kInfinity) return result;
 
   // Graph path: first point, forward chain to the meeting node, backward

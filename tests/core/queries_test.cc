@@ -370,10 +370,10 @@ std::vector<SurfacePoint> MixedPoints(const Mesh& mesh, uint32_t seed) {
   return points;
 }
 
-// A matrix entry is the pair's distance: Matrix and Distance join points to
-// the graph the same way, so they agree up to summation order and A*'s
-// float potentials (6e-8 relative, see queries.cc). A point's distance to
-// itself is 0, whatever kind of point it is.
+// A matrix entry is the pair's distance, to the last bit: Matrix and
+// Distance join points to the graph the same way and sum a path's hops in
+// the same order (SumAlongPath in queries.cc). A point's distance to itself
+// is 0, whatever kind of point it is.
 void ExpectMatrixEqualsPairs(const GeodesicEngine& engine,
                              const std::vector<SurfacePoint>& points) {
   auto m = engine.Matrix(points, points);
@@ -387,7 +387,7 @@ void ExpectMatrixEqualsPairs(const GeodesicEngine& engine,
           FormatSurfacePoint(points[i]) + " -> " + FormatSurfacePoint(points[j]);
       auto d = engine.Distance(points[i], points[j], {});
       ASSERT_OK(d);
-      EXPECT_NEAR(entry, d->distance, 1e-7 * d->distance) << pair;
+      EXPECT_EQ(entry, d->distance) << pair;
       const double straight =
           Distance(PositionOf(engine.mesh(), points[i]), PositionOf(engine.mesh(), points[j]));
       EXPECT_GE(entry, straight * (1 - 1e-12)) << pair;
@@ -430,7 +430,8 @@ TEST(QueriesTest, MatrixEqualsPairsOnSpot) {
 }
 
 // Entries on the independent solver's exact pairs: within the accuracy
-// contract (mean 0.3 eps, max 1.5 eps) and never below exact.
+// contract (mean 0.3 eps, max 1.5 eps), never below exact, and equal to the
+// pair's distance.
 class MatrixPairsTest : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(MatrixPairsTest, WithinEpsilonOfExactPairs) {
@@ -479,6 +480,9 @@ TEST_P(MatrixPairsTest, WithinEpsilonOfExactPairs) {
     EXPECT_LE(rel, 1.5 * eps) << "pair " << k;
     sum += rel;
     ++count;
+    auto pair = engine.Distance(pairs[k].a, pairs[k].b, {});
+    ASSERT_OK(pair);
+    EXPECT_EQ(entry, pair->distance) << "pair " << k;
   }
   ASSERT_GT(count, 0u);
   EXPECT_LT(sum / count, 0.3 * eps);
