@@ -22,6 +22,15 @@ std::string CodeName(grpc::StatusCode code) {
   return absl::StatusCodeToString(static_cast<absl::StatusCode>(code));
 }
 
+// A change of a mesh waited past the call's deadline for another change of
+// the same mesh to finish.
+absl::Status NameBusy(const std::string& mesh) {
+  return absl::DeadlineExceededError(absl::StrFormat(
+      "another change of mesh '%s' (a registration, unload or graph request) was still "
+      "running when the deadline passed",
+      mesh));
+}
+
 // Polled by long solves: the client went away or its deadline passed.
 std::function<bool()> Cancelled(grpc::ServerContext* ctx) {
   return [ctx] { return ctx->IsCancelled() || ctx->deadline() < std::chrono::system_clock::now(); };
@@ -199,7 +208,8 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
 grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
                                            const v1::RegisterMeshRequest* req, v1::Mesh* resp) {
   return Handle("RegisterMesh", ctx, req->name(), false, [&]() -> absl::Status {
-    NameLocks::Hold hold(names_, req->name());
+    NameLocks::Hold hold(names_, req->name(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(req->name());
     const bool existed = meshes_->Get(req->name()).ok();
     auto m = meshes_->RegisterPath(req->name(), req->path(), req->repair_non_manifold());
     if (!m.ok()) return m.status();
@@ -226,7 +236,8 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
       }
       bytes += chunk.data();
     }
-    NameLocks::Hold hold(names_, name);
+    NameLocks::Hold hold(names_, name, absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(name);
     const bool existed = meshes_->Get(name).ok();
     auto m = meshes_->RegisterBytes(name, format, bytes, repair);
     if (!m.ok()) return m.status();
@@ -257,7 +268,8 @@ grpc::Status GeodesicService::GetMesh(grpc::ServerContext* ctx, const v1::GetMes
 grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::UnloadMeshRequest* req,
                                          v1::UnloadMeshResponse*) {
   return Handle("UnloadMesh", ctx, req->name(), false, [&]() -> absl::Status {
-    NameLocks::Hold hold(names_, req->name());
+    NameLocks::Hold hold(names_, req->name(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(req->name());
     // The catalog first: once it no longer lists the mesh, no restart or
     // replica brings it back.
     bool catalogued = false;
@@ -273,7 +285,8 @@ grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::Unl
 grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
                                            const v1::RequestGraphRequest* req, v1::Graph* resp) {
   return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    NameLocks::Hold hold(names_, req->mesh());
+    NameLocks::Hold hold(names_, req->mesh(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(req->mesh());
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     const double eps = key.params.epsilon;
     auto m = FindMesh(req->mesh());
@@ -326,7 +339,8 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
 grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
   return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    NameLocks::Hold hold(names_, req->mesh());
+    NameLocks::Hold hold(names_, req->mesh(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(req->mesh());
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     auto g = graphs_->Cancel(key);
     // A ready graph has no operation to cancel: it stays catalogued and

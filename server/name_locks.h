@@ -12,26 +12,32 @@
 #include "absl/base/thread_annotations.h"
 #include "absl/container/flat_hash_set.h"
 #include "absl/synchronization/mutex.h"
+#include "absl/time/time.h"
 
 namespace geodesic::server {
 
 class NameLocks {
  public:
-  // Holds `name` from construction (waiting while another holder has it)
-  // to destruction. Other names are not held up.
+  // Holds `name` from construction (waiting while another holder has it,
+  // until `deadline`) to destruction. Other names are not held up.
   class Hold {
    public:
-    Hold(NameLocks& locks, std::string name) : locks_(locks), name_(std::move(name)) {
+    Hold(NameLocks& locks, std::string name, absl::Time deadline = absl::InfiniteFuture())
+        : locks_(locks), name_(std::move(name)) {
       absl::MutexLock lock(&locks_.mu_);
-      locks_.mu_.Await(absl::Condition(this, &Hold::Free));
-      locks_.held_.insert(name_);
+      held_ = locks_.mu_.AwaitWithDeadline(absl::Condition(this, &Hold::Free), deadline);
+      if (held_) locks_.held_.insert(name_);
     }
     ~Hold() {
+      if (!held_) return;
       absl::MutexLock lock(&locks_.mu_);
       locks_.held_.erase(name_);
     }
     Hold(const Hold&) = delete;
     Hold& operator=(const Hold&) = delete;
+
+    // False if the deadline passed first: the caller holds nothing.
+    bool held() const { return held_; }
 
    private:
     bool Free() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(locks_.mu_) {
@@ -40,6 +46,7 @@ class NameLocks {
 
     NameLocks& locks_;
     const std::string name_;
+    bool held_ = false;
   };
 
  private:

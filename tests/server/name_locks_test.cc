@@ -44,5 +44,20 @@ TEST(NameLocksTest, AnotherNameIsNotHeldUpAndTheNameIsFreedOnRelease) {
   EXPECT_EQ(same.wait_for(std::chrono::seconds(10)), std::future_status::ready);
 }
 
+TEST(NameLocksTest, AWaitEndsAtItsDeadlineHoldingNothing) {
+  NameLocks locks;
+  NameLocks::Hold first(locks, "a");
+  ASSERT_TRUE(first.held());
+  {
+    NameLocks::Hold late(locks, "a", absl::Now() + absl::Milliseconds(50));
+    EXPECT_FALSE(late.held());
+  }
+  // The late one's end did not free the name: "a" is still the first's.
+  NameLocks::Hold again(locks, "a", absl::Now() + absl::Milliseconds(50));
+  EXPECT_FALSE(again.held());
+  NameLocks::Hold other(locks, "b", absl::Now() + absl::Milliseconds(50));
+  EXPECT_TRUE(other.held());
+}
+
 }  // namespace
 }  // namespace geodesic::server
