@@ -22,11 +22,11 @@ for kind in $kinds; do
   cmake --build "$dir" -j"$(nproc)"
   if [ "$kind" = address ]; then
     export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
-    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L "core|unit"
+    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L "core|server-unit"
     ctest --test-dir "$dir" --output-on-failure --timeout 1800 -R "server_e2e|server_faults|server_security|distributed_build"
   else
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
-    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L "core|unit" \
+    ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
       -E "SharedAccuracyTest|TruthTest|ManifestTest|PseudoVerticesTest|BuildIsIdenticalWhateverTheThreadCount"
   fi
 done

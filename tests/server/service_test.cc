@@ -171,8 +171,10 @@ TEST_F(ServiceTest, MatrixEqualsDistanceAndEchoesItsSolver) {
   ASSERT_TRUE(stub_->Distance(&pair_ctx, pairs, &distances).ok());
   for (int k = 0; k < 16; ++k) {
     const double d = distances.results(k).distance();
-    EXPECT_NEAR(matrix.distances(k), d, 1e-7 * d) << "entry " << k;
-    if (k % 5 == 0) EXPECT_EQ(matrix.distances(k), 0) << "a point's distance to itself";
+    EXPECT_EQ(matrix.distances(k), d) << "entry " << k;
+    if (k % 5 == 0) {
+      EXPECT_EQ(matrix.distances(k), 0) << "a point's distance to itself";
+    }
   }
 }
 
@@ -328,7 +330,9 @@ TEST(MetricsTest, CountersAndGaugesAreTypedAsPrometheusExpects) {
   }
   for (const auto& [name, type] : types) {
     EXPECT_THAT(page, HasSubstr("# HELP " + name + " ")) << name;
-    if (type == "counter") EXPECT_TRUE(name.ends_with("_total")) << name;
+    if (type == "counter") {
+      EXPECT_TRUE(name.ends_with("_total")) << name;
+    }
   }
   EXPECT_EQ(types["geodesicd_cache_hits_total"], "counter");
   EXPECT_EQ(types["geodesicd_requests_total"], "counter");
