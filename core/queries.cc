@@ -351,35 +351,38 @@ float EdgeWeight(const DggGraph& g, uint32_t u, uint32_t v) {
   return std::numeric_limits<float>::infinity();  // not reached: the search used it
 }
 
-// The length of the bidirectional search's path through `meet`, summed from
-// the first end point to the second, hop by hop, as a field from the first
-// point sums it. The search's own total adds the second half in the other
-// order, which may round differently: this way a matrix entry (one field per
-// row) equals the pair's distance to the last bit when both find one path.
-double SumAlongPath(const DggGraph& g, const Endpoint ends[2], PairTable& at, uint32_t meet) {
-  std::vector<uint32_t> chain;
-  uint32_t via = kViaSource;
-  for (uint32_t u = meet; u != kViaSource && u != kViaTemporary;) {
-    chain.push_back(u);
-    via = at.Find(u)->pred[0];
-    u = via;
+// The graph nodes of the bidirectional search's path through `meet`, from
+// the first end point's side to the second's.
+std::vector<uint32_t> RouteThrough(PairTable& at, uint32_t meet) {
+  std::vector<uint32_t> route;
+  for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = at.Find(u)->pred[0]) {
+    route.push_back(u);
   }
-  std::reverse(chain.begin(), chain.end());
+  std::reverse(route.begin(), route.end());
+  for (uint32_t u = at.Find(meet)->pred[1]; u != kViaSource && u != kViaTemporary;
+       u = at.Find(u)->pred[1]) {
+    route.push_back(u);
+  }
+  return route;
+}
+
+// The length of `route`, summed from the first end point to the second, hop
+// by hop, as a field from the first point sums it. The search's own total
+// adds the second half in the other order, which may round differently: this
+// way a matrix entry (one field per row) equals the pair's distance to the
+// last bit when both find one path.
+double SumAlongRoute(const DggGraph& g, const Endpoint ends[2], PairTable& at,
+                     const std::vector<uint32_t>& route) {
   auto join_weight = [](const Endpoint& end, uint32_t node) {
     for (const TemporaryEdge& e : end.edges) {
       if (e.node == node) return e.weight;
     }
     return kInfinity;  // not reached: the node was joined by one of them
   };
-  double d = via == kViaTemporary ? join_weight(ends[0], chain.front()) : 0.0;
-  for (size_t k = 0; k + 1 < chain.size(); ++k) d += EdgeWeight(g, chain[k], chain[k + 1]);
-  uint32_t u = meet;
-  for (uint32_t next = at.Find(u)->pred[1]; next != kViaSource && next != kViaTemporary;
-       next = at.Find(u)->pred[1]) {
-    d += EdgeWeight(g, u, next);
-    u = next;
-  }
-  if (at.Find(u)->pred[1] == kViaTemporary) d += join_weight(ends[1], u);
+  double d =
+      at.Find(route.front())->pred[0] == kViaTemporary ? join_weight(ends[0], route.front()) : 0.0;
+  for (size_t k = 0; k + 1 < route.size(); ++k) d += EdgeWeight(g, route[k], route[k + 1]);
+  if (at.Find(route.back())->pred[1] == kViaTemporary) d += join_weight(ends[1], route.back());
   return d;
 }
 
@@ -514,34 +517,28 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
     }
   }
   result.distance = mu;
-  if (meet != kNone && mu < best) {
-    result.distance = std::min(best, SumAlongPath(g, ends, at, meet));
+  // A direct geodesic that won has no route through the graph.
+  std::vector<uint32_t> route;
+  if (meet != kNone && mu < best) route = RouteThrough(at, meet);
+  if (!options.want_path) {
+    if (!route.empty()) result.distance = std::min(best, SumAlongRoute(g, ends, at, route));
+    return result;
   }
-  if (!options.want_path || mu == kInfinity) return result;
+  if (mu == kInfinity) return result;
 
-  // Graph path: first point, forward chain to the meeting node, backward
-  // chain to the second point, with the distance along the graph at each
-  // stop. A direct geodesic that won has no relays.
+  // Graph path: first point, the route's nodes, second point, with the
+  // distance along the graph at each stop (up to the meeting node the first
+  // side's, after it what the second side leaves of mu).
   std::vector<SurfacePoint> stops{ends[0].point};
   std::vector<double> along{0.0};
-  if (meet != kNone && mu < best) {
-    std::vector<uint32_t> chain;
-    for (uint32_t u = meet; u != kViaSource && u != kViaTemporary; u = at.Find(u)->pred[0]) {
-      chain.push_back(u);
-    }
-    std::reverse(chain.begin(), chain.end());
-    for (uint32_t u : chain) {
-      if (!(ends[0].is_node && u == ends[0].node)) {
-        stops.push_back(g.point_of_node(u));
-        along.push_back(at.Find(u)->dist[0]);
-      }
-    }
-    for (uint32_t u = at.Find(meet)->pred[1]; u != kViaSource && u != kViaTemporary;
-         u = at.Find(u)->pred[1]) {
-      if (ends[1].is_node && u == ends[1].node) break;
-      stops.push_back(g.point_of_node(u));
-      along.push_back(mu - at.Find(u)->dist[1]);
-    }
+  const size_t meet_at = std::find(route.begin(), route.end(), meet) - route.begin();
+  for (size_t k = 0; k < route.size(); ++k) {
+    const uint32_t u = route[k];
+    const bool first_side = k <= meet_at;
+    const Endpoint& end = first_side ? ends[0] : ends[1];
+    if (end.is_node && u == end.node) continue;  // the end point's own stop
+    stops.push_back(g.point_of_node(u));
+    along.push_back(first_side ? at.Find(u)->dist[0] : mu - at.Find(u)->dist[1]);
   }
   stops.push_back(ends[1].point);
   along.push_back(mu);
