@@ -570,7 +570,7 @@ INSTANTIATE_TEST_SUITE_P(SharedMeshes, SharedAccuracyTest,
 // between edge directions that the graph does not already serve, so there
 // are some, far fewer than vertices (the gap rule alone added 7 per vertex
 // here), and the graph stays valid and within the contract.
-TEST(PseudoVerticesTest, FewOnTheAnisotropicBladeAndWithinTheContract) {
+TEST(PseudoVerticesOnSharedMeshes, FewOnTheAnisotropicBladeAndWithinTheContract) {
   ASSERT_TRUE(testing::SharedDataAvailable());
   auto loaded = LoadMesh(testing::SharedMeshPath("blade_aniso"));
   ASSERT_OK(loaded);

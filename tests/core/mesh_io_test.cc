@@ -82,7 +82,7 @@ INSTANTIATE_TEST_SUITE_P(SharedMeshes, ManifestTest, ::testing::ValuesIn(kManife
                          });
 
 // The first and last vertex lines of an OBJ/OFF file, read as text.
-TEST(MeshIoTest, VertexOrderIsTheFileOrder) {
+TEST(MeshIoOnSharedMeshes, VertexOrderIsTheFileOrder) {
   ASSERT_TRUE(SharedDataAvailable());
   auto mesh = LoadMesh(SharedPath("meshes/armadillo.obj"));
   ASSERT_OK(mesh);
@@ -104,7 +104,7 @@ TEST(MeshIoTest, VertexOrderIsTheFileOrder) {
   }
 }
 
-TEST(MeshIoTest, MessyOgreDiagnosticsMatchTheManifest) {
+TEST(MeshIoOnSharedMeshes, MessyOgreDiagnosticsMatchTheManifest) {
   ASSERT_TRUE(SharedDataAvailable());
   MeshDiagnostics d;
   auto mesh = LoadMesh(SharedPath("meshes/ogre_messy.obj"), {}, &d);
