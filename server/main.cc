@@ -3,6 +3,7 @@
 #include <cstring>
 #include <string_view>
 
+#include "core/version.h"
 #include "server/offline/commands.h"
 #include "server/serve.h"
 
@@ -23,7 +24,8 @@ constexpr char kUsage[] =
     "  distance              point-to-point distance (and path) on a graph\n"
     "  check                 a graph's error on its own mesh, against exact distances\n"
     "\n"
-    "Run 'geodesicd <command> --help' for a command's options.\n";
+    "Run 'geodesicd <command> --help' for a command's options, 'geodesicd --version' for\n"
+    "the version.\n";
 
 }  // namespace
 
@@ -33,6 +35,10 @@ int main(int argc, char** argv) {
     return argc < 2 ? 2 : 0;
   }
   std::string_view command = argv[1];
+  if (command == "--version" || command == "version") {
+    std::printf("geodesicd %s (%s build)\n", geodesic::kVersion, geodesic::kBuildType);
+    return 0;
+  }
   using namespace geodesic::offline;
   if (command == "serve") return geodesic::server::RunServe(argc - 1, argv + 1);
   if (command == "info") return RunInfo(argc - 1, argv + 1);

@@ -155,6 +155,7 @@ int RunServe(int argc, char** argv) {
   // --memory-limit counts after a minute of concurrent queries (0.1 GB so).
   mallopt(M_MMAP_THRESHOLD, 1 << 20);
   CLI::App app{"Serve geodesic queries over gRPC", "geodesicd serve"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string http_listen;
   std::string listen = "127.0.0.1:50051", graph_dir = DefaultGraphDir(), mesh_root, metrics_listen,
               log_level = "info", sample;

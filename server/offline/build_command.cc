@@ -141,6 +141,7 @@ int BuildPart(const Mesh& mesh, const DggBuildOptions& options, const std::strin
 
 int RunBuild(int argc, char** argv) {
   CLI::App app{"Build the discrete geodesic graph (DGG) of a mesh", "geodesicd build"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string mesh_path, out_path, part;
   double epsilon = 1e-3;
   int threads = 0;
@@ -216,6 +217,7 @@ int RunBuild(int argc, char** argv) {
 int RunMerge(int argc, char** argv) {
   CLI::App app{"Join the part files of a distributed build into the final graph",
                "geodesicd merge"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string mesh_path, out_path;
   std::vector<std::string> part_paths;
   int threads = 0;

@@ -53,6 +53,7 @@ int RunCheck(int argc, char** argv) {
       "Measure a graph's error on its own mesh against exact geodesic distances, at "
       "every vertex, from seeded random vertices or given sources",
       "geodesicd check"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string mesh_path, graph_path;
   std::vector<std::string> source_specs;
   int random_sources = 8, threads = 0;

@@ -28,6 +28,7 @@ Json PathJson(const GeodesicPath& path) {
 int RunDistance(int argc, char** argv) {
   CLI::App app{"Geodesic distance (and path) between surface points on a discrete geodesic graph",
                "geodesicd distance"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string mesh_path, graph_path, from, to, pairs_path, path_out;
   bool json = false, want_path = false, no_astar = false;
   std::optional<int> landmarks;
@@ -116,7 +117,10 @@ int RunDistance(int argc, char** argv) {
                      {"relaxed", r->relaxed},
                      {"from_snap_distance", SnapJson(*a)},
                      {"to_snap_distance", SnapJson(*b)}};
-      if (r->path) result["path"] = PathJson(*r->path);
+      if (r->path) {
+        result["path"] = PathJson(*r->path);
+        result["path_length"] = r->path->length;  // the polyline's own length
+      }
       // One pair: an object; --pairs: an array of them.
       if (pairs_path.empty()) {
         PrintJson(result);

@@ -13,6 +13,7 @@ namespace geodesic::offline {
 int RunExact(int argc, char** argv) {
   CLI::App app{"Exact geodesic distances from one source to every vertex (window propagation)",
                "geodesicd exact"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string mesh_path, source_spec, out_path;
   double max_distance = std::numeric_limits<double>::infinity();
   bool json = false;

@@ -14,6 +14,7 @@ namespace geodesic::offline {
 int RunField(int argc, char** argv) {
   CLI::App app{"Distance field from one or more sources on a discrete geodesic graph",
                "geodesicd field"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string mesh_path, graph_path, out_path, labels_path, method = "lc";
   std::vector<std::string> source_specs;
   double max_distance = kInfinity;

@@ -13,6 +13,7 @@ int RunInfo(int argc, char** argv) {
       "Diagnostics of a mesh file (obj, off, ply, stl), or describe and validate a "
       "graph file (.dgg)",
       "geodesicd info"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string path;
   bool json = false, repair = false;
   app.add_option("path", path, "mesh or graph file")->required();
