@@ -22,7 +22,9 @@
 #include "core/mesh_io.h"
 #include "core/result_files.h"
 #include "core/surface_point.h"
+#include "core/version.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
+#include "grpc/health/v1/health.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
 
@@ -88,7 +90,7 @@ bool LoadSecurity(Common& c) {
 // connection is up, so that a call timed after it measures the call, not the
 // handshake. A server that is down fails the call after that, not after a
 // whole --timeout.
-std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = false) {
+std::shared_ptr<grpc::Channel> OpenChannel(const Common& c, bool connected) {
   grpc::ChannelArguments args;
   args.SetMaxReceiveMessageSize(256 << 20);
   auto credentials =
@@ -100,7 +102,11 @@ std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = fa
         std::chrono::system_clock::now() +
         std::chrono::milliseconds(static_cast<int64_t>(std::min(c.timeout, 5.0) * 1000)));
   }
-  return v1::Geodesic::NewStub(channel);
+  return channel;
+}
+
+std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = false) {
+  return v1::Geodesic::NewStub(OpenChannel(c, connected));
 }
 
 // Every call carries the mesh name so that a proxy can route by it.
@@ -301,6 +307,28 @@ int CmdMeshes(const Common& c) {
   }
   if (c.json) PrintJson(list);
   return 0;
+}
+
+// The standard gRPC health check, which needs no token: for probes such as
+// the container's HEALTHCHECK. Exit 0 only when SERVING.
+int CmdHealth(const Common& c, const std::string& service) {
+  auto stub = grpc::health::v1::Health::NewStub(OpenChannel(c, false));
+  grpc::ClientContext ctx;
+  ctx.set_deadline(std::chrono::system_clock::now() +
+                   std::chrono::milliseconds(static_cast<int64_t>(c.timeout * 1000)));
+  grpc::health::v1::HealthCheckRequest req;
+  req.set_service(service);
+  grpc::health::v1::HealthCheckResponse resp;
+  grpc::Status s = stub->Check(&ctx, req, &resp);
+  if (!s.ok()) return Fail(s);
+  const std::string status =
+      grpc::health::v1::HealthCheckResponse::ServingStatus_Name(resp.status());
+  if (c.json) {
+    PrintJson(Json{{"service", service}, {"status", status}});
+  } else {
+    std::printf("%s\n", status.c_str());
+  }
+  return resp.status() == grpc::health::v1::HealthCheckResponse::SERVING ? 0 : 1;
 }
 
 int CmdUnload(const Common& c) {
@@ -825,6 +853,10 @@ int main(int argc, char** argv) {
       "barycentric coordinates weight the face's vertices in the order the mesh file lists them\n"
       "for that face) or xyz:X,Y,Z (snapped to the surface). Ids are the file's order.",
       "geodesic"};
+  app.set_version_flag("--version", absl::StrFormat("geodesic %s (%s build)", geodesic::kVersion,
+                                                    geodesic::kBuildType));
+  // Every option's help shows its default.
+  app.option_defaults()->always_capture_default();
   Common c;
   app.add_option("--server", c.server, "geodesicd address");
   auto* mesh_option =
@@ -849,6 +881,12 @@ int main(int argc, char** argv) {
   app.require_subcommand(1);
 
   app.add_subcommand("meshes", "list registered meshes");
+  auto* health = app.add_subcommand(
+      "health", "the server's gRPC health (no token needed); exit 0 only when SERVING");
+  std::string health_service;
+  health->add_option("--service", health_service,
+                     "service to ask about: empty for the server, geodesic.v1.Geodesic, or a "
+                     "graph's name as in `status`");
   auto* load =
       app.add_subcommand("load", "register a mesh (server-side path under --mesh-root, or upload)");
   std::string load_path, upload;
@@ -930,6 +968,7 @@ int main(int argc, char** argv) {
   CLI11_PARSE(app, argc, argv);
   if (!LoadSecurity(c)) return 2;
   if (app.got_subcommand("meshes")) return CmdMeshes(c);
+  if (app.got_subcommand("health")) return CmdHealth(c, health_service);
   if (app.got_subcommand("load")) {
     // 'geodesic load kitten.off' registers 'kitten', not the default mesh.
     if (mesh_option->count() == 0) {

@@ -3,6 +3,8 @@
 # then configures and builds geodesicd in Release mode into build/.
 #   scripts/setup.sh            install + build
 #   scripts/setup.sh --deps     install only
+#   scripts/setup.sh --deps --build-only   only what building the two binaries
+#     needs (the container's build stage: no test, browser or benchmark packages)
 #   scripts/setup.sh --with-nginx  also nginx, for the deploy routing test
 #     (CI only: Debian's package starts a system nginx on port 80, which this
 #     stops again; a developer machine rarely wants that)
@@ -11,26 +13,34 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 deps_only=false
+build_only=false
 with_nginx=false
 with_fuzz=false
 for arg in "$@"; do
   case "$arg" in
     --deps) deps_only=true ;;
+    --build-only) build_only=true ;;
     --with-nginx) with_nginx=true ;;
     --with-fuzz) with_fuzz=true ;;
     *) echo "setup: unknown option $arg" >&2; exit 2 ;;
   esac
 done
 
-PACKAGES=(
+BUILD_PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
+  libssl-dev
+)
+# Tests, benchmarks, the viewer's browser test and the Python package's.
+TEST_PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-yaml python3-matplotlib openssl
-  libssl-dev libjs-three chromium chromium-driver python3-selenium curl
+  libjs-three chromium chromium-driver python3-selenium curl
   python3-venv python3-pip python3-setuptools python3-wheel
 )
+PACKAGES=("${BUILD_PACKAGES[@]}")
+$build_only || PACKAGES+=("${TEST_PACKAGES[@]}")
 
 $with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)
 $with_fuzz && PACKAGES+=(clang-14 libclang-rt-14-dev)
