@@ -14,9 +14,32 @@
 #include "core/graph_search.h"
 #include "core/node_heap.h"
 #include "core/status.h"
+#include "tbb/blocked_range.h"
+#include "tbb/parallel_for.h"
 
 namespace geodesic {
 namespace {
+
+// Runs body(0), ..., body(n - 1) on TBB's workers, one index per task (a
+// pair or a row is milliseconds of work, so finer grains only add
+// overhead). Returns the error of the lowest failing index, so that a
+// request's error does not depend on scheduling.
+absl::Status ForEachInParallel(size_t n, const std::function<absl::Status(size_t)>& body) {
+  std::vector<absl::Status> errors(n);
+  std::atomic<bool> failed{false};
+  tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1), [&](const tbb::blocked_range<size_t>& r) {
+    for (size_t i = r.begin(); i != r.end(); ++i) {
+      errors[i] = body(i);
+      if (!errors[i].ok()) failed = true;
+    }
+  });
+  if (failed) {
+    for (absl::Status& e : errors) {
+      if (!e.ok()) return e;
+    }
+  }
+  return absl::OkStatus();
+}
 
 constexpr uint32_t kViaSource = kNone;         // reached from a source node itself
 constexpr uint32_t kViaTemporary = kNone - 1;  // reached by a temporary edge
@@ -520,11 +543,10 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   // A direct geodesic that won has no route through the graph.
   std::vector<uint32_t> route;
   if (meet != kNone && mu < best) route = RouteThrough(at, meet);
-  if (!options.want_path) {
-    if (!route.empty()) result.distance = std::min(best, SumAlongRoute(g, ends, at, route));
-    return result;
-  }
-  if (mu == kInfinity) return result;
+  // The same number whether or not a path is asked for, and the number a
+  // field from the first point gives (see SumAlongRoute).
+  if (!route.empty()) result.distance = std::min(best, SumAlongRoute(g, ends, at, route));
+  if (!options.want_path || mu == kInfinity) return result;
 
   // Graph path: first point, the route's nodes, second point, with the
   // distance along the graph at each stop (up to the meeting node the first
@@ -565,10 +587,10 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
       path.points.push_back({tp.point, tp.xyz});
     }
   }
+  // The traced polyline is a real surface path, never longer than the
+  // graph's rounded-up weights; its own length goes with it, while the
+  // pair's distance stays the graph's, as without a path.
   path.length = PolylineLength(path.points);
-  // The traced path is a real surface path, never longer than the graph's
-  // rounded-up weights: report its exact length.
-  result.distance = path.length;
   result.path = std::move(path);
   return result;
 }
@@ -630,33 +652,50 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   // path: the graph distance on the augmented graph, or the direct geodesic
   // from a source that is not a vertex, whichever is shorter. One field per
   // source serves its whole row.
-  ScratchPool::Lease sc = scratch_.Acquire();
   std::vector<Endpoint> target_ends;
   target_ends.reserve(targets.size());
-  for (const SurfacePoint& t : targets) {
-    ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
+  {
+    ScratchPool::Lease sc = scratch_.Acquire();
+    for (const SurfacePoint& t : targets) {
+      ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
+    }
   }
-  std::vector<double> out;
-  out.reserve(sources.size() * targets.size());
+  std::vector<double> out(sources.size() * targets.size(), kInfinity);
   FieldOptions options;
   options.cancelled = cancelled;
-  for (const SurfacePoint& raw : sources) {
-    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *sc, raw, true));
-    const size_t row = out.size();
-    for (const Endpoint& t : target_ends) {
-      double direct = kInfinity;
+  auto solve_row = [&](size_t i) -> absl::Status {
+    ScratchPool::Lease row_sc = scratch_.Acquire();
+    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *row_sc, sources[i], true));
+    double* row = out.data() + i * target_ends.size();
+    for (size_t j = 0; j < target_ends.size(); ++j) {
       if (!source.is_node) {
-        auto d = sc->Exact(mesh).DistanceTo(t.point);
-        if (d.ok()) direct = *d;
+        auto d = row_sc->Exact(mesh).DistanceTo(target_ends[j].point);
+        if (d.ok()) row[j] = *d;
       }
-      out.push_back(direct);
     }
-    ASSIGN_OR_RETURN(FieldResult field, SolveField(mesh, *graph_, buckets_, *sc,
+    ASSIGN_OR_RETURN(FieldResult field, SolveField(mesh, *graph_, buckets_, *row_sc,
                                                    absl::MakeConstSpan(&source, 1), options));
     for (size_t j = 0; j < target_ends.size(); ++j) {
-      out[row + j] = std::min(out[row + j], FieldDistanceTo(target_ends[j], field.distance));
+      row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
     }
+    return absl::OkStatus();
+  };
+  RETURN_IF_ERROR(ForEachInParallel(sources.size(), solve_row));
+  return out;
+}
+
+absl::StatusOr<std::vector<PairResult>> GeodesicEngine::Distances(
+    absl::Span<const SurfacePoint> from, absl::Span<const SurfacePoint> to,
+    const PairOptions& options) const {
+  if (from.size() != to.size()) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%u first points but %u second points: pairs need one of each", from.size(), to.size()));
   }
+  std::vector<PairResult> out(from.size());
+  RETURN_IF_ERROR(ForEachInParallel(from.size(), [&](size_t i) -> absl::Status {
+    ASSIGN_OR_RETURN(out[i], Distance(from[i], to[i], options));
+    return absl::OkStatus();
+  }));
   return out;
 }
 

@@ -118,6 +118,12 @@ class GeodesicEngine {
   absl::StatusOr<PairResult> Distance(const SurfacePoint& a, const SurfacePoint& b,
                                       const PairOptions& options) const;
 
+  // Distance(from[i], to[i], options) for every i, the pairs spread over
+  // the cores (TBB): each answer is the one Distance gives alone, bit for
+  // bit. The first failing pair's error (by index) is returned.
+  absl::StatusOr<std::vector<PairResult>> Distances(absl::Span<const SurfacePoint> from,
+                                                    absl::Span<const SurfacePoint> to,
+                                                    const PairOptions& options) const;
   // Computes the landmark distances that tighten point-to-point A* bounds
   // (core/landmarks.h): `count` + 1 graph searches. Until it has run, queries
   // use straight-line bounds alone, which is correct, only slower on long
@@ -147,7 +153,8 @@ class GeodesicEngine {
   // sources x targets distances, row-major. Entry (i, j) is what
   // Distance(sources[i], targets[j]) answers without a path (points join
   // the graph the same way, and a source that is not a vertex also reaches
-  // targets by its direct geodesics), at one field per source.
+  // targets by its direct geodesics), at one field per source; rows are
+  // spread over the cores.
   absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
                                              absl::Span<const SurfacePoint> targets,
                                              const std::function<bool()>& cancelled = {}) const;

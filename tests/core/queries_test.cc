@@ -139,7 +139,11 @@ TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
     sum += rel;
     ++count;
     if (r->path) {
-      EXPECT_NEAR(PolylineLength(*r->path), r->distance, 1e-9 * r->distance) << "pair " << i;
+      // The traced polyline is a real surface path: no shorter than the
+      // exact distance, no longer than the graph's.
+      EXPECT_NEAR(PolylineLength(*r->path), r->path->length, 1e-12 * r->distance) << "pair " << i;
+      EXPECT_GE(r->path->length, p.exact * (1 - 1e-9)) << "pair " << i;
+      EXPECT_LE(r->path->length, r->distance * (1 + 1e-9)) << "pair " << i;
       ExpectOnSurface(*mesh, *r->path);
     }
     // Plain bidirectional Dijkstra finds the same graph distance as A*. A
@@ -152,7 +156,8 @@ TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
     auto graph_only = r->path ? engine.Distance(p.a, p.b, {}) : r;
     ASSERT_OK(graph_only);
     EXPECT_NEAR(graph_only->distance, d->distance, 1e-7 * d->distance) << "pair " << i;
-    if (r->path) EXPECT_LE(r->distance, d->distance * (1 + 1e-9)) << "pair " << i;
+    // One distance per pair, with or without its path.
+    EXPECT_EQ(r->distance, graph_only->distance) << "pair " << i;
     EXPECT_LE(r->settled, d->settled + 1) << "A* settled more than Dijkstra on pair " << i;
     // Straight-line bounds alone: the same distance, more nodes settled.
     auto e = straight_line_only.Distance(p.a, p.b, {});
@@ -188,9 +193,54 @@ TEST(QueriesTest, SameFaceAndCornerCasesOnAGrid) {
       EXPECT_GE(r->distance, straight * (1 - 1e-9));
       EXPECT_LE(r->distance, straight * (1 + 1.5e-2) + 1e-12);
       ASSERT_TRUE(r->path.has_value());
-      EXPECT_NEAR(PolylineLength(*r->path), r->distance, 1e-9 * r->distance + 1e-15);
+      EXPECT_NEAR(PolylineLength(*r->path), r->path->length, 1e-12 * r->distance + 1e-15);
+      EXPECT_LE(r->path->length, r->distance * (1 + 1e-9) + 1e-15);
+      EXPECT_GE(r->path->length, straight * (1 - 1e-9));
+      // One distance per pair, with or without its path.
+      auto without = engine.Distance(a, b, {});
+      ASSERT_OK(without);
+      EXPECT_EQ(r->distance, without->distance);
     }
   }
+}
+
+TEST(QueriesTest, ABatchOfPairsAnswersAsEachPairAlone) {
+  auto [mesh, graph] = GridAndGraph(30, 30, 0.1);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<uint32_t> face(0, mesh->num_faces() - 1);
+  std::uniform_real_distribution<double> unit(0.05, 1.0);
+  std::vector<SurfacePoint> from, to;
+  for (int i = 0; i < 64; ++i) {
+    for (auto* side : {&from, &to}) {
+      const double a = unit(rng), b = unit(rng), c = unit(rng);
+      side->push_back(
+          SurfacePoint::Face(face(rng), a / (a + b + c), b / (a + b + c), c / (a + b + c)));
+    }
+  }
+  for (bool want_path : {false, true}) {
+    PairOptions options;
+    options.want_path = want_path;
+    auto batch = engine.Distances(from, to, options);
+    ASSERT_OK(batch);
+    ASSERT_EQ(batch->size(), from.size());
+    for (size_t i = 0; i < from.size(); ++i) {
+      auto alone = engine.Distance(from[i], to[i], options);
+      ASSERT_OK(alone);
+      ASSERT_TRUE(std::isfinite(alone->distance) && alone->distance > 0);
+      EXPECT_EQ((*batch)[i].distance, alone->distance) << "pair " << i;
+      EXPECT_EQ((*batch)[i].path.has_value(), want_path);
+    }
+  }
+  // The lowest failing pair's error, whatever finished first.
+  to[40] = SurfacePoint::Vertex(1u << 30);
+  to[50] = SurfacePoint::Vertex(1u << 29);
+  auto bad = engine.Distances(from, to, {});
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.status().code(), absl::StatusCode::kOutOfRange) << bad.status();
+  EXPECT_THAT(std::string(bad.status().message()), ::testing::HasSubstr(std::to_string(1u << 30)));
+  EXPECT_FALSE(engine.Distances(from, absl::MakeConstSpan(to).subspan(1), {}).ok());
 }
 
 TEST(QueriesTest, DifferentComponentsAreUnreachable) {

@@ -104,8 +104,15 @@ with tempfile.TemporaryDirectory() as work:
     length = np.sum(np.linalg.norm(np.diff(pts, axis=0), axis=1))
     check("obj polyline has one l line over every vertex",
           rows[-1] == "l " + " ".join(str(i + 1) for i in range(len(pts))))
-    check("polyline length is the distance", abs(length - d["distance"]) <= 1e-9 * d["distance"],
-          f"{length} vs {d['distance']}")
+    check("polyline length is the path's length",
+          abs(length - d["path_length"]) <= 1e-9 * d["path_length"],
+          f"{length} vs {d['path_length']}")
+    check("the path is no longer than the graph distance",
+          0 < d["path_length"] <= d["distance"] * (1 + 1e-6), f"{length} vs {d['distance']}")
+    plain = json.loads(run("distance", *common, "--from", "f:0:0.2,0.3,0.5", "--to",
+                           "xyz:0.3,0.1,0", "--json").stdout)
+    check("one distance per pair, with or without its path", plain["distance"] == d["distance"],
+          f"{plain['distance']} vs {d['distance']}")
     check("snap distance reported for xyz: only",
           d["from_snap_distance"] is None and d["to_snap_distance"] > 0)
     for ext in ("csv", "ply"):

@@ -82,9 +82,9 @@ class ClientTest(unittest.TestCase):
         pair = self.client.distance("spot", "v:10", "v:300", epsilon=eps)
         self.assertEqual(m[1, 2], pair, msg="v:10 -> v:300")
 
-        # A distance asked with its path is that path's exact length: never above the graph
-        # distance (1e-6 relative for float32 edge weights), never below the exact distance,
-        # so the two agree within eps of the exact distance.
+        # A path's length is its polyline's: never above the graph distance (1e-6 relative
+        # for float32 edge weights), never below the exact distance, so the two agree within
+        # eps of the exact distance. The pair's distance is the same with or without it.
         source = "f:0:0.2,0.3,0.5"
         d = self.client.distance("spot", source, "v:1500", epsilon=eps)
         path = self.client.path("spot", source, "v:1500", epsilon=eps)
@@ -97,6 +97,9 @@ class ClientTest(unittest.TestCase):
         self.assertGreaterEqual(length, exact * (1 - 1e-9))
         self.assertLessEqual(d, exact * (1 + eps))
         self.assertAlmostEqual(length, d, delta=eps * exact)
+        with_path, _ = self.client.distances("spot", [source], ["v:1500"], epsilon=eps,
+                                             with_path=True)
+        self.assertEqual(float(with_path[0]), d)
 
     def test_pseudo_vertex_graph_is_its_own_graph(self):
         # Requested with wait, the client watches the pseudo graph, not the plain one.

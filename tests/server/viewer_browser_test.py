@@ -120,7 +120,7 @@ class ViewerTest(unittest.TestCase):
         self.assertNotEqual(a, c)
         self.assertGreater(shown, 0)
         # The distance shown is the gRPC answer for the same points, asked
-        # with the path as the page asks (then it is the path's exact length).
+        # with the path as the page asks (the same distance as without it).
         distances, _ = self.client.distances("spot", [a], [c], epsilon=EPS, with_path=True)
         expected = float(distances[0])
         self.assertEqual(shown, expected)
