@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # The README's first command: set up and build, start the daemon on the
-# bundled sample mesh (data/spot.obj), query it with the CLI, stop it.
+# bundled sample mesh (data/spot.obj), query it with the CLI, stop it, and
+# install the binaries under ~/.local (GEODESIC_PREFIX) for the README's
+# other commands.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
@@ -22,3 +24,12 @@ echo "== distance field from vertex 0"
 geodesic field --source v:0 --out "$work/field.f64"
 echo "== 2000 random point-to-point queries from 4 clients"
 geodesic bench --count 2000 --concurrency 4
+# The README's commands call geodesicd and geodesic by name: install them (and
+# the sample mesh and viewer they find beside them) under ~/.local.
+prefix=${GEODESIC_PREFIX:-$HOME/.local}
+cmake --install build --prefix "$prefix" >/dev/null
+echo "== installed geodesicd and geodesic in $prefix/bin"
+case ":$PATH:" in
+  *":$prefix/bin:"*) ;;
+  *) echo "   add it to PATH:  export PATH=\"$prefix/bin:\$PATH\"" ;;
+esac
