@@ -317,6 +317,7 @@ async function selectMesh(name) {
     state.object.geometry.dispose();
     state.object = null;
   }
+  canvas.dataset.mesh = '';
   busyTasks.clear();
   clearPanel(name);
   const t = ticket();
@@ -351,6 +352,7 @@ function showGeometry(name, geo) {
   state.diagonal = g.boundingBox.getSize(new THREE.Vector3()).length() || 1;
   state.object = new THREE.Mesh(g, baseMaterial);
   scene.add(state.object);
+  canvas.dataset.mesh = name;
   frame(false);
   $('mesh-info').textContent = `${(geo.positions.length / 3).toLocaleString('en')} vertices, `
     + `${(geo.faces.length / 3).toLocaleString('en')} faces, diagonal ${state.diagonal.toPrecision(4)}`;
