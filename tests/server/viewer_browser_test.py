@@ -37,13 +37,16 @@ from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
 DEFAULT_EPS = 0.02  # the daemon's --default-epsilon; the page must not pick its own
 TOKEN = "viewer-token"
 OTHER = "bessie"    # spot again under a name that sorts before "spot"
+LARGE = "calf"      # spot again, listed to the page as a mesh of 300,000 vertices
 
-# Runs before the page's own scripts: records every fetch the page makes and
+# Runs before the page's own scripts: records every fetch the page makes,
 # can hold back those whose URL contains a key of window.__delay, to catch the
-# page mid-load.
+# page mid-load, and can make the listing claim more vertices for a mesh
+# (sessionStorage "vertices": {name: count}) than it has.
 FETCH_SPY = """
 window.__requests = [];
 window.__delay = {};
+const claimed = JSON.parse(sessionStorage.getItem('vertices') || '{}');
 const realFetch = window.fetch.bind(window);
 window.fetch = async (url, options = {}) => {
   window.__requests.push({url: String(url), method: options.method || 'GET',
@@ -56,7 +59,11 @@ window.fetch = async (url, options = {}) => {
       return realFetch(url, {...options, signal: undefined});
     }
   }
-  return realFetch(url, options);
+  const res = await realFetch(url, options);
+  if (!String(url).endsWith('v1/meshes') || !res.ok) return res;
+  const listing = await res.json();
+  for (const m of listing.meshes) if (m.name in claimed) m.vertices = claimed[m.name];
+  return new Response(JSON.stringify(listing), {status: res.status, headers: res.headers});
 };
 """
 
@@ -145,6 +152,7 @@ class ViewerTest(unittest.TestCase):
         cls.base = f"http://127.0.0.1:{cls.http_port}"
         cls.client = Client(f"127.0.0.1:{grpc_port}", timeout=60, token=TOKEN)
         cls.client.register_mesh(OTHER, "spot.obj")
+        cls.client.register_mesh(LARGE, "spot.obj")
         options = webdriver.ChromeOptions()
         options.binary_location = "/usr/bin/chromium"
         for flag in ["--headless=new", "--no-sandbox", "--disable-dev-shm-usage",
@@ -209,6 +217,38 @@ class ViewerTest(unittest.TestCase):
         self.click_canvas(60, 40)
         return self.wait(lambda d: d.find_element(By.ID, "distance")
                          if self.attr("distance", "data-value") else False, what=what)
+
+    def test_large_mesh_gets_its_graph_only_on_request(self):
+        b = self.browser
+        b.get(f"{self.base}/")
+        b.execute_script(f"sessionStorage.setItem('vertices', '{{\"{LARGE}\": 300000}}')")
+        try:
+            self.open_page()
+            b.execute_script("window.__requests = []")
+            Select(b.find_element(By.ID, "mesh")).select_by_value(LARGE)
+            self.wait(lambda d: self.attr("graph-state", "data-state") == "ABSENT"
+                      and self.attr("graph-state", "data-mesh") == LARGE
+                      and self.attr("canvas", "data-mesh") == LARGE,
+                      what="the large mesh without a graph")
+            self.assertIn("Build graph", b.find_element(By.ID, "graph-state").text)
+            self.assertIn("300,000", b.find_element(By.ID, "graph-state").text)
+            self.assertEqual(b.find_element(By.ID, "status").text, "")
+            self.assertFalse(b.find_element(By.ID, "busy").is_displayed())
+            posts = lambda: [r for r in b.execute_script("return window.__requests")
+                             if r["method"] == "POST" and f"/meshes/{LARGE}/graph" in r["url"]]
+            self.assertEqual(posts(), [])
+            self.assertFalse([g for g in self.client.graphs() if g.mesh == LARGE])
+            b.save_screenshot(f"{OUT}/viewer_large.png")
+            # Asked for, it is built at the server's default epsilon.
+            b.find_element(By.ID, "build").click()
+            self.wait(lambda d: self.attr("graph-state", "data-state") == "READY"
+                      and self.attr("graph-state", "data-mesh") == LARGE,
+                      what="the large mesh's graph")
+            self.assertEqual(float(self.attr("graph-state", "data-eps")), DEFAULT_EPS)
+            self.assertEqual(len(posts()), 1)
+            self.assertNotIn("eps", json.loads(posts()[0]["body"]))
+        finally:
+            b.execute_script("sessionStorage.removeItem('vertices')")
 
     def test_path_field_and_default_epsilon(self):
         b = self.browser
