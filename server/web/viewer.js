@@ -443,7 +443,7 @@ function setPathLength(length, points = 0) {
   el.dataset.points = String(points);
   el.dataset.radius = length === null ? '' : String(tubeRadius());
   el.dataset.diagonal = String(state.diagonal);
-  el.textContent = length === null ? '' : `path: ${length.toPrecision(8)} long, ${points} points`;
+  el.textContent = length === null ? '' : `path length ${length.toPrecision(8)} (polyline of ${points} points)`;
 }
 
 function hideLegend() {
@@ -473,6 +473,7 @@ function showLegend(max) {
   bar.width = Math.round(bar.clientWidth * ratio);
   bar.height = Math.round(bar.clientHeight * ratio);
   paintRamp(bar.getContext('2d'), bar.width, bar.height);
+  bar.setAttribute('aria-label', `colour scale from 0 (blue) to ${max.toPrecision(4)} (red)`);
   const ticks = $('ticks');
   ticks.innerHTML = '';
   const values = tickValues(max);
@@ -521,6 +522,7 @@ async function onPick(event) {
   if (mode() === 'field') return showField(p);
   if (state.picks.length === 2) {
     state.picks = [];
+    busy('query', null);
     clearOverlays();
     setDistance(null);
     setPathLength(null);
@@ -531,11 +533,13 @@ async function onPick(event) {
   if (state.picks.length < 2) return;
   const [from, to] = state.picks;
   const t = ticket();
+  const mine = () => graphCurrent(t) && state.picks[0] === from && state.picks[1] === to;
+  busy('query', 'Computing the path…');
   try {
     const r = await api('POST', meshPath(t.mesh, 'distance'),
                         { pairs: [[from, to]], ...graphChoice(), path: true });
     // A newer pair, another mesh or another graph: this answer is not theirs.
-    if (!graphCurrent(t) || state.picks[0] !== from || state.picks[1] !== to) return;
+    if (!mine()) return;
     const d = r.distances[0];
     if (d === null) {
       setDistance(null);
@@ -548,6 +552,8 @@ async function onPick(event) {
     drawPath(path);
   } catch (e) {
     report(t, graphCurrent)(e);
+  } finally {
+    if (mine()) busy('query', null);
   }
 }
 
@@ -559,11 +565,12 @@ async function showField(p) {
   marker(p.point, 0x000000);
   const t = ticket();
   $('picked').textContent = `source ${p.spec}`;
+  const mine = () => graphCurrent(t) && $('picked').textContent === `source ${p.spec}`;
   busy('field', 'Computing the distance field…');
   try {
     const { distances } = await api('POST', meshPath(t.mesh, 'field'),
                                     { sources: [p.spec], ...graphChoice() });
-    if (!graphCurrent(t) || $('picked').textContent !== `source ${p.spec}`) return;
+    if (!mine()) return;
     let max = 0;
     for (const d of distances) if (d !== null && d > max) max = d;
     const uv = state.object.geometry.getAttribute('uv');
@@ -574,7 +581,7 @@ async function showField(p) {
   } catch (e) {
     report(t, graphCurrent)(e);
   } finally {
-    if (graphCurrent(t)) busy('field', null);
+    if (mine()) busy('field', null);
   }
 }
 
@@ -596,6 +603,7 @@ function graphChoiceChanged() {
   hideLegend();
   if (state.object) state.object.material = baseMaterial;
   busy('field', null);
+  busy('query', null);
   const entry = state.entries.get(state.mesh);
   watchGraph(!entry || entry.vertices <= LARGE_MESH);
 }
@@ -632,6 +640,8 @@ for (const r of document.querySelectorAll('input[name=mode]')) {
     setDistance(null);
     setPathLength(null);
     $('picked').textContent = '';
+    busy('field', null);
+    busy('query', null);
   });
 }
 new ResizeObserver(resize).observe($('view'));
