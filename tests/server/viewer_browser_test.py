@@ -212,9 +212,9 @@ class ViewerTest(unittest.TestCase):
         return geo["positions"], geo["faces"]
 
     def pick_pair(self, what):
-        # Two points near the middle of the view, where the cow is.
-        self.click_canvas(-40, -10)
-        self.click_canvas(60, 40)
+        # The cow's cheek and its flank, in the view the page frames.
+        self.click_canvas(-60, -50)
+        self.click_canvas(95, 80)
         return self.wait(lambda d: d.find_element(By.ID, "distance")
                          if self.attr("distance", "data-value") else False, what=what)
 
