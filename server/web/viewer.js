@@ -589,7 +589,9 @@ async function showField(p) {
 function graphChoiceChanged() {
   if (!state.mesh) return;
   const e = eps();
-  if (e !== null && !(e >= 1e-6 && e <= 0.5)) {
+  // A number input reads "" for text it cannot parse: that is no request
+  // for the server's default.
+  if ($('eps').validity.badInput || (e !== null && !(e >= 1e-6 && e <= 0.5))) {
     status('ε must lie in [0.000001, 0.5]; leave it empty for the server default');
     return;
   }
