@@ -259,7 +259,8 @@ function drawPath(xyz) {
   state.overlays.push(hidden, tube);
 }
 
-// The polyline's own length, summed from its first point as the server sums it.
+// The length of the polyline the server sent, in 3-D: a check on the path
+// as drawn, which may differ from the pair's distance in the last digits.
 function polylineLength(xyz) {
   let sum = 0;
   for (let i = 1; i < xyz.length; ++i) {
