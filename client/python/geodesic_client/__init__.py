@@ -23,7 +23,7 @@ from ._client import Client
 from ._points import EdgePoints, FacePoints, Point, Points, format_point, parse_point
 from ._types import Graph, GraphState, Path, RetryPolicy
 
-__version__ = "0.1.0"
+from ._version import __version__
 
 __all__ = [
     "AlreadyExistsError", "Client", "DeadlineExceededError", "EdgePoints", "FacePoints",
