@@ -21,14 +21,15 @@ from ._errors import (AlreadyExistsError, DeadlineExceededError, FailedPrecondit
                       UnavailableError)
 from ._client import Client
 from ._points import EdgePoints, FacePoints, Point, Points, format_point, parse_point
-from ._types import Graph, GraphState, Path, RetryPolicy
-
+from ._types import (Graph, GraphState, Mesh, MeshDiagnostics, Path, RetryPolicy,
+                     VertexCopy)
 from ._version import __version__
 
 __all__ = [
     "AlreadyExistsError", "Client", "DeadlineExceededError", "EdgePoints", "FacePoints",
     "FailedPreconditionError", "GeodesicError", "Graph", "GraphState", "InvalidArgumentError",
-    "NotFoundError", "OutOfRangeError", "Path", "PermissionDeniedError", "Point", "Points",
-    "ResourceExhaustedError", "RetryPolicy", "UnauthenticatedError", "UnavailableError",
-    "format_point", "parse_point",
+    "Mesh", "MeshDiagnostics", "NotFoundError", "OutOfRangeError", "Path",
+    "PermissionDeniedError", "Point", "Points", "ResourceExhaustedError", "RetryPolicy",
+    "UnauthenticatedError", "UnavailableError", "VertexCopy", "__version__", "format_point",
+    "parse_point",
 ]

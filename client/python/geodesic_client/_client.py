@@ -11,7 +11,7 @@ import numpy as np
 from ._errors import GeodesicError, ResourceExhaustedError, from_rpc_error
 from ._points import Point, Points, format_point, to_message, to_messages
 from ._stubs import pb, rpc
-from ._types import Graph, GraphState, Path, RetryPolicy
+from ._types import Graph, GraphState, Mesh, Path, RetryPolicy
 
 # The server's defaults (geodesicd serve --max-pairs, --max-sources; its gRPC
 # messages are limited to 64 MiB either way).
@@ -160,23 +160,29 @@ class Client:
 
     # -- meshes ---------------------------------------------------------------
 
-    def meshes(self) -> List[Any]:
-        """The registered meshes (geodesic.v1.Mesh messages)."""
-        return list(self._unary("ListMeshes", pb.ListMeshesRequest(), None).meshes)
+    def meshes(self) -> List[Mesh]:
+        """The registered meshes, with their diagnostics."""
+        return [Mesh._from_proto(m)
+                for m in self._unary("ListMeshes", pb.ListMeshesRequest(), None).meshes]
 
-    def mesh(self, name: str) -> Any:
-        """One registered mesh, with its diagnostics (a geodesic.v1.Mesh)."""
-        return self._unary("GetMesh", pb.GetMeshRequest(name=name), name)
+    def mesh(self, name: str) -> Mesh:
+        """One registered mesh, with its diagnostics."""
+        return Mesh._from_proto(self._unary("GetMesh", pb.GetMeshRequest(name=name), name))
 
-    def register_mesh(self, name: str, path: str) -> Any:
-        """Registers a mesh from a file under the server's --mesh-root."""
-        return self._unary("RegisterMesh", pb.RegisterMeshRequest(name=name, path=path), name)
+    def register_mesh(self, name: str, path: str, repair_non_manifold: bool = False) -> Mesh:
+        """Registers a mesh from a file under the server's --mesh-root.
+
+        repair_non_manifold: split each non-manifold vertex into one copy per fan instead of
+        refusing the mesh (the copies are listed in the returned Mesh's vertex_copies).
+        """
+        return Mesh._from_proto(self._unary("RegisterMesh", pb.RegisterMeshRequest(
+            name=name, path=path, repair_non_manifold=repair_non_manifold), name))
 
     def unload_mesh(self, name: str) -> None:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
         self._unary("UnloadMesh", pb.UnloadMeshRequest(name=name), name)
 
-    def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Any:
+    def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Mesh:
         """Uploads a local .obj/.off/.ply/.stl file and registers it under name."""
         fmt = os.path.splitext(filename)[1][1:].lower()
         if not fmt:
@@ -199,8 +205,8 @@ class Client:
                                                format=fmt if first else "", data=data)
                     first = False
 
-        return self._call("UploadMesh", lambda: self._stub.UploadMesh(
-            chunks(), timeout=self.timeout, metadata=self._meta(name)))
+        return Mesh._from_proto(self._call("UploadMesh", lambda: self._stub.UploadMesh(
+            chunks(), timeout=self.timeout, metadata=self._meta(name))))
 
     # -- graphs ---------------------------------------------------------------
 
