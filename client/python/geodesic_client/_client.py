@@ -3,7 +3,7 @@ import os
 import random
 import re
 import time
-from typing import Any, Callable, Iterable, List, Optional, Tuple, Union
+from typing import Any, Callable, List, Optional, Tuple, Union
 
 import grpc
 import numpy as np
@@ -211,9 +211,14 @@ class Client:
     # -- graphs ---------------------------------------------------------------
 
     def request_graph(self, mesh: str, epsilon: Optional[float] = None, wait: bool = True,
-                      pseudo_vertices: bool = False) -> Graph:
+                      pseudo_vertices: bool = False,
+                      progress: Optional[Callable[[Graph], None]] = None) -> Graph:
         """Requests the graph of mesh at epsilon; with wait, blocks until it is ready.
 
+        progress: with wait, called with a Graph for every status the server reports while
+        waiting (state, phase, progress in [0, 1]), the last one READY when the call returns;
+        e.g. ``progress=lambda g: print(f"{g.phase} {g.progress:.0%}")``. A graph already ready
+        gives one call. An exception it raises ends the wait and propagates.
         Raises RuntimeError if the graph failed or was cancelled while waiting.
         """
         request = pb.RequestGraphRequest(mesh=mesh, epsilon=self._eps(epsilon),
@@ -226,7 +231,7 @@ class Client:
         for _ in range(10 if wait else 0):
             g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
                 pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon, pseudo_vertices=pseudo_vertices),
-                timeout=None, metadata=self._meta(mesh)), g))
+                timeout=None, metadata=self._meta(mesh)), g, progress))
             if g.state != pb.GRAPH_STATE_EVICTED:
                 break
             g = self._unary("RequestGraph", request, mesh)
@@ -237,10 +242,20 @@ class Client:
         return graph
 
     @staticmethod
-    def _last(stream: Iterable[Any], default: Any) -> Any:
-        for item in stream:
-            default = item
-        return default
+    def _last(stream: Any, default: Any,
+              progress: Optional[Callable[[Graph], None]] = None) -> Any:
+        """The last message of a WatchGraph stream (default if none), each one passed to
+        progress as a Graph on the way."""
+        try:
+            for item in stream:
+                default = item
+                if progress is not None:
+                    progress(Graph._from_proto(item))
+            return default
+        finally:
+            # Also when progress raised or the wait was interrupted: the
+            # server stops watching instead of writing to nobody.
+            stream.cancel()
 
     def graph(self, mesh: str, epsilon: Optional[float] = None,
               pseudo_vertices: bool = False) -> Graph:
