@@ -3,7 +3,7 @@ import os
 import random
 import re
 import time
-from typing import Any, Callable, List, Optional, Tuple, Union
+from typing import Any, Callable, List, Literal, Optional, Tuple, Union, overload
 
 import grpc
 import numpy as np
@@ -278,6 +278,34 @@ class Client:
     # Every query takes pseudo_vertices: True asks the graph with pseudo
     # vertices (request_graph(..., pseudo_vertices=True)) instead of the
     # plain one of the same epsilon.
+    #
+    # field and distances return a pair when nearest_source / with_path is
+    # True: their overloads tell type checkers which shape a call gets (the
+    # flag given positionally or by keyword, or as a plain bool).
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: Literal[False] = ..., pseudo_vertices: bool = ...
+              ) -> np.ndarray: ...
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              *, nearest_source: Literal[True], pseudo_vertices: bool = ...
+              ) -> Tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float],
+              max_distance: float, targets: Optional[Any], method: str,
+              nearest_source: Literal[True], pseudo_vertices: bool = ...
+              ) -> Tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: bool = ..., pseudo_vertices: bool = ...
+              ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
 
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = None,
               max_distance: float = 0.0, targets: Optional[Any] = None, method: str = "lc",
@@ -337,6 +365,26 @@ class Client:
             if req.nearest_source:
                 labels[chunk.offset:end] = chunk.nearest_source
         return values, labels
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  with_path: Literal[False] = ..., pseudo_vertices: bool = ...
+                  ) -> np.ndarray: ...
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  *, with_path: Literal[True], pseudo_vertices: bool = ...
+                  ) -> Tuple[np.ndarray, List[Path]]: ...
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float],
+                  with_path: Literal[True], pseudo_vertices: bool = ...
+                  ) -> Tuple[np.ndarray, List[Path]]: ...
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  with_path: bool = ..., pseudo_vertices: bool = ...
+                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
 
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = None,
                   with_path: bool = False, pseudo_vertices: bool = False
