@@ -13,6 +13,11 @@ from ._points import Point, Points, format_point, to_message, to_messages
 from ._stubs import pb, rpc
 from ._types import Graph, GraphState, Mesh, Path, RetryPolicy
 
+# Where Client() connects when given no address: $GEODESIC_SERVER, else this
+# (the geodesic command line uses the same default).
+DEFAULT_ADDRESS = "127.0.0.1:50051"
+ADDRESS_ENV = "GEODESIC_SERVER"
+
 # The server's defaults (geodesicd serve --max-pairs, --max-sources; its gRPC
 # messages are limited to 64 MiB either way).
 DEFAULT_MAX_PAIRS = 10000
@@ -37,14 +42,15 @@ class Client:
     (which are grpc.RpcError); malformed arguments raise ValueError before any call.
     """
 
-    def __init__(self, address: str = "127.0.0.1:50051", timeout: float = 600.0,
+    def __init__(self, address: Optional[str] = None, timeout: float = 600.0,
                  token: Optional[str] = None, root_certificates: Optional[bytes] = None,
                  private_key: Optional[bytes] = None, certificate_chain: Optional[bytes] = None,
                  *, epsilon: float = 0.0, retry: RetryPolicy = RetryPolicy(),
                  max_pairs: int = DEFAULT_MAX_PAIRS, max_sources: int = DEFAULT_MAX_SOURCES,
                  max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
                  path_batch: int = DEFAULT_PATH_BATCH):
-        """address: HOST:PORT. timeout: deadline of each call, seconds.
+        """address: HOST:PORT; None: $GEODESIC_SERVER if set, else 127.0.0.1:50051.
+        timeout: deadline of each call, seconds.
         token: sent as "authorization: Bearer <token>" (geodesicd --auth-token-file).
         root_certificates: PEM bytes of the CA that signed the server's certificate; turns TLS
         on. private_key, certificate_chain: PEM bytes of a client certificate, for servers that
@@ -53,6 +59,9 @@ class Client:
         max_pairs, max_sources: the server's --max-pairs and --max-sources; a lower limit
         reported by the server is learnt from its error. max_message_bytes: the largest gRPC
         message either side accepts."""
+        if address is None:
+            address = os.environ.get(ADDRESS_ENV) or DEFAULT_ADDRESS
+        self.address = address
         self._max_message = max_message_bytes
         options = [("grpc.max_receive_message_length", max_message_bytes),
                    ("grpc.max_send_message_length", max_message_bytes),
