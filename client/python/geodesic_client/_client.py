@@ -11,6 +11,7 @@ import numpy as np
 from ._errors import GeodesicError, ResourceExhaustedError, from_rpc_error
 from ._points import Point, Points, format_point, to_message, to_messages
 from ._stubs import pb, rpc
+from ._solver import MeshSolver
 from ._types import Graph, GraphState, Mesh, Path, RetryPolicy
 
 # Where Client() connects when given no address: $GEODESIC_SERVER, else this
@@ -186,6 +187,12 @@ class Client:
         """
         return Mesh._from_proto(self._unary("RegisterMesh", pb.RegisterMeshRequest(
             name=name, path=path, repair_non_manifold=repair_non_manifold), name))
+
+    def mesh_solver(self, name: str, epsilon: Optional[float] = None,
+                    pseudo_vertices: bool = False) -> MeshSolver:
+        """A handle on one mesh's graph: this client's queries without the mesh, epsilon and
+        pseudo_vertices arguments (see MeshSolver). epsilon: None takes this client's."""
+        return MeshSolver(self, name, self._eps(epsilon), pseudo_vertices)
 
     def unload_mesh(self, name: str) -> None:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
