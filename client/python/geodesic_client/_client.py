@@ -198,7 +198,7 @@ class Client:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
         self._unary("UnloadMesh", pb.UnloadMeshRequest(name=name), name)
 
-    def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Mesh:
+    def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Any:
         """Uploads a local .obj/.off/.ply/.stl file and registers it under name."""
         fmt = os.path.splitext(filename)[1][1:].lower()
         if not fmt:
