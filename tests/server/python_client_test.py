@@ -3,6 +3,7 @@
 
 Usage: python_client_test.py BUILD_BIN_DIR SOURCE_DIR
 """
+import dataclasses
 import json
 import os
 import shutil
@@ -10,6 +11,8 @@ import subprocess
 import sys
 import tempfile
 import time
+import tomllib
+import typing
 import unittest
 
 import numpy as np
@@ -17,7 +20,10 @@ import numpy as np
 BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
-from geodesic_client import Client, GraphState  # noqa: E402
+import geodesic_client  # noqa: E402
+from geodesic_client import (Client, Graph, GraphState, Mesh, MeshDiagnostics,  # noqa: E402
+                             MeshSolver, Path, VertexCopy)
+from geodesic_client._stubs import pb, rpc  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 
@@ -224,8 +230,173 @@ class ClientTest(unittest.TestCase):
 
     def test_upload_and_list(self):
         m = self.client.upload_mesh("copy", f"{SRC}/data/spot.obj")
+        self.assertIsInstance(m, Mesh)
         self.assertEqual(m.diagnostics.vertices, 2930)
         self.assertIn("copy", [x.name for x in self.client.meshes()])
+
+    def raw_mesh(self, name):
+        """The GetMesh message itself, asked without the client."""
+        with grpc.insecure_channel(f"127.0.0.1:{self.port}") as channel:
+            return rpc.GeodesicStub(channel).GetMesh(pb.GetMeshRequest(name=name), timeout=60)
+
+    def test_meshes_are_frozen_dataclasses_equal_to_the_messages(self):
+        m, raw = self.client.mesh("spot"), self.raw_mesh("spot")
+        self.assertIsInstance(m, Mesh)
+        self.assertIsInstance(m.diagnostics, MeshDiagnostics)
+        with self.assertRaises(dataclasses.FrozenInstanceError):
+            m.name = "other"
+        self.assertEqual((m.name, m.fingerprint, m.source, m.restored, m.repair_non_manifold),
+                         (raw.name, raw.fingerprint, raw.source, raw.restored,
+                          raw.repair_non_manifold))
+        self.assertEqual(m.vertex_copies, ())
+        d = m.diagnostics
+        for f in ("vertices", "faces", "edges", "components", "boundary_loops", "genus",
+                  "isolated_vertices", "non_manifold_vertices", "bbox_diagonal",
+                  "anisotropy_mean", "json"):
+            self.assertEqual(getattr(d, f), getattr(raw.diagnostics, f), msg=f)
+        self.assertEqual((d.vertices, d.faces, d.genus), (2930, 5856, 0))
+        # The full report, parsed: the typed fields are among its keys.
+        self.assertEqual(d.details, json.loads(raw.diagnostics.json))
+        self.assertEqual((d.details["vertices"], d.details["anisotropy_mean"]),
+                         (d.vertices, d.anisotropy_mean))
+        self.assertIn("zero_area_faces", d.details)
+        hash(m)  # frozen and hashable, the details dict left out
+        listed = {x.name: x for x in self.client.meshes()}
+        self.assertTrue(all(isinstance(x, Mesh) for x in listed.values()))
+        self.assertEqual(listed["spot"], m)
+
+        registered = self.client.register_mesh("spot-repaired", "spot.obj",
+                                               repair_non_manifold=True)
+        self.assertIsInstance(registered, Mesh)
+        self.assertEqual((registered.name, registered.repair_non_manifold,
+                          registered.vertex_copies, registered.fingerprint),
+                         ("spot-repaired", True, (), m.fingerprint))
+        self.assertEqual(registered, self.client.mesh("spot-repaired"))
+        self.assertIs(VertexCopy, geodesic_client.VertexCopy)
+
+    def test_mesh_solver_answers_equal_the_clients(self):
+        c = self.client
+        solver = c.mesh_solver("spot", epsilon=0.01)
+        self.assertIsInstance(solver, MeshSolver)
+        self.assertEqual((solver.name, solver.epsilon, solver.pseudo_vertices),
+                         ("spot", 0.01, False))
+        self.assertEqual(solver.request_graph().state, GraphState.READY)
+        a, b = np.array([0, 5, 17, 900]), ["v:1500", "f:0:0.2,0.3,0.5", "v:17", "v:2000"]
+        kw = dict(epsilon=0.01)
+        np.testing.assert_array_equal(solver.distances(a, b), c.distances("spot", a, b, **kw))
+        (d1, p1), (d2, p2) = (solver.distances(a, b, with_path=True),
+                              c.distances("spot", a, b, with_path=True, **kw))
+        np.testing.assert_array_equal(d1, d2)
+        self.assertEqual([(p.length, p.points) for p in p1], [(p.length, p.points) for p in p2])
+        self.assertEqual(solver.distance(3, "v:40"), c.distance("spot", 3, "v:40", **kw))
+        path, want = solver.path(3, "v:40"), c.path("spot", 3, "v:40", **kw)
+        self.assertEqual((path.length, path.points), (want.length, want.points))
+        np.testing.assert_array_equal(path.xyz, want.xyz)
+        np.testing.assert_array_equal(solver.field([3, 700]), c.field("spot", [3, 700], **kw))
+        f1, l1 = solver.field([3, 700], nearest_source=True, targets=[1, 2, 3])
+        f2, l2 = c.field("spot", [3, 700], targets=[1, 2, 3], nearest_source=True, **kw)
+        np.testing.assert_array_equal(f1, f2)
+        np.testing.assert_array_equal(l1, l2)
+        np.testing.assert_array_equal(solver.matrix([0, 1], [2, 3, 4]),
+                                      c.matrix("spot", [0, 1], [2, 3, 4], **kw))
+        v1, r1 = solver.sample_points(6, seed=2)
+        v2, r2 = c.sample_points("spot", 6, seed=2, **kw)
+        np.testing.assert_array_equal(v1, v2)
+        self.assertEqual(r1, r2)
+        positions = [(0.1, 0.2, 0.3), (-0.2, 0.1, 0.0)]
+        self.assertEqual(solver.snap(positions), c.snap("spot", positions))
+        # The clock of last use moves with every query; the rest is the same graph.
+        unused = dict(last_used_unix_ms=0)
+        self.assertEqual(dataclasses.replace(solver.graph(), **unused),
+                         dataclasses.replace(c.graph("spot", 0.01), **unused))
+        self.assertEqual(solver.mesh, c.mesh("spot"))
+        self.assertIs(solver.mesh, solver.mesh)  # fetched once
+
+        pseudo = c.mesh_solver("spot", 0.01, pseudo_vertices=True)
+        self.assertTrue(pseudo.request_graph().pseudo_vertices)
+        np.testing.assert_array_equal(pseudo.field([3]),
+                                      c.field("spot", [3], pseudo_vertices=True, **kw))
+        with Client(f"127.0.0.1:{self.port}", epsilon=0.01) as other:
+            self.assertEqual(other.mesh_solver("spot").epsilon, 0.01)  # the client's default
+
+    def test_progress_is_called_with_every_status_until_ready(self):
+        # A fresh epsilon: this graph is built while the client waits.
+        seen = []
+        g = self.client.request_graph("spot", epsilon=0.05, progress=seen.append)
+        self.assertGreaterEqual(len(seen), 1)
+        self.assertTrue(all(isinstance(x, Graph) for x in seen))
+        self.assertEqual(seen[-1].state, GraphState.READY)
+        self.assertEqual(seen[-1], g)
+        self.assertTrue(all(0 <= x.progress <= 1 and x.epsilon == 0.05 for x in seen))
+        # Ready already: one call. Without wait: none.
+        again = []
+        self.client.request_graph("spot", epsilon=0.05, progress=again.append)
+        self.assertEqual([x.state for x in again], [GraphState.READY])
+        self.client.request_graph("spot", epsilon=0.05, wait=False, progress=again.append)
+        self.assertEqual(len(again), 1)
+
+        # A callback that raises ends the wait (the watch is cancelled).
+        class Stop(Exception):
+            pass
+
+        def stop(graph):
+            raise Stop
+
+        with self.assertRaises(Stop):
+            self.client.request_graph("spot", epsilon=0.05, progress=stop)
+
+    def test_client_without_address_uses_geodesic_server(self):
+        saved = os.environ.pop("GEODESIC_SERVER", None)
+        try:
+            with Client() as c:
+                self.assertEqual(c.address, "127.0.0.1:50051")
+            os.environ["GEODESIC_SERVER"] = f"127.0.0.1:{self.port}"
+            with Client(timeout=60) as c:
+                self.assertEqual(c.address, f"127.0.0.1:{self.port}")
+                self.assertIn("spot", [m.name for m in c.meshes()])
+        finally:
+            os.environ.pop("GEODESIC_SERVER", None)
+            if saved is not None:
+                os.environ["GEODESIC_SERVER"] = saved
+
+
+class PackageMetadataTest(unittest.TestCase):
+    """What needs no daemon: the version's one home and the type declarations."""
+
+    def test_version_equals_the_repositorys_version_file(self):
+        with open(os.path.join(SRC, "VERSION")) as f:
+            self.assertEqual(geodesic_client.__version__, f.read().strip())
+        # pyproject.toml takes it from _version.py, never from a copy of its own.
+        with open(os.path.join(SRC, "client", "python", "pyproject.toml"), "rb") as f:
+            project = tomllib.load(f)
+        self.assertNotIn("version", project["project"])
+        self.assertIn("version", project["project"]["dynamic"])
+        self.assertEqual(project["tool"]["setuptools"]["dynamic"]["version"],
+                         {"attr": "geodesic_client._version.__version__"})
+        self.assertIn("py.typed", project["tool"]["setuptools"]["package-data"]["geodesic_client"])
+        self.assertTrue(os.path.isfile(os.path.join(os.path.dirname(geodesic_client.__file__),
+                                                    "py.typed")))
+
+    def returns_by_flag(self, function, flag):
+        """{flag's declared type: return type} over function's overloads."""
+        out = {}
+        for overload in typing.get_overloads(function):
+            hints = typing.get_type_hints(overload)
+            out[hints[flag]] = hints["return"]
+        return out
+
+    def test_overloads_declare_what_each_flag_returns(self):
+        pair_with_paths = typing.Tuple[np.ndarray, typing.List[Path]]
+        two_arrays = typing.Tuple[np.ndarray, np.ndarray]
+        for function, flag, pair in ((Client.distances, "with_path", pair_with_paths),
+                                     (MeshSolver.distances, "with_path", pair_with_paths),
+                                     (Client.field, "nearest_source", two_arrays),
+                                     (MeshSolver.field, "nearest_source", two_arrays)):
+            returns = self.returns_by_flag(function, flag)
+            name = function.__qualname__
+            self.assertEqual(returns[typing.Literal[False]], np.ndarray, msg=name)
+            self.assertEqual(returns[typing.Literal[True]], pair, msg=name)
+            self.assertEqual(returns[bool], typing.Union[np.ndarray, pair], msg=name)
 
 
 if __name__ == "__main__":

@@ -115,6 +115,30 @@ class PackageTest(unittest.TestCase):
         self.assertTrue(self.gc.__file__.startswith(os.path.join(self.work, "venv")),
                         self.gc.__file__)
 
+    def test_version_and_typing_marker_are_installed(self):
+        # setuptools read the version from geodesic_client/_version.py, for the
+        # wheel and the sdist alike.
+        from importlib import metadata
+        self.assertRegex(self.gc.__version__, r"^\d+\.\d+\.\d+")
+        self.assertEqual(metadata.version("geodesic-client"), self.gc.__version__)
+        (sdist,) = os.listdir(os.path.join(self.work, "dist"))
+        self.assertIn(f"-{self.gc.__version__}.tar.gz", sdist)
+        package = os.path.dirname(self.gc.__file__)
+        self.assertTrue(os.path.isfile(os.path.join(package, "py.typed")))
+        self.assertTrue(os.path.isfile(os.path.join(package, "_version.py")))
+
+    def test_mesh_solver_and_dataclasses_from_the_installed_package(self):
+        m = self.client.mesh("spot")
+        self.assertIsInstance(m, self.gc.Mesh)
+        self.assertEqual(m.diagnostics.details["vertices"], 2930)
+        solver = self.client.mesh_solver("spot")
+        self.assertEqual(solver.epsilon, EPS)
+        np.testing.assert_array_equal(solver.distances([1, 2, 3], [2000, 1000, 3]),
+                                      self.client.distances("spot", [1, 2, 3], [2000, 1000, 3]))
+        seen = []
+        self.assertIs(solver.request_graph(progress=seen.append).state, self.gc.GraphState.READY)
+        self.assertEqual([g.state for g in seen], [self.gc.GraphState.READY])
+
     def test_numpy_batch_of_10000_pairs_equals_the_cli(self):
         rng = np.random.default_rng(7)
         a = rng.integers(0, 2930, N_PAIRS)

@@ -3,11 +3,15 @@
     import numpy as np
     from geodesic_client import Client, FacePoints
 
-    c = Client("127.0.0.1:50051", epsilon=1e-3)
+    c = Client(epsilon=1e-3)             # $GEODESIC_SERVER, else 127.0.0.1:50051
     c.request_graph("spot")                                   # waits until the graph is ready
     d = c.distances("spot", np.arange(100), FacePoints(faces, barycentrics))   # ndarray (100,)
     field = c.field("spot", [0])                              # ndarray, +inf where unreachable
     length, xyz = c.path("spot", 1, np.array([0.1, 0.2, 0.3]))    # xyz: (K, 3)
+
+    spot = c.mesh_solver("spot")         # the same queries without mesh and epsilon
+    spot.mesh.diagnostics.genus          # Mesh and MeshDiagnostics are frozen dataclasses
+    d = spot.distances(np.arange(100), np.arange(100, 200))
 
 Points are integer vertex ids, FacePoints(face_ids, barycentrics (N, 3)), (N, 3)
 positions (snapped to the surface by the server) or spec strings "v:ID",
@@ -21,14 +25,16 @@ from ._errors import (AlreadyExistsError, DeadlineExceededError, FailedPrecondit
                       UnavailableError)
 from ._client import Client
 from ._points import EdgePoints, FacePoints, Point, Points, format_point, parse_point
-from ._types import Graph, GraphState, Path, RetryPolicy
-
-__version__ = "0.1.0"
+from ._solver import MeshSolver
+from ._types import (Graph, GraphState, Mesh, MeshDiagnostics, Path, RetryPolicy,
+                     VertexCopy)
+from ._version import __version__
 
 __all__ = [
     "AlreadyExistsError", "Client", "DeadlineExceededError", "EdgePoints", "FacePoints",
     "FailedPreconditionError", "GeodesicError", "Graph", "GraphState", "InvalidArgumentError",
-    "NotFoundError", "OutOfRangeError", "Path", "PermissionDeniedError", "Point", "Points",
-    "ResourceExhaustedError", "RetryPolicy", "UnauthenticatedError", "UnavailableError",
-    "format_point", "parse_point",
+    "Mesh", "MeshDiagnostics", "MeshSolver", "NotFoundError", "OutOfRangeError", "Path",
+    "PermissionDeniedError", "Point", "Points", "ResourceExhaustedError", "RetryPolicy",
+    "UnauthenticatedError", "UnavailableError", "VertexCopy", "__version__", "format_point",
+    "parse_point",
 ]

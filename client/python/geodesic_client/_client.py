@@ -3,7 +3,7 @@ import os
 import random
 import re
 import time
-from typing import Any, Callable, Iterable, List, Optional, Tuple, Union
+from typing import Any, Callable, List, Literal, Optional, Tuple, Union, overload
 
 import grpc
 import numpy as np
@@ -11,7 +11,13 @@ import numpy as np
 from ._errors import GeodesicError, ResourceExhaustedError, from_rpc_error
 from ._points import Point, Points, format_point, to_message, to_messages
 from ._stubs import pb, rpc
-from ._types import Graph, GraphState, Path, RetryPolicy
+from ._solver import MeshSolver
+from ._types import Graph, GraphState, Mesh, Path, RetryPolicy
+
+# Where Client() connects when given no address: $GEODESIC_SERVER, else this
+# (the geodesic command line uses the same default).
+DEFAULT_ADDRESS = "127.0.0.1:50051"
+ADDRESS_ENV = "GEODESIC_SERVER"
 
 # The server's defaults (geodesicd serve --max-pairs, --max-sources; its gRPC
 # messages are limited to 64 MiB either way).
@@ -37,14 +43,15 @@ class Client:
     (which are grpc.RpcError); malformed arguments raise ValueError before any call.
     """
 
-    def __init__(self, address: str = "127.0.0.1:50051", timeout: float = 600.0,
+    def __init__(self, address: Optional[str] = None, timeout: float = 600.0,
                  token: Optional[str] = None, root_certificates: Optional[bytes] = None,
                  private_key: Optional[bytes] = None, certificate_chain: Optional[bytes] = None,
                  *, epsilon: float = 0.0, retry: RetryPolicy = RetryPolicy(),
                  max_pairs: int = DEFAULT_MAX_PAIRS, max_sources: int = DEFAULT_MAX_SOURCES,
                  max_message_bytes: int = DEFAULT_MAX_MESSAGE_BYTES,
                  path_batch: int = DEFAULT_PATH_BATCH):
-        """address: HOST:PORT. timeout: deadline of each call, seconds.
+        """address: HOST:PORT; None: $GEODESIC_SERVER if set, else 127.0.0.1:50051.
+        timeout: deadline of each call, seconds.
         token: sent as "authorization: Bearer <token>" (geodesicd --auth-token-file).
         root_certificates: PEM bytes of the CA that signed the server's certificate; turns TLS
         on. private_key, certificate_chain: PEM bytes of a client certificate, for servers that
@@ -53,6 +60,9 @@ class Client:
         max_pairs, max_sources: the server's --max-pairs and --max-sources; a lower limit
         reported by the server is learnt from its error. max_message_bytes: the largest gRPC
         message either side accepts."""
+        if address is None:
+            address = os.environ.get(ADDRESS_ENV) or DEFAULT_ADDRESS
+        self.address = address
         self._max_message = max_message_bytes
         options = [("grpc.max_receive_message_length", max_message_bytes),
                    ("grpc.max_send_message_length", max_message_bytes),
@@ -160,17 +170,29 @@ class Client:
 
     # -- meshes ---------------------------------------------------------------
 
-    def meshes(self) -> List[Any]:
-        """The registered meshes (geodesic.v1.Mesh messages)."""
-        return list(self._unary("ListMeshes", pb.ListMeshesRequest(), None).meshes)
+    def meshes(self) -> List[Mesh]:
+        """The registered meshes, with their diagnostics."""
+        return [Mesh._from_proto(m)
+                for m in self._unary("ListMeshes", pb.ListMeshesRequest(), None).meshes]
 
-    def mesh(self, name: str) -> Any:
-        """One registered mesh, with its diagnostics (a geodesic.v1.Mesh)."""
-        return self._unary("GetMesh", pb.GetMeshRequest(name=name), name)
+    def mesh(self, name: str) -> Mesh:
+        """One registered mesh, with its diagnostics."""
+        return Mesh._from_proto(self._unary("GetMesh", pb.GetMeshRequest(name=name), name))
 
-    def register_mesh(self, name: str, path: str) -> Any:
-        """Registers a mesh from a file under the server's --mesh-root."""
-        return self._unary("RegisterMesh", pb.RegisterMeshRequest(name=name, path=path), name)
+    def register_mesh(self, name: str, path: str, repair_non_manifold: bool = False) -> Mesh:
+        """Registers a mesh from a file under the server's --mesh-root.
+
+        repair_non_manifold: split each non-manifold vertex into one copy per fan instead of
+        refusing the mesh (the copies are listed in the returned Mesh's vertex_copies).
+        """
+        return Mesh._from_proto(self._unary("RegisterMesh", pb.RegisterMeshRequest(
+            name=name, path=path, repair_non_manifold=repair_non_manifold), name))
+
+    def mesh_solver(self, name: str, epsilon: Optional[float] = None,
+                    pseudo_vertices: bool = False) -> MeshSolver:
+        """A handle on one mesh's graph: this client's queries without the mesh, epsilon and
+        pseudo_vertices arguments (see MeshSolver). epsilon: None takes this client's."""
+        return MeshSolver(self, name, self._eps(epsilon), pseudo_vertices)
 
     def unload_mesh(self, name: str) -> None:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
@@ -199,15 +221,20 @@ class Client:
                                                format=fmt if first else "", data=data)
                     first = False
 
-        return self._call("UploadMesh", lambda: self._stub.UploadMesh(
-            chunks(), timeout=self.timeout, metadata=self._meta(name)))
+        return Mesh._from_proto(self._call("UploadMesh", lambda: self._stub.UploadMesh(
+            chunks(), timeout=self.timeout, metadata=self._meta(name))))
 
     # -- graphs ---------------------------------------------------------------
 
     def request_graph(self, mesh: str, epsilon: Optional[float] = None, wait: bool = True,
-                      pseudo_vertices: bool = False) -> Graph:
+                      pseudo_vertices: bool = False,
+                      progress: Optional[Callable[[Graph], None]] = None) -> Graph:
         """Requests the graph of mesh at epsilon; with wait, blocks until it is ready.
 
+        progress: with wait, called with a Graph for every status the server reports while
+        waiting (state, phase, progress in [0, 1]), the last one READY when the call returns;
+        e.g. ``progress=lambda g: print(f"{g.phase} {g.progress:.0%}")``. A graph already ready
+        gives one call. An exception it raises ends the wait and propagates.
         Raises RuntimeError if the graph failed or was cancelled while waiting.
         """
         request = pb.RequestGraphRequest(mesh=mesh, epsilon=self._eps(epsilon),
@@ -220,7 +247,7 @@ class Client:
         for _ in range(10 if wait else 0):
             g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
                 pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon, pseudo_vertices=pseudo_vertices),
-                timeout=None, metadata=self._meta(mesh)), g))
+                timeout=None, metadata=self._meta(mesh)), g, progress))
             if g.state != pb.GRAPH_STATE_EVICTED:
                 break
             g = self._unary("RequestGraph", request, mesh)
@@ -231,10 +258,20 @@ class Client:
         return graph
 
     @staticmethod
-    def _last(stream: Iterable[Any], default: Any) -> Any:
-        for item in stream:
-            default = item
-        return default
+    def _last(stream: Any, default: Any,
+              progress: Optional[Callable[[Graph], None]] = None) -> Any:
+        """The last message of a WatchGraph stream (default if none), each one passed to
+        progress as a Graph on the way."""
+        try:
+            for item in stream:
+                default = item
+                if progress is not None:
+                    progress(Graph._from_proto(item))
+            return default
+        finally:
+            # Also when progress raised or the wait was interrupted: the
+            # server stops watching instead of writing to nobody.
+            stream.cancel()
 
     def graph(self, mesh: str, epsilon: Optional[float] = None,
               pseudo_vertices: bool = False) -> Graph:
@@ -257,6 +294,34 @@ class Client:
     # Every query takes pseudo_vertices: True asks the graph with pseudo
     # vertices (request_graph(..., pseudo_vertices=True)) instead of the
     # plain one of the same epsilon.
+    #
+    # field and distances return a pair when nearest_source / with_path is
+    # True: their overloads tell type checkers which shape a call gets (the
+    # flag given positionally or by keyword, or as a plain bool).
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: Literal[False] = ..., pseudo_vertices: bool = ...
+              ) -> np.ndarray: ...
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              *, nearest_source: Literal[True], pseudo_vertices: bool = ...
+              ) -> Tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float],
+              max_distance: float, targets: Optional[Any], method: str,
+              nearest_source: Literal[True], pseudo_vertices: bool = ...
+              ) -> Tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: bool = ..., pseudo_vertices: bool = ...
+              ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
 
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = None,
               max_distance: float = 0.0, targets: Optional[Any] = None, method: str = "lc",
@@ -316,6 +381,26 @@ class Client:
             if req.nearest_source:
                 labels[chunk.offset:end] = chunk.nearest_source
         return values, labels
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  with_path: Literal[False] = ..., pseudo_vertices: bool = ...
+                  ) -> np.ndarray: ...
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  *, with_path: Literal[True], pseudo_vertices: bool = ...
+                  ) -> Tuple[np.ndarray, List[Path]]: ...
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float],
+                  with_path: Literal[True], pseudo_vertices: bool = ...
+                  ) -> Tuple[np.ndarray, List[Path]]: ...
+
+    @overload
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  with_path: bool = ..., pseudo_vertices: bool = ...
+                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
 
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = None,
                   with_path: bool = False, pseudo_vertices: bool = False

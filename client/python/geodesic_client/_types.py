@@ -1,7 +1,9 @@
 """Value types returned by the client."""
 import enum
+import json
+import re
 from dataclasses import dataclass, field
-from typing import Iterator, List, Tuple
+from typing import Any, Dict, Iterator, List, Tuple
 
 import numpy as np
 
@@ -53,13 +55,115 @@ class Graph:
     # The graph with pseudo vertices (anisotropic meshes) rather than the
     # plain one of this epsilon: the two are separate graphs on the server.
     pseudo_vertices: bool = False
+    # Resident bytes of the landmark distances that speed up point-to-point
+    # queries (0 until the server has computed them after the build).
+    landmark_bytes: int = 0
+    last_used_unix_ms: int = 0
+    # The rest of the build record, as the server reports it.
+    prune_redundant: bool = False
+    exact_fans: bool = False
+    candidate_rule: int = 0
 
     @classmethod
     def _from_proto(cls, g) -> "Graph":
         return cls(mesh=g.mesh, epsilon=g.epsilon, state=GraphState._from_proto(g.state),
                    phase=g.phase, progress=g.progress, error=g.error, bytes=g.bytes,
                    nodes=g.nodes, edges=g.edges, build_seconds=g.build_seconds, mapped=g.mapped,
-                   from_file=g.from_file, pseudo_vertices=g.pseudo_vertices)
+                   from_file=g.from_file, pseudo_vertices=g.pseudo_vertices,
+                   landmark_bytes=g.landmark_bytes, last_used_unix_ms=g.last_used_unix_ms,
+                   prune_redundant=g.prune_redundant, exact_fans=g.exact_fans,
+                   candidate_rule=g.candidate_rule)
+
+
+# The server prints the report's doubles with %.17g, which would spell a
+# non-finite one "inf" or "nan": not JSON, so such words are renamed to the
+# spellings Python's json module reads rather than losing the whole report.
+_NON_FINITE = re.compile(r"(?<=[:,\[\s])(-?)(inf|nan)(?=[,}\]\s])")
+
+
+def _parse_diagnostics_json(text: str) -> Dict[str, Any]:
+    if not text:
+        return {}
+    try:
+        return json.loads(text)
+    except ValueError:
+        fixed = _NON_FINITE.sub(lambda m: "NaN" if m.group(2) == "nan"
+                                else m.group(1) + "Infinity", text)
+        return json.loads(fixed)
+
+
+@dataclass(frozen=True)
+class MeshDiagnostics:
+    """What the server found when it read a mesh (geodesicd info reports the same).
+
+    Counts are of the mesh as registered (after any repair). genus is meaningful only for a
+    manifold mesh; bbox_diagonal is the length of the bounding box's diagonal;
+    anisotropy_mean is the mean over faces of longest edge / (2 sqrt(3) inradius), 1 for
+    equilateral triangles.
+    details: every key of the server's full report (`geodesicd info --json`), such as
+    "zero_area_faces", "non_manifold_edges", "anisotropy_max", "manifold", "mesh_error";
+    json: that report as the server sent it.
+    """
+
+    vertices: int
+    faces: int
+    edges: int
+    components: int
+    boundary_loops: int
+    genus: int
+    isolated_vertices: int
+    non_manifold_vertices: int
+    bbox_diagonal: float
+    anisotropy_mean: float
+    # Excluded from the hash: a dict has none, and the other fields already
+    # tell two meshes' diagnostics apart.
+    details: Dict[str, Any] = field(default_factory=dict, hash=False, repr=False)
+    json: str = field(default="", repr=False)
+
+    @classmethod
+    def _from_proto(cls, d) -> "MeshDiagnostics":
+        return cls(vertices=d.vertices, faces=d.faces, edges=d.edges, components=d.components,
+                   boundary_loops=d.boundary_loops, genus=d.genus,
+                   isolated_vertices=d.isolated_vertices,
+                   non_manifold_vertices=d.non_manifold_vertices, bbox_diagonal=d.bbox_diagonal,
+                   anisotropy_mean=d.anisotropy_mean,
+                   details=_parse_diagnostics_json(d.json), json=d.json)
+
+
+@dataclass(frozen=True)
+class VertexCopy:
+    """A vertex added by repair_non_manifold: copy takes over one fan of original."""
+
+    original: int
+    copy: int
+
+
+@dataclass(frozen=True)
+class Mesh:
+    """A mesh registered on the server.
+
+    fingerprint: hex xxHash64 of its positions and faces (graphs are keyed by it).
+    source: the server-side path it was read from, or "upload".
+    restored: read back from the server's snapshot of the same file bytes (usual after a
+    restart) rather than parsed again.
+    repair_non_manifold: registered with that option; vertex_copies then lists the vertices
+    it added, one per extra fan of a non-manifold vertex, numbered after the file's vertices.
+    """
+
+    name: str
+    fingerprint: str
+    source: str
+    restored: bool
+    repair_non_manifold: bool
+    vertex_copies: Tuple[VertexCopy, ...]
+    diagnostics: MeshDiagnostics
+
+    @classmethod
+    def _from_proto(cls, m) -> "Mesh":
+        return cls(name=m.name, fingerprint=m.fingerprint, source=m.source, restored=m.restored,
+                   repair_non_manifold=m.repair_non_manifold,
+                   vertex_copies=tuple(VertexCopy(c.original, c.copy) for c in m.vertex_copies),
+                   diagnostics=MeshDiagnostics._from_proto(m.diagnostics))
 
 
 @dataclass(frozen=True)

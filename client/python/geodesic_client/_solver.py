@@ -1,0 +1,130 @@
+"""MeshSolver: one mesh's graph as an object that answers queries."""
+from typing import (TYPE_CHECKING, Any, Callable, List, Literal, Optional, Tuple, Union,
+                    overload)
+
+import numpy as np
+
+from ._points import Point, Points
+from ._types import Graph, Mesh, Path
+
+if TYPE_CHECKING:  # only for annotations: _client imports this module
+    from ._client import Client
+
+
+class MeshSolver:
+    """One mesh's graph at one epsilon, queried without repeating them.
+
+        solver = client.mesh_solver("spot", epsilon=1e-3)
+        solver.request_graph(progress=lambda g: print(f"{g.phase} {g.progress:.0%}"))
+        d = solver.distances(np.arange(10), np.arange(10, 20))
+
+    Each method calls the Client method of the same name with this solver's mesh, epsilon
+    and pseudo_vertices, and returns what it returns; the graph lives on the server, so
+    solvers are cheap and share the client's connection, limits and retries.
+    """
+
+    def __init__(self, client: "Client", name: str, epsilon: float,
+                 pseudo_vertices: bool = False):
+        """Prefer Client.mesh_solver. epsilon: 0 means the server's --default-epsilon."""
+        self.client = client
+        self.name = name
+        self.epsilon = epsilon
+        self.pseudo_vertices = pseudo_vertices
+        self._mesh: Optional[Mesh] = None
+
+    def __repr__(self) -> str:
+        return (f"MeshSolver({self.name!r}, epsilon={self.epsilon!r}, "
+                f"pseudo_vertices={self.pseudo_vertices!r})")
+
+    @property
+    def mesh(self) -> Mesh:
+        """The mesh and its diagnostics, fetched from the server on first use."""
+        if self._mesh is None:
+            self._mesh = self.client.mesh(self.name)
+        return self._mesh
+
+    # -- the graph ------------------------------------------------------------
+
+    def request_graph(self, wait: bool = True,
+                      progress: Optional[Callable[[Graph], None]] = None) -> Graph:
+        """Makes the graph available; see Client.request_graph for wait and progress."""
+        return self.client.request_graph(self.name, self.epsilon, wait=wait,
+                                         pseudo_vertices=self.pseudo_vertices, progress=progress)
+
+    def graph(self) -> Graph:
+        """The graph's current state."""
+        return self.client.graph(self.name, self.epsilon, pseudo_vertices=self.pseudo_vertices)
+
+    def cancel_graph(self) -> Graph:
+        """Cancels the graph's build."""
+        return self.client.cancel_graph(self.name, self.epsilon,
+                                        pseudo_vertices=self.pseudo_vertices)
+
+    # -- queries --------------------------------------------------------------
+    # Options after the points are keyword-only, so that the overloads can
+    # tell a type checker the shape of what comes back.
+
+    @overload
+    def field(self, sources: Union[Points, Point], *, max_distance: float = ...,
+              targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: Literal[False] = ...) -> np.ndarray: ...
+
+    @overload
+    def field(self, sources: Union[Points, Point], *, max_distance: float = ...,
+              targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: Literal[True]) -> Tuple[np.ndarray, np.ndarray]: ...
+
+    @overload
+    def field(self, sources: Union[Points, Point], *, max_distance: float = ...,
+              targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: bool = ...) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
+
+    def field(self, sources: Union[Points, Point], *, max_distance: float = 0.0,
+              targets: Optional[Any] = None, method: str = "lc",
+              nearest_source: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
+        """Distances from the nearest source, per vertex or per target; see Client.field."""
+        return self.client.field(self.name, sources, self.epsilon, max_distance=max_distance,
+                                 targets=targets, method=method, nearest_source=nearest_source,
+                                 pseudo_vertices=self.pseudo_vertices)
+
+    @overload
+    def distances(self, a: Points, b: Points, *,
+                  with_path: Literal[False] = ...) -> np.ndarray: ...
+
+    @overload
+    def distances(self, a: Points, b: Points, *,
+                  with_path: Literal[True]) -> Tuple[np.ndarray, List[Path]]: ...
+
+    @overload
+    def distances(self, a: Points, b: Points, *,
+                  with_path: bool = ...) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
+
+    def distances(self, a: Points, b: Points, *,
+                  with_path: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
+        """Distances between a[i] and b[i] (and their paths); see Client.distances."""
+        return self.client.distances(self.name, a, b, self.epsilon, with_path=with_path,
+                                     pseudo_vertices=self.pseudo_vertices)
+
+    def distance(self, a: Point, b: Point) -> float:
+        """The distance between two surface points (+inf if unreachable)."""
+        return self.client.distance(self.name, a, b, self.epsilon,
+                                    pseudo_vertices=self.pseudo_vertices)
+
+    def path(self, a: Point, b: Point) -> Path:
+        """The geodesic path from a to b (unpacks as ``length, xyz = path``)."""
+        return self.client.path(self.name, a, b, self.epsilon,
+                                pseudo_vertices=self.pseudo_vertices)
+
+    def matrix(self, sources: Points, targets: Points) -> np.ndarray:
+        """(len(sources), len(targets)) array of distances."""
+        return self.client.matrix(self.name, sources, targets, self.epsilon,
+                                  pseudo_vertices=self.pseudo_vertices)
+
+    def sample_points(self, count: int, seed: int = 0) -> Tuple[np.ndarray, float]:
+        """Farthest-point sampling: (vertex ids, covering radius); see Client.sample_points."""
+        return self.client.sample_points(self.name, count, seed=seed, epsilon=self.epsilon,
+                                         pseudo_vertices=self.pseudo_vertices)
+
+    def snap(self, positions: Any) -> List[str]:
+        """Nearest surface points to (N, 3) positions, as spec strings (no graph needed)."""
+        return self.client.snap(self.name, positions)
