@@ -25,7 +25,7 @@ done
 PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
-  libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev libboost-dev libyaml-cpp-dev
+  libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libboost-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-yaml python3-matplotlib openssl
   libssl-dev libjs-three chromium chromium-driver python3-selenium curl
