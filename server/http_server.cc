@@ -162,7 +162,11 @@ class WorkerPool {
         job = std::move(queue_.front());
         queue_.pop_front();
       }
-      job();
+      try {
+        job();
+      } catch (...) {
+        // Jobs answer their own errors; this only keeps the worker alive.
+      }
     }
   }
 
@@ -321,6 +325,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   void OnHeader(beast::error_code ec) {
     request_ = HttpRequest();
     request_.remote_address = address_;
+    head_ = false;
     if (ec == http::error::header_limit) {
       return Send(shared_->Refuse(HttpRefusal::kHeaderTooLarge, request_, 0), true);
     }

@@ -291,7 +291,8 @@ class HostileClientTest(unittest.TestCase):
         self.assertEqual(headers.get("allow"), "POST")
         status, headers, body = request(self.open_port, "POST", "/v1/meshes")
         self.assertEqual((status, headers.get("allow")), (405, "GET, HEAD"), body)
-        for path in ("/three/../../../../etc/passwd", "/../../etc/passwd", "/three/%2e%2e/%2e%2e/etc/passwd"):
+        for path in ("/three/../../../../etc/passwd", "/../../etc/passwd",
+                     "/three/%2e%2e/%2e%2e/etc/passwd", "/%2e%2e/%2e%2e/etc/passwd"):
             status, _, body = request(self.open_port, "GET", path)
             self.assertEqual(status, 404, (path, body[:100]))
             self.assertNotIn(b"root:", body)
