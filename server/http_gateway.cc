@@ -756,7 +756,8 @@ struct HttpGateway::Impl {
     return res;
   }
 
-  static Route Get(const char* pattern, Api handle, const char* method = "GET") {
+  // A route whose answer is JSON from the gRPC service.
+  static Route Rpc(const char* pattern, Api handle, const char* method = "GET") {
     return {method, pattern, false,
             [handle = std::move(handle)](Impl& g, const HttpRequest& req,
                                          const std::vector<std::string>& args) {
@@ -766,7 +767,7 @@ struct HttpGateway::Impl {
 
   // POST bodies are parsed after the Call's checks, before the RPC.
   static Route Post(const char* pattern, BodyApi handle) {
-    return Get(
+    return Rpc(
         pattern,
         [handle](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
                  json* out) {
@@ -781,22 +782,22 @@ struct HttpGateway::Impl {
     static const std::vector<Route> routes = {
         {"GET", "/v1/openapi.json", true,
          [](Impl& g, const HttpRequest&, const std::vector<std::string>&) { return g.OpenApi(); }},
-        Get("/v1/meshes", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
+        Rpc("/v1/meshes", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
                              json* out) { return g.ListMeshes(call, out); }),
-        Get("/v1/graphs", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
+        Rpc("/v1/graphs", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
                              json* out) { return g.ListGraphs(call, out); }),
-        Get("/v1/meshes/{}",
+        Rpc("/v1/meshes/{}",
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
               return g.GetMesh(call, mesh, out);
             }),
-        Get("/v1/meshes/{}/geometry",
+        Rpc("/v1/meshes/{}/geometry",
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
               return g.Geometry(call, mesh, out);
             }),
-        Get("/v1/meshes/{}/graph",
+        Rpc("/v1/meshes/{}/graph",
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
                json* out) { return g.GetGraph(call, mesh, req, false, out); }),
-        Get(
+        Rpc(
             "/v1/meshes/{}/graph",
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
                json* out) { return g.GetGraph(call, mesh, req, true, out); },
