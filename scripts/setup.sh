@@ -29,7 +29,7 @@ done
 BUILD_PACKAGES=(
   build-essential cmake ninja-build pkg-config git
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
-  libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libcpp-httplib-dev libyaml-cpp-dev
+  libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libboost-dev libyaml-cpp-dev
   libssl-dev
 )
 # Tests, benchmarks, the viewer's browser test and the Python package's.

@@ -6,20 +6,21 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <map>
 #include <optional>
 #include <sstream>
-#include <thread>
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/strings/ascii.h"
 #include "absl/strings/escaping.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
-#include "httplib.h"
 #include "nlohmann/json.hpp"
-#include "server/listen_socket.h"
+#include "server/http_server.h"
 
 namespace geodesic::server {
 namespace {
@@ -86,15 +87,18 @@ std::string Quote(const json& j) {
   return text;
 }
 
-void WriteError(const grpc::Status& s, httplib::Response& res) {
+HttpResponse ErrorResponse(const grpc::Status& s) {
+  HttpResponse res;
   res.status = HttpStatus(s.error_code());
   if (s.error_code() == grpc::StatusCode::UNAUTHENTICATED) {
-    res.set_header("WWW-Authenticate", "Bearer");
+    res.headers.emplace_back("WWW-Authenticate", "Bearer");
   } else if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
-    res.set_header("Retry-After", "1");
+    res.headers.emplace_back("Retry-After", "1");
   }
   json body = {{"error", {{"code", CodeName(s.error_code())}, {"message", s.error_message()}}}};
-  res.set_content(Dump(body), "application/json");
+  res.body = Dump(body);
+  res.content_type = "application/json";
+  return res;
 }
 
 // Whether text is UTF-8, as protobuf requires of every string field (the
@@ -108,6 +112,26 @@ bool IsUtf8(const std::string& text) {
   }
 }
 
+// Compares in time independent of where the strings differ, so that response
+// times do not leak the token.
+bool ConstantTimeEquals(std::string_view a, std::string_view b) {
+  if (a.size() != b.size()) return false;
+  unsigned char diff = 0;
+  for (size_t i = 0; i < a.size(); ++i) diff |= static_cast<unsigned char>(a[i] ^ b[i]);
+  return diff == 0;
+}
+
+// A path's segments between slashes, empty ones included.
+std::vector<std::string_view> Split(std::string_view path) {
+  std::vector<std::string_view> out;
+  for (;;) {
+    const size_t slash = path.find('/');
+    out.push_back(path.substr(0, slash));
+    if (slash == std::string_view::npos) return out;
+    path.remove_prefix(slash + 1);
+  }
+}
+
 // +inf (unreachable) has no JSON form: null stands for it.
 json JsonDistance(double d) { return std::isfinite(d) ? json(d) : json(nullptr); }
 
@@ -116,8 +140,9 @@ json JsonDistance(double d) { return std::isfinite(d) ? json(d) : json(nullptr);
 // `?timeout=SECONDS` becomes the calls' deadline, which long solves poll.
 class Call {
  public:
-  explicit Call(const httplib::Request& req) {
-    const std::string auth = req.get_header_value("Authorization");
+  // `segments`: the path's parts the route captured (mesh names).
+  Call(const HttpRequest& req, const std::vector<std::string>& segments) {
+    const std::string auth = req.header("Authorization");
     for (char c : auth) {
       if (c < 0x20 || c > 0x7e) {
         status_ = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
@@ -126,16 +151,16 @@ class Call {
       }
     }
     auth_ = auth;
-    for (size_t i = 1; i < req.matches.size(); ++i) {
-      if (!IsUtf8(req.matches[i])) {
-        status_ = grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                               absl::StrFormat("path segment '%s' is not UTF-8",
-                                               absl::CHexEscape(req.matches[i].str())));
+    for (const std::string& segment : segments) {
+      if (!IsUtf8(segment)) {
+        status_ = grpc::Status(
+            grpc::StatusCode::INVALID_ARGUMENT,
+            absl::StrFormat("path segment '%s' is not UTF-8", absl::CHexEscape(segment)));
         return;
       }
     }
     if (req.has_param("timeout")) {
-      const std::string text = req.get_param_value("timeout");
+      const std::string text = req.param("timeout");
       char* end = nullptr;
       const double seconds = std::strtod(text.c_str(), &end);
       if (text.empty() || end != text.c_str() + text.size() || !(seconds > 0 && seconds < 1e6)) {
@@ -197,7 +222,7 @@ size_t NestingDepth(std::string_view text) {
 
 constexpr size_t kMaxNesting = 64;
 
-grpc::Status ParseBody(const httplib::Request& req, json* body) {
+grpc::Status ParseBody(const HttpRequest& req, json* body) {
   if (req.body.empty()) {
     *body = json::object();
     return grpc::Status::OK;
@@ -229,10 +254,10 @@ grpc::Status BodyEpsilon(const json& body, double* eps) {
   return grpc::Status::OK;
 }
 
-grpc::Status QueryEpsilon(const httplib::Request& req, double* eps) {
+grpc::Status QueryEpsilon(const HttpRequest& req, double* eps) {
   *eps = 0;
   if (!req.has_param("eps")) return grpc::Status::OK;
-  const std::string text = req.get_param_value("eps");
+  const std::string text = req.param("eps");
   char* end = nullptr;
   *eps = std::strtod(text.c_str(), &end);
   if (text.empty() || end != text.c_str() + text.size()) {
@@ -274,11 +299,11 @@ grpc::Status ForGraphOf(const std::string& mesh, const json& body, Request* req)
 }
 
 // The same from the query string: ?eps=E&pseudo_vertices=true.
-grpc::Status QueryGraph(const httplib::Request& req, GraphChoice* out) {
+grpc::Status QueryGraph(const HttpRequest& req, GraphChoice* out) {
   if (grpc::Status s = QueryEpsilon(req, &out->epsilon); !s.ok()) return s;
   out->pseudo_vertices = false;
   if (!req.has_param("pseudo_vertices")) return grpc::Status::OK;
-  const std::string text = req.get_param_value("pseudo_vertices");
+  const std::string text = req.param("pseudo_vertices");
   if (text == "true" || text == "1") {
     out->pseudo_vertices = true;
   } else if (text != "false" && text != "0") {
@@ -360,13 +385,13 @@ json MeshJson(const v1::Mesh& m) {
 }  // namespace
 
 struct HttpGateway::Impl {
-  std::unique_ptr<httplib::Server> http;
   std::unique_ptr<v1::Geodesic::Stub> stub;
   const MeshRegistry* meshes = nullptr;
   HttpGatewayOptions options;
-  int port = 0;
-  bool tls = false;
-  std::thread thread;
+  std::string web_root;
+  bool has_three = false;
+  // Destroyed first: its workers call the members above.
+  std::unique_ptr<HttpServer> server;
 
   // SPEC strings (or vertex ids) to points; "xyz:" positions are snapped
   // through the Snap RPC, all of a request's in one call.
@@ -492,7 +517,7 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status GetGraph(const Call& call, const std::string& mesh, const httplib::Request& http,
+  grpc::Status GetGraph(const Call& call, const std::string& mesh, const HttpRequest& http,
                         bool cancel, json* out) {
     GraphChoice graph;
     if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
@@ -700,38 +725,293 @@ struct HttpGateway::Impl {
     *out = {{"points", std::move(points)}, {"distances", std::move(distances)}};
     return s;
   }
-};
 
-namespace {
-
-using MeshHandler = std::function<grpc::Status(const Call&, const std::string& mesh,
-                                               const httplib::Request&, json* out)>;
-
-void Reply(const httplib::Request& req, httplib::Response& res,
-           const std::function<grpc::Status(const Call&, json*)>& handle) {
-  Call call(req);
-  json out;
-  grpc::Status s = call.status().ok() ? handle(call, &out) : call.status();
-  if (s.ok() && call.expired()) {
-    s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
-  }
-  if (!s.ok()) return WriteError(s, res);
-  res.set_header("Cache-Control", "no-store");
-  res.set_content(Dump(out), "application/json");
-}
-
-// Handlers of POST bodies: the body is parsed before the RPC.
-std::function<grpc::Status(const Call&, json*)> WithBody(
-    const httplib::Request& req,
-    const std::function<grpc::Status(const Call&, const json&, json*)>& handle) {
-  return [&req, handle](const Call& call, json* out) {
-    json body;
-    if (grpc::Status s = ParseBody(req, &body); !s.ok()) return s;
-    return handle(call, body, out);
+  // The API, one row per path and method. A "{}" segment matches one path
+  // segment (a mesh name), handed to the handler; `open` rows need no token.
+  struct Route {
+    const char* method;
+    const char* pattern;
+    bool open;
+    std::function<HttpResponse(Impl&, const HttpRequest&, const std::vector<std::string>&)> handle;
   };
-}
+  using Api = std::function<grpc::Status(Impl&, const Call&, const std::string& mesh,
+                                         const HttpRequest&, json* out)>;
+  using BodyApi = grpc::Status (Impl::*)(const Call&, const std::string&, const json&, json*);
 
-}  // namespace
+  // A JSON answer: the Call (token, deadline) is checked, then the handler.
+  static HttpResponse Reply(Impl& g, const HttpRequest& req, const std::vector<std::string>& args,
+                            const Api& handle) {
+    Call call(req, args);
+    json out;
+    grpc::Status s = call.status().ok() ? handle(g, call, args.empty() ? "" : args[0], req, &out)
+                                        : call.status();
+    if (s.ok() && call.expired()) {
+      s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
+    }
+    if (!s.ok()) return ErrorResponse(s);
+    HttpResponse res;
+    res.headers.emplace_back("Cache-Control", "no-store");
+    res.body = Dump(out);
+    res.content_type = "application/json";
+    return res;
+  }
+
+  // A route whose answer is JSON from the gRPC service.
+  static Route Rpc(const char* pattern, Api handle, const char* method = "GET") {
+    return {method, pattern, false,
+            [handle = std::move(handle)](Impl& g, const HttpRequest& req,
+                                         const std::vector<std::string>& args) {
+              return Reply(g, req, args, handle);
+            }};
+  }
+
+  // POST bodies are parsed after the Call's checks, before the RPC.
+  static Route Post(const char* pattern, BodyApi handle) {
+    return Rpc(
+        pattern,
+        [handle](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
+                 json* out) {
+          json body;
+          if (grpc::Status s = ParseBody(req, &body); !s.ok()) return s;
+          return (g.*handle)(call, mesh, body, out);
+        },
+        "POST");
+  }
+
+  static const std::vector<Route>& Routes() {
+    static const std::vector<Route> routes = {
+        {"GET", "/v1/openapi.json", true,
+         [](Impl& g, const HttpRequest&, const std::vector<std::string>&) { return g.OpenApi(); }},
+        Rpc("/v1/meshes", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
+                             json* out) { return g.ListMeshes(call, out); }),
+        Rpc("/v1/graphs", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
+                             json* out) { return g.ListGraphs(call, out); }),
+        Rpc("/v1/meshes/{}",
+            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
+              return g.GetMesh(call, mesh, out);
+            }),
+        Rpc("/v1/meshes/{}/geometry",
+            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
+              return g.Geometry(call, mesh, out);
+            }),
+        Rpc("/v1/meshes/{}/graph",
+            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
+               json* out) { return g.GetGraph(call, mesh, req, false, out); }),
+        Rpc(
+            "/v1/meshes/{}/graph",
+            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
+               json* out) { return g.GetGraph(call, mesh, req, true, out); },
+            "DELETE"),
+        Post("/v1/meshes/{}/graph", &Impl::RequestGraph),
+        Post("/v1/meshes/{}/distance", &Impl::Distance),
+        Post("/v1/meshes/{}/field", &Impl::Field),
+        Post("/v1/meshes/{}/matrix", &Impl::Matrix),
+        Post("/v1/meshes/{}/snap", &Impl::Snap),
+        Post("/v1/meshes/{}/sample", &Impl::Sample),
+    };
+    return routes;
+  }
+
+  static bool Matches(std::string_view pattern, std::string_view path,
+                      std::vector<std::string>* args) {
+    args->clear();
+    const std::vector<std::string_view> want = Split(pattern), got = Split(path);
+    if (want.size() != got.size()) return false;
+    for (size_t i = 0; i < want.size(); ++i) {
+      if (want[i] == "{}" && !got[i].empty()) {
+        args->emplace_back(got[i]);
+      } else if (want[i] != got[i]) {
+        return false;
+      }
+    }
+    return true;
+  }
+
+  // The route for the request's path and method; a path the table knows
+  // with another method gives the methods it takes in *allow instead.
+  static const Route* FindRoute(const HttpRequest& req, std::vector<std::string>* args,
+                                std::string* allow) {
+    // HEAD is GET without the body, as for any HTTP server.
+    const std::string method = req.method == "HEAD" ? "GET" : req.method;
+    allow->clear();
+    for (const Route& route : Routes()) {
+      if (!Matches(route.pattern, req.path, args)) continue;
+      if (route.method == method) return &route;
+      if (!allow->empty()) *allow += ", ";
+      *allow += route.method;
+      if (std::string_view(route.method) == "GET") *allow += ", HEAD";
+    }
+    return nullptr;
+  }
+
+  HttpResponse OpenApi() const {
+    std::ifstream in(std::filesystem::path(web_root) / "openapi.json");
+    std::stringstream text;
+    if (web_root.empty() || !(text << in.rdbuf())) {
+      return ErrorResponse(grpc::Status(grpc::StatusCode::NOT_FOUND, "openapi.json not installed"));
+    }
+    HttpResponse res;
+    res.body = text.str();
+    res.content_type = "application/json";
+    return res;
+  }
+
+  HttpResponse NotFound(const HttpRequest& req) const {
+    return ErrorResponse(
+        grpc::Status(grpc::StatusCode::NOT_FOUND,
+                     web_root.empty() && !req.path.starts_with("/v1/")
+                         ? "the viewer's files were not found (set GEODESIC_WEB_DIR)"
+                         : absl::StrFormat("no such resource: %s %s", req.method, req.path)));
+  }
+
+  static HttpResponse NotAllowed(const HttpRequest& req, const std::string& allow) {
+    HttpResponse res = ErrorResponse(grpc::Status(
+        grpc::StatusCode::UNIMPLEMENTED,
+        absl::StrFormat("%s is not allowed on %s; allowed: %s", req.method, req.path, allow)));
+    res.status = 405;
+    res.headers.emplace_back("Allow", allow);
+    return res;
+  }
+
+  // The viewer under / and three.js under /three. Paths are taken segment by
+  // segment, so ".." never climbs out of a root (symbolic links inside one,
+  // as Debian's three.js has, are followed).
+  std::optional<HttpResponse> StaticFile(const HttpRequest& req) const {
+    std::vector<std::pair<std::string_view, std::string>> mounts;
+    if (has_three) mounts.emplace_back("/three", options.three_root);
+    if (!web_root.empty()) mounts.emplace_back("", web_root);
+    for (const auto& [prefix, root] : mounts) {
+      if (req.path != prefix && !req.path.starts_with(std::string(prefix) + "/")) continue;
+      std::string sub = req.path.substr(prefix.size());
+      if (sub.empty()) sub = "/";
+      for (std::string_view segment : Split(sub)) {
+        if (segment == ".." || segment.find('\0') != std::string_view::npos ||
+            segment.find('\\') != std::string_view::npos) {
+          return NotFound(req);
+        }
+      }
+      if (sub.back() == '/') sub += "index.html";
+      const std::filesystem::path file = root + sub;
+      std::error_code ec;
+      if (!std::filesystem::is_regular_file(file, ec)) continue;
+      std::ifstream in(file, std::ios::binary);
+      std::stringstream text;
+      if (!(text << in.rdbuf())) continue;
+      HttpResponse res;
+      res.body = text.str();
+      res.content_type = MimeType(file.extension().string());
+      return res;
+    }
+    return std::nullopt;
+  }
+
+  static std::string MimeType(const std::string& extension) {
+    static const std::map<std::string, std::string> types = {
+        {".html", "text/html"},        {".htm", "text/html"},         {".js", "text/javascript"},
+        {".mjs", "text/javascript"},   {".json", "application/json"}, {".css", "text/css"},
+        {".png", "image/png"},         {".jpg", "image/jpeg"},        {".jpeg", "image/jpeg"},
+        {".svg", "image/svg+xml"},     {".ico", "image/x-icon"},      {".txt", "text/plain"},
+        {".wasm", "application/wasm"}, {".map", "application/json"},
+    };
+    auto it = types.find(absl::AsciiStrToLower(extension));
+    return it == types.end() ? "application/octet-stream" : it->second;
+  }
+
+  // On a worker, with the whole request.
+  HttpResponse Handle(const HttpRequest& req) {
+    std::vector<std::string> args;
+    std::string allow;
+    if (const Route* route = FindRoute(req, &args, &allow)) {
+      try {
+        return route->handle(*this, req, args);
+      } catch (const json::exception& e) {
+        // Type checks precede every JSON read; this is the last guard.
+        return ErrorResponse(Invalid(e.what()));
+      } catch (const std::exception& e) {
+        return ErrorResponse(grpc::Status(grpc::StatusCode::INTERNAL, e.what()));
+      }
+    }
+    if (!allow.empty()) return NotAllowed(req, allow);
+    if (req.method == "GET" || req.method == "HEAD") {
+      if (auto file = StaticFile(req)) return std::move(*file);
+    }
+    return NotFound(req);
+  }
+
+  // On an io thread, before the body is read: what can be answered from the
+  // headers alone is, so that a body nobody will use is never read.
+  std::optional<HttpResponse> Admit(const HttpRequest& head, size_t* body_limit) const {
+    if (head.header("Content-Type").starts_with("application/x-www-form-urlencoded")) {
+      *body_limit = std::min(*body_limit, kFormBodyLimit);
+    }
+    std::vector<std::string> args;
+    std::string allow;
+    const Route* route = FindRoute(head, &args, &allow);
+    if (!route) {
+      if (!allow.empty()) return NotAllowed(head, allow);
+      const bool maybe_file =
+          (head.method == "GET" || head.method == "HEAD") && !head.path.starts_with("/v1/");
+      if (maybe_file) return std::nullopt;
+      return NotFound(head);
+    }
+    if (route->open || options.bearer_token.empty()) return std::nullopt;
+    // Exactly one header: with two, a proxy and this server could each
+    // read a different one.
+    const size_t count = head.header_count("Authorization");
+    if (count > 1) {
+      return ErrorResponse(grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
+                                        "more than one Authorization header: send exactly one, "
+                                        "'Authorization: Bearer <token>'"));
+    }
+    if (count == 0 ||
+        !ConstantTimeEquals(head.header("Authorization"), "Bearer " + options.bearer_token)) {
+      return ErrorResponse(grpc::Status(
+          grpc::StatusCode::UNAUTHENTICATED,
+          "missing or wrong bearer token: send the header 'Authorization: Bearer <token>'"));
+    }
+    return std::nullopt;
+  }
+
+  HttpResponse Refuse(HttpRefusal why, const HttpRequest& head, size_t body_limit) const {
+    switch (why) {
+      case HttpRefusal::kBodyTooLarge: {
+        HttpResponse res = ErrorResponse(grpc::Status(
+            grpc::StatusCode::RESOURCE_EXHAUSTED,
+            head.header("Content-Type").starts_with("application/x-www-form-urlencoded")
+                ? absl::StrFormat("a body sent as application/x-www-form-urlencoded (curl -d's "
+                                  "default) is limited to %u bytes; send it with Content-Type: "
+                                  "application/json",
+                                  body_limit)
+                : absl::StrFormat("request body over the limit of %u bytes", body_limit)));
+        res.status = 413;
+        return res;
+      }
+      case HttpRefusal::kHeaderTooLarge: {
+        HttpResponse res =
+            ErrorResponse(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
+                                       absl::StrFormat("request headers over the limit of %u bytes",
+                                                       options.limits.max_header_bytes)));
+        res.status = 431;
+        return res;
+      }
+      case HttpRefusal::kBusy:
+        return ErrorResponse(grpc::Status(
+            grpc::StatusCode::UNAVAILABLE,
+            absl::StrFormat("the HTTP gateway is busy: %d requests wait for a worker; retry",
+                            options.limits.max_queued)));
+      case HttpRefusal::kBadRequest:
+        return ErrorResponse(Invalid("malformed HTTP request"));
+      case HttpRefusal::kInternal:
+        break;
+    }
+    return ErrorResponse(grpc::Status(grpc::StatusCode::INTERNAL, "internal error"));
+  }
+
+  // Bodies sent as forms (curl -d's default content type) are capped as the
+  // HTTP library the gateway used to run on capped them, so that a client
+  // that forgot its JSON content type hears so rather than nothing.
+  static constexpr size_t kFormBodyLimit = 8192;
+};
 
 std::string FindWebRoot() {
   std::vector<std::filesystem::path> candidates;
@@ -754,52 +1034,20 @@ std::string FindWebRoot() {
 
 HttpGateway::HttpGateway(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
-HttpGateway::~HttpGateway() {
-  if (impl_ && impl_->http) {
-    impl_->http->stop();
-    if (impl_->thread.joinable()) impl_->thread.join();
-  }
-}
+HttpGateway::~HttpGateway() = default;
 
-int HttpGateway::port() const { return impl_->port; }
-bool HttpGateway::tls() const { return impl_->tls; }
+int HttpGateway::port() const { return impl_->server->port(); }
+bool HttpGateway::tls() const { return impl_->server->tls(); }
 
 absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewayOptions& options,
                                                                 grpc::Server* grpc_server,
                                                                 const MeshRegistry* meshes) {
-  const auto colon = options.listen.rfind(':');
-  char* end = nullptr;
-  const long port =
-      colon == std::string::npos ? -1 : std::strtol(options.listen.c_str() + colon + 1, &end, 10);
-  if (colon == std::string::npos || end != options.listen.c_str() + options.listen.size() ||
-      port < 0 || port > 65535) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("--http-listen %s: expected HOST:PORT", options.listen));
-  }
-  std::string host = options.listen.substr(0, colon);
-  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') {
-    host = host.substr(1, host.size() - 2);
-  }
   auto impl = std::make_unique<Impl>();
   impl->options = options;
   impl->meshes = meshes;
-  if (options.tls_cert.empty() != options.tls_key.empty()) {
-    return absl::InvalidArgumentError("HTTP TLS needs both a certificate and a key");
-  }
-  if (!options.tls_cert.empty()) {
-    auto ssl = std::make_unique<httplib::SSLServer>(
-        options.tls_cert.c_str(), options.tls_key.c_str(),
-        options.tls_client_ca.empty() ? nullptr : options.tls_client_ca.c_str());
-    if (!ssl->is_valid()) {
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "HTTP TLS: cannot load certificate %s or key %s%s", options.tls_cert, options.tls_key,
-          options.tls_client_ca.empty() ? "" : " or CA " + options.tls_client_ca));
-    }
-    impl->http = std::move(ssl);
-    impl->tls = true;
-  } else {
-    impl->http = std::make_unique<httplib::Server>();
-  }
+  impl->web_root = options.web_root.empty() ? FindWebRoot() : options.web_root;
+  std::error_code ec;
+  impl->has_three = std::filesystem::exists(options.three_root, ec);
   grpc::ChannelArguments args;
   // Fields and matrices of large meshes exceed gRPC's 4 MiB default; the
   // service allows 64 MiB each way.
@@ -807,128 +1055,27 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
   args.SetMaxSendMessageSize(64 << 20);
   impl->stub = v1::Geodesic::NewStub(grpc_server->InProcessChannel(args));
 
-  httplib::Server& http = *impl->http;
+  HttpServerOptions server;
+  server.listen = options.listen;
+  server.tls_cert = options.tls_cert;
+  server.tls_key = options.tls_key;
+  server.tls_client_ca = options.tls_client_ca;
+  server.limits = options.limits;
+  server.limits.max_body_bytes = options.max_body_bytes;
   Impl* g = impl.get();
-  http.set_payload_max_length(options.max_body_bytes);
-  http.set_file_extension_and_mimetype_mapping("js", "text/javascript");
-  http.set_file_extension_and_mimetype_mapping("json", "application/json");
-  if (std::filesystem::exists(options.three_root)) {
-    http.set_mount_point("/three", options.three_root);
-  }
-  const std::string web_root = options.web_root.empty() ? FindWebRoot() : options.web_root;
-  if (!web_root.empty()) http.set_mount_point("/", web_root);
-  http.set_error_handler([max = options.max_body_bytes, web_root](const httplib::Request& req,
-                                                                  httplib::Response& res) {
-    if (!res.body.empty()) return;
-    if (res.status == 413 &&
-        req.get_header_value("Content-Type").starts_with("application/x-www-form-urlencoded")) {
-      // The HTTP library caps form bodies at 8 KiB whatever our limit is.
-      WriteError(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                              "a body sent as application/x-www-form-urlencoded (curl -d's "
-                              "default) is limited to 8192 bytes; send it with Content-Type: "
-                              "application/json"),
-                 res);
-      res.status = 413;
-    } else if (res.status == 413) {
-      WriteError(grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                              absl::StrFormat("request body over the limit of %u bytes", max)),
-                 res);
-      res.status = 413;
-    } else if (res.status == 404) {
-      WriteError(
-          grpc::Status(grpc::StatusCode::NOT_FOUND,
-                       web_root.empty() && !req.path.starts_with("/v1/")
-                           ? "the viewer's files were not found (set GEODESIC_WEB_DIR)"
-                           : absl::StrFormat("no such resource: %s %s", req.method, req.path)),
-          res);
-    } else {
-      const int status = res.status;
-      WriteError(grpc::Status(grpc::StatusCode::INVALID_ARGUMENT,
-                              absl::StrFormat("HTTP %d on %s %s", status, req.method, req.path)),
-                 res);
-      res.status = status;
-    }
-  });
-  http.set_exception_handler(
-      [](const httplib::Request&, httplib::Response& res, std::exception_ptr ep) {
-        // Type checks precede every JSON read; this is the last guard.
-        std::string what = "internal error";
-        grpc::StatusCode code = grpc::StatusCode::INTERNAL;
-        try {
-          std::rethrow_exception(ep);
-        } catch (const json::exception& e) {
-          code = grpc::StatusCode::INVALID_ARGUMENT;
-          what = e.what();
-        } catch (const std::exception& e) {
-          what = e.what();
-        } catch (...) {
-        }
-        WriteError(grpc::Status(code, what), res);
-      });
-
-  http.Get("/v1/openapi.json", [web_root](const httplib::Request&, httplib::Response& res) {
-    std::ifstream in(std::filesystem::path(web_root) / "openapi.json");
-    std::stringstream text;
-    if (web_root.empty() || !(text << in.rdbuf())) {
-      return WriteError(grpc::Status(grpc::StatusCode::NOT_FOUND, "openapi.json not installed"),
-                        res);
-    }
-    res.set_content(text.str(), "application/json");
-  });
-  http.Get("/v1/meshes", [g](const httplib::Request& req, httplib::Response& res) {
-    Reply(req, res, [g](const Call& call, json* out) { return g->ListMeshes(call, out); });
-  });
-  http.Get("/v1/graphs", [g](const httplib::Request& req, httplib::Response& res) {
-    Reply(req, res, [g](const Call& call, json* out) { return g->ListGraphs(call, out); });
-  });
-  http.Get(R"(/v1/meshes/([^/]+))", [g](const httplib::Request& req, httplib::Response& res) {
-    const std::string mesh = req.matches[1];
-    Reply(req, res, [&](const Call& call, json* out) { return g->GetMesh(call, mesh, out); });
-  });
-  http.Get(
-      R"(/v1/meshes/([^/]+)/geometry)", [g](const httplib::Request& req, httplib::Response& res) {
-        const std::string mesh = req.matches[1];
-        Reply(req, res, [&](const Call& call, json* out) { return g->Geometry(call, mesh, out); });
-      });
-  http.Get(R"(/v1/meshes/([^/]+)/graph)", [g](const httplib::Request& req, httplib::Response& res) {
-    const std::string mesh = req.matches[1];
-    Reply(req, res,
-          [&](const Call& call, json* out) { return g->GetGraph(call, mesh, req, false, out); });
-  });
-  http.Delete(
-      R"(/v1/meshes/([^/]+)/graph)", [g](const httplib::Request& req, httplib::Response& res) {
-        const std::string mesh = req.matches[1];
-        Reply(req, res,
-              [&](const Call& call, json* out) { return g->GetGraph(call, mesh, req, true, out); });
-      });
-  using PostHandler = grpc::Status (Impl::*)(const Call&, const std::string&, const json&, json*);
-  const std::pair<const char*, PostHandler> posts[] = {
-      {R"(/v1/meshes/([^/]+)/graph)", &Impl::RequestGraph},
-      {R"(/v1/meshes/([^/]+)/distance)", &Impl::Distance},
-      {R"(/v1/meshes/([^/]+)/field)", &Impl::Field},
-      {R"(/v1/meshes/([^/]+)/matrix)", &Impl::Matrix},
-      {R"(/v1/meshes/([^/]+)/snap)", &Impl::Snap},
-      {R"(/v1/meshes/([^/]+)/sample)", &Impl::Sample},
+  server.handler = [g](const HttpRequest& req) { return g->Handle(req); };
+  server.headers = [g](const HttpRequest& head, size_t* body_limit) {
+    return g->Admit(head, body_limit);
   };
-  for (const auto& [pattern, handler] : posts) {
-    http.Post(pattern, [g, handler = handler](const httplib::Request& req, httplib::Response& res) {
-      const std::string mesh = req.matches[1];
-      Reply(req, res, WithBody(req, [&](const Call& call, const json& body, json* out) {
-              return (g->*handler)(call, mesh, body, out);
-            }));
-    });
+  server.refuse = [g](HttpRefusal why, const HttpRequest& head, size_t body_limit) {
+    return g->Refuse(why, head, body_limit);
+  };
+  auto started = HttpServer::Start(std::move(server));
+  if (!started.ok()) {
+    return absl::Status(started.status().code(),
+                        absl::StrCat("--http-listen ", started.status().message()));
   }
-
-  http.set_socket_options(ExclusiveListenSocket);
-  if (port == 0) {
-    impl->port = http.bind_to_any_port(host);
-  } else if (http.bind_to_port(host, static_cast<int>(port))) {
-    impl->port = static_cast<int>(port);
-  }
-  if (impl->port <= 0) {
-    return absl::UnavailableError(absl::StrFormat("cannot listen on %s", options.listen));
-  }
-  impl->thread = std::thread([g] { g->http->listen_after_bind(); });
+  impl->server = std::move(*started);
   return std::unique_ptr<HttpGateway>(new HttpGateway(std::move(impl)));
 }
 

@@ -9,6 +9,7 @@
 
 #include "absl/status/statusor.h"
 #include "grpcpp/server.h"
+#include "server/http_server.h"
 #include "server/mesh_registry.h"
 
 namespace geodesic::server {
@@ -22,6 +23,13 @@ struct HttpGatewayOptions {
   std::string web_root;
   std::string three_root = "/usr/share/javascript/three";  // Debian's libjs-three
   size_t max_body_bytes = size_t{16} << 20;
+  // The gRPC service's token (empty: none). The gateway checks it as soon as
+  // a request's headers are in, before reading its body; the service checks
+  // it again on every call.
+  std::string bearer_token;
+  // Deadlines, connection and worker limits (limits.max_body_bytes is
+  // replaced by max_body_bytes above).
+  HttpLimits limits;
 };
 
 class HttpGateway {
@@ -31,7 +39,8 @@ class HttpGateway {
   static absl::StatusOr<std::unique_ptr<HttpGateway>> Start(const HttpGatewayOptions& options,
                                                             grpc::Server* grpc_server,
                                                             const MeshRegistry* meshes);
-  // Stops accepting, finishes running requests, joins the listener.
+  // Stops accepting, finishes queued and running requests, closes every
+  // connection.
   ~HttpGateway();
 
   int port() const;

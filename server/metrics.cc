@@ -1,11 +1,7 @@
 #include "server/metrics.h"
 
-#include <cerrno>
-#include <cstring>
-
 #include "absl/strings/str_format.h"
-#include "httplib.h"
-#include "server/listen_socket.h"
+#include "server/http_server.h"
 
 namespace geodesic::server {
 
@@ -65,59 +61,59 @@ std::string Metrics::Render() const {
 }
 
 struct MetricsHttpServer::Impl {
-  httplib::Server http;
-  std::thread thread;
-  int port = 0;
+  std::unique_ptr<HttpServer> http;
 };
 
 std::unique_ptr<MetricsHttpServer> MetricsHttpServer::Start(const std::string& address,
                                                             const Metrics* metrics,
                                                             std::function<bool()> ready,
                                                             std::string* error) {
-  auto colon = address.rfind(':');
-  if (colon == std::string::npos) {
-    *error = "metrics address must be HOST:PORT";
+  HttpServerOptions options;
+  options.listen = address;
+  // Scrapers and probes: a few connections, quick answers, the same
+  // deadlines as the gateway.
+  options.limits.max_body_bytes = 0;
+  options.limits.max_connections = 64;
+  options.limits.io_threads = 1;
+  options.limits.workers = 2;
+  options.limits.max_queued = 16;
+  options.handler = [metrics, ready](const HttpRequest& req) {
+    HttpResponse res;
+    res.content_type = "text/plain";
+    if (req.method != "GET" && req.method != "HEAD") {
+      res.status = 405;
+      res.headers.emplace_back("Allow", "GET, HEAD");
+      res.body = "method not allowed\n";
+    } else if (req.path == "/metrics") {
+      res.content_type = "text/plain; version=0.0.4";
+      res.body = metrics->Render();
+    } else if (req.path == "/healthz") {
+      // Liveness: the process answers. Readiness: it has restored what its
+      // catalog holds and can answer for it.
+      res.body = "ok\n";
+    } else if (req.path == "/readyz") {
+      const bool is_ready = !ready || ready();
+      res.status = is_ready ? 200 : 503;
+      res.body = is_ready ? "ready\n" : "restoring\n";
+    } else {
+      res.status = 404;
+      res.body = "not found\n";
+    }
+    return res;
+  };
+  auto started = HttpServer::Start(std::move(options));
+  if (!started.ok()) {
+    *error = std::string(started.status().message());
     return nullptr;
   }
-  const std::string host = address.substr(0, colon);
-  const int port = std::atoi(address.c_str() + colon + 1);
   auto server = std::unique_ptr<MetricsHttpServer>(new MetricsHttpServer);
   server->impl_ = std::make_unique<Impl>();
-  httplib::Server& http = server->impl_->http;
-  http.set_socket_options(ExclusiveListenSocket);
-  http.Get("/metrics", [metrics](const httplib::Request&, httplib::Response& res) {
-    res.set_content(metrics->Render(), "text/plain; version=0.0.4");
-  });
-  // Liveness: the process answers. Readiness: it has restored what its
-  // catalog holds and can answer for it.
-  http.Get("/healthz", [](const httplib::Request&, httplib::Response& res) {
-    res.set_content("ok\n", "text/plain");
-  });
-  http.Get("/readyz", [ready](const httplib::Request&, httplib::Response& res) {
-    const bool is_ready = !ready || ready();
-    res.status = is_ready ? 200 : 503;
-    res.set_content(is_ready ? "ready\n" : "restoring\n", "text/plain");
-  });
-  errno = 0;
-  int bound = port == 0 ? http.bind_to_any_port(host) : (http.bind_to_port(host, port) ? port : -1);
-  if (bound <= 0) {
-    *error =
-        "cannot listen on " + address + (errno ? std::string(": ") + std::strerror(errno) : "");
-    return nullptr;
-  }
-  server->impl_->port = bound;
-  Impl* impl = server->impl_.get();
-  impl->thread = std::thread([impl] { impl->http.listen_after_bind(); });
+  server->impl_->http = std::move(*started);
   return server;
 }
 
-int MetricsHttpServer::port() const { return impl_->port; }
+int MetricsHttpServer::port() const { return impl_->http->port(); }
 
-MetricsHttpServer::~MetricsHttpServer() {
-  if (impl_) {
-    impl_->http.stop();
-    if (impl_->thread.joinable()) impl_->thread.join();
-  }
-}
+MetricsHttpServer::~MetricsHttpServer() = default;
 
 }  // namespace geodesic::server

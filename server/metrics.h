@@ -50,8 +50,9 @@ class Metrics {
 
 // Serves GET /metrics, /healthz (200 while the process answers) and /readyz
 // (200 once `ready` says so, 503 before) on host:port (port 0: any free
-// port) in a background thread until destroyed. A port already taken is
-// refused, with the reason.
+// port) on threads of its own until destroyed, on the gateway's hardened
+// server (http_server.h) but always in plaintext: bind it to loopback or a
+// private network. A port already taken is refused, with the reason.
 class MetricsHttpServer {
  public:
   static std::unique_ptr<MetricsHttpServer> Start(const std::string& address,

@@ -215,6 +215,28 @@ int RunServe(int argc, char** argv) {
   app.add_option("--http-listen", http_listen,
                  "serve the HTTP/JSON API and the web viewer on HOST:PORT (same TLS and token; "
                  "port 0: any free port)");
+  HttpLimits http_limits;
+  double http_header_seconds = std::chrono::duration<double>(http_limits.header_timeout).count();
+  double http_body_seconds = std::chrono::duration<double>(http_limits.body_timeout).count();
+  double http_idle_seconds = std::chrono::duration<double>(http_limits.idle_timeout).count();
+  app.add_option("--http-header-timeout", http_header_seconds,
+                 "seconds a client has to send a request's headers (TLS handshake included)")
+      ->capture_default_str();
+  app.add_option("--http-body-timeout", http_body_seconds,
+                 "seconds a client has to send a request's body")
+      ->capture_default_str();
+  app.add_option("--http-idle-timeout", http_idle_seconds,
+                 "seconds a kept-alive HTTP connection may wait for its next request")
+      ->capture_default_str();
+  app.add_option("--http-max-connections", http_limits.max_connections,
+                 "open HTTP connections; more are answered 503 and closed")
+      ->capture_default_str();
+  app.add_option("--http-max-connections-per-ip", http_limits.max_connections_per_ip,
+                 "open HTTP connections per client address")
+      ->capture_default_str();
+  app.add_option("--http-workers", http_limits.workers,
+                 "threads answering HTTP requests (sockets are served apart from them)")
+      ->capture_default_str();
   app.add_option("--metrics-listen", metrics_listen,
                  "serve Prometheus metrics on HOST:PORT (port 0: any free port)");
   app.add_option("--log-level", log_level, "debug, info (one line per request), warning or error")
@@ -434,6 +456,14 @@ int RunServe(int argc, char** argv) {
     options.tls_cert = security.tls_cert;
     options.tls_key = security.tls_key;
     options.tls_client_ca = security.tls_client_ca;
+    options.bearer_token = token;
+    options.limits = http_limits;
+    const auto ms = [](double seconds) {
+      return std::chrono::milliseconds(static_cast<int64_t>(std::max(0.001, seconds) * 1000));
+    };
+    options.limits.header_timeout = ms(http_header_seconds);
+    options.limits.body_timeout = ms(http_body_seconds);
+    options.limits.idle_timeout = ms(http_idle_seconds);
     auto started = HttpGateway::Start(options, server.get(), &meshes);
     if (!started.ok()) {
       std::fprintf(stderr, "geodesicd serve: %s\n",
