@@ -393,6 +393,9 @@ std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::s
 absl::Status MeshRegistry::Save(std::shared_ptr<const RegisteredMesh> m, uint64_t key,
                                 bool durable) {
   if (snapshot_dir_.empty()) return absl::OkStatus();
+  // A registration Insert will refuse saves nothing: a refused upload
+  // leaves no file behind.
+  RETURN_IF_ERROR(NameTakenByOther(*m));
   const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
   if (durable) {
     absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
@@ -449,6 +452,14 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterReco
 
 std::string MeshRegistry::SnapshotName(const RegisteredMesh& m) {
   return MeshSnapshotName(m.source_hash);
+}
+
+absl::Status MeshRegistry::NameTakenByOther(const RegisteredMesh& m) const {
+  absl::MutexLock lock(&mu_);
+  auto it = meshes_.find(m.name);
+  if (it == meshes_.end() || it->second->fingerprint == m.fingerprint) return absl::OkStatus();
+  return absl::AlreadyExistsError(
+      absl::StrFormat("mesh '%s' is registered with other content; unload it first", m.name));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(

@@ -107,6 +107,8 @@ class MeshRegistry {
 
  private:
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Insert(std::shared_ptr<RegisteredMesh> m);
+  // ALREADY_EXISTS when Insert would refuse `m`.
+  absl::Status NameTakenByOther(const RegisteredMesh& m) const;
   // Loads the file at `path`, restoring it from a snapshot when there is one
   // and saving one when there was not. `display` names it in messages; a
   // non-empty `root` is where the file opened must be.

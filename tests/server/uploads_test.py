@@ -224,6 +224,15 @@ class UploadsTest(unittest.TestCase):
         self.assert_no_trace("garbled", before)
         self.assert_retry_works("garbled")
 
+    def test_a_taken_name_leaves_no_file(self):
+        self.upload(messages("taken", SPOT))
+        before = self.files()
+        triangle = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n"
+        self.assert_refused(grpc.StatusCode.ALREADY_EXISTS,
+                            lambda: self.upload(messages("taken", triangle)))
+        self.assertEqual(self.files(), before)
+        self.client.unload_mesh("taken")
+
     def test_undeclared_uploads_name_the_missing_field(self):
         self.assert_refused(INVALID, lambda: self.upload(
             iter([pb.UploadMeshRequest(name="old", format="obj", data=SPOT)])), "total_bytes")
