@@ -1,4 +1,5 @@
 // geodesic: the command-line client of geodesicd.
+#include <openssl/evp.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -11,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <limits>
+#include <memory>
 #include <mutex>
 #include <sstream>
 #include <thread>
@@ -348,6 +350,28 @@ int CmdUnload(const Common& c) {
   return 0;
 }
 
+// The size and lower-case hex SHA-256 of a file, which an upload declares
+// before its bytes.
+bool SizeAndSha256(const std::string& path, uint64_t* size, std::string* sha256) {
+  std::ifstream in(path, std::ios::binary);
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
+  if (!in || !ctx || EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr) != 1) return false;
+  std::vector<char> buffer(1 << 20);
+  *size = 0;
+  while (in) {
+    in.read(buffer.data(), buffer.size());
+    if (EVP_DigestUpdate(ctx.get(), buffer.data(), in.gcount()) != 1) return false;
+    *size += in.gcount();
+  }
+  if (!in.eof()) return false;
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int length = 0;
+  if (EVP_DigestFinal_ex(ctx.get(), digest, &length) != 1) return false;
+  sha256->clear();
+  for (unsigned int i = 0; i < length; ++i) absl::StrAppendFormat(sha256, "%02x", digest[i]);
+  return true;
+}
+
 int CmdLoad(const Common& c, const std::string& path, const std::string& upload, bool repair) {
   auto stub = Connect(c);
   grpc::ClientContext ctx;
@@ -363,6 +387,12 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
     if (ext.size() < 2) {
       return FailText(upload + " has no extension naming its format (.obj, .off, .ply or .stl)");
     }
+    // The server registers the upload only if exactly these bytes arrive:
+    // a file changed while it is sent is refused, not half registered.
+    uint64_t total = 0;
+    std::string sha256;
+    if (!SizeAndSha256(upload, &total, &sha256)) return FailText("cannot read " + upload);
+    if (total == 0) return FailText(upload + " is empty");
     auto writer = stub->UploadMesh(&ctx, &resp);
     std::vector<char> buffer(1 << 20);
     bool first = true;
@@ -373,6 +403,8 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
         chunk.set_name(c.mesh);
         chunk.set_format(ext.substr(1));
         chunk.set_repair_non_manifold(repair);
+        chunk.set_total_bytes(total);
+        chunk.set_sha256(sha256);
         first = false;
       }
       chunk.set_data(buffer.data(), in.gcount());

@@ -804,6 +804,13 @@ std::vector<VertexCopy> SplitNonManifoldVertices(TriangleSoup* soup) {
   return copies;
 }
 
+absl::Status RequireFaces(const TriangleSoup& soup, std::string_view name) {
+  if (!soup.triangles.empty()) return absl::OkStatus();
+  return absl::InvalidArgumentError(
+      absl::StrFormat("%s has no faces (%u vertices and no triangle): a mesh needs at least one",
+                      name, soup.positions.size()));
+}
+
 absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& options,
                               MeshDiagnostics* diagnostics) {
   MeshDiagnostics local;
@@ -811,15 +818,20 @@ absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& option
   const auto start = std::chrono::steady_clock::now();
   ASSIGN_OR_RETURN(TriangleSoup soup, ReadTriangleSoup(path, &d));
   ComputeDiagnostics(soup, &d);
+  if (absl::Status s = RequireFaces(soup, path); !s.ok()) {
+    d.mesh_error = std::string(s.message());
+    return s;
+  }
   if (options.repair_non_manifold && !d.manifold) SplitNonManifoldVertices(&soup);
   auto mesh = Mesh::Build(std::move(soup), path);
   d.load_seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   if (!mesh.ok()) {
     d.mesh_error = std::string(mesh.status().message());
     if (!options.repair_non_manifold && !d.manifold) {
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "%s (non-manifold input is rejected; pass --repair-non-manifold to split non-manifold vertices)",
-          mesh.status().message()));
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s (non-manifold input is rejected; pass --repair-non-manifold to split "
+                          "non-manifold vertices)",
+                          mesh.status().message()));
     }
   }
   return mesh;

@@ -80,10 +80,17 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
                                                         std::string_view name,
                                                         MeshDiagnostics* diagnostics = nullptr);
 
+// INVALID_ARGUMENT naming `name` when the soup has no triangle: a point
+// cloud parses, but no distance on it is defined, and such a file is as
+// often a torn copy of a mesh.
+absl::Status RequireFaces(const TriangleSoup& soup, std::string_view name);
+
 // Fills the topological and geometric fields of `diagnostics` from a soup.
 void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* diagnostics);
 
-// ReadTriangleSoup + ComputeDiagnostics + Mesh::Build (with optional repair).
+// ReadTriangleSoup + ComputeDiagnostics + RequireFaces + Mesh::Build (with
+// optional repair). A refusal after reading leaves the diagnostics filled,
+// with mesh_error saying why.
 absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& options = {},
                               MeshDiagnostics* diagnostics = nullptr);
 

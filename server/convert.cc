@@ -1,6 +1,7 @@
 #include "server/convert.h"
 
 #include "absl/status/status.h"
+#include "absl/strings/escaping.h"
 #include "absl/strings/str_format.h"
 
 namespace geodesic::server {
@@ -76,6 +77,13 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
 grpc::Status ToGrpc(const absl::Status& s) {
   if (s.ok()) return grpc::Status::OK;
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+}
+
+std::string Echo(std::string_view input) {
+  // Debian's Abseil has a string_view of its own.
+  const absl::string_view in(input.data(), input.size());
+  if (in.size() <= kMaxEcho) return absl::CHexEscape(in);
+  return absl::StrFormat("%s... (%u bytes)", absl::CHexEscape(in.substr(0, kMaxEcho)), in.size());
 }
 
 }  // namespace geodesic::server

@@ -13,6 +13,7 @@
 #include "core/status.h"
 #include "server/convert.h"
 #include "server/log.h"
+#include "server/upload.h"
 
 namespace geodesic::server {
 namespace {
@@ -208,6 +209,9 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
 grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
                                            const v1::RegisterMeshRequest* req, v1::Mesh* resp) {
   return Handle("RegisterMesh", ctx, req->name(), false, [&]() -> absl::Status {
+    // Refused before the name is held: a name no mesh can have must not
+    // wait for, or hold up, anything.
+    RETURN_IF_ERROR(MeshRegistry::ValidateName(req->name()));
     NameLocks::Hold hold(names_, req->name(), absl::FromChrono(ctx->deadline()));
     if (!hold.held()) return NameBusy(req->name());
     const bool existed = meshes_->Get(req->name()).ok();
@@ -222,24 +226,28 @@ grpc::Status GeodesicService::RegisterMesh(grpc::ServerContext* ctx,
 grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
                                          grpc::ServerReader<v1::UploadMeshRequest>* reader,
                                          v1::Mesh* resp) {
-  std::string name, format, bytes;
-  bool repair = false;
+  std::string name;
   return Handle("UploadMesh", ctx, name, false, [&]() -> absl::Status {
+    UploadAssembler upload(limits_.max_upload_bytes);
     v1::UploadMeshRequest chunk;
+    // A message that cannot be parsed ends the reads as the stream's end
+    // does: the declared size tells the two apart.
     while (reader->Read(&chunk)) {
-      if (!chunk.name().empty()) name = chunk.name();
-      if (!chunk.format().empty()) format = chunk.format();
-      repair |= chunk.repair_non_manifold();
-      if (bytes.size() + chunk.data().size() > limits_.max_upload_bytes) {
-        return absl::ResourceExhaustedError(absl::StrFormat(
-            "upload exceeds the limit of %u bytes (--max-upload-bytes)", limits_.max_upload_bytes));
-      }
-      bytes += chunk.data();
+      RETURN_IF_ERROR(upload.Add(chunk));
+      name = upload.name();
     }
+    // A cancelled stream ends the reads too: nothing of it is registered,
+    // however much of it came.
+    if (ctx->IsCancelled()) {
+      return absl::CancelledError("the upload was cancelled; nothing was registered");
+    }
+    RETURN_IF_ERROR(upload.Finish());
     NameLocks::Hold hold(names_, name, absl::FromChrono(ctx->deadline()));
     if (!hold.held()) return NameBusy(name);
     const bool existed = meshes_->Get(name).ok();
-    auto m = meshes_->RegisterBytes(name, format, bytes, repair);
+    auto m = upload.arrays()
+                 ? meshes_->RegisterArrays(name, upload.vertices(), upload.faces(), upload.repair())
+                 : meshes_->RegisterBytes(name, upload.format(), upload.bytes(), upload.repair());
     if (!m.ok()) return m.status();
     RETURN_IF_ERROR(Record(**m, existed));
     FillMesh(**m, resp);
@@ -564,6 +572,39 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
     for (VertexId v : sample.vertices) resp->add_vertices(v);
     resp->set_covering_radius(sample.covering_radius);
     return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::GetGeometry(grpc::ServerContext* ctx, const v1::GetMeshRequest* req,
+                                          grpc::ServerWriter<v1::GeometryChunk>* writer) {
+  return Handle("GetGeometry", ctx, req->name(), false, [&]() -> absl::Status {
+    ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> m, FindMesh(req->name()));
+    const Mesh& mesh = *m->mesh;
+    // Chunks far below the 64 MiB message limit, whatever the mesh's size.
+    constexpr int kValuesPerChunk = 1 << 19;
+    v1::GeometryChunk chunk;
+    chunk.set_name(m->name);
+    chunk.set_fingerprint(absl::StrFormat("%016x", m->fingerprint));
+    chunk.set_total_vertices(mesh.num_vertices());
+    chunk.set_total_faces(mesh.corners().size() / 3);
+    auto flush = [&](bool last) -> absl::Status {
+      const int values = chunk.vertices_size() + chunk.faces_size();
+      if (last ? chunk.ByteSizeLong() == 0 : values < kValuesPerChunk) return absl::OkStatus();
+      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      chunk.Clear();
+      return absl::OkStatus();
+    };
+    for (const Vec3& p : mesh.positions()) {
+      chunk.add_vertices(p.x);
+      chunk.add_vertices(p.y);
+      chunk.add_vertices(p.z);
+      RETURN_IF_ERROR(flush(false));
+    }
+    for (VertexId v : mesh.corners()) {
+      chunk.add_faces(v);
+      RETURN_IF_ERROR(flush(false));
+    }
+    return flush(true);
   });
 }
 

@@ -52,6 +52,8 @@ class GeodesicService final : public v1::Geodesic::Service {
   grpc::Status GetMesh(grpc::ServerContext*, const v1::GetMeshRequest*, v1::Mesh*) override;
   grpc::Status UnloadMesh(grpc::ServerContext*, const v1::UnloadMeshRequest*,
                           v1::UnloadMeshResponse*) override;
+  grpc::Status GetGeometry(grpc::ServerContext*, const v1::GetMeshRequest*,
+                           grpc::ServerWriter<v1::GeometryChunk>*) override;
   grpc::Status RequestGraph(grpc::ServerContext*, const v1::RequestGraphRequest*,
                             v1::Graph*) override;
   grpc::Status GetGraph(grpc::ServerContext*, const v1::GetGraphRequest*, v1::Graph*) override;

@@ -1,12 +1,22 @@
 #include "server/mesh_registry.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <bit>
+#include <cerrno>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <future>
+#include <limits>
 #include <map>
 #include <tuple>
 
+#include "absl/cleanup/cleanup.h"
 #include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
 #include "absl/strings/ascii.h"
@@ -14,6 +24,7 @@
 #include "core/dgg_graph.h"
 #include "core/mesh_snapshot.h"
 #include "core/status.h"
+#include "server/convert.h"
 #include "server/log.h"
 
 namespace geodesic::server {
@@ -37,6 +48,7 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(const std::string& name,
                                                        absl::StatusOr<TriangleSoup> soup,
                                                        MeshDiagnostics diagnostics, bool repair) {
   if (!soup.ok()) return soup.status();
+  RETURN_IF_ERROR(RequireFaces(*soup, source == "upload" ? name : source));
   // The diagnostics (of the file as it is) and the mesh need only the soup,
   // and each takes about half of a large mesh's registration: one runs
   // beside the other (the mesh gets its own copy of the soup).
@@ -85,6 +97,81 @@ std::vector<VertexCopy> CopiesOf(const Mesh& mesh, uint64_t file_vertices) {
   return copies;
 }
 
+const char* KindOf(mode_t mode) {
+  if (S_ISDIR(mode)) return "a directory";
+  if (S_ISFIFO(mode)) return "a FIFO";
+  if (S_ISSOCK(mode)) return "a socket";
+  if (S_ISCHR(mode)) return "a character device";
+  if (S_ISBLK(mode)) return "a block device";
+  return "not a regular file";
+}
+
+bool Beneath(const std::filesystem::path& root, const std::filesystem::path& path) {
+  auto [root_end, unused] = std::mismatch(root.begin(), root.end(), path.begin(), path.end());
+  return root_end == root.end();
+}
+
+// The whole of the regular file at `path`, read from the one descriptor
+// that was checked: opened without blocking (a FIFO's open would wait for a
+// writer, holding the mesh's name and the daemon's shutdown), refused
+// unless it is a regular file, and, with a `root`, refused unless the file
+// opened is still under it (a symbolic link swapped in after the path was
+// resolved). `display` names the file in messages.
+absl::StatusOr<std::string> ReadRegularFile(const std::string& path, const std::string& display,
+                                            const std::filesystem::path& root) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_NONBLOCK | O_CLOEXEC | O_NOCTTY);
+  if (fd < 0) {
+    const int err = errno;
+    if (err == ENOENT || err == ENOTDIR) {
+      return absl::NotFoundError(absl::StrFormat("'%s': no such file", display));
+    }
+    if (err == EACCES || err == EPERM) {
+      return absl::PermissionDeniedError(absl::StrFormat("'%s': permission denied", display));
+    }
+    if (err == ENAMETOOLONG || err == ELOOP) {
+      return absl::InvalidArgumentError(absl::StrFormat("'%s': %s", display, std::strerror(err)));
+    }
+    return absl::InternalError(
+        absl::StrFormat("cannot open '%s': %s", display, std::strerror(err)));
+  }
+  absl::Cleanup close_fd = [fd] { ::close(fd); };
+  struct stat st;
+  if (::fstat(fd, &st) != 0) {
+    return absl::InternalError(
+        absl::StrFormat("cannot stat '%s': %s", display, std::strerror(errno)));
+  }
+  if (!S_ISREG(st.st_mode)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("'%s' is %s, not a mesh file", display, KindOf(st.st_mode)));
+  }
+  if (!root.empty()) {
+    std::error_code ec;
+    const auto opened = std::filesystem::read_symlink(absl::StrFormat("/proc/self/fd/%d", fd), ec);
+    if (!ec && !Beneath(root, opened)) {
+      return absl::PermissionDeniedError(
+          absl::StrFormat("'%s' leads outside the mesh root", display));
+    }
+  }
+  std::string bytes;
+  bytes.reserve(st.st_size);
+  char buffer[1 << 16];
+  for (;;) {
+    const ssize_t n = ::read(fd, buffer, sizeof(buffer));
+    if (n < 0 && errno == EINTR) continue;
+    if (n < 0) {
+      return absl::InternalError(
+          absl::StrFormat("cannot read '%s': %s", display, std::strerror(errno)));
+    }
+    if (n == 0) break;
+    bytes.append(buffer, n);
+  }
+  return bytes;
+}
+
+bool KnownFormat(const std::string& format) {
+  return format == "obj" || format == "off" || format == "ply" || format == "stl";
+}
+
 }  // namespace
 
 absl::StatusOr<SurfacePoint> LazySurfaceLocator::Snap(const Vec3& position) const {
@@ -95,13 +182,19 @@ absl::StatusOr<SurfacePoint> LazySurfaceLocator::Snap(const Vec3& position) cons
 
 absl::Status MeshRegistry::ValidateName(const std::string& name) {
   if (name.empty() || name.size() > 64) {
-    return absl::InvalidArgumentError("a mesh name has 1 to 64 characters");
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "a mesh name has 1 to 64 characters, not %u ('%s')", name.size(), Echo(name)));
   }
   for (char c : name) {
     if (!(std::isalnum(static_cast<unsigned char>(c)) || c == '_' || c == '-' || c == '.')) {
       return absl::InvalidArgumentError(
-          absl::StrFormat("mesh name '%s' has a character outside [A-Za-z0-9_.-]", name));
+          absl::StrFormat("mesh name '%s' has a character outside [A-Za-z0-9_.-]", Echo(name)));
     }
+  }
+  // Names become parts of file names and URLs, where these two mean
+  // directories.
+  if (name == "." || name == "..") {
+    return absl::InvalidArgumentError(absl::StrFormat("'%s' is not a mesh name", name));
   }
   return absl::OkStatus();
 }
@@ -112,6 +205,12 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterPath
   if (mesh_root_.empty()) {
     return absl::PermissionDeniedError("the server has no --mesh-root: register by upload");
   }
+  const std::string shown = Echo(relative_path);
+  // The system's calls would read the path only up to its first NUL: what
+  // was opened would not be what was asked for (or recorded).
+  if (relative_path.find('\0') != std::string::npos) {
+    return absl::InvalidArgumentError(absl::StrFormat("path '%s' contains a NUL character", shown));
+  }
   namespace fs = std::filesystem;
   std::error_code ec;
   const fs::path root = fs::canonical(mesh_root_, ec);
@@ -119,17 +218,18 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterPath
   const fs::path requested(relative_path);
   if (relative_path.empty() || requested.is_absolute()) {
     return absl::PermissionDeniedError(
-        absl::StrFormat("'%s': give a path relative to the mesh root", relative_path));
+        absl::StrFormat("'%s': give a path relative to the mesh root", shown));
   }
   // Resolve symbolic links, then require the result to stay under the root.
   const fs::path resolved = fs::weakly_canonical(root / requested, ec);
-  auto [root_end, unused] =
-      std::mismatch(root.begin(), root.end(), resolved.begin(), resolved.end());
-  if (ec || root_end != root.end()) {
-    return absl::PermissionDeniedError(
-        absl::StrFormat("'%s' leads outside the mesh root", relative_path));
+  if (ec && ec != std::errc::permission_denied) {
+    return absl::InvalidArgumentError(absl::StrFormat("'%s': %s", shown, ec.message()));
   }
-  ASSIGN_OR_RETURN(auto m, LoadFile(name, relative_path, resolved.string(), durable_, repair));
+  if (ec || !Beneath(root, resolved)) {
+    return absl::PermissionDeniedError(absl::StrFormat("'%s' leads outside the mesh root", shown));
+  }
+  ASSIGN_OR_RETURN(auto m,
+                   LoadFile(name, relative_path, resolved.string(), shown, root, durable_, repair));
   return Insert(std::move(m));
 }
 
@@ -139,7 +239,7 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterTrus
   // The operator's own meshes (the sample, the config's) are registered at
   // every start, so their snapshots are a speed-up, written in the
   // background, never a condition of serving.
-  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path, /*durable=*/false, repair));
+  ASSIGN_OR_RETURN(auto m, LoadFile(name, path, path, path, {}, /*durable=*/false, repair));
   return Insert(std::move(m));
 }
 
@@ -147,6 +247,10 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterByte
     const std::string& name, const std::string& format, const std::string& bytes, bool repair) {
   RETURN_IF_ERROR(ValidateName(name));
   const std::string lower = absl::AsciiStrToLower(format);
+  if (!KnownFormat(lower)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("unknown mesh format '%s' (supported: obj, off, ply, stl)", Echo(format)));
+  }
   const uint64_t key = SnapshotKey(SourceHash(bytes, lower), repair);
   if (auto m = Restore(key, name, "upload", repair)) {
     m->diagnostics.path = name;
@@ -162,36 +266,101 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterByte
   return Insert(std::move(m));
 }
 
+absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterArrays(
+    const std::string& name, const std::vector<double>& vertices,
+    const std::vector<uint32_t>& faces, bool repair) {
+  static_assert(std::endian::native == std::endian::little,
+                "the arrays' key is defined over their little-endian bytes");
+  RETURN_IF_ERROR(ValidateName(name));
+  if (vertices.size() % 3 != 0 || faces.size() % 3 != 0) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: %u vertex coordinates and %u face indices; each must be a multiple of 3", name,
+        vertices.size(), faces.size()));
+  }
+  const uint64_t nv = vertices.size() / 3;
+  if (nv == 0) return absl::InvalidArgumentError(absl::StrFormat("%s has no vertices", name));
+  if (nv > std::numeric_limits<VertexId>::max()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s has %u vertices, more than vertex ids can number", name, nv));
+  }
+  std::string canonical(reinterpret_cast<const char*>(vertices.data()),
+                        vertices.size() * sizeof(double));
+  canonical.append(reinterpret_cast<const char*>(faces.data()), faces.size() * sizeof(uint32_t));
+  const uint64_t key = SnapshotKey(SourceHash(canonical, "arrays"), repair);
+  std::string().swap(canonical);
+  if (auto m = Restore(key, name, "upload", repair)) {
+    m->diagnostics.path = name;
+    m->format = "arrays";
+    return Insert(std::move(m));
+  }
+  // Checked here as the file readers check theirs: the diagnostics run
+  // beside Mesh::Build and index positions by the faces' ids.
+  TriangleSoup soup;
+  soup.positions.reserve(nv);
+  for (uint64_t v = 0; v < nv; ++v) {
+    const Vec3 p{vertices[3 * v], vertices[3 * v + 1], vertices[3 * v + 2]};
+    if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "%s: vertex %u has a non-finite coordinate (%g, %g, %g)", name, v, p.x, p.y, p.z));
+    }
+    soup.positions.push_back(p);
+  }
+  soup.triangles.reserve(faces.size() / 3);
+  for (size_t f = 0; f < faces.size() / 3; ++f) {
+    const std::array<VertexId, 3> t{faces[3 * f], faces[3 * f + 1], faces[3 * f + 2]};
+    for (VertexId v : t) {
+      if (v >= nv) {
+        return absl::OutOfRangeError(absl::StrFormat(
+            "%s: face %u names vertex %u, but there are %u vertices", name, f, v, nv));
+      }
+    }
+    soup.triangles.push_back(t);
+  }
+  MeshDiagnostics diagnostics;
+  diagnostics.path = name;
+  diagnostics.format = "arrays";
+  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair));
+  m->format = "arrays";
+  m->source_hash = key;
+  RETURN_IF_ERROR(Save(m, key, durable_));
+  return Insert(std::move(m));
+}
+
 MeshRegistry::~MeshRegistry() {
   absl::MutexLock lock(&saves_mu_);
   for (auto& save : saves_) save.wait();
 }
 
-absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(const std::string& name,
-                                                                       const std::string& source,
-                                                                       const std::string& path,
-                                                                       bool durable, bool repair) {
-  if (snapshot_dir_.empty()) {
-    MeshDiagnostics diagnostics;
-    auto soup = ReadTriangleSoup(path, &diagnostics);
-    return Finish(name, source, std::move(soup), std::move(diagnostics), repair);
+absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(
+    const std::string& name, const std::string& source, const std::string& path,
+    const std::string& display, const std::filesystem::path& root, bool durable, bool repair) {
+  const auto start = std::chrono::steady_clock::now();
+  // One read of the file serves both its snapshot key and its parse, so
+  // a file rewritten meanwhile cannot be saved under the other version's
+  // key.
+  ASSIGN_OR_RETURN(std::string bytes, ReadRegularFile(path, display, root));
+  const std::string format = MeshFormatOfPath(path);
+  if (!KnownFormat(format)) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "'%s': unknown mesh format (the extension must be .obj, .off, .ply or .stl)", display));
   }
-  ASSIGN_OR_RETURN(const uint64_t file_key, SourceHashOfFile(path));
-  const uint64_t key = SnapshotKey(file_key, repair);
+  const uint64_t key = SnapshotKey(SourceHash(bytes, format), repair);
   if (auto m = Restore(key, name, source, repair)) {
     m->diagnostics.path = path;
-    m->format = MeshFormatOfPath(path);
+    m->format = format;
     return m;
   }
   MeshDiagnostics diagnostics;
-  auto soup = ReadTriangleSoup(path, &diagnostics);
-  ASSIGN_OR_RETURN(auto m, Finish(name, source, std::move(soup), std::move(diagnostics), repair));
-  m->format = MeshFormatOfPath(path);
+  auto soup = ReadTriangleSoupFromMemory(bytes, format, display, &diagnostics);
+  std::string().swap(bytes);
+  diagnostics.load_seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  ASSIGN_OR_RETURN(auto m, Finish(name, display, std::move(soup), std::move(diagnostics), repair));
+  m->source = source;
+  m->diagnostics.path = path;
+  m->format = format;
   m->source_hash = key;
-  // A file rewritten while it was read must not be saved under either
-  // version's key.
-  auto after = SourceHashOfFile(path);
-  if (after.ok() && *after == file_key) RETURN_IF_ERROR(Save(m, key, durable));
+  RETURN_IF_ERROR(Save(m, key, durable));
   return m;
 }
 
@@ -224,6 +393,9 @@ std::shared_ptr<RegisteredMesh> MeshRegistry::Restore(uint64_t key, const std::s
 absl::Status MeshRegistry::Save(std::shared_ptr<const RegisteredMesh> m, uint64_t key,
                                 bool durable) {
   if (snapshot_dir_.empty()) return absl::OkStatus();
+  // A registration Insert will refuse saves nothing: a refused upload
+  // leaves no file behind.
+  RETURN_IF_ERROR(NameTakenByOther(*m));
   const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
   if (durable) {
     absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
@@ -268,7 +440,7 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterReco
       }
       path = (std::filesystem::path(mesh_root_) / source).string();
     }
-    ASSIGN_OR_RETURN(m, LoadFile(name, source, path, durable_, repair));
+    ASSIGN_OR_RETURN(m, LoadFile(name, source, path, path, {}, durable_, repair));
   }
   if (m->fingerprint != fingerprint) {
     return absl::FailedPreconditionError(absl::StrFormat(
@@ -280,6 +452,14 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterReco
 
 std::string MeshRegistry::SnapshotName(const RegisteredMesh& m) {
   return MeshSnapshotName(m.source_hash);
+}
+
+absl::Status MeshRegistry::NameTakenByOther(const RegisteredMesh& m) const {
+  absl::MutexLock lock(&mu_);
+  auto it = meshes_.find(m.name);
+  if (it == meshes_.end() || it->second->fingerprint == m.fingerprint) return absl::OkStatus();
+  return absl::AlreadyExistsError(
+      absl::StrFormat("mesh '%s' is registered with other content; unload it first", m.name));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(
@@ -301,7 +481,8 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Get(
   absl::MutexLock lock(&mu_);
   auto it = meshes_.find(name);
   if (it == meshes_.end()) {
-    return absl::NotFoundError(absl::StrFormat("no mesh named '%s'; register it first", name));
+    return absl::NotFoundError(
+        absl::StrFormat("no mesh named '%s'; register it first", Echo(name)));
   }
   return it->second;
 }
@@ -326,7 +507,7 @@ uint64_t MeshRegistry::resident_bytes() const {
 absl::Status MeshRegistry::Remove(const std::string& name) {
   absl::MutexLock lock(&mu_);
   if (meshes_.erase(name) == 0) {
-    return absl::NotFoundError(absl::StrFormat("no mesh named '%s'", name));
+    return absl::NotFoundError(absl::StrFormat("no mesh named '%s'", Echo(name)));
   }
   return absl::OkStatus();
 }

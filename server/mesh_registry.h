@@ -2,6 +2,7 @@
 #ifndef GEODESIC_SERVER_MESH_REGISTRY_H_
 #define GEODESIC_SERVER_MESH_REGISTRY_H_
 
+#include <filesystem>
 #include <future>
 #include <map>
 #include <memory>
@@ -67,7 +68,9 @@ class MeshRegistry {
   ~MeshRegistry();
 
   // `relative_path` must stay inside the mesh root once symbolic links are
-  // resolved (PERMISSION_DENIED otherwise).
+  // resolved (PERMISSION_DENIED otherwise) and name a regular file
+  // (INVALID_ARGUMENT naming what it is otherwise: a FIFO is refused, not
+  // waited on).
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterPath(
       const std::string& name, const std::string& relative_path, bool repair = false);
   // Registers an absolute path the operator chose (the bundled sample).
@@ -78,6 +81,12 @@ class MeshRegistry {
                                                                       const std::string& format,
                                                                       const std::string& bytes,
                                                                       bool repair = false);
+  // A mesh given as arrays: x, y, z per vertex and three vertex ids per
+  // triangle, flattened. Its snapshot key is the source hash of the arrays'
+  // little-endian bytes, vertices then faces, with format "arrays".
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterArrays(
+      const std::string& name, const std::vector<double>& vertices,
+      const std::vector<uint32_t>& faces, bool repair = false);
   // A mesh a catalog recorded (server/catalog.h): from its snapshot, or,
   // failing that, from its source file (under the mesh root, or an absolute
   // path the operator gave). FAILED_PRECONDITION if what it finds is not
@@ -98,12 +107,14 @@ class MeshRegistry {
 
  private:
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Insert(std::shared_ptr<RegisteredMesh> m);
+  // ALREADY_EXISTS when Insert would refuse `m`.
+  absl::Status NameTakenByOther(const RegisteredMesh& m) const;
   // Loads the file at `path`, restoring it from a snapshot when there is one
-  // and saving one (in the background) when there was not.
-  absl::StatusOr<std::shared_ptr<RegisteredMesh>> LoadFile(const std::string& name,
-                                                           const std::string& source,
-                                                           const std::string& path, bool durable,
-                                                           bool repair);
+  // and saving one when there was not. `display` names it in messages; a
+  // non-empty `root` is where the file opened must be.
+  absl::StatusOr<std::shared_ptr<RegisteredMesh>> LoadFile(
+      const std::string& name, const std::string& source, const std::string& path,
+      const std::string& display, const std::filesystem::path& root, bool durable, bool repair);
   std::shared_ptr<RegisteredMesh> Restore(uint64_t key, const std::string& name,
                                           const std::string& source, bool repair) const;
   // Writes the snapshot: now if `durable` (failing the registration if it

@@ -194,6 +194,16 @@ TEST_F(BrokenFilesTest, PolygonsAreTriangulatedAndIsolatedVerticesKept) {
   EXPECT_TRUE(mesh->is_isolated(4));
 }
 
+TEST_F(BrokenFilesTest, AMeshWithNoFacesIsRefusedWithItsDiagnostics) {
+  MeshDiagnostics d;
+  auto mesh = LoadMesh(Write("points.obj", "v 0 0 0\nv 1 0 0\n"), {}, &d);
+  EXPECT_EQ(mesh.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(std::string(mesh.status().message()), HasSubstr("no faces"));
+  EXPECT_EQ(d.vertices, 2u);
+  EXPECT_EQ(d.faces, 0u);
+  EXPECT_THAT(d.mesh_error, HasSubstr("no faces"));
+}
+
 TEST(MeshBuildTest, SameDirectionEdgeNamesTheFirstClashInFaceOrder) {
   TriangleSoup soup;
   soup.positions = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}, {0, -1, 0},

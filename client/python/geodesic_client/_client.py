@@ -1,4 +1,5 @@
 """The geodesicd client."""
+import hashlib
 import os
 import random
 import re
@@ -198,31 +199,97 @@ class Client:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
         self._unary("UnloadMesh", pb.UnloadMeshRequest(name=name), name)
 
-    def upload_mesh(self, name: str, filename: str, chunk_bytes: int = 1 << 20) -> Any:
-        """Uploads a local .obj/.off/.ply/.stl file and registers it under name."""
+    def upload_mesh(self, name: str, filename: Optional[str] = None, chunk_bytes: int = 1 << 20,
+                    *, vertices: Any = None, faces: Any = None,
+                    repair_non_manifold: bool = False) -> Any:
+        """Uploads a mesh and registers it under name: a local .obj/.off/.ply/.stl file, or
+        arrays (vertices: (N, 3) floats, faces: (M, 3) vertex ids, in place of filename).
+
+        The upload declares its size and SHA-256 first, and the server registers it only if
+        exactly those bytes arrive: an upload that fails or is interrupted leaves nothing
+        behind, and can simply be made again. Returns the geodesic.v1.Mesh."""
+        if filename is None:
+            if vertices is None or faces is None:
+                raise ValueError("upload_mesh: give a filename, or both vertices and faces")
+            return self._upload_arrays(name, vertices, faces, chunk_bytes, repair_non_manifold)
+        if vertices is not None or faces is not None:
+            raise ValueError("upload_mesh: give a filename or arrays, not both")
         fmt = os.path.splitext(filename)[1][1:].lower()
         if not fmt:
             raise ValueError(f"upload_mesh: {filename} has no extension naming its format "
                              "(.obj, .off, .ply or .stl)")
-        # Opened before the call, so a missing file raises here by name
-        # instead of inside gRPC's request iterator ("Exception iterating
-        # requests!").
-        with open(filename, "rb"):
-            pass
+        # Read before the call, so a missing file raises here by name instead
+        # of inside gRPC's request iterator ("Exception iterating requests!").
+        digest = hashlib.sha256()
+        total = 0
+        with open(filename, "rb") as f:
+            for data in iter(lambda: f.read(chunk_bytes), b""):
+                digest.update(data)
+                total += len(data)
+        if total == 0:
+            raise ValueError(f"upload_mesh: {filename} is empty")
+        header = dict(name=name, format=fmt, total_bytes=total, sha256=digest.hexdigest(),
+                      repair_non_manifold=repair_non_manifold)
 
         def chunks():
+            # A file changed since it was hashed fails the server's check.
             with open(filename, "rb") as f:
                 first = True
                 while True:
                     data = f.read(chunk_bytes)
                     if not data and not first:
                         return
-                    yield pb.UploadMeshRequest(name=name if first else "",
-                                               format=fmt if first else "", data=data)
+                    yield pb.UploadMeshRequest(data=data, **(header if first else {}))
                     first = False
 
         return Mesh._from_proto(self._call("UploadMesh", lambda: self._stub.UploadMesh(
             chunks(), timeout=self.timeout, metadata=self._meta(name))))
+
+    def _upload_arrays(self, name: str, vertices: Any, faces: Any, chunk_bytes: int,
+                       repair_non_manifold: bool) -> Any:
+        v = np.ascontiguousarray(vertices, dtype="<f8")
+        if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
+            raise ValueError(f"upload_mesh: vertices must be an (N, 3) array, not {v.shape}")
+        f = np.asarray(faces)
+        if f.ndim != 2 or f.shape[1] != 3 or len(f) == 0:
+            raise ValueError(f"upload_mesh: faces must be an (M, 3) array, not {f.shape}")
+        if not np.issubdtype(f.dtype, np.integer):
+            raise ValueError(f"upload_mesh: faces must hold integer vertex ids, not {f.dtype}")
+        if f.min() < 0 or f.max() >= len(v):
+            raise ValueError(f"upload_mesh: face vertex ids must be in [0, {len(v)})")
+        f = np.ascontiguousarray(f, dtype="<u4")
+        # The checksum is over the arrays' little-endian bytes, vertices then
+        # faces (geodesic.proto, UploadMeshRequest).
+        digest = hashlib.sha256(v.tobytes())
+        digest.update(f.tobytes())
+        header = dict(name=name, total_bytes=v.nbytes + f.nbytes, sha256=digest.hexdigest(),
+                      repair_non_manifold=repair_non_manifold)
+        flat_v, flat_f = v.reshape(-1), f.reshape(-1)
+        step_v, step_f = max(1, chunk_bytes // 8), max(1, chunk_bytes // 4)
+
+        def chunks():
+            yield pb.UploadMeshRequest(**header)
+            for i in range(0, len(flat_v), step_v):
+                yield pb.UploadMeshRequest(vertices=flat_v[i:i + step_v].tolist())
+            for i in range(0, len(flat_f), step_f):
+                yield pb.UploadMeshRequest(faces=flat_f[i:i + step_f].tolist())
+
+        return self._call("UploadMesh", lambda: self._stub.UploadMesh(
+            chunks(), timeout=self.timeout, metadata=self._meta(name)))
+
+    def geometry(self, name: str) -> Tuple[np.ndarray, np.ndarray]:
+        """A registered mesh's (vertices (N, 3) float64, faces (M, 3) uint32), in file order:
+        the arrays an upload of arrays gave, and what face ids and barycentrics refer to."""
+        def fetch() -> Tuple[np.ndarray, np.ndarray]:
+            vertices: List[float] = []
+            faces: List[int] = []
+            for chunk in self._stub.GetGeometry(pb.GetMeshRequest(name=name),
+                                                timeout=self.timeout, metadata=self._meta(name)):
+                vertices.extend(chunk.vertices)
+                faces.extend(chunk.faces)
+            return (np.array(vertices, dtype=np.float64).reshape(-1, 3),
+                    np.array(faces, dtype=np.uint32).reshape(-1, 3))
+        return self._call("GetGeometry", fetch)
 
     # -- graphs ---------------------------------------------------------------
 

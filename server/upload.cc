@@ -1,0 +1,151 @@
+#include "server/upload.h"
+
+#include <openssl/evp.h>
+
+#include <bit>
+#include <initializer_list>
+#include <memory>
+
+#include "absl/strings/ascii.h"
+#include "absl/strings/escaping.h"
+#include "absl/strings/str_format.h"
+#include "core/status.h"
+#include "server/convert.h"
+#include "server/mesh_registry.h"
+
+namespace geodesic::server {
+namespace {
+
+static_assert(std::endian::native == std::endian::little,
+              "array payloads are hashed as they lie in memory: little-endian");
+
+// SHA-256 of the concatenation of `parts`, lower-case hex.
+std::string HexSha256(std::initializer_list<std::string_view> parts) {
+  std::unique_ptr<EVP_MD_CTX, decltype(&EVP_MD_CTX_free)> ctx(EVP_MD_CTX_new(), EVP_MD_CTX_free);
+  unsigned char digest[EVP_MAX_MD_SIZE];
+  unsigned int length = 0;
+  bool ok = ctx && EVP_DigestInit_ex(ctx.get(), EVP_sha256(), nullptr) == 1;
+  for (std::string_view part : parts) {
+    ok = ok && EVP_DigestUpdate(ctx.get(), part.data(), part.size()) == 1;
+  }
+  ok = ok && EVP_DigestFinal_ex(ctx.get(), digest, &length) == 1;
+  // No SHA-256 (an OpenSSL without it) matches no declared hash: the
+  // upload is refused, never accepted unchecked.
+  if (!ok) return "unavailable";
+  return absl::BytesToHexString(absl::string_view(reinterpret_cast<const char*>(digest), length));
+}
+
+bool IsSha256Hex(std::string_view s) {
+  if (s.size() != 64) return false;
+  for (char c : s) {
+    if (!absl::ascii_isxdigit(static_cast<unsigned char>(c))) return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+std::string Sha256Hex(std::string_view bytes) { return HexSha256({bytes}); }
+
+std::string Sha256HexOfArrays(const std::vector<double>& vertices,
+                              const std::vector<uint32_t>& faces) {
+  return HexSha256({std::string_view(reinterpret_cast<const char*>(vertices.data()),
+                                     vertices.size() * sizeof(double)),
+                    std::string_view(reinterpret_cast<const char*>(faces.data()),
+                                     faces.size() * sizeof(uint32_t))});
+}
+
+absl::Status UploadAssembler::First(const v1::UploadMeshRequest& message) {
+  RETURN_IF_ERROR(MeshRegistry::ValidateName(message.name()));
+  name_ = message.name();
+  // Without a declared size and hash an upload cut short cannot be told
+  // from a whole one (clients from before they were required send neither).
+  if (message.total_bytes() == 0) {
+    return absl::InvalidArgumentError(
+        "the first message of an upload must declare total_bytes, the payload's size in bytes");
+  }
+  if (message.sha256().empty()) {
+    return absl::InvalidArgumentError(
+        "the first message of an upload must declare sha256, the payload's SHA-256 in hex");
+  }
+  if (!IsSha256Hex(message.sha256())) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("sha256 must be 64 hex digits, not '%s'", Echo(message.sha256())));
+  }
+  if (message.total_bytes() > max_bytes_) {
+    return absl::ResourceExhaustedError(
+        absl::StrFormat("an upload of %u bytes exceeds the limit of %u bytes (--max-upload-bytes)",
+                        message.total_bytes(), max_bytes_));
+  }
+  format_ = absl::AsciiStrToLower(message.format());
+  if (!format_.empty() && format_ != "obj" && format_ != "off" && format_ != "ply" &&
+      format_ != "stl") {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "unknown mesh format '%s' (supported: obj, off, ply, stl; empty for arrays)",
+        Echo(message.format())));
+  }
+  total_bytes_ = message.total_bytes();
+  sha256_ = absl::AsciiStrToLower(message.sha256());
+  repair_ = message.repair_non_manifold();
+  return absl::OkStatus();
+}
+
+absl::Status UploadAssembler::Add(v1::UploadMeshRequest& message) {
+  if (!started_) {
+    RETURN_IF_ERROR(First(message));
+    started_ = true;
+  } else if (!message.name().empty() || !message.format().empty() || message.total_bytes() != 0 ||
+             !message.sha256().empty() || message.repair_non_manifold()) {
+    return absl::InvalidArgumentError(
+        "only the first message of an upload carries name, format, total_bytes, sha256 and "
+        "repair_non_manifold");
+  }
+  has_bytes_ |= !message.data().empty();
+  arrays_ |= message.vertices_size() > 0 || message.faces_size() > 0;
+  if (has_bytes_ && arrays_) {
+    return absl::InvalidArgumentError(
+        "an upload carries a file's bytes (data) or arrays (vertices and faces), not both");
+  }
+  if (has_bytes_ && format_.empty()) {
+    return absl::InvalidArgumentError(
+        "an upload of a file's bytes names its format (obj, off, ply or stl)");
+  }
+  if (arrays_ && !format_.empty()) {
+    return absl::InvalidArgumentError(
+        "an upload of arrays leaves format empty: it names a file format");
+  }
+  const uint64_t size = message.data().size() + sizeof(double) * message.vertices_size() +
+                        sizeof(uint32_t) * message.faces_size();
+  if (size > total_bytes_ - received_) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "the upload sent more than the %u bytes it declared (total_bytes)", total_bytes_));
+  }
+  received_ += size;
+  if (bytes_.empty()) {
+    bytes_.swap(*message.mutable_data());
+  } else {
+    bytes_ += message.data();
+  }
+  vertices_.insert(vertices_.end(), message.vertices().begin(), message.vertices().end());
+  faces_.insert(faces_.end(), message.faces().begin(), message.faces().end());
+  return absl::OkStatus();
+}
+
+absl::Status UploadAssembler::Finish() {
+  if (!started_) return absl::InvalidArgumentError("an upload needs at least one message");
+  if (received_ != total_bytes_) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "the upload ended after %u of the %u bytes it declared (total_bytes): it was cut short, "
+        "or a message could not be parsed; nothing was registered",
+        received_, total_bytes_));
+  }
+  const std::string actual = arrays_ ? Sha256HexOfArrays(vertices_, faces_) : Sha256Hex(bytes_);
+  if (actual != sha256_) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("the upload's SHA-256 is %s, not the %s declared; nothing was registered",
+                        actual, sha256_));
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace geodesic::server
