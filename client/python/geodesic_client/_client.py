@@ -201,13 +201,13 @@ class Client:
 
     def upload_mesh(self, name: str, filename: Optional[str] = None, chunk_bytes: int = 1 << 20,
                     *, vertices: Any = None, faces: Any = None,
-                    repair_non_manifold: bool = False) -> Any:
+                    repair_non_manifold: bool = False) -> Mesh:
         """Uploads a mesh and registers it under name: a local .obj/.off/.ply/.stl file, or
         arrays (vertices: (N, 3) floats, faces: (M, 3) vertex ids, in place of filename).
 
         The upload declares its size and SHA-256 first, and the server registers it only if
         exactly those bytes arrive: an upload that fails or is interrupted leaves nothing
-        behind, and can simply be made again. Returns the geodesic.v1.Mesh."""
+        behind, and can simply be made again. Returns the registered Mesh."""
         if filename is None:
             if vertices is None or faces is None:
                 raise ValueError("upload_mesh: give a filename, or both vertices and faces")
@@ -246,7 +246,7 @@ class Client:
             chunks(), timeout=self.timeout, metadata=self._meta(name))))
 
     def _upload_arrays(self, name: str, vertices: Any, faces: Any, chunk_bytes: int,
-                       repair_non_manifold: bool) -> Any:
+                       repair_non_manifold: bool) -> Mesh:
         v = np.ascontiguousarray(vertices, dtype="<f8")
         if v.ndim != 2 or v.shape[1] != 3 or len(v) == 0:
             raise ValueError(f"upload_mesh: vertices must be an (N, 3) array, not {v.shape}")
@@ -274,8 +274,8 @@ class Client:
             for i in range(0, len(flat_f), step_f):
                 yield pb.UploadMeshRequest(faces=flat_f[i:i + step_f].tolist())
 
-        return self._call("UploadMesh", lambda: self._stub.UploadMesh(
-            chunks(), timeout=self.timeout, metadata=self._meta(name)))
+        return Mesh._from_proto(self._call("UploadMesh", lambda: self._stub.UploadMesh(
+            chunks(), timeout=self.timeout, metadata=self._meta(name))))
 
     def geometry(self, name: str) -> Tuple[np.ndarray, np.ndarray]:
         """A registered mesh's (vertices (N, 3) float64, faces (M, 3) uint32), in file order:
