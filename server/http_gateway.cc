@@ -1,5 +1,6 @@
 #include "server/http_gateway.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -16,6 +17,7 @@
 #include "absl/strings/escaping.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 #include "core/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
@@ -578,7 +580,7 @@ struct HttpGateway::Impl {
     v1::DistanceResponse resp;
     grpc::Status s = stub->Distance(call.Context().get(), req, &resp);
     if (!s.ok()) return s;
-    json distances = json::array(), paths = json::array();
+    json distances = json::array(), paths = json::array(), path_lengths = json::array();
     for (const auto& r : resp.results()) {
       distances.push_back(r.reachable() ? JsonDistance(r.distance()) : json(nullptr));
       if (!with_path) continue;
@@ -587,10 +589,14 @@ struct HttpGateway::Impl {
         path.push_back({p.xyz().x(), p.xyz().y(), p.xyz().z()});
       }
       paths.push_back(std::move(path));
+      path_lengths.push_back(r.reachable() ? json(r.path().length()) : json(nullptr));
     }
     *out = {{"distances", std::move(distances)}};
     AddEcho(resp.echo(), out);
-    if (with_path) (*out)["paths"] = std::move(paths);
+    if (with_path) {
+      (*out)["paths"] = std::move(paths);
+      (*out)["path_lengths"] = std::move(path_lengths);  // each polyline's own length
+    }
     return s;
   }
 
@@ -765,17 +771,30 @@ struct HttpGateway::Impl {
             }};
   }
 
-  // POST bodies are parsed after the Call's checks, before the RPC.
-  static Route Post(const char* pattern, BodyApi handle) {
+  // POST bodies are parsed after the Call's checks, before the RPC. A key
+  // the route does not take is refused rather than ignored: a typo such as
+  // "pseudo_vertex" would otherwise quietly answer from another graph.
+  static Route Post(const char* pattern, BodyApi handle, std::vector<std::string> keys) {
     return Rpc(
         pattern,
-        [handle](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
-                 json* out) {
+        [handle, keys = std::move(keys)](Impl& g, const Call& call, const std::string& mesh,
+                                         const HttpRequest& req, json* out) {
           json body;
           if (grpc::Status s = ParseBody(req, &body); !s.ok()) return s;
+          if (grpc::Status s = OnlyKeys(body, keys); !s.ok()) return s;
           return (g.*handle)(call, mesh, body, out);
         },
         "POST");
+  }
+
+  static grpc::Status OnlyKeys(const json& body, const std::vector<std::string>& keys) {
+    if (!body.is_object()) return grpc::Status::OK;  // the handler names what it expected
+    for (const auto& [key, value] : body.items()) {
+      if (std::find(keys.begin(), keys.end(), key) != keys.end()) continue;
+      return Invalid(absl::StrFormat("unknown key %s in the body; this call takes: %s", Quote(key),
+                                     absl::StrJoin(keys, ", ")));
+    }
+    return grpc::Status::OK;
   }
 
   static const std::vector<Route>& Routes() {
@@ -802,12 +821,17 @@ struct HttpGateway::Impl {
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
                json* out) { return g.GetGraph(call, mesh, req, true, out); },
             "DELETE"),
-        Post("/v1/meshes/{}/graph", &Impl::RequestGraph),
-        Post("/v1/meshes/{}/distance", &Impl::Distance),
-        Post("/v1/meshes/{}/field", &Impl::Field),
-        Post("/v1/meshes/{}/matrix", &Impl::Matrix),
-        Post("/v1/meshes/{}/snap", &Impl::Snap),
-        Post("/v1/meshes/{}/sample", &Impl::Sample),
+        Post("/v1/meshes/{}/graph", &Impl::RequestGraph, {"eps", "epsilon", "pseudo_vertices"}),
+        Post("/v1/meshes/{}/distance", &Impl::Distance,
+             {"pairs", "path", "eps", "epsilon", "pseudo_vertices"}),
+        Post("/v1/meshes/{}/field", &Impl::Field,
+             {"sources", "targets", "max_distance", "method", "nearest_source", "eps", "epsilon",
+              "pseudo_vertices"}),
+        Post("/v1/meshes/{}/matrix", &Impl::Matrix,
+             {"sources", "targets", "eps", "epsilon", "pseudo_vertices"}),
+        Post("/v1/meshes/{}/snap", &Impl::Snap, {"positions"}),
+        Post("/v1/meshes/{}/sample", &Impl::Sample,
+             {"count", "seed", "eps", "epsilon", "pseudo_vertices"}),
     };
     return routes;
   }
@@ -938,9 +962,39 @@ struct HttpGateway::Impl {
     return NotFound(req);
   }
 
+  // Browsers on another origin may read the API's answers (errors too, so
+  // that a page can show them) when --http-cors-origin names that origin.
+  HttpResponse WithCors(const HttpRequest& req, HttpResponse res) const {
+    if (options.cors_origin.empty() || !req.path.starts_with("/v1/")) return res;
+    res.headers.emplace_back("Access-Control-Allow-Origin", options.cors_origin);
+    if (options.cors_origin != "*") res.headers.emplace_back("Vary", "Origin");
+    return res;
+  }
+
+  // A CORS preflight: which methods and headers a page on the allowed origin
+  // may use on this path.
+  std::optional<HttpResponse> Preflight(const HttpRequest& head) const {
+    if (head.method != "OPTIONS" || options.cors_origin.empty() || !head.path.starts_with("/v1/")) {
+      return std::nullopt;
+    }
+    HttpRequest probe = head;
+    probe.method = "";  // matches no route: collects every method of the path
+    std::vector<std::string> args;
+    std::string allow;
+    FindRoute(probe, &args, &allow);
+    if (allow.empty()) return NotFound(head);
+    HttpResponse res;
+    res.status = 204;
+    res.headers.emplace_back("Access-Control-Allow-Methods", allow);
+    res.headers.emplace_back("Access-Control-Allow-Headers", "Authorization, Content-Type");
+    res.headers.emplace_back("Access-Control-Max-Age", "600");
+    return res;
+  }
+
   // On an io thread, before the body is read: what can be answered from the
   // headers alone is, so that a body nobody will use is never read.
   std::optional<HttpResponse> Admit(const HttpRequest& head, size_t* body_limit) const {
+    if (auto preflight = Preflight(head)) return preflight;
     if (head.header("Content-Type").starts_with("application/x-www-form-urlencoded")) {
       *body_limit = std::min(*body_limit, kFormBodyLimit);
     }
@@ -1063,12 +1117,14 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
   server.limits = options.limits;
   server.limits.max_body_bytes = options.max_body_bytes;
   Impl* g = impl.get();
-  server.handler = [g](const HttpRequest& req) { return g->Handle(req); };
+  server.handler = [g](const HttpRequest& req) { return g->WithCors(req, g->Handle(req)); };
   server.headers = [g](const HttpRequest& head, size_t* body_limit) {
-    return g->Admit(head, body_limit);
+    std::optional<HttpResponse> res = g->Admit(head, body_limit);
+    if (res) res = g->WithCors(head, std::move(*res));
+    return res;
   };
   server.refuse = [g](HttpRefusal why, const HttpRequest& head, size_t body_limit) {
-    return g->Refuse(why, head, body_limit);
+    return g->WithCors(head, g->Refuse(why, head, body_limit));
   };
   auto started = HttpServer::Start(std::move(server));
   if (!started.ok()) {

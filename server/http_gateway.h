@@ -27,6 +27,10 @@ struct HttpGatewayOptions {
   // a request's headers are in, before reading its body; the service checks
   // it again on every call.
   std::string bearer_token;
+  // A web origin (https://app.example.com, or * for any) whose pages may call
+  // the /v1 API from the browser: answers carry Access-Control-Allow-Origin
+  // and preflight OPTIONS requests are answered. Empty: same origin only.
+  std::string cors_origin;
   // Deadlines, connection and worker limits (limits.max_body_bytes is
   // replaced by max_body_bytes above).
   HttpLimits limits;

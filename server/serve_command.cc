@@ -234,6 +234,10 @@ int RunServe(int argc, char** argv) {
   app.add_option("--http-max-connections-per-ip", http_limits.max_connections_per_ip,
                  "open HTTP connections per client address")
       ->capture_default_str();
+  std::string http_cors_origin;
+  app.add_option("--http-cors-origin", http_cors_origin,
+                 "a web origin (https://host[:port], or *) whose pages may call the HTTP API "
+                 "from a browser (CORS); empty: only pages this gateway serves");
   app.add_option("--http-workers", http_limits.workers,
                  "threads answering HTTP requests (sockets are served apart from them)")
       ->capture_default_str();
@@ -457,6 +461,7 @@ int RunServe(int argc, char** argv) {
     options.tls_key = security.tls_key;
     options.tls_client_ca = security.tls_client_ca;
     options.bearer_token = token;
+    options.cors_origin = http_cors_origin;
     options.limits = http_limits;
     const auto ms = [](double seconds) {
       return std::chrono::milliseconds(static_cast<int64_t>(std::max(0.001, seconds) * 1000));

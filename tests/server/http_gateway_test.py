@@ -18,6 +18,8 @@ import sys
 import tempfile
 import time
 import unittest
+import urllib.error
+import urllib.request
 
 BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
@@ -25,6 +27,7 @@ from geodesic_client import Client  # noqa: E402
 
 EPS = 0.01
 TOKEN = "s3cret-token"
+ORIGIN = "https://app.example"
 
 
 def start_daemon(work, name, *flags):
@@ -62,6 +65,21 @@ def curl(url, method="GET", body=None, token=TOKEN, raw=None, extra=()):
     return int(status), json.loads(text) if text else None
 
 
+class Answer:
+    def __init__(self, status, headers, body):
+        self.status, self.headers, self.body = status, headers, body
+
+
+def http_request(url, method, headers):
+    """One request with urllib: status, headers and body text, errors included."""
+    req = urllib.request.Request(url, method=method, headers=headers)
+    try:
+        with urllib.request.urlopen(req, timeout=60) as r:
+            return Answer(r.status, r.headers, r.read().decode())
+    except urllib.error.HTTPError as e:
+        return Answer(e.code, e.headers, e.read().decode())
+
+
 def inf_to_none(values):
     return [None if math.isinf(v) else v for v in values]
 
@@ -73,7 +91,8 @@ class GatewayTest(unittest.TestCase):
         with open(f"{cls.work}/token", "w") as f:
             f.write(TOKEN + "\n")
         cls.daemon, cls.log, grpc_port, http_port = start_daemon(
-            cls.work, "plain", "--auth-token-file", f"{cls.work}/token", "--max-pairs", "50")
+            cls.work, "plain", "--auth-token-file", f"{cls.work}/token", "--max-pairs", "50",
+            "--http-cors-origin", ORIGIN)
         cls.base = f"http://127.0.0.1:{http_port}"
         cls.client = Client(f"127.0.0.1:{grpc_port}", timeout=60, token=TOKEN)
         status, graph = curl(f"{cls.base}/v1/meshes/spot/graph", "POST", {"eps": EPS})
@@ -299,6 +318,40 @@ class GatewayTest(unittest.TestCase):
         self.assertIn("Content-Type: application/json", body["error"]["message"])
         status, body = self.post("field", {"sources": ["v:1"], "eps": EPS})
         self.assertEqual(status, 200, body)
+
+    def test_bodies_are_strict_and_methods_named(self):
+        # A typo is refused, naming the key and the keys the call takes.
+        status, body = curl(f"{self.base}/v1/meshes/spot/graph", "POST",
+                            {"eps": EPS, "pseudo_vertex": True})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn('"pseudo_vertex"', body["error"]["message"])
+        self.assertIn("pseudo_vertices", body["error"]["message"])
+        status, body = self.post("distance", {"pairs": [["v:0", "v:1"]], "eps": EPS, "paths": 1})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn('"paths"', body["error"]["message"])
+        # A known path with another method: 405 and the methods it takes.
+        r = http_request(f"{self.base}/v1/meshes/spot/distance", "GET",
+                         {"Authorization": f"Bearer {TOKEN}"})
+        self.assertEqual(r.status, 405, r.body)
+        self.assertEqual(r.headers.get("Allow"), "POST")
+
+    def test_cors_for_the_configured_origin(self):
+        # A preflight needs no token and names the path's methods.
+        r = http_request(f"{self.base}/v1/meshes/spot/graph", "OPTIONS",
+                         {"Origin": ORIGIN, "Access-Control-Request-Method": "POST"})
+        self.assertEqual(r.status, 204, r.body)
+        self.assertEqual(r.headers.get("Access-Control-Allow-Origin"), ORIGIN)
+        methods = {m.strip() for m in r.headers.get("Access-Control-Allow-Methods", "").split(",")}
+        self.assertTrue({"GET", "POST", "DELETE"} <= methods, methods)
+        self.assertIn("Authorization", r.headers.get("Access-Control-Allow-Headers", ""))
+        # Answers, errors included, carry the origin for the page to read them.
+        r = http_request(f"{self.base}/v1/meshes", "GET",
+                         {"Origin": ORIGIN, "Authorization": f"Bearer {TOKEN}"})
+        self.assertEqual(r.status, 200, r.body)
+        self.assertEqual(r.headers.get("Access-Control-Allow-Origin"), ORIGIN)
+        r = http_request(f"{self.base}/v1/meshes", "GET", {"Origin": ORIGIN})
+        self.assertEqual(r.status, 401, r.body)
+        self.assertEqual(r.headers.get("Access-Control-Allow-Origin"), ORIGIN)
 
     def test_bearer_token_is_required(self):
         for token in (None, "wrong"):
