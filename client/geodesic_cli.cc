@@ -890,7 +890,8 @@ int main(int argc, char** argv) {
   // Every option's help shows its default.
   app.option_defaults()->always_capture_default();
   Common c;
-  app.add_option("--server", c.server, "geodesicd address");
+  if (const char* server = std::getenv("GEODESIC_SERVER"); server && *server) c.server = server;
+  app.add_option("--server", c.server, "geodesicd address (default: $GEODESIC_SERVER if set)");
   auto* mesh_option =
       app.add_option("--mesh", c.mesh, "mesh name ('load' defaults to the file's stem)")
           ->capture_default_str();

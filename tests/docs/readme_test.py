@@ -91,13 +91,15 @@ class Runner:
                 raise RuntimeError("the README's daemon exited:\n" + open(log.name).read())
             time.sleep(0.1)
         self.ports = {k: str(v) for k, v in json.load(open(port_file)).items()}
+        # The CLI and the Python client default to $GEODESIC_SERVER.
+        self.env["GEODESIC_SERVER"] = f"127.0.0.1:{self.ports['grpc']}"
         print(f"     daemon on {self.ports}", flush=True)
 
     def run(self, language, start, text):
         text = self.rewrite(text)
         if language == "sh":
             kept = []
-            for line in text.splitlines():
+            for line in re.sub(r"\\\n\s*", " ", text).splitlines():
                 if re.match(r"^\s*geodesicd serve\b.*&\s*$", line):
                     self.start_daemon(line)
                     kept.append("# (daemon started by the test)")
