@@ -24,6 +24,8 @@ DEFAULT_PATH_BATCH = 256
 
 _LIMIT = re.compile(r"exceed the limit of (\d+)")
 _MATRIX_LIMITS = re.compile(r"limits \((\d+) sources, (\d+) targets\)")
+# The server sizes an answer before computing it, and refuses one over its message cap.
+_ROW_BLOCKS = re.compile(r"split it into row blocks")
 
 
 class Client:
@@ -377,10 +379,11 @@ class Client:
         the server's limits."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
         out = np.empty((len(ps), len(pt)), dtype=np.float64)
+        row_cap = self.max_sources
         while True:
             cols = max(1, min(self.max_pairs, len(pt)))
             # Half the message size: the repeated doubles plus their framing.
-            rows = max(1, min(self.max_sources, self._max_message // 2 // (8 * cols)))
+            rows = max(1, min(self.max_sources, row_cap, self._max_message // 2 // (8 * cols)))
             try:
                 for r in range(0, len(ps), rows):
                     for c in range(0, len(pt), cols):
@@ -391,6 +394,10 @@ class Client:
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
                 return out
             except ResourceExhaustedError as e:
+                # An answer over a server's smaller message cap: fewer rows per tile.
+                if _ROW_BLOCKS.search(e.details() or "") and rows > 1:
+                    row_cap = rows // 2
+                    continue
                 # The server's own limits, learnt: tile again with them.
                 limits = _MATRIX_LIMITS.search(e.details() or "")
                 if not limits:
