@@ -80,12 +80,12 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
   const uint64_t limit = options_.memory_limit;
   absl::MutexLock lock(&mu_);
   if (limit > 0) {
-    const uint64_t held = options_.held ? options_.held() : 0;
-    if (held + want > limit) {
-      const uint64_t free = held < limit ? limit - held : 0;
+    const uint64_t pinned = options_.pinned ? options_.pinned() : 0;
+    if (pinned + want > limit) {
+      const uint64_t free = pinned < limit ? limit - pinned : 0;
       return absl::ResourceExhaustedError(absl::StrFormat(
           "the query needs %u bytes (answer %u, scratch %u) but only %u of the memory limit "
-          "(%u bytes) are left beside meshes and graphs: ask for less at once",
+          "(%u bytes) are left beside the registered meshes: ask for less at once",
           want, answer_bytes, scratch_bytes, free, limit));
     }
   }
@@ -97,7 +97,8 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
   };
   while (true) {
     // With nothing running, what is held can only shrink by evictions the
-    // cache makes on its own: the front query runs rather than wait on them.
+    // cache makes on its own: the front query runs rather than wait on them
+    // (the limit is then passed by one query at most).
     const bool fits = limit == 0 || running_ == 0 || UsedLocked() + want <= limit;
     if (queue_.front() == number && running_ < options_.query_threads && fits) {
       queue_.pop_front();

@@ -35,6 +35,9 @@ struct AdmissionOptions {
   // Bytes the limit already covers that no reservation accounts for
   // (meshes, graphs, landmarks).
   std::function<uint64_t()> held;
+  // The part of `held` nothing frees to make room (meshes; graphs are
+  // evicted): a query that cannot fit beside it is refused at once.
+  std::function<uint64_t()> pinned;
   // Query scratch the engines keep, idle or in use: the part beyond the
   // scratch running queries reserved is idle and counts as held.
   std::function<uint64_t()> pooled_scratch;
@@ -74,7 +77,9 @@ class Admission {
   // A stream's place: RESOURCE_EXHAUSTED when max_streams are open.
   absl::StatusOr<Ticket> OpenStream();
   // An admitted query's turn to run: waits, first come first served, for one
-  // of the query_threads and for `answer_bytes + scratch_bytes` of memory.
+  // of the query_threads and for `answer_bytes + scratch_bytes` of memory
+  // (with nothing running, the front query runs whatever is held, so that a
+  // cache filling the limit slows queries to one at a time, not to none).
   // RESOURCE_EXHAUSTED at once if that much can never fit the limit, or when
   // `deadline` comes first (so the client reads a clean overload, not a
   // deadline); CANCELLED when `cancelled` says so.

@@ -151,6 +151,7 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
               [meshes, graphs] {
                 return meshes->resident_bytes() + graphs->resident_bytes() + graphs->mapped_bytes();
               },
+          .pinned = [meshes] { return meshes->resident_bytes(); },
           .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },
       }) {}
 

@@ -170,11 +170,22 @@ TEST(AdmissionTest, ReservationsWaitForMemoryAndNeverExceedTheLimit) {
 }
 
 TEST(AdmissionTest, AQueryThatCanNeverFitIsRefusedAtOnceNamingItsSize) {
-  Admission admission(Limits(8, 4, 1000, [] { return uint64_t{900}; }));
+  AdmissionOptions options = Limits(8, 4, 1000, [] { return uint64_t{900}; });
+  options.pinned = [] { return uint64_t{850}; };
+  Admission admission(options);
   auto r = admission.Run(150, 50, Soon());
   ASSERT_EQ(r.status().code(), absl::StatusCode::kResourceExhausted);
   EXPECT_THAT(r.status().message(), HasSubstr("200 bytes"));
   EXPECT_EQ(admission.waiting(), 0);
+}
+
+TEST(AdmissionTest, WithNothingRunningTheFrontQueryRunsWhateverEvictableMemoryIsHeld) {
+  Admission admission(Limits(8, 4, 1000, [] { return uint64_t{950}; }));
+  auto alone = admission.Run(100, 100, Soon());
+  ASSERT_TRUE(alone.ok()) << alone.status();
+  // Beside a running query the next one waits for memory.
+  auto next = admission.Run(100, 0, absl::Now() + absl::Milliseconds(100));
+  EXPECT_EQ(next.status().code(), absl::StatusCode::kResourceExhausted);
 }
 
 TEST(AdmissionTest, IdleScratchCountsAsHeldButRunningScratchOnlyOnce) {
