@@ -673,6 +673,65 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
   });
 }
 
+grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
+                                         grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
+  return Handle("MatrixRows", ctx, req->mesh(), true, [&]() -> absl::Status {
+    if (req->sources_size() > limits_.max_sources || req->targets_size() > limits_.max_pairs) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
+          req->targets_size(), limits_.max_sources, limits_.max_pairs));
+    }
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
+    auto engine = AcquireEngine(key);
+    if (!engine.ok()) return engine.status();
+    const Mesh& mesh = (*engine)->mesh();
+    std::vector<SurfacePoint> sources, targets;
+    for (int i = 0; i < req->sources_size(); ++i) {
+      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
+      if (!p.ok()) return p.status();
+      sources.push_back(*p);
+    }
+    for (int i = 0; i < req->targets_size(); ++i) {
+      auto p = FromProto(req->targets(i), mesh, absl::StrFormat("target %d", i));
+      if (!p.ok()) return p.status();
+      targets.push_back(*p);
+    }
+    // Blocks small enough that the server holds one at a time, large
+    // enough that framing stays negligible.
+    constexpr uint64_t kBlockBytes = uint64_t{4} << 20;
+    const size_t cols = std::max<size_t>(1, targets.size());
+    const size_t block_rows = std::max<size_t>(1, kBlockBytes / (9 * cols));
+    const uint64_t block_answer = block_rows * cols * 9 + kAnswerOverhead;
+    RETURN_IF_ERROR(
+        CheckAnswerSize(absl::StrFormat("a block of %u rows", block_rows), block_answer));
+    ASSIGN_OR_RETURN(Admission::Ticket run,
+                     StartQuery(ctx, 2 * block_answer,
+                                FieldScratchBytes(**engine) + targets.size() * sizeof(double)));
+    for (size_t first = 0; first < sources.size() || first == 0; first += block_rows) {
+      const size_t n = std::min(block_rows, sources.size() - first);
+      auto m = (*engine)->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets,
+                                 Cancelled(ctx));
+      if (!m.ok()) return m.status();
+      v1::MatrixRowsChunk chunk;
+      if (first == 0) {
+        chunk.mutable_echo()->set_mesh(req->mesh());
+        chunk.mutable_echo()->set_epsilon(key.params.epsilon);
+        chunk.mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
+        chunk.mutable_echo()->set_method("lc");
+      }
+      chunk.set_first_row(first);
+      chunk.set_rows(n);
+      chunk.set_cols(targets.size());
+      chunk.set_total_rows(sources.size());
+      chunk.mutable_distances()->Add(m->begin(), m->end());
+      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      if (sources.empty()) break;
+    }
+    return absl::OkStatus();
+  });
+}
+
 grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapRequest* req,
                                    v1::SnapResponse* resp) {
   return Handle("Snap", ctx, req->mesh(), true, [&]() -> absl::Status {

@@ -76,6 +76,8 @@ class GeodesicService final : public v1::Geodesic::Service {
   grpc::Status Distance(grpc::ServerContext*, const v1::DistanceRequest*,
                         v1::DistanceResponse*) override;
   grpc::Status Matrix(grpc::ServerContext*, const v1::MatrixRequest*, v1::MatrixResponse*) override;
+  grpc::Status MatrixRows(grpc::ServerContext*, const v1::MatrixRequest*,
+                          grpc::ServerWriter<v1::MatrixRowsChunk>*) override;
   grpc::Status Snap(grpc::ServerContext*, const v1::SnapRequest*, v1::SnapResponse*) override;
   grpc::Status SamplePoints(grpc::ServerContext*, const v1::SamplePointsRequest*,
                             v1::SamplePointsResponse*) override;

@@ -379,6 +379,11 @@ class Client:
         the server's limits."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
         out = np.empty((len(ps), len(pt)), dtype=np.float64)
+        # Beyond what one tile holds, MatrixRows streams blocks of rows, so neither side holds
+        # a whole tile's message; a server without it answers tiles of Matrix.
+        if len(ps) * len(pt) * 8 > self._max_message // 2 and \
+                self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, out):
+            return out
         row_cap = self.max_sources
         while True:
             cols = max(1, min(self.max_pairs, len(pt)))
@@ -407,6 +412,36 @@ class Client:
                     raise
                 self.max_sources = min(self.max_sources, max(1, max_sources))
                 self.max_pairs = min(self.max_pairs, max(1, max_targets))
+
+    def _matrix_rows(self, mesh: str, ps: List[Any], pt: List[Any], epsilon: Optional[float],
+                     pseudo_vertices: bool, out: np.ndarray) -> bool:
+        """Fills `out` from MatrixRows streams, a request per max_sources x max_pairs tile.
+        False (nothing to rely on in `out`) when the server lacks MatrixRows or names smaller
+        limits, for the caller to tile with Matrix."""
+        cols = max(1, min(self.max_pairs, len(pt)))
+        rows = max(1, self.max_sources)
+        try:
+            for r in range(0, len(ps), rows):
+                for c in range(0, len(pt), cols):
+                    req = pb.MatrixRequest(mesh=mesh, epsilon=self._eps(epsilon),
+                                           sources=ps[r:r + rows], targets=pt[c:c + cols],
+                                           pseudo_vertices=pseudo_vertices)
+
+                    def blocks(req: Any = req, r: int = r, c: int = c) -> None:
+                        for b in self._stub.MatrixRows(req, timeout=self.timeout,
+                                                       metadata=self._meta(mesh)):
+                            first = r + b.first_row
+                            out[first:first + b.rows, c:c + b.cols] = np.asarray(
+                                b.distances, dtype=np.float64).reshape(b.rows, b.cols)
+
+                    self._call("MatrixRows", blocks)
+        except GeodesicError as e:
+            if e.code() == grpc.StatusCode.UNIMPLEMENTED or (
+                    isinstance(e, ResourceExhaustedError)
+                    and _MATRIX_LIMITS.search(e.details() or "")):
+                return False
+            raise
+        return True
 
     def snap(self, mesh: str, positions: Any) -> List[str]:
         """Nearest surface points to (N, 3) positions, as spec strings."""
