@@ -83,6 +83,9 @@ std::string ServiceName(const GraphKey& key) {
                          key.params.pseudo_vertices ? "+pseudo" : "");
 }
 
+// The health-check name that is NOT_SERVING while admission refuses calls.
+constexpr char kCapacity[] = "geodesic.v1.Geodesic/capacity";
+
 // Certificates, keys and tokens: small files read once at start.
 bool ReadSecretFile(const std::string& flag, const std::string& path, std::string* out) {
   std::ifstream in(path, std::ios::binary);
@@ -178,7 +181,8 @@ int RunServe(int argc, char** argv) {
   app.add_option("--memory-limit", memory_limit_text,
                  "bytes of registered meshes, ready graphs and their query scratch to keep, e.g. "
                  "6G or 512M: least recently used graphs no query holds are evicted to stay "
-                 "within it; meshes are not (0: no limit)");
+                 "within it; meshes are not. Running queries reserve their answer and scratch "
+                 "bytes within it before they start (0: no limit)");
   app.add_option(
       "--disk-limit", disk_limit_text,
       "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
@@ -453,6 +457,7 @@ int RunServe(int argc, char** argv) {
     // Serving once start-up has restored what the catalog holds.
     health->SetServingStatus("", false);
     health->SetServingStatus("geodesic.v1.Geodesic", false);
+    health->SetServingStatus(kCapacity, true);
   }
   std::unique_ptr<MetricsHttpServer> metrics_http;
   int metrics_port = 0;
@@ -598,12 +603,7 @@ int RunServe(int argc, char** argv) {
   // Probes of "" and "geodesic.v1.Geodesic" keep SERVING under load (a
   // restart would only lose the resident graphs); kCapacity tells balancers
   // that this replica is refusing queries now.
-  const std::string kCapacity = "geodesic.v1.Geodesic/capacity";
   bool overloaded = false;
-  {
-    std::lock_guard<std::mutex> lock(health_mu);
-    health->SetServingStatus(kCapacity, true);
-  }
   for (int tick = 0; !g_stop; ++tick) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
     if (admission.overloaded() != overloaded) {
