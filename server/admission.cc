@@ -96,11 +96,13 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
     changed_.SignalAll();
   };
   while (true) {
-    // With nothing running, what is held can only shrink by evictions the
-    // cache makes on its own: the front query runs rather than wait on them
-    // (the limit is then passed by one query at most).
-    const bool fits = limit == 0 || running_ == 0 || UsedLocked() + want <= limit;
-    if (queue_.front() == number && running_ < options_.query_threads && fits) {
+    // Only the front asks for memory: the held() callbacks take the cache's
+    // lock, and a release wakes every waiter. With nothing running, what is
+    // held can only shrink by evictions the cache makes on its own: the
+    // front query runs rather than wait on them (the limit is then passed by
+    // one query at most).
+    if (queue_.front() == number && running_ < options_.query_threads &&
+        (limit == 0 || running_ == 0 || UsedLocked() + want <= limit)) {
       queue_.pop_front();
       ++running_;
       reserved_answer_ += answer_bytes;
