@@ -304,7 +304,7 @@ def write_plots(rows, plot_dir):
     return files
 
 
-HAND_WRITTEN = ("notes.md", "daemon.md", "measurements.md")
+HAND_WRITTEN = ("notes.md", "daemon.md", "load.md", "measurements.md")
 
 
 def goals_table(rows, large):

@@ -4,6 +4,7 @@
 #include <cstdio>
 #include <optional>
 #include <string_view>
+#include <thread>
 
 #include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
@@ -59,7 +60,118 @@ bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
   return false;
 }
 
+// Streams hold a thread for as long as the client keeps them open: they are
+// bounded on their own (--max-streams), apart from queries and the control
+// calls.
+bool IsStream(std::string_view method) { return method == "WatchGraph" || method == "UploadMesh"; }
+
+// Error messages travel in trailing metadata, which clients cap (8 KiB by
+// default): input echoed into them is cut, and so is the whole message.
+constexpr size_t kEchoChars = 80;
+constexpr size_t kMessageChars = 1024;
+
+std::string Shorten(std::string_view text) {
+  if (text.size() <= kEchoChars) return std::string(text);
+  return absl::StrFormat("%s... (%u bytes)", text.substr(0, kEchoChars), text.size());
+}
+
+// Cuts the mesh name and any quoted run longer than kEchoChars, then the
+// message to kMessageChars.
+std::string CapMessage(std::string message, std::string_view mesh) {
+  if (mesh.size() > kEchoChars) {
+    const std::string cut = Shorten(mesh);
+    for (size_t at = message.find(mesh); at != std::string::npos;
+         at = message.find(mesh, at + cut.size())) {
+      message.replace(at, mesh.size(), cut);
+    }
+  }
+  // Names and paths are quoted; prose between two apostrophes has spaces.
+  for (size_t open = message.find('\''); open != std::string::npos;) {
+    size_t close = message.find('\'', open + 1);
+    if (close == std::string::npos) break;
+    const std::string_view quoted = std::string_view(message).substr(open + 1, close - open - 1);
+    if (quoted.size() > kEchoChars && quoted.find(' ') == std::string_view::npos) {
+      const std::string cut = Shorten(quoted);
+      message.replace(open + 1, quoted.size(), cut);
+      close = open + 1 + cut.size();
+    }
+    open = message.find('\'', close + 1);
+  }
+  if (message.size() > kMessageChars) {
+    const size_t total = message.size();
+    message.resize(kMessageChars);
+    message += absl::StrFormat("... (%u bytes in all)", total);
+  }
+  return message;
+}
+
+// What a query holds besides the graph, by kind (core/query_scratch.h): a
+// field solve sizes its arrays to the graph's nodes and answers per mesh
+// vertex; a point-to-point search keeps a 4-byte index per node and records
+// for the few thousand nodes it touches.
+uint64_t FieldScratchBytes(const GeodesicEngine& engine) {
+  const uint64_t nodes = engine.graph().num_nodes();
+  const uint64_t vertices = engine.mesh().num_vertices();
+  constexpr uint64_t kPerNode = sizeof(double) + sizeof(FanRange) + sizeof(uint32_t) + 16;
+  constexpr uint64_t kPerVertex = sizeof(double) + sizeof(uint32_t);
+  return nodes * kPerNode + vertices * kPerVertex;
+}
+
+uint64_t PairScratchBytes(const GeodesicEngine& engine) {
+  constexpr uint64_t kTouchedRecords = uint64_t{1} << 14;
+  return uint64_t{engine.graph().num_nodes()} * sizeof(uint32_t) +
+         kTouchedRecords * sizeof(PairTable::Record);
+}
+
+// Serialized sizes, a little over: a double takes 9 bytes with its tag
+// unless packed, a message adds its tag and length, and the echo and
+// framing stay under a kilobyte.
+constexpr uint64_t kAnswerOverhead = 1024;
+constexpr uint64_t kPairResultBytes = 16;
+// A path's points are known only once it is found: queries reserve this
+// many per path, and the answer is checked as it grows.
+constexpr uint64_t kPathPointsReserved = 128;
+constexpr uint64_t kPathPointBytes = 72;
+
 }  // namespace
+
+GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics,
+                                 ServiceLimits limits)
+    : meshes_(meshes),
+      graphs_(graphs),
+      metrics_(metrics),
+      limits_(limits),
+      admission_(AdmissionOptions{
+          .max_inflight = limits.max_inflight,
+          .query_threads = limits.query_threads > 0
+                               ? limits.query_threads
+                               : std::max(1, static_cast<int>(std::thread::hardware_concurrency())),
+          .max_streams = limits.max_streams,
+          .memory_limit = graphs->memory_limit(),
+          .held =
+              [meshes, graphs] {
+                return meshes->resident_bytes() + graphs->resident_bytes() + graphs->mapped_bytes();
+              },
+          .pinned = [meshes] { return meshes->resident_bytes(); },
+          .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },
+      }) {}
+
+absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContext* ctx,
+                                                              uint64_t answer_bytes,
+                                                              uint64_t scratch_bytes) {
+  // A refusal sent a little before the deadline reaches the client as an
+  // overload, with its retry hint, not as DEADLINE_EXCEEDED.
+  const absl::Time deadline = absl::FromChrono(ctx->deadline()) - absl::Milliseconds(20);
+  return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx));
+}
+
+absl::Status GeodesicService::CheckAnswerSize(const std::string& what, uint64_t bytes) const {
+  if (bytes <= limits_.max_message_bytes) return absl::OkStatus();
+  return absl::ResourceExhaustedError(absl::StrFormat(
+      "the answer of %s would take about %u bytes, over the message cap of %u bytes: split it "
+      "into row blocks (fewer sources or targets per call)",
+      what, bytes, limits_.max_message_bytes));
+}
 
 absl::StatusOr<double> GeodesicService::Epsilon(double requested) const {
   const double eps = requested == 0 ? limits_.default_epsilon : requested;
@@ -128,22 +240,17 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
                                      const std::string& mesh, bool is_query, Body body) {
   const auto start = std::chrono::steady_clock::now();
   grpc::Status status;
+  // Given back when the handler returns.
+  absl::StatusOr<Admission::Ticket> query, stream;
   if (!bearer_token_.empty() && !HasBearerToken(*ctx, bearer_token_)) {
     status = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
                           "missing or wrong bearer token: send metadata "
                           "'authorization: Bearer <token>'");
-  } else if (is_query && inflight_.fetch_add(1) >= limits_.max_inflight) {
-    inflight_.fetch_sub(1);
-    status =
-        grpc::Status(grpc::StatusCode::RESOURCE_EXHAUSTED,
-                     absl::StrFormat("server overloaded: %d queries running; retry with backoff",
-                                     limits_.max_inflight));
+  } else if (is_query && !(query = admission_.AdmitQuery()).ok()) {
+    status = ToGrpc(query.status());
+  } else if (IsStream(method) && !(stream = admission_.OpenStream()).ok()) {
+    status = ToGrpc(stream.status());
   } else {
-    if (is_query) metrics_->SetQueueDepth(inflight_.load());
-    // Released however body() ends, so a throw cannot leak a query slot.
-    absl::Cleanup release = [&] {
-      if (is_query) inflight_.fetch_sub(1);
-    };
     status = ToGrpc(body());
     // A solve stopped because the call's deadline passed reports that, not a
     // cancellation by the client.
@@ -153,6 +260,13 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
                             "deadline exceeded: " + status.error_message());
     }
   }
+  if (!status.ok()) {
+    if (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED &&
+        status.error_message().starts_with("server overloaded")) {
+      ctx->AddTrailingMetadata("retry-after-ms", std::to_string(admission_.RetryAfterMs()));
+    }
+    status = grpc::Status(status.error_code(), CapMessage(status.error_message(), mesh));
+  }
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   metrics_->Record(method, CodeName(status.error_code()), seconds);
@@ -160,14 +274,14 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
     if (status.ok()) {
       Log(LogLevel::kInfo, "request",
           {{"method", method},
-           {"mesh", mesh},
+           {"mesh", Shorten(mesh)},
            {"code", "OK"},
            {"ms", 1e3 * seconds},
            {"peer", ctx->peer()}});
     } else {
       Log(LogLevel::kInfo, "request",
           {{"method", method},
-           {"mesh", mesh},
+           {"mesh", Shorten(mesh)},
            {"code", CodeName(status.error_code())},
            {"ms", 1e3 * seconds},
            {"peer", ctx->peer()},
@@ -407,6 +521,14 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
             "target vertex %u is out of range: the mesh has %u vertices", t, mesh.num_vertices()));
       }
     }
+    // The field is streamed: its answer's peak is one chunk beside the
+    // solver's arrays, which the scratch counts.
+    const uint64_t chunk_bytes = uint64_t(limits_.field_chunk) *
+                                     ((req->float32() ? 5 : 9) + (req->nearest_source() ? 6 : 0)) +
+                                 kAnswerOverhead;
+    ASSIGN_OR_RETURN(Admission::Ticket run,
+                     StartQuery(ctx, 2 * chunk_bytes + uint64_t(req->targets_size()) * 4,
+                                FieldScratchBytes(**engine)));
     auto field = (*engine)->Field(sources, options);
     if (!field.ok()) return field.status();
     std::vector<uint32_t> order(req->targets().begin(), req->targets().end());
@@ -461,11 +583,22 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
     }
+    const uint64_t pairs = req->pairs_size();
+    RETURN_IF_ERROR(CheckAnswerSize(absl::StrFormat("%u pairs", pairs),
+                                    pairs * kPairResultBytes + kAnswerOverhead));
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
     auto engine = AcquireEngine(key);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
+    // The reply and, once the handler returns, its serialized copy.
+    const uint64_t per_pair =
+        kPairResultBytes + (req->with_path() ? kPathPointsReserved * kPathPointBytes : 0);
+    const uint64_t answer =
+        std::min<uint64_t>(pairs * per_pair + kAnswerOverhead, limits_.max_message_bytes);
+    ASSIGN_OR_RETURN(Admission::Ticket run,
+                     StartQuery(ctx, 2 * answer, PairScratchBytes(**engine)));
+    uint64_t answer_bytes = kAnswerOverhead;
     resp->mutable_echo()->set_mesh(req->mesh());
     resp->mutable_echo()->set_epsilon(key.params.epsilon);
     resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
@@ -483,7 +616,18 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
       auto* out = resp->add_results();
       out->set_distance(r->distance);
       out->set_reachable(r->distance < kInfinity);
-      if (r->path) FillPath(*r->path, out->mutable_path());
+      if (r->path) {
+        FillPath(*r->path, out->mutable_path());
+        // Paths are as long as they are: the answer is checked as it grows,
+        // and refused the moment it cannot be sent, not after every pair.
+        answer_bytes += out->ByteSizeLong() + 4;
+        if (answer_bytes > limits_.max_message_bytes) {
+          return absl::ResourceExhaustedError(absl::StrFormat(
+              "the answer with paths grew larger than max message size: %u bytes at pair %d of "
+              "%d, over the cap of %u bytes; split the batch",
+              answer_bytes, i + 1, req->pairs_size(), limits_.max_message_bytes));
+        }
+      }
     }
     return absl::OkStatus();
   });
@@ -492,6 +636,54 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
 grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                      v1::MatrixResponse* resp) {
   return Handle("Matrix", ctx, req->mesh(), true, [&]() -> absl::Status {
+    if (req->sources_size() > limits_.max_sources || req->targets_size() > limits_.max_pairs) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
+          req->targets_size(), limits_.max_sources, limits_.max_pairs));
+    }
+    const uint64_t entries = uint64_t(req->sources_size()) * uint64_t(req->targets_size());
+    const uint64_t answer = entries * 9 + kAnswerOverhead;
+    RETURN_IF_ERROR(CheckAnswerSize(
+        absl::StrFormat("a %d x %d matrix", req->sources_size(), req->targets_size()), answer));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
+    auto engine = AcquireEngine(key);
+    if (!engine.ok()) return engine.status();
+    const Mesh& mesh = (*engine)->mesh();
+    std::vector<SurfacePoint> sources, targets;
+    for (int i = 0; i < req->sources_size(); ++i) {
+      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
+      if (!p.ok()) return p.status();
+      sources.push_back(*p);
+    }
+    for (int i = 0; i < req->targets_size(); ++i) {
+      auto p = FromProto(req->targets(i), mesh, absl::StrFormat("target %d", i));
+      if (!p.ok()) return p.status();
+      targets.push_back(*p);
+    }
+    // The solver's distances, then the reply beside them and, once the
+    // handler returns, the reply's serialized copy.
+    ASSIGN_OR_RETURN(
+        Admission::Ticket run,
+        StartQuery(ctx, 2 * answer, FieldScratchBytes(**engine) + targets.size() * sizeof(double)));
+    auto m = (*engine)->Matrix(sources, targets, Cancelled(ctx));
+    if (!m.ok()) return m.status();
+    resp->mutable_echo()->set_mesh(req->mesh());
+    resp->mutable_echo()->set_epsilon(key.params.epsilon);
+    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
+    // One fan-restricted field per row (the "lc" solver), joined at the
+    // targets as Distance joins its points.
+    resp->mutable_echo()->set_method("lc");
+    resp->set_rows(sources.size());
+    resp->set_cols(targets.size());
+    for (double d : *m) resp->add_distances(d);
+    return absl::OkStatus();
+  });
+}
+
+grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
+                                         grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
+  return Handle("MatrixRows", ctx, req->mesh(), true, [&]() -> absl::Status {
     if (req->sources_size() > limits_.max_sources || req->targets_size() > limits_.max_pairs) {
       return absl::ResourceExhaustedError(absl::StrFormat(
           "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
@@ -513,17 +705,37 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
       if (!p.ok()) return p.status();
       targets.push_back(*p);
     }
-    auto m = (*engine)->Matrix(sources, targets, Cancelled(ctx));
-    if (!m.ok()) return m.status();
-    resp->mutable_echo()->set_mesh(req->mesh());
-    resp->mutable_echo()->set_epsilon(key.params.epsilon);
-    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
-    // One fan-restricted field per row (the "lc" solver), joined at the
-    // targets as Distance joins its points.
-    resp->mutable_echo()->set_method("lc");
-    resp->set_rows(sources.size());
-    resp->set_cols(targets.size());
-    for (double d : *m) resp->add_distances(d);
+    // Blocks small enough that the server holds one at a time, large
+    // enough that framing stays negligible.
+    constexpr uint64_t kBlockBytes = uint64_t{4} << 20;
+    const size_t cols = std::max<size_t>(1, targets.size());
+    const size_t block_rows = std::max<size_t>(1, kBlockBytes / (9 * cols));
+    const uint64_t block_answer = block_rows * cols * 9 + kAnswerOverhead;
+    RETURN_IF_ERROR(
+        CheckAnswerSize(absl::StrFormat("a block of %u rows", block_rows), block_answer));
+    ASSIGN_OR_RETURN(Admission::Ticket run,
+                     StartQuery(ctx, 2 * block_answer,
+                                FieldScratchBytes(**engine) + targets.size() * sizeof(double)));
+    for (size_t first = 0; first < sources.size() || first == 0; first += block_rows) {
+      const size_t n = std::min(block_rows, sources.size() - first);
+      auto m = (*engine)->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets,
+                                 Cancelled(ctx));
+      if (!m.ok()) return m.status();
+      v1::MatrixRowsChunk chunk;
+      if (first == 0) {
+        chunk.mutable_echo()->set_mesh(req->mesh());
+        chunk.mutable_echo()->set_epsilon(key.params.epsilon);
+        chunk.mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
+        chunk.mutable_echo()->set_method("lc");
+      }
+      chunk.set_first_row(first);
+      chunk.set_rows(n);
+      chunk.set_cols(targets.size());
+      chunk.set_total_rows(sources.size());
+      chunk.mutable_distances()->Add(m->begin(), m->end());
+      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      if (sources.empty()) break;
+    }
     return absl::OkStatus();
   });
 }
@@ -538,6 +750,10 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
     }
     auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
+    constexpr uint64_t kSnapBytes = 48;  // a point and its distance
+    ASSIGN_OR_RETURN(
+        Admission::Ticket run,
+        StartQuery(ctx, 2 * (req->positions_size() * kSnapBytes + kAnswerOverhead), 0));
     for (const auto& p : req->positions()) {
       const Vec3 position{p.x(), p.y(), p.z()};
       auto s = (*m)->locator->Snap(position);
@@ -561,6 +777,11 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
     ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key));
+    // A field's arrays and each vertex's distance to the samples so far.
+    ASSIGN_OR_RETURN(Admission::Ticket run,
+                     StartQuery(ctx, 2 * (uint64_t(req->count()) * 6 + kAnswerOverhead),
+                                FieldScratchBytes(*engine) +
+                                    uint64_t(engine->mesh().num_vertices()) * sizeof(double)));
     SampleOptions options;
     options.seed = req->seed();
     options.cancelled = Cancelled(ctx);

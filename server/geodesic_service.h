@@ -3,11 +3,11 @@
 #ifndef GEODESIC_SERVER_GEODESIC_SERVICE_H_
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
-#include <atomic>
 #include <string>
 
 #include "absl/status/statusor.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
+#include "server/admission.h"
 #include "server/catalog_sync.h"
 #include "server/graph_cache.h"
 #include "server/mesh_registry.h"
@@ -18,7 +18,12 @@ namespace geodesic::server {
 
 struct ServiceLimits {
   double default_epsilon = 1e-3;
-  int max_inflight = 64;   // queries running at once; beyond: RESOURCE_EXHAUSTED
+  int max_inflight = 64;  // queries admitted, waiting or running; beyond: RESOURCE_EXHAUSTED
+  int query_threads = 0;  // admitted queries running at once (0: the cores)
+  int max_streams = 32;   // WatchGraph and UploadMesh streams open; beyond: RESOURCE_EXHAUSTED
+  // The largest message either way: an answer that cannot fit is refused
+  // before it is computed.
+  uint64_t max_message_bytes = uint64_t{64} << 20;
   int max_pairs = 10000;   // pairs per Distance call
   int max_sources = 1024;  // sources per field, rows/cols per matrix
   uint64_t max_upload_bytes = uint64_t{256} << 20;
@@ -31,8 +36,13 @@ struct ServiceLimits {
 
 class GeodesicService final : public v1::Geodesic::Service {
  public:
-  GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics, ServiceLimits limits)
-      : meshes_(meshes), graphs_(graphs), metrics_(metrics), limits_(limits) {}
+  // Queries reserve memory against the cache's memory limit, beside the
+  // meshes, graphs and idle scratch it counts.
+  GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics, ServiceLimits limits);
+
+  // Queries admitted and running, streams open, bytes reserved: for gauges
+  // and the overload health status.
+  const Admission& admission() const { return admission_; }
 
   // From now on every call must carry the metadata "authorization: Bearer
   // <token>"; others fail with UNAUTHENTICATED. Health checks and reflection
@@ -68,11 +78,22 @@ class GeodesicService final : public v1::Geodesic::Service {
   grpc::Status Distance(grpc::ServerContext*, const v1::DistanceRequest*,
                         v1::DistanceResponse*) override;
   grpc::Status Matrix(grpc::ServerContext*, const v1::MatrixRequest*, v1::MatrixResponse*) override;
+  grpc::Status MatrixRows(grpc::ServerContext*, const v1::MatrixRequest*,
+                          grpc::ServerWriter<v1::MatrixRowsChunk>*) override;
   grpc::Status Snap(grpc::ServerContext*, const v1::SnapRequest*, v1::SnapResponse*) override;
   grpc::Status SamplePoints(grpc::ServerContext*, const v1::SamplePointsRequest*,
                             v1::SamplePointsResponse*) override;
 
  private:
+  // Waits for an admitted query's turn to run with `answer_bytes` and
+  // `scratch_bytes` reserved (Admission::Run), until shortly before the
+  // call's deadline.
+  absl::StatusOr<Admission::Ticket> StartQuery(grpc::ServerContext* ctx, uint64_t answer_bytes,
+                                               uint64_t scratch_bytes);
+  // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
+  // `bytes` cannot fit one message.
+  absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;
+
   template <typename Body>
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
                       bool is_query, Body body);
@@ -100,7 +121,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   std::string bearer_token_;
   CatalogSync* catalog_ = nullptr;
   NameLocks names_;  // a mesh's changes, one at a time
-  std::atomic<int> inflight_{0};
+  Admission admission_;
 };
 
 }  // namespace geodesic::server

@@ -49,10 +49,6 @@ std::string Metrics::Render() const {
     out += absl::StrFormat("geodesicd_request_seconds_sum{method=\"%s\"} %.9f\n", method, h.sum);
     out += absl::StrFormat("geodesicd_request_seconds_count{method=\"%s\"} %u\n", method, h.count);
   }
-  out +=
-      "# HELP geodesicd_queue_depth Queries waiting or running.\n# TYPE geodesicd_queue_depth "
-      "gauge\n";
-  out += absl::StrFormat("geodesicd_queue_depth %d\n", queue_depth_.load());
   for (const auto& [name, g] : series_) {
     out += absl::StrFormat("# HELP %s %s\n# TYPE %s %s\n%s %.17g\n", name, g.help, name, g.type,
                            name, g.read());

@@ -3,7 +3,6 @@
 #define GEODESIC_SERVER_METRICS_H_
 
 #include <array>
-#include <atomic>
 #include <functional>
 #include <map>
 #include <memory>
@@ -19,7 +18,6 @@ class Metrics {
  public:
   // Records one finished request.
   void Record(const std::string& method, const std::string& code, double seconds);
-  void SetQueueDepth(int depth) { queue_depth_ = depth; }
   // Values read when the page is rendered. A gauge is a level that goes up
   // and down (resident bytes, builds running); a counter only ever grows
   // (hits, evictions), and its name ends in "_total", as Prometheus expects
@@ -45,7 +43,6 @@ class Metrics {
     std::function<double()> read;
   };
   std::map<std::string, Series> series_ ABSL_GUARDED_BY(mu_);
-  std::atomic<int> queue_depth_{0};
 };
 
 // Serves GET /metrics, /healthz (200 while the process answers) and /readyz

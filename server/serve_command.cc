@@ -83,6 +83,9 @@ std::string ServiceName(const GraphKey& key) {
                          key.params.pseudo_vertices ? "+pseudo" : "");
 }
 
+// The health-check name that is NOT_SERVING while admission refuses calls.
+constexpr char kCapacity[] = "geodesic.v1.Geodesic/capacity";
+
 // Certificates, keys and tokens: small files read once at start.
 bool ReadSecretFile(const std::string& flag, const std::string& path, std::string* out) {
   std::ifstream in(path, std::ios::binary);
@@ -179,7 +182,8 @@ int RunServe(int argc, char** argv) {
   app.add_option("--memory-limit", memory_limit_text,
                  "bytes of registered meshes, ready graphs and their query scratch to keep, e.g. "
                  "6G or 512M: least recently used graphs no query holds are evicted to stay "
-                 "within it; meshes are not (0: no limit)");
+                 "within it; meshes are not. Running queries reserve their answer and scratch "
+                 "bytes within it before they start (0: no limit)");
   app.add_option(
       "--disk-limit", disk_limit_text,
       "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
@@ -204,10 +208,15 @@ int RunServe(int argc, char** argv) {
                "build graphs with fans from exact local distances: 2-3x faster fields, longer "
                "builds (graphs found in --graph-dir are used as they are)");
   app.add_option("--query-threads", query_threads,
-                 "gRPC worker threads (0: max(16, 4 x cores)); beyond them calls get "
-                 "RESOURCE_EXHAUSTED");
+                 "admitted queries running at once, the rest waiting their turn in arrival "
+                 "order (0: the cores)");
   app.add_option("--max-inflight", limits.max_inflight,
-                 "queries running at once before RESOURCE_EXHAUSTED");
+                 "queries admitted, running or waiting; beyond them a query is answered "
+                 "RESOURCE_EXHAUSTED \"server overloaded\" at once, with a retry-after-ms hint");
+  app.add_option("--max-streams", limits.max_streams,
+                 "WatchGraph and UploadMesh streams open at once; beyond them a stream is answered "
+                 "RESOURCE_EXHAUSTED at once (health, listing, get and cancel keep their own "
+                 "threads)");
   app.add_option("--max-pairs", limits.max_pairs, "pairs per Distance call");
   app.add_option("--max-sources", limits.max_sources, "sources per field");
   app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
@@ -267,6 +276,19 @@ int RunServe(int argc, char** argv) {
   SetLogLevel(*ParseLogLevel(log_level));
   SetLogFormat(*ParseLogFormat(log_format));
   limits.log_requests = LogEnabled(LogLevel::kInfo);
+  if (limits.max_inflight < 1 || limits.max_streams < 1 || query_threads < 0) {
+    std::fprintf(stderr,
+                 "geodesicd serve: --max-inflight and --max-streams must be at least 1, "
+                 "--query-threads at least 0\n");
+    return 2;
+  }
+  limits.query_threads = query_threads > 0
+                             ? query_threads
+                             : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  // One malloc arena per running query, not one per gRPC thread: memory a
+  // query frees in its arena is reused by the next query there instead of
+  // staying with an idle thread's arena, where the limit cannot see it.
+  mallopt(M_ARENA_MAX, std::max(2, limits.query_threads));
   auto memory_limit = ParseByteSize(memory_limit_text, "--memory-limit");
   auto disk_limit = ParseByteSize(disk_limit_text, "--disk-limit");
   auto build_memory_limit = ParseByteSize(build_memory_limit_text, "--build-memory-limit");
@@ -412,6 +434,24 @@ int RunServe(int argc, char** argv) {
   }
   GeodesicService service(&meshes, &graphs, &metrics, limits);
   if (!token.empty()) service.RequireBearerToken(token);
+  const Admission& admission = service.admission();
+  metrics.AddGauge("geodesicd_queue_depth", "Queries admitted: running or waiting their turn.",
+                   [&] { return double(admission.admitted()); });
+  metrics.AddGauge("geodesicd_queries_running", "Admitted queries running (--query-threads).",
+                   [&] { return double(admission.running()); });
+  metrics.AddGauge("geodesicd_queries_waiting", "Admitted queries waiting for a running slot.",
+                   [&] { return double(admission.waiting()); });
+  metrics.AddGauge("geodesicd_streams_open", "WatchGraph and UploadMesh streams (--max-streams).",
+                   [&] { return double(admission.streams()); });
+  metrics.AddGauge("geodesicd_reserved_bytes",
+                   "Answer and scratch bytes running queries reserved against --memory-limit.",
+                   [&] { return double(admission.reserved_bytes()); });
+  metrics.AddGauge("geodesicd_overloaded",
+                   "1 while admission is full or refused a call in the last second.",
+                   [&] { return admission.overloaded() ? 1.0 : 0.0; });
+  metrics.AddCounter("geodesicd_overload_refusals_total",
+                     "Calls answered RESOURCE_EXHAUSTED \"server overloaded\".",
+                     [&] { return double(admission.refusals()); });
   grpc::EnableDefaultHealthCheckService(true);
   grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
@@ -420,13 +460,17 @@ int RunServe(int argc, char** argv) {
   // A port taken by another daemon is refused (see listen_socket.h).
   builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
   builder.RegisterService(&service);
-  builder.SetMaxReceiveMessageSize(64 << 20);
-  builder.SetMaxSendMessageSize(64 << 20);
+  builder.SetMaxReceiveMessageSize(static_cast<int>(limits.max_message_bytes));
+  builder.SetMaxSendMessageSize(static_cast<int>(limits.max_message_bytes));
+  // The synchronous server holds a thread per call in progress, and answers
+  // "Server Threadpool Exhausted" when the quota has none left: the quota
+  // covers every admitted query (running or waiting), every stream, the
+  // control calls and gRPC's own pollers, so that the answer past a limit is
+  // ours (RESOURCE_EXHAUSTED "server overloaded", with a retry hint).
+  constexpr int kControlThreads = 16;
+  constexpr int kPollerThreads = 8;
   grpc::ResourceQuota quota("geodesicd");
-  const int threads = query_threads > 0
-                          ? query_threads
-                          : std::max(16, 4 * static_cast<int>(std::thread::hardware_concurrency()));
-  quota.SetMaxThreads(std::max(4, threads));
+  quota.SetMaxThreads(limits.max_inflight + limits.max_streams + kControlThreads + kPollerThreads);
   builder.SetResourceQuota(quota);
   server = builder.BuildAndStart();
   if (!server || bound_port == 0) {
@@ -440,6 +484,7 @@ int RunServe(int argc, char** argv) {
     // Serving once start-up has restored what the catalog holds.
     health->SetServingStatus("", false);
     health->SetServingStatus("geodesic.v1.Geodesic", false);
+    health->SetServingStatus(kCapacity, true);
   }
   std::unique_ptr<MetricsHttpServer> metrics_http;
   int metrics_port = 0;
@@ -591,7 +636,22 @@ int RunServe(int argc, char** argv) {
       }
     }
   });
-  while (!g_stop) std::this_thread::sleep_for(std::chrono::milliseconds(100));
+  // Probes of "" and "geodesic.v1.Geodesic" keep SERVING under load (a
+  // restart would only lose the resident graphs); kCapacity tells balancers
+  // that this replica is refusing queries now.
+  bool overloaded = false;
+  for (int tick = 0; !g_stop; ++tick) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (admission.overloaded() != overloaded) {
+      overloaded = !overloaded;
+      std::lock_guard<std::mutex> lock(health_mu);
+      health->SetServingStatus(kCapacity, !overloaded);
+    }
+    // Memory that queries and their answers freed goes back to the system,
+    // not only to malloc's free lists, so resident memory follows what the
+    // limit counts.
+    if (tick % 10 == 0) malloc_trim(0);
+  }
   follower.join();
   std::fprintf(stderr, "geodesicd: shutting down (draining up to %.0f s)\n", drain_seconds);
   {

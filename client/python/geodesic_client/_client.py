@@ -31,6 +31,8 @@ DEFAULT_PATH_BATCH = 256
 
 _LIMIT = re.compile(r"exceed the limit of (\d+)")
 _MATRIX_LIMITS = re.compile(r"limits \((\d+) sources, (\d+) targets\)")
+# The server sizes an answer before computing it, and refuses one over its message cap.
+_ROW_BLOCKS = re.compile(r"split it into row blocks")
 
 
 class Client:
@@ -529,10 +531,16 @@ class Client:
         the server's limits."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
         out = np.empty((len(ps), len(pt)), dtype=np.float64)
+        # Beyond what one tile holds, MatrixRows streams blocks of rows, so neither side holds
+        # a whole tile's message; a server without it answers tiles of Matrix.
+        if len(ps) * len(pt) * 8 > self._max_message // 2 and \
+                self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, out):
+            return out
+        row_cap = self.max_sources
         while True:
             cols = max(1, min(self.max_pairs, len(pt)))
             # Half the message size: the repeated doubles plus their framing.
-            rows = max(1, min(self.max_sources, self._max_message // 2 // (8 * cols)))
+            rows = max(1, min(self.max_sources, row_cap, self._max_message // 2 // (8 * cols)))
             try:
                 for r in range(0, len(ps), rows):
                     for c in range(0, len(pt), cols):
@@ -543,6 +551,10 @@ class Client:
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
                 return out
             except ResourceExhaustedError as e:
+                # An answer over a server's smaller message cap: fewer rows per tile.
+                if _ROW_BLOCKS.search(e.details() or "") and rows > 1:
+                    row_cap = rows // 2
+                    continue
                 # The server's own limits, learnt: tile again with them.
                 limits = _MATRIX_LIMITS.search(e.details() or "")
                 if not limits:
@@ -552,6 +564,36 @@ class Client:
                     raise
                 self.max_sources = min(self.max_sources, max(1, max_sources))
                 self.max_pairs = min(self.max_pairs, max(1, max_targets))
+
+    def _matrix_rows(self, mesh: str, ps: List[Any], pt: List[Any], epsilon: Optional[float],
+                     pseudo_vertices: bool, out: np.ndarray) -> bool:
+        """Fills `out` from MatrixRows streams, a request per max_sources x max_pairs tile.
+        False (nothing to rely on in `out`) when the server lacks MatrixRows or names smaller
+        limits, for the caller to tile with Matrix."""
+        cols = max(1, min(self.max_pairs, len(pt)))
+        rows = max(1, self.max_sources)
+        try:
+            for r in range(0, len(ps), rows):
+                for c in range(0, len(pt), cols):
+                    req = pb.MatrixRequest(mesh=mesh, epsilon=self._eps(epsilon),
+                                           sources=ps[r:r + rows], targets=pt[c:c + cols],
+                                           pseudo_vertices=pseudo_vertices)
+
+                    def blocks(req: Any = req, r: int = r, c: int = c) -> None:
+                        for b in self._stub.MatrixRows(req, timeout=self.timeout,
+                                                       metadata=self._meta(mesh)):
+                            first = r + b.first_row
+                            out[first:first + b.rows, c:c + b.cols] = np.asarray(
+                                b.distances, dtype=np.float64).reshape(b.rows, b.cols)
+
+                    self._call("MatrixRows", blocks)
+        except GeodesicError as e:
+            if e.code() == grpc.StatusCode.UNIMPLEMENTED or (
+                    isinstance(e, ResourceExhaustedError)
+                    and _MATRIX_LIMITS.search(e.details() or "")):
+                return False
+            raise
+        return True
 
     def snap(self, mesh: str, positions: Any) -> List[str]:
         """Nearest surface points to (N, 3) positions, as spec strings."""

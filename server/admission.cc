@@ -1,0 +1,197 @@
+#include "server/admission.h"
+
+#include <algorithm>
+#include <utility>
+
+#include "absl/strings/str_format.h"
+
+namespace geodesic::server {
+namespace {
+
+// How often a waiting query looks whether its client went away.
+constexpr absl::Duration kCancelPoll = absl::Milliseconds(50);
+// How long a refusal keeps overloaded() true: long enough for a probe that
+// polls every second to see it.
+constexpr absl::Duration kOverloadMemory = absl::Seconds(1);
+
+}  // namespace
+
+Admission::Ticket& Admission::Ticket::operator=(Ticket&& other) noexcept {
+  if (this != &other) {
+    Release();
+    owner_ = std::exchange(other.owner_, nullptr);
+    kind_ = other.kind_;
+    answer_ = other.answer_;
+    scratch_ = other.scratch_;
+    start_ = other.start_;
+  }
+  return *this;
+}
+
+void Admission::Ticket::Release() {
+  if (Admission* owner = std::exchange(owner_, nullptr)) owner->Release(*this);
+}
+
+Admission::Admission(AdmissionOptions options) : options_(std::move(options)) {}
+
+absl::Status Admission::Refuse(const std::string& what, int64_t retry_after_ms) {
+  refusals_.fetch_add(1, std::memory_order_relaxed);
+  return absl::ResourceExhaustedError(
+      absl::StrFormat("server overloaded: %s; retry after %d ms", what, retry_after_ms));
+}
+
+absl::StatusOr<Admission::Ticket> Admission::AdmitQuery() {
+  {
+    absl::MutexLock lock(&mu_);
+    if (admitted_ < options_.max_inflight) {
+      ++admitted_;
+      return Ticket(this, Kind::kQuery, 0, 0);
+    }
+    last_refusal_ = absl::Now();
+  }
+  return Refuse(absl::StrFormat("%d queries admitted (--max-inflight)", options_.max_inflight),
+                RetryAfterMs());
+}
+
+absl::StatusOr<Admission::Ticket> Admission::OpenStream() {
+  {
+    absl::MutexLock lock(&mu_);
+    if (streams_ < options_.max_streams) {
+      ++streams_;
+      return Ticket(this, Kind::kStream, 0, 0);
+    }
+    last_refusal_ = absl::Now();
+  }
+  return Refuse(absl::StrFormat("%d streams open (--max-streams)", options_.max_streams),
+                RetryAfterMs());
+}
+
+uint64_t Admission::UsedLocked() const {
+  const uint64_t held = options_.held ? options_.held() : 0;
+  const uint64_t pooled = options_.pooled_scratch ? options_.pooled_scratch() : 0;
+  const uint64_t idle_scratch = pooled > reserved_scratch_ ? pooled - reserved_scratch_ : 0;
+  return held + idle_scratch + reserved_answer_ + reserved_scratch_;
+}
+
+absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t scratch_bytes,
+                                                 absl::Time deadline,
+                                                 const std::function<bool()>& cancelled) {
+  const uint64_t want = answer_bytes + scratch_bytes;
+  const uint64_t limit = options_.memory_limit;
+  absl::MutexLock lock(&mu_);
+  if (limit > 0) {
+    const uint64_t pinned = options_.pinned ? options_.pinned() : 0;
+    if (pinned + want > limit) {
+      const uint64_t free = pinned < limit ? limit - pinned : 0;
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "the query needs %u bytes (answer %u, scratch %u) but only %u of the memory limit "
+          "(%u bytes) are left beside the registered meshes: ask for less at once",
+          want, answer_bytes, scratch_bytes, free, limit));
+    }
+  }
+  const uint64_t number = next_number_++;
+  queue_.push_back(number);
+  auto leave = [&] {
+    queue_.erase(std::find(queue_.begin(), queue_.end(), number));
+    changed_.SignalAll();
+  };
+  while (true) {
+    // Only the front asks for memory: the held() callbacks take the cache's
+    // lock, and a release wakes every waiter. With nothing running, what is
+    // held can only shrink by evictions the cache makes on its own: the
+    // front query runs rather than wait on them (the limit is then passed by
+    // one query at most).
+    if (queue_.front() == number && running_ < options_.query_threads &&
+        (limit == 0 || running_ == 0 || UsedLocked() + want <= limit)) {
+      queue_.pop_front();
+      ++running_;
+      reserved_answer_ += answer_bytes;
+      reserved_scratch_ += scratch_bytes;
+      // The next in line may fit beside this one.
+      changed_.SignalAll();
+      Ticket t(this, Kind::kRun, answer_bytes, scratch_bytes);
+      t.start_ = absl::Now();
+      return t;
+    }
+    if (cancelled && cancelled()) {
+      leave();
+      return absl::CancelledError("cancelled while waiting for a query slot");
+    }
+    const absl::Time now = absl::Now();
+    if (now >= deadline) {
+      leave();
+      last_refusal_ = now;
+      return Refuse(absl::StrFormat("the call's deadline came while %d queries were running "
+                                    "and %d waiting",
+                                    running_, queue_.size()),
+                    RetryAfterMsLocked());
+    }
+    changed_.WaitWithDeadline(&mu_, std::min(deadline, now + kCancelPoll));
+  }
+}
+
+void Admission::Release(const Ticket& t) {
+  absl::MutexLock lock(&mu_);
+  switch (t.kind_) {
+    case Kind::kQuery:
+      --admitted_;
+      break;
+    case Kind::kStream:
+      --streams_;
+      break;
+    case Kind::kRun: {
+      --running_;
+      reserved_answer_ -= t.answer_;
+      reserved_scratch_ -= t.scratch_;
+      const double seconds = absl::ToDoubleSeconds(absl::Now() - t.start_);
+      mean_run_seconds_ = 0.9 * mean_run_seconds_ + 0.1 * seconds;
+      changed_.SignalAll();
+      break;
+    }
+  }
+}
+
+int64_t Admission::RetryAfterMs() const {
+  absl::MutexLock lock(&mu_);
+  return RetryAfterMsLocked();
+}
+
+int64_t Admission::RetryAfterMsLocked() const {
+  // The admitted drain through query_threads slots, a mean run each.
+  const double rounds = 1.0 + static_cast<double>(admitted_) / std::max(1, options_.query_threads);
+  const double ms = 1e3 * mean_run_seconds_ * rounds;
+  return std::clamp<int64_t>(static_cast<int64_t>(ms), 10, 10000);
+}
+
+int Admission::admitted() const {
+  absl::MutexLock lock(&mu_);
+  return admitted_;
+}
+
+int Admission::running() const {
+  absl::MutexLock lock(&mu_);
+  return running_;
+}
+
+int Admission::waiting() const {
+  absl::MutexLock lock(&mu_);
+  return static_cast<int>(queue_.size());
+}
+
+int Admission::streams() const {
+  absl::MutexLock lock(&mu_);
+  return streams_;
+}
+
+uint64_t Admission::reserved_bytes() const {
+  absl::MutexLock lock(&mu_);
+  return reserved_answer_ + reserved_scratch_;
+}
+
+bool Admission::overloaded() const {
+  absl::MutexLock lock(&mu_);
+  return admitted_ >= options_.max_inflight || streams_ >= options_.max_streams ||
+         absl::Now() - last_refusal_ < kOverloadMemory;
+}
+
+}  // namespace geodesic::server

@@ -1,0 +1,129 @@
+// Admission control for the daemon's calls: how many queries are admitted,
+// how many of them run at once, how much memory they reserve, and how many
+// streams are open.
+//
+// Overload is an answer, not a failure (Envoy's and nginx's habit): a query
+// past --max-inflight, or a stream past --max-streams, is refused at once with
+// RESOURCE_EXHAUSTED and a retry hint, while every query admitted is answered.
+// Admitted queries run at most `query_threads` at a time, in the order they
+// asked, each with its answer and scratch bytes reserved against the memory
+// limit, so that CPU and memory stay bounded however many clients wait. Calls
+// that are neither (health, listing, get, cancel, unload) pass untouched.
+#ifndef GEODESIC_SERVER_ADMISSION_H_
+#define GEODESIC_SERVER_ADMISSION_H_
+
+#include <atomic>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <string>
+
+#include "absl/base/thread_annotations.h"
+#include "absl/status/statusor.h"
+#include "absl/synchronization/mutex.h"
+#include "absl/time/time.h"
+
+namespace geodesic::server {
+
+struct AdmissionOptions {
+  int max_inflight = 64;  // queries admitted, waiting or running
+  int query_threads = 1;  // admitted queries running at once
+  int max_streams = 32;   // streams open at once (watches, uploads)
+  // Bytes the reservations of running queries must fit in, beside `held`;
+  // 0: no memory reservation.
+  uint64_t memory_limit = 0;
+  // Bytes the limit already covers that no reservation accounts for
+  // (meshes, graphs, landmarks).
+  std::function<uint64_t()> held;
+  // The part of `held` nothing frees to make room (meshes; graphs are
+  // evicted): a query that cannot fit beside it is refused at once.
+  std::function<uint64_t()> pinned;
+  // Query scratch the engines keep, idle or in use: the part beyond the
+  // scratch running queries reserved is idle and counts as held.
+  std::function<uint64_t()> pooled_scratch;
+};
+
+class Admission {
+ public:
+  enum class Kind { kQuery, kRun, kStream };
+
+  // Something admitted, given back when destroyed.
+  class Ticket {
+   public:
+    Ticket() = default;
+    Ticket(Ticket&& other) noexcept { *this = std::move(other); }
+    Ticket& operator=(Ticket&& other) noexcept;
+    ~Ticket() { Release(); }
+    bool held() const { return owner_ != nullptr; }
+    void Release();
+
+   private:
+    friend class Admission;
+    Ticket(Admission* owner, Kind kind, uint64_t answer, uint64_t scratch)
+        : owner_(owner), kind_(kind), answer_(answer), scratch_(scratch) {}
+    Admission* owner_ = nullptr;
+    Kind kind_ = Kind::kQuery;
+    uint64_t answer_ = 0, scratch_ = 0;
+    absl::Time start_;
+  };
+
+  explicit Admission(AdmissionOptions options);
+  Admission(const Admission&) = delete;
+  Admission& operator=(const Admission&) = delete;
+
+  // A query's place among the admitted: RESOURCE_EXHAUSTED "server
+  // overloaded: ..." when max_inflight are admitted already.
+  absl::StatusOr<Ticket> AdmitQuery();
+  // A stream's place: RESOURCE_EXHAUSTED when max_streams are open.
+  absl::StatusOr<Ticket> OpenStream();
+  // An admitted query's turn to run: waits, first come first served, for one
+  // of the query_threads and for `answer_bytes + scratch_bytes` of memory
+  // (with nothing running, the front query runs whatever is held, so that a
+  // cache filling the limit slows queries to one at a time, not to none).
+  // RESOURCE_EXHAUSTED at once if that much can never fit the limit, or when
+  // `deadline` comes first (so the client reads a clean overload, not a
+  // deadline); CANCELLED when `cancelled` says so.
+  absl::StatusOr<Ticket> Run(uint64_t answer_bytes, uint64_t scratch_bytes, absl::Time deadline,
+                             const std::function<bool()>& cancelled = {});
+
+  // The retry hint sent with a refusal: about how long the queries admitted
+  // take to drain through the running slots.
+  int64_t RetryAfterMs() const;
+
+  int admitted() const;
+  int running() const;
+  int waiting() const;
+  int streams() const;
+  uint64_t reserved_bytes() const;
+  uint64_t refusals() const { return refusals_.load(std::memory_order_relaxed); }
+  // Admission is full, or refused a call in the last second.
+  bool overloaded() const;
+  const AdmissionOptions& options() const { return options_; }
+
+ private:
+  void Release(const Ticket& t);
+  // Memory the limit covers now, reservations included.
+  uint64_t UsedLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
+
+  const AdmissionOptions options_;
+  mutable absl::Mutex mu_;
+  absl::CondVar changed_;  // a run slot or memory was given back, or a waiter left
+  int admitted_ ABSL_GUARDED_BY(mu_) = 0;
+  int running_ ABSL_GUARDED_BY(mu_) = 0;
+  int streams_ ABSL_GUARDED_BY(mu_) = 0;
+  uint64_t reserved_answer_ ABSL_GUARDED_BY(mu_) = 0;
+  uint64_t reserved_scratch_ ABSL_GUARDED_BY(mu_) = 0;
+  // Waiting queries in arrival order, by number; the front runs next.
+  std::deque<uint64_t> queue_ ABSL_GUARDED_BY(mu_);
+  uint64_t next_number_ ABSL_GUARDED_BY(mu_) = 0;
+  // Mean seconds a query runs (exponentially weighted), for the retry hint.
+  double mean_run_seconds_ ABSL_GUARDED_BY(mu_) = 0.01;
+  absl::Time last_refusal_ ABSL_GUARDED_BY(mu_) = absl::InfinitePast();
+  std::atomic<uint64_t> refusals_{0};
+};
+
+}  // namespace geodesic::server
+
+#endif  // GEODESIC_SERVER_ADMISSION_H_

@@ -1,0 +1,210 @@
+#include "server/admission.h"
+
+#include <atomic>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "absl/synchronization/notification.h"
+#include "gmock/gmock.h"
+#include "gtest/gtest.h"
+
+namespace geodesic::server {
+namespace {
+
+using ::testing::HasSubstr;
+
+absl::Time Soon() { return absl::Now() + absl::Seconds(10); }
+
+AdmissionOptions Limits(int max_inflight, int query_threads, int max_streams = 32) {
+  AdmissionOptions o;
+  o.max_inflight = max_inflight;
+  o.query_threads = query_threads;
+  o.max_streams = max_streams;
+  return o;
+}
+
+AdmissionOptions Limits(int max_inflight, int query_threads, uint64_t memory_limit,
+                        std::function<uint64_t()> held,
+                        std::function<uint64_t()> pooled_scratch = {}) {
+  AdmissionOptions o = Limits(max_inflight, query_threads);
+  o.memory_limit = memory_limit;
+  o.held = std::move(held);
+  o.pooled_scratch = std::move(pooled_scratch);
+  return o;
+}
+
+TEST(AdmissionTest, QueriesPastMaxInflightAreRefusedWithARetryHint) {
+  Admission admission(Limits(2, 1));
+  auto a = admission.AdmitQuery();
+  auto b = admission.AdmitQuery();
+  ASSERT_TRUE(a.ok());
+  ASSERT_TRUE(b.ok());
+  auto c = admission.AdmitQuery();
+  ASSERT_EQ(c.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(c.status().message(), HasSubstr("server overloaded"));
+  EXPECT_THAT(c.status().message(), HasSubstr("retry after"));
+  EXPECT_EQ(admission.refusals(), 1u);
+  EXPECT_TRUE(admission.overloaded());
+  a->Release();
+  EXPECT_TRUE(admission.AdmitQuery().ok());
+}
+
+TEST(AdmissionTest, CountersReturnToZeroWhenTicketsAreGivenBack) {
+  Admission admission(Limits(4, 2, 2));
+  {
+    auto q = admission.AdmitQuery();
+    auto r = admission.Run(100, 50, Soon());
+    auto s = admission.OpenStream();
+    ASSERT_TRUE(q.ok() && r.ok() && s.ok());
+    EXPECT_EQ(admission.admitted(), 1);
+    EXPECT_EQ(admission.running(), 1);
+    EXPECT_EQ(admission.streams(), 1);
+    EXPECT_EQ(admission.reserved_bytes(), 150u);
+    // Moving a ticket hands it over, and gives back what it replaces.
+    Admission::Ticket moved = std::move(*r);
+    EXPECT_EQ(admission.running(), 1);
+    moved = *admission.Run(1, 1, Soon());
+    EXPECT_EQ(admission.running(), 1);
+    EXPECT_EQ(admission.reserved_bytes(), 2u);
+  }
+  EXPECT_EQ(admission.admitted(), 0);
+  EXPECT_EQ(admission.running(), 0);
+  EXPECT_EQ(admission.waiting(), 0);
+  EXPECT_EQ(admission.streams(), 0);
+  EXPECT_EQ(admission.reserved_bytes(), 0u);
+}
+
+TEST(AdmissionTest, StreamsAreBoundedApartFromQueries) {
+  Admission admission(Limits(1, 1, 1));
+  auto q = admission.AdmitQuery();
+  auto s = admission.OpenStream();
+  ASSERT_TRUE(q.ok() && s.ok());
+  auto t = admission.OpenStream();
+  ASSERT_EQ(t.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(t.status().message(), HasSubstr("--max-streams"));
+}
+
+TEST(AdmissionTest, AtMostQueryThreadsRunAndTheRestRunInArrivalOrder) {
+  Admission admission(Limits(16, 2));
+  auto first = admission.Run(0, 0, Soon());
+  auto second = admission.Run(0, 0, Soon());
+  ASSERT_TRUE(first.ok() && second.ok());
+  std::mutex mu;
+  std::vector<int> order;
+  std::atomic<int> peak{0}, now{0};
+  std::vector<std::thread> waiters;
+  for (int i = 0; i < 6; ++i) {
+    waiters.emplace_back([&, i] {
+      auto run = admission.Run(0, 0, Soon());
+      ASSERT_TRUE(run.ok());
+      const int n = ++now;
+      for (int p = peak; n > p && !peak.compare_exchange_weak(p, n);) {
+      }
+      {
+        std::lock_guard<std::mutex> lock(mu);
+        order.push_back(i);
+      }
+      absl::SleepFor(absl::Milliseconds(5));
+      --now;
+    });
+    // Each in line before the next arrives.
+    while (admission.waiting() < i + 1) absl::SleepFor(absl::Milliseconds(1));
+  }
+  first->Release();
+  second->Release();
+  for (auto& t : waiters) t.join();
+  EXPECT_LE(peak.load(), 2);
+  // Two run at once, so neighbours may swap as they record; none overtakes
+  // by more than that.
+  for (size_t k = 0; k < order.size(); ++k) EXPECT_LE(std::abs(order[k] - int(k)), 1);
+  EXPECT_EQ(admission.running(), 0);
+}
+
+TEST(AdmissionTest, AWaitingQueryIsAnsweredOverloadedAtItsDeadline) {
+  Admission admission(Limits(4, 1));
+  auto busy = admission.Run(0, 0, Soon());
+  ASSERT_TRUE(busy.ok());
+  const absl::Time start = absl::Now();
+  auto late = admission.Run(0, 0, absl::Now() + absl::Milliseconds(100));
+  EXPECT_EQ(late.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(late.status().message(), HasSubstr("deadline"));
+  EXPECT_LT(absl::Now() - start, absl::Seconds(2));
+  EXPECT_EQ(admission.waiting(), 0);
+}
+
+TEST(AdmissionTest, AWaitingQueryStopsWhenCancelled) {
+  Admission admission(Limits(4, 1));
+  auto busy = admission.Run(0, 0, Soon());
+  std::atomic<bool> cancel{false};
+  std::thread t([&] {
+    absl::SleepFor(absl::Milliseconds(50));
+    cancel = true;
+  });
+  auto waited = admission.Run(0, 0, Soon(), [&] { return cancel.load(); });
+  t.join();
+  EXPECT_EQ(waited.status().code(), absl::StatusCode::kCancelled);
+  EXPECT_EQ(admission.waiting(), 0);
+}
+
+TEST(AdmissionTest, ReservationsWaitForMemoryAndNeverExceedTheLimit) {
+  std::atomic<uint64_t> held{400};
+  Admission admission(Limits(8, 4, 1000, [&] { return held.load(); }));
+  auto a = admission.Run(300, 100, Soon());  // 800 of 1000
+  ASSERT_TRUE(a.ok());
+  absl::Notification ran;
+  std::thread t([&] {
+    auto b = admission.Run(250, 50, Soon());  // 300 more: waits for a
+    ASSERT_TRUE(b.ok());
+    EXPECT_LE(held + admission.reserved_bytes(), 1000u);
+    ran.Notify();
+  });
+  absl::SleepFor(absl::Milliseconds(100));
+  EXPECT_FALSE(ran.HasBeenNotified());
+  EXPECT_EQ(admission.waiting(), 1);
+  a->Release();
+  t.join();
+  EXPECT_TRUE(ran.HasBeenNotified());
+  EXPECT_EQ(admission.reserved_bytes(), 0u);
+}
+
+TEST(AdmissionTest, AQueryThatCanNeverFitIsRefusedAtOnceNamingItsSize) {
+  AdmissionOptions options = Limits(8, 4, 1000, [] { return uint64_t{900}; });
+  options.pinned = [] { return uint64_t{850}; };
+  Admission admission(options);
+  auto r = admission.Run(150, 50, Soon());
+  ASSERT_EQ(r.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(r.status().message(), HasSubstr("200 bytes"));
+  EXPECT_EQ(admission.waiting(), 0);
+}
+
+TEST(AdmissionTest, WithNothingRunningTheFrontQueryRunsWhateverEvictableMemoryIsHeld) {
+  Admission admission(Limits(8, 4, 1000, [] { return uint64_t{950}; }));
+  auto alone = admission.Run(100, 100, Soon());
+  ASSERT_TRUE(alone.ok()) << alone.status();
+  // Beside a running query the next one waits for memory.
+  auto next = admission.Run(100, 0, absl::Now() + absl::Milliseconds(100));
+  EXPECT_EQ(next.status().code(), absl::StatusCode::kResourceExhausted);
+}
+
+TEST(AdmissionTest, IdleScratchCountsAsHeldButRunningScratchOnlyOnce) {
+  std::atomic<uint64_t> pooled{0};
+  Admission admission(Limits(
+      8, 4, 1000, [] { return uint64_t{0}; }, [&] { return pooled.load(); }));
+  auto a = admission.Run(100, 400, Soon());
+  ASSERT_TRUE(a.ok());
+  pooled = 400;  // a's scratch, leased from the engine's pool
+  auto b = admission.Run(100, 300, absl::Now() + absl::Milliseconds(200));
+  EXPECT_TRUE(b.ok()) << b.status();  // 900: a's scratch is not counted twice
+  b->Release();
+  a->Release();
+  pooled = 800;  // idle now, kept by the pool
+  auto c = admission.Run(100, 0, Soon());
+  ASSERT_TRUE(c.ok());  // runs alone
+  auto d = admission.Run(150, 0, absl::Now() + absl::Milliseconds(100));
+  EXPECT_EQ(d.status().code(), absl::StatusCode::kResourceExhausted);
+}
+
+}  // namespace
+}  // namespace geodesic::server
