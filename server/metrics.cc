@@ -1,6 +1,9 @@
 #include "server/metrics.h"
 
+#include <vector>
+
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_join.h"
 #include "server/http_server.h"
 
 namespace geodesic::server {
@@ -53,7 +56,25 @@ std::string Metrics::Render() const {
     out += absl::StrFormat("# HELP %s %s\n# TYPE %s %s\n%s %.17g\n", name, g.help, name, g.type,
                            name, g.read());
   }
+  out += info_;
   return out;
+}
+
+void Metrics::AddInfo(const std::string& name, const std::string& help,
+                      const std::map<std::string, std::string>& labels) {
+  std::vector<std::string> pairs;
+  for (const auto& [key, value] : labels) {
+    // Label values escape backslash, quote and newline (exposition format).
+    std::string escaped;
+    for (char c : value) {
+      if (c == '\\' || c == '"') escaped += '\\';
+      escaped += c == '\n' ? std::string("\\n") : std::string(1, c);
+    }
+    pairs.push_back(absl::StrFormat("%s=\"%s\"", key, escaped));
+  }
+  absl::MutexLock lock(&mu_);
+  info_ += absl::StrFormat("# HELP %s %s\n# TYPE %s gauge\n%s{%s} 1\n", name, help, name, name,
+                           absl::StrJoin(pairs, ","));
 }
 
 struct MetricsHttpServer::Impl {

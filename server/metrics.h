@@ -24,6 +24,10 @@ class Metrics {
   // of the series rate() and increase() are asked about.
   void AddGauge(const std::string& name, const std::string& help, std::function<double()> read);
   void AddCounter(const std::string& name, const std::string& help, std::function<double()> read);
+  // A constant 1 whose labels carry facts (version, build type): the
+  // Prometheus "info" idiom, joined onto other series by its labels.
+  void AddInfo(const std::string& name, const std::string& help,
+               const std::map<std::string, std::string>& labels);
   std::string Render() const;
 
  private:
@@ -43,6 +47,7 @@ class Metrics {
     std::function<double()> read;
   };
   std::map<std::string, Series> series_ ABSL_GUARDED_BY(mu_);
+  std::string info_ ABSL_GUARDED_BY(mu_);  // rendered once, when added
 };
 
 // Serves GET /metrics, /healthz (200 while the process answers) and /readyz

@@ -22,6 +22,7 @@
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
 #include "core/mesh_snapshot.h"
+#include "core/version.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/grpcpp.h"
 #include "grpcpp/health_check_service_interface.h"
@@ -381,6 +382,8 @@ int RunServe(int argc, char** argv) {
   }
   std::atomic<bool> ready{false};
   std::atomic<uint64_t> disk_removed{0}, disk_bytes{0};
+  metrics.AddInfo("geodesicd_build_info", "The daemon's version and build type.",
+                  {{"version", kVersion}, {"build_type", kBuildType}});
   metrics.AddGauge("geodesicd_ready", "1 once start-up restored what the catalog holds.",
                    [&] { return ready ? 1.0 : 0.0; });
   metrics.AddGauge("geodesicd_graph_dir_bytes", "Bytes of the files in --graph-dir.",

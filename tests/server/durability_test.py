@@ -9,6 +9,7 @@ every wait is bounded.
 Usage: durability_test.py BUILD_BIN_DIR SOURCE_DIR"""
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -157,6 +158,11 @@ with tempfile.TemporaryDirectory() as work:
           "geodesicd_graph_dir_bytes " in page and
           f"geodesicd_disk_files_removed_total {2 + len(spare)}" in page,
           [l for l in page.splitlines() if "disk" in l])
+    version = open(os.path.join(src, "VERSION")).read().strip()
+    check("the build's version is a metric",
+          re.search(r'^geodesicd_build_info\{build_type="\w+",version="' + re.escape(version)
+                    + r'"\} 1$', page, re.M) is not None,
+          [l for l in page.splitlines() if "build_info" in l])
     for path, want_status in (("/healthz", 200), ("/readyz", 200)):
         try:
             status = urllib.request.urlopen(metrics_url + path, timeout=10).status
