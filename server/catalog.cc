@@ -253,15 +253,16 @@ absl::StatusOr<CatalogState> Catalog::Read() const {
   return CatalogFromJson(text.str(), path_);
 }
 
-absl::StatusOr<CatalogState> Catalog::Update(
-    absl::FunctionRef<absl::Status(CatalogState&)> change) {
+absl::StatusOr<CatalogState> Catalog::Update(absl::FunctionRef<absl::Status(CatalogState&)> change,
+                                             Reserve reserve) {
   ASSIGN_OR_RETURN(FileLock lock, FileLock::Acquire(lock_path_));
   ASSIGN_OR_RETURN(CatalogState state, Read());
   RETURN_IF_ERROR(change(state));
   ++state.generation;
   const std::string text = CatalogToJson(state);
   absl::Status written = writer_(path_, text);
-  if (absl::IsResourceExhausted(written) && ::unlink(reserve_path().c_str()) == 0) {
+  if (absl::IsResourceExhausted(written) && reserve == Reserve::kFreesSpace &&
+      ::unlink(reserve_path().c_str()) == 0) {
     written = writer_(path_, text);
     // Made again when the disk has room; the follower retries meanwhile.
     EnsureReserve().IgnoreError();

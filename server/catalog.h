@@ -80,9 +80,12 @@ class Catalog {
   // Applies `change` to the current state under the lock and, if it
   // returns OK, writes the result with the next generation. The state
   // written is returned. An error from `change` writes nothing.
-  // A write that fails with RESOURCE_EXHAUSTED (a full disk) is tried again
-  // once the reserve file is deleted.
-  absl::StatusOr<CatalogState> Update(absl::FunctionRef<absl::Status(CatalogState&)> change);
+  // With kFreesSpace (a change that lets files go: an unload, a cancel), a
+  // write that fails with RESOURCE_EXHAUSTED (a full disk) is tried again
+  // once the reserve file is deleted; other changes fail on a full disk.
+  enum class Reserve { kKeep, kFreesSpace };
+  absl::StatusOr<CatalogState> Update(absl::FunctionRef<absl::Status(CatalogState&)> change,
+                                      Reserve reserve = Reserve::kKeep);
 
   // Makes the reserve file if it is missing (at start, and whenever the
   // disk may have room again); RESOURCE_EXHAUSTED while there is none.

@@ -231,25 +231,38 @@ TEST_F(CatalogTest, AFullDiskGivesUpTheReserveAndTheChangeIsWritten) {
   struct stat st;
   ASSERT_EQ(::stat(reserve.c_str(), &st), 0);
   EXPECT_GE(uint64_t(st.st_blocks) * 512, Catalog::kReserveBytes);  // real blocks, not sparse
-  auto written = catalog.Update([](CatalogState& s) {
+  // A change that takes space fails: the reserve is not for it.
+  auto added = catalog.Update([](CatalogState& s) {
     s.PutMesh(Kitten());
     return absl::OkStatus();
   });
+  EXPECT_EQ(added.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ(writes, 1);
+  EXPECT_TRUE(std::filesystem::exists(reserve));
+  // One that frees space (an unload) is written once the reserve is gone.
+  auto written = catalog.Update(
+      [](CatalogState& s) {
+        s.RemoveMesh("kitten");
+        return absl::OkStatus();
+      },
+      Catalog::Reserve::kFreesSpace);
   ASSERT_TRUE(written.ok()) << written.status();
-  EXPECT_EQ(writes, 2);
+  EXPECT_EQ(writes, 3);
   auto read = catalog.Read();
   ASSERT_TRUE(read.ok()) << read.status();
-  EXPECT_NE(read->FindMesh("kitten"), nullptr);
+  EXPECT_EQ(read->generation, 1u);
 }
 
 TEST_F(CatalogTest, WithoutAReserveAFullDiskIsReported) {
   Catalog catalog(dir_, [](const std::string&, const std::string&) {
     return absl::ResourceExhaustedError("No space left on device");
   });
-  auto written = catalog.Update([](CatalogState& s) {
-    s.PutMesh(Kitten());
-    return absl::OkStatus();
-  });
+  auto written = catalog.Update(
+      [](CatalogState& s) {
+        s.RemoveMesh("kitten");
+        return absl::OkStatus();
+      },
+      Catalog::Reserve::kFreesSpace);
   EXPECT_EQ(written.status().code(), absl::StatusCode::kResourceExhausted);
   EXPECT_EQ(catalog.Read()->generation, 0u);
 }
@@ -292,10 +305,12 @@ TEST_F(CatalogTest, OnARealFullDiskTheReserveLetsAChangeThrough) {
     }
     ::close(fd);
     attempts.clear();
-    auto unloaded = catalog.Update([](CatalogState& s) {
-      s.RemoveMesh("kitten");
-      return absl::OkStatus();
-    });
+    auto unloaded = catalog.Update(
+        [](CatalogState& s) {
+          s.RemoveMesh("kitten");
+          return absl::OkStatus();
+        },
+        Catalog::Reserve::kFreesSpace);
     EXPECT_TRUE(unloaded.ok()) << unloaded.status();
     EXPECT_THAT(attempts, ::testing::ElementsAre(absl::StatusCode::kResourceExhausted,
                                                  absl::StatusCode::kOk));
