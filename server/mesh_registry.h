@@ -2,6 +2,7 @@
 #ifndef GEODESIC_SERVER_MESH_REGISTRY_H_
 #define GEODESIC_SERVER_MESH_REGISTRY_H_
 
+#include <functional>
 #include <future>
 #include <map>
 #include <memory>
@@ -66,6 +67,15 @@ class MeshRegistry {
   // Waits for snapshots still being written.
   ~MeshRegistry();
 
+  // Asked before each snapshot is written, with its size (--disk-limit): an
+  // error skips the snapshot, and fails a registration that must be durable.
+  // Set before the first registration.
+  void SetDiskReservation(std::function<absl::Status(uint64_t bytes)> reserve,
+                          std::function<void(uint64_t reserved, uint64_t written)> done) {
+    reserve_disk_ = std::move(reserve);
+    disk_done_ = std::move(done);
+  }
+
   // `relative_path` must stay inside the mesh root once symbolic links are
   // resolved (PERMISSION_DENIED otherwise).
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterPath(
@@ -113,6 +123,8 @@ class MeshRegistry {
   const std::string mesh_root_;
   const std::string snapshot_dir_;
   const bool durable_;
+  std::function<absl::Status(uint64_t bytes)> reserve_disk_;
+  std::function<void(uint64_t reserved, uint64_t written)> disk_done_;
   absl::Mutex saves_mu_;
   std::vector<std::future<void>> saves_ ABSL_GUARDED_BY(saves_mu_);
   mutable absl::Mutex mu_;
