@@ -22,6 +22,7 @@
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
 #include "core/mesh_snapshot.h"
+#include "core/status.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/grpcpp.h"
 #include "grpcpp/health_check_service_interface.h"
@@ -198,7 +199,18 @@ int RunServe(int argc, char** argv) {
                  "candidate edges a build keeps in memory, e.g. 2G; beyond it they go to an "
                  "unlinked file in --graph-dir (the system's temporary directory without one) "
                  "(0: no limit)");
-  app.add_option("--build-workers", build_workers, "graphs built at once");
+  app.add_option("--build-workers", build_workers,
+                 "graphs built at once, besides one build estimated to take longer than "
+                 "--large-build-seconds, which runs in a lane of its own");
+  double large_build_seconds = 60;
+  app.add_option("--large-build-seconds", large_build_seconds,
+                 "builds estimated to take longer than this (on --build-threads) run one at a "
+                 "time in their own lane, so they never hold the workers small graphs need");
+  std::string max_graph_bytes_text = "0";
+  app.add_option("--max-graph-bytes", max_graph_bytes_text,
+                 "RequestGraph refuses graphs whose estimated file passes this, e.g. 4G, with "
+                 "RESOURCE_EXHAUSTED naming the estimate (0: no limit; a graph already in "
+                 "--graph-dir is always mapped)");
   app.add_flag("--exact-fans", exact_fans,
                "build graphs with fans from exact local distances: 2-3x faster fields, longer "
                "builds (graphs found in --graph-dir are used as they are)");
@@ -243,7 +255,8 @@ int RunServe(int argc, char** argv) {
   auto memory_limit = ParseByteSize(memory_limit_text, "--memory-limit");
   auto disk_limit = ParseByteSize(disk_limit_text, "--disk-limit");
   auto build_memory_limit = ParseByteSize(build_memory_limit_text, "--build-memory-limit");
-  for (const auto* size : {&memory_limit, &disk_limit, &build_memory_limit}) {
+  auto max_graph_bytes = ParseByteSize(max_graph_bytes_text, "--max-graph-bytes");
+  for (const auto* size : {&memory_limit, &disk_limit, &build_memory_limit, &max_graph_bytes}) {
     if (!size->ok()) {
       std::fprintf(stderr, "geodesicd serve: %s\n", std::string(size->status().message()).c_str());
       return 2;
@@ -288,7 +301,39 @@ int RunServe(int argc, char** argv) {
   // them rather than parsing and building them again; with a graph
   // directory a registration returns once its snapshot is on disk, since
   // the catalog then records it for restarts and replicas.
+  // Files that writers killed mid-write left (graphs, snapshots, the
+  // catalog): old enough that no live replica can be writing them.
+  std::unique_ptr<DiskBudget> disk;
+  std::atomic<uint64_t> disk_removed{0};
+  // The sweep --disk-limit's rule makes, down to a number of bytes; set
+  // once the catalog, the registry and the cache exist.
+  std::function<absl::StatusOr<DiskReport>(uint64_t limit)> sweep;
+  if (!graph_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(graph_dir, ec);
+    for (const std::string& name : RemoveStaleTemporaries(graph_dir, kDiskGrace)) {
+      Log(LogLevel::kInfo, "stale_temporary_removed", {{"file", name}});
+    }
+    disk = std::make_unique<DiskBudget>(
+        graph_dir, *disk_limit, [&](uint64_t target) -> absl::StatusOr<uint64_t> {
+          if (!sweep) return absl::UnavailableError("starting");
+          ASSIGN_OR_RETURN(DiskReport report, sweep(target));
+          disk_removed += report.removed.size();
+          for (const std::string& name : report.removed) {
+            Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});
+          }
+          return report.bytes_after;
+        });
+    if (absl::Status s = disk->Scan(); !s.ok()) {
+      Log(LogLevel::kWarning, "disk_scan_failed", {{"error", s.ToString()}});
+    }
+  }
   MeshRegistry meshes(mesh_root, graph_dir, /*durable=*/!graph_dir.empty());
+  if (disk && *disk_limit > 0) {
+    meshes.SetDiskReservation(
+        [&](uint64_t bytes) { return disk->Reserve(bytes); },
+        [&](uint64_t reserved, uint64_t written) { disk->Done(reserved, written); });
+  }
   GraphCache::Options cache_options;
   cache_options.graph_dir = graph_dir;
   cache_options.memory_limit = *memory_limit;
@@ -297,6 +342,9 @@ int RunServe(int argc, char** argv) {
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;
   cache_options.build_memory_limit = *build_memory_limit;
+  cache_options.large_build_seconds = large_build_seconds;
+  cache_options.max_graph_bytes = *max_graph_bytes;
+  if (*disk_limit > 0) cache_options.disk = disk.get();
   cache_options.on_readiness = [&](const GraphKey& key, bool ready) {
     std::lock_guard<std::mutex> lock(health_mu);
     if (health) health->SetServingStatus(ServiceName(key), ready);
@@ -306,6 +354,9 @@ int RunServe(int argc, char** argv) {
   std::unique_ptr<CatalogSync> sync;
   if (!graph_dir.empty()) {
     catalog = std::make_unique<Catalog>(graph_dir);
+    if (absl::Status s = catalog->EnsureReserve(); !s.ok()) {
+      Log(LogLevel::kWarning, "catalog_reserve_missing", {{"error", s.ToString()}});
+    }
     sync = std::make_unique<CatalogSync>(
         catalog.get(), CatalogSync::Hooks{
                            .restore_mesh =
@@ -330,8 +381,21 @@ int RunServe(int argc, char** argv) {
                                },
                        });
   }
+  if (catalog) {
+    sweep = [&](uint64_t limit) -> absl::StatusOr<DiskReport> {
+      ASSIGN_OR_RETURN(const CatalogState state, catalog->Read());
+      const CatalogFiles files = FilesOf(state);
+      return EnforceDiskLimit(graph_dir, limit, [&](const std::string& name) {
+        // Asked afresh each time, as EnforceDiskLimit asks again just before
+        // removing: a mesh registered since the listing has its snapshot.
+        bool in_use = graphs.FileInUse(name);
+        for (const auto& m : meshes.List()) in_use |= MeshRegistry::SnapshotName(*m) == name;
+        return GraphDirFileRole(graph_dir, name, files, in_use, kDiskGrace);
+      });
+    };
+  }
   std::atomic<bool> ready{false};
-  std::atomic<uint64_t> disk_removed{0}, disk_bytes{0};
+  std::atomic<uint64_t> disk_bytes{0};
   metrics.AddGauge("geodesicd_ready", "1 once start-up restored what the catalog holds.",
                    [&] { return ready ? 1.0 : 0.0; });
   metrics.AddGauge("geodesicd_graph_dir_bytes", "Bytes of the files in --graph-dir.",
@@ -353,6 +417,9 @@ int RunServe(int argc, char** argv) {
                    [&] { return double(graphs.mapped_bytes()); });
   metrics.AddGauge("geodesicd_builds_running", "Graph builds running.",
                    [&] { return double(graphs.builds_running()); });
+  metrics.AddCounter("geodesicd_graph_builds_total",
+                     "Graph builds started here (not graphs mapped from --graph-dir).",
+                     [&] { return double(graphs.builds_started()); });
   metrics.AddGauge(
       "geodesicd_query_scratch_bytes",
       "Query scratch held by the engines of ready graphs (pooled per query in flight).",
@@ -530,21 +597,16 @@ int RunServe(int argc, char** argv) {
       if (absl::Status s = sync->Reconcile(); !s.ok()) {
         Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
       }
-      auto state = catalog->Read();
-      if (!state.ok()) continue;
-      const CatalogFiles files = FilesOf(*state);
-      auto report = EnforceDiskLimit(graph_dir, *disk_limit, [&](const std::string& name) {
-        // Asked afresh each time, as EnforceDiskLimit asks again just before
-        // removing: a mesh registered since the listing has its snapshot.
-        bool in_use = graphs.FileInUse(name);
-        for (const auto& m : meshes.List()) in_use |= MeshRegistry::SnapshotName(*m) == name;
-        return GraphDirFileRole(graph_dir, name, files, in_use, kDiskGrace);
-      });
+      // A reserve the catalog used on a full disk comes back once there is
+      // room.
+      catalog->EnsureReserve().IgnoreError();
+      auto report = sweep(*disk_limit);
       if (!report.ok()) {
         Log(LogLevel::kError, "disk_limit_failed", {{"error", report.status().ToString()}});
         continue;
       }
       disk_bytes = report->bytes_after;
+      disk->Set(report->bytes_after);
       disk_removed += report->removed.size();
       for (const std::string& name : report->removed) {
         Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});
