@@ -87,7 +87,7 @@ absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {
 
 namespace {
 
-// An exclusive flock on a graph's "<file>.lock", so that of the replicas
+// An exclusive flock on a graph's ".<file>.lock", so that of the replicas
 // sharing --graph-dir one builds the graph. The holder unlinks the file
 // before it lets go, so nothing stays behind; a replica that locked the
 // unlinked file meanwhile sees that the path names another file (or none)
@@ -142,6 +142,12 @@ class ReplicaLock {
   int fd_ = -1;
 };
 
+// Hidden, as the catalog's reserve: bookkeeping, not a graph.
+std::string BuildLockPath(const std::string& graph_path) {
+  const std::filesystem::path p(graph_path);
+  return (p.parent_path() / ("." + p.filename().string() + ".lock")).string();
+}
+
 constexpr char kWaitingPhase[] = "waiting for another replica's build";
 
 std::string Describe(const GraphKey& key) {
@@ -149,6 +155,32 @@ std::string Describe(const GraphKey& key) {
 }
 
 }  // namespace
+
+std::string GraphCache::BuildLockFile(const std::string& graph_path) {
+  return BuildLockPath(graph_path);
+}
+
+std::vector<std::string> GraphCache::RemoveStaleBuildLocks(const std::string& dir,
+                                                           std::chrono::seconds min_age) {
+  std::vector<std::string> removed;
+  std::error_code ec;
+  const auto now = std::filesystem::file_time_type::clock::now();
+  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (!name.starts_with(".") || !name.ends_with(".dgg.lock")) continue;
+    std::error_code file_ec;
+    const auto written = entry.last_write_time(file_ec);
+    if (file_ec || now - written < min_age) continue;
+    // Only a lock nobody holds: its builder died. Taking it and letting it
+    // go unlinks it.
+    auto lock = ReplicaLock::TryAcquire(entry.path().string());
+    if (lock.ok() && lock->held()) {
+      lock->Release();
+      removed.push_back(name);
+    }
+  }
+  return removed;
+}
 
 GraphCache::GraphCache(Options options) : options_(std::move(options)) {
   if (!options_.maker) options_.maker = std::make_shared<GraphMaker>();
@@ -387,7 +419,7 @@ void GraphCache::Run(const GraphKey& key) {
     std::error_code ec;
     if (!std::filesystem::exists(e->path, ec)) {
       // No file: this replica builds it, unless another is building it.
-      auto lock = ReplicaLock::TryAcquire(e->path + ".lock");
+      auto lock = ReplicaLock::TryAcquire(BuildLockPath(e->path));
       if (lock.ok() && !lock->held()) {
         absl::MutexLock hold(&mu_);
         if (!Current(key, *e) || e->status.state != GraphState::kQueued) return;

@@ -34,7 +34,7 @@
 //   of their own (one worker beyond build_workers), so a huge build never
 //   holds the workers small graphs need.
 // - Replicas sharing --graph-dir build each graph once: a build holds an
-//   exclusive flock on "<graph file>.lock"; a replica that finds it held
+//   exclusive flock on ".<graph file>.lock"; a replica that finds it held
 //   waits queued ("waiting for another replica's build"), polling, and maps
 //   the file once it appears, or builds itself if the holder died (the
 //   kernel releases a dead process's flock).
@@ -47,6 +47,7 @@
 #define GEODESIC_SERVER_GRAPH_CACHE_H_
 
 #include <atomic>
+#include <chrono>
 #include <deque>
 #include <functional>
 #include <map>
@@ -193,6 +194,13 @@ class GraphCache {
   // graph is mapped again), FAILED_PRECONDITION if never requested, and the
   // build's error if it failed.
   absl::StatusOr<std::shared_ptr<const GeodesicEngine>> Acquire(const GraphKey& key);
+
+  // The lock a replica holds while it builds the graph of `graph_path`.
+  static std::string BuildLockFile(const std::string& graph_path);
+  // Removes the build locks in `dir` that builders killed mid-build left
+  // (none holds them), those older than `min_age`; returns their names.
+  static std::vector<std::string> RemoveStaleBuildLocks(const std::string& dir,
+                                                        std::chrono::seconds min_age);
 
   // The file a graph has (or would have) in --graph-dir; empty without one.
   std::string GraphPath(uint64_t mesh_fingerprint, const DggParams& params) const;

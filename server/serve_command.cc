@@ -314,6 +314,9 @@ int RunServe(int argc, char** argv) {
     for (const std::string& name : RemoveStaleTemporaries(graph_dir, kDiskGrace)) {
       Log(LogLevel::kInfo, "stale_temporary_removed", {{"file", name}});
     }
+    for (const std::string& name : GraphCache::RemoveStaleBuildLocks(graph_dir, kDiskGrace)) {
+      Log(LogLevel::kInfo, "stale_build_lock_removed", {{"file", name}});
+    }
     disk = std::make_unique<DiskBudget>(
         graph_dir, *disk_limit, [&](uint64_t target) -> absl::StatusOr<uint64_t> {
           if (!sweep) return absl::UnavailableError("starting");

@@ -2,6 +2,8 @@
 // that holds each step (load, build, persist) until the test lets it go.
 #include "server/graph_cache.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <atomic>
@@ -582,7 +584,8 @@ TEST_F(GraphCacheTest, ReplicasOnOneDirectoryBuildAGraphOnce) {
   EXPECT_EQ(maker_->calls(HeldMaker::kBuild) + other_maker->calls(HeldMaker::kBuild), 1);
   EXPECT_EQ(first.builds_started() + second.builds_started(), 1u);
   // The lock file goes with the build.
-  EXPECT_FALSE(fs::exists(first.GraphPath(mesh->fingerprint, key.params) + ".lock"));
+  EXPECT_FALSE(
+      fs::exists(GraphCache::BuildLockFile(first.GraphPath(mesh->fingerprint, key.params))));
 }
 
 // A replica that held the lock and died (its flock released) leaves the
@@ -592,10 +595,34 @@ TEST_F(GraphCacheTest, ALockLeftByADeadReplicaDoesNotBlockTheBuild) {
   const GraphKey key{"grid", Eps(0.05)};
   GraphCache& cache = Cache();
   fs::create_directories(dir_);
-  std::ofstream(cache.GraphPath(mesh->fingerprint, key.params) + ".lock") << "";
+  const std::string lock =
+      GraphCache::BuildLockFile(cache.GraphPath(mesh->fingerprint, key.params));
+  std::ofstream(lock) << "";
   cache.Request(mesh, key.params);
   EXPECT_FALSE(WaitFor(key, GraphState::kReady).from_file);
   EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+  EXPECT_FALSE(fs::exists(lock));
+}
+
+TEST_F(GraphCacheTest, StartUpRemovesOnlyOldBuildLocksNobodyHolds) {
+  fs::create_directories(dir_);
+  auto add = [&](const std::string& name, int age_s) {
+    std::ofstream(dir_ / name) << "";
+    fs::last_write_time(dir_ / name,
+                        fs::file_time_type::clock::now() - std::chrono::seconds(age_s));
+  };
+  add(".dead-eps0.01-r2.dgg.lock", 600);
+  add(".young-eps0.01-r2.dgg.lock", 5);
+  add(".held-eps0.01-r2.dgg.lock", 600);
+  add("graph-eps0.01-r2.dgg", 600);
+  const int held = ::open((dir_ / ".held-eps0.01-r2.dgg.lock").c_str(), O_RDWR);
+  ASSERT_EQ(::flock(held, LOCK_EX), 0);  // a live builder
+  EXPECT_THAT(GraphCache::RemoveStaleBuildLocks(dir_, std::chrono::seconds(120)),
+              ::testing::ElementsAre(".dead-eps0.01-r2.dgg.lock"));
+  ::close(held);
+  EXPECT_TRUE(fs::exists(dir_ / ".young-eps0.01-r2.dgg.lock"));
+  EXPECT_TRUE(fs::exists(dir_ / ".held-eps0.01-r2.dgg.lock"));
+  EXPECT_TRUE(fs::exists(dir_ / "graph-eps0.01-r2.dgg"));
 }
 
 }  // namespace
