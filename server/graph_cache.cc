@@ -148,8 +148,6 @@ std::string BuildLockPath(const std::string& graph_path) {
   return (p.parent_path() / ("." + p.filename().string() + ".lock")).string();
 }
 
-constexpr char kWaitingPhase[] = "waiting for another replica's build";
-
 std::string Describe(const GraphKey& key) {
   return absl::StrFormat("the graph of '%s' (%s)", key.mesh, DescribeParams(key.params));
 }
@@ -427,10 +425,10 @@ void GraphCache::Run(const GraphKey& key) {
           Transition(*e, GraphState::kCancelled);
           return;
         }
-        if (e->status.phase != kWaitingPhase) {
+        if (e->status.phase != kWaitingForReplicaPhase) {
           Log(LogLevel::kInfo, "graph_build_waiting", {{"mesh", key.mesh}, {"path", e->path}});
         }
-        e->status.phase = kWaitingPhase;
+        e->status.phase = kWaitingForReplicaPhase;
         ++e->status.version;
         Enqueue(key);
         e->not_before = absl::Now() + options_.replica_poll;

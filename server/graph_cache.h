@@ -83,6 +83,9 @@ const char* GraphStateName(GraphState s);
 // Whether the table of legal moves allows `from` -> `to`.
 bool LegalTransition(GraphState from, GraphState to);
 
+// The phase of a queued graph whose file another replica is building.
+inline constexpr char kWaitingForReplicaPhase[] = "waiting for another replica's build";
+
 // A graph's name in the cache: its mesh and its whole build record.
 struct GraphKey {
   std::string mesh;

@@ -185,7 +185,8 @@ int RunServe(int argc, char** argv) {
       "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
       "snapshots no catalog entry names go first, then catalogued ones (rebuilt when "
       "needed); never a file in use, an uploaded mesh's snapshot or a file written in the "
-      "last two minutes (0: no limit)");
+      "last two minutes. A graph file or snapshot that would still pass it is not written: "
+      "the graph fails, the upload is refused (0: no limit)");
   app.add_option("--config", config_path,
                  "YAML file of meshes to register and graphs to build at start (see "
                  "server/config_file.h)")
@@ -567,15 +568,17 @@ int RunServe(int argc, char** argv) {
   }
   if (sample_mesh.ok()) graphs.Request(*sample_mesh, daemon_params(limits.default_epsilon, false));
   // Ready once every restored graph whose file was there is mapped (a
-  // missing or invalid one rebuilds in the background, and is not waited
-  // for), or after a minute at most.
+  // missing or invalid one rebuilds in the background, and one another
+  // replica is building is mapped once it is done: neither is waited for),
+  // or after a minute at most.
   const absl::Time restore_deadline = absl::Now() + absl::Seconds(60);
   size_t restored_graphs = 0;
   for (const GraphKey& key : restoring) {
     auto status = graphs.Get(key);
     while (status.ok() && !g_stop &&
            (status->state == GraphState::kQueued || status->state == GraphState::kLoading) &&
-           absl::Now() < restore_deadline) {
+           // Another replica's build may take long: serve meanwhile.
+           status->phase != kWaitingForReplicaPhase && absl::Now() < restore_deadline) {
       status = graphs.WaitForChange(key, status->version, absl::Now() + absl::Milliseconds(200));
     }
     restored_graphs += status.ok() && status->state == GraphState::kReady;
