@@ -7,6 +7,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <set>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
@@ -341,10 +342,14 @@ bool GraphCache::TakeNext(bool large_lane, GraphKey* key, absl::Time* wake) {
   std::deque<GraphKey> live;
   const Entry* best = nullptr;
   size_t best_at = 0;
+  std::set<GraphKey> seen;
   for (const GraphKey& k : queue_) {
     auto it = entries_.find(k);
-    // Entries dropped or already taken up (a key queued twice) need no run.
-    if (it == entries_.end() || it->second->status.state != GraphState::kQueued) continue;
+    // Entries dropped, taken up already, or queued twice need no run.
+    if (it == entries_.end() || it->second->status.state != GraphState::kQueued ||
+        !seen.insert(k).second) {
+      continue;
+    }
     live.push_back(k);
     const Entry& e = *it->second;
     // build_workers count small builds only: the large lane is extra.

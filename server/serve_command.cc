@@ -321,7 +321,8 @@ int RunServe(int argc, char** argv) {
     disk = std::make_unique<DiskBudget>(
         graph_dir, *disk_limit, [&](uint64_t target) -> absl::StatusOr<uint64_t> {
           if (!sweep) return absl::UnavailableError("starting");
-          ASSIGN_OR_RETURN(DiskReport report, sweep(target));
+          // A limit of 0 is none to the sweep: 1 byte asks for all it may remove.
+          ASSIGN_OR_RETURN(DiskReport report, sweep(std::max<uint64_t>(target, 1)));
           disk_removed += report.removed.size();
           for (const std::string& name : report.removed) {
             Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});
