@@ -298,12 +298,6 @@ int RunServe(int argc, char** argv) {
   std::unique_ptr<grpc::Server> server;
   grpc::HealthCheckServiceInterface* health = nullptr;
   std::mutex health_mu;
-  // Built meshes are saved beside the graphs, so a restarted daemon restores
-  // them rather than parsing and building them again; with a graph
-  // directory a registration returns once its snapshot is on disk, since
-  // the catalog then records it for restarts and replicas.
-  // Files that writers killed mid-write left (graphs, snapshots, the
-  // catalog): old enough that no live replica can be writing them.
   std::unique_ptr<DiskBudget> disk;
   std::atomic<uint64_t> disk_removed{0};
   // The sweep --disk-limit's rule makes, down to a number of bytes; set
@@ -312,6 +306,9 @@ int RunServe(int argc, char** argv) {
   if (!graph_dir.empty()) {
     std::error_code ec;
     std::filesystem::create_directories(graph_dir, ec);
+    // What writers and builders killed midway left (graphs, snapshots, the
+    // catalog, build locks): old enough that no live replica is at work on
+    // them.
     for (const std::string& name : RemoveStaleTemporaries(graph_dir, kDiskGrace)) {
       Log(LogLevel::kInfo, "stale_temporary_removed", {{"file", name}});
     }
@@ -333,6 +330,10 @@ int RunServe(int argc, char** argv) {
       Log(LogLevel::kWarning, "disk_scan_failed", {{"error", s.ToString()}});
     }
   }
+  // Built meshes are saved beside the graphs, so a restarted daemon restores
+  // them rather than parsing and building them again; with a graph
+  // directory a registration returns once its snapshot is on disk, since
+  // the catalog then records it for restarts and replicas.
   MeshRegistry meshes(mesh_root, graph_dir, /*durable=*/!graph_dir.empty());
   if (disk && *disk_limit > 0) {
     meshes.SetDiskReservation(
@@ -388,6 +389,9 @@ int RunServe(int argc, char** argv) {
   }
   if (catalog) {
     sweep = [&](uint64_t limit) -> absl::StatusOr<DiskReport> {
+      // A build persisting at shutdown must not reach the catalog and the
+      // registry as they are destroyed.
+      if (g_stop) return absl::UnavailableError("shutting down");
       ASSIGN_OR_RETURN(const CatalogState state, catalog->Read());
       const CatalogFiles files = FilesOf(state);
       return EnforceDiskLimit(graph_dir, limit, [&](const std::string& name) {
