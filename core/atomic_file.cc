@@ -3,6 +3,7 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <cctype>
 #include <cerrno>
 #include <cstring>
 #include <filesystem>
@@ -20,6 +21,37 @@ absl::Status ErrnoStatus(const std::string& what, const std::string& path) {
   if (e == EACCES || e == EPERM || e == EROFS) return absl::PermissionDeniedError(message);
   if (e == ENOSPC || e == EDQUOT) return absl::ResourceExhaustedError(message);
   return absl::InternalError(message);
+}
+
+bool IsAtomicTemporaryName(const std::string& file_name) {
+  // Matches the name Create() makes, from the end: ".tmp." digits "." hex.
+  const size_t dot = file_name.rfind('.');
+  if (dot == std::string::npos || dot + 1 == file_name.size()) return false;
+  for (size_t i = dot + 1; i < file_name.size(); ++i) {
+    if (!std::isxdigit(static_cast<unsigned char>(file_name[i]))) return false;
+  }
+  const size_t pid_dot = file_name.rfind('.', dot - 1);
+  if (pid_dot == std::string::npos || pid_dot + 1 == dot || pid_dot < 4) return false;
+  for (size_t i = pid_dot + 1; i < dot; ++i) {
+    if (!std::isdigit(static_cast<unsigned char>(file_name[i]))) return false;
+  }
+  return file_name.compare(pid_dot - 4, 4, ".tmp") == 0 && pid_dot > 4;
+}
+
+std::vector<std::string> RemoveStaleTemporaries(const std::string& dir,
+                                                std::chrono::seconds min_age) {
+  std::vector<std::string> removed;
+  std::error_code ec;
+  const auto now = std::filesystem::file_time_type::clock::now();
+  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = entry.path().filename().string();
+    std::error_code file_ec;
+    if (!IsAtomicTemporaryName(name) || !entry.is_regular_file(file_ec)) continue;
+    const auto written = entry.last_write_time(file_ec);
+    if (file_ec || now - written < min_age) continue;
+    if (std::filesystem::remove(entry.path(), file_ec)) removed.push_back(name);
+  }
+  return removed;
 }
 
 absl::StatusOr<AtomicFileWriter> AtomicFileWriter::Create(const std::string& path) {

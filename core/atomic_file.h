@@ -8,8 +8,10 @@
 #ifndef GEODESIC_CORE_ATOMIC_FILE_H_
 #define GEODESIC_CORE_ATOMIC_FILE_H_
 
+#include <chrono>
 #include <cstddef>
 #include <string>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -42,6 +44,17 @@ class AtomicFileWriter {
   int fd_ = -1;
   uint64_t written_ = 0;
 };
+
+// Whether `file_name` is an AtomicFileWriter's temporary name
+// ("<destination>.tmp.<pid>.<hex tag>"), of any destination.
+bool IsAtomicTemporaryName(const std::string& file_name);
+
+// Removes the temporary files in `dir` (not recursively) that writers
+// killed mid-write left behind, those last modified at least `min_age` ago:
+// a younger one may belong to a live writer (another process sharing the
+// directory). Returns the names removed; best effort.
+std::vector<std::string> RemoveStaleTemporaries(const std::string& dir,
+                                                std::chrono::seconds min_age);
 
 // The errno of the last failed call as a status naming `what` and `path`.
 absl::Status ErrnoStatus(const std::string& what, const std::string& path);

@@ -979,6 +979,24 @@ uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon) {
                                kBytesPerDirectedEdge);
 }
 
+DggBuildEstimate EstimateDggBuild(uint64_t num_vertices, double epsilon, bool pseudo) {
+  constexpr double kBytesPerVertex = 64.5, kBytesExponent = 0.486;
+  constexpr double kSecondsPerVertex = 2.1e-6, kSecondsExponent = 0.646;
+  // Pseudo vertices are negligible at 1e-2 and multiply the graph as the
+  // test for a gap tightens: 1 + c (1e-2 / epsilon)^k.
+  constexpr double kPseudoBytesC = 0.05, kPseudoBytesK = 2.85;
+  constexpr double kPseudoSecondsC = 2.9, kPseudoSecondsK = 1.62;
+  if (!(epsilon > 0 && epsilon < 1)) return {UINT64_MAX, HUGE_VAL};
+  double bytes = double(num_vertices) * kBytesPerVertex * std::pow(epsilon, -kBytesExponent);
+  double seconds = double(num_vertices) * kSecondsPerVertex * std::pow(epsilon, -kSecondsExponent);
+  if (pseudo) {
+    const double finer = 1e-2 / epsilon;
+    bytes *= 1 + kPseudoBytesC * std::pow(finer, kPseudoBytesK);
+    seconds *= 1 + kPseudoSecondsC * std::pow(finer, kPseudoSecondsK);
+  }
+  return {bytes >= 1.8e19 ? UINT64_MAX : static_cast<uint64_t>(bytes), seconds};
+}
+
 absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
                                                          const DggBuildOptions& options,
                                                          DggBuildStats* stats) {

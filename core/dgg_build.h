@@ -72,6 +72,19 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
 // keeps the estimate below the real size on meshes not measured.
 uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon);
 
+// What a build will likely cost: its graph file's bytes and its time on one
+// thread. A central estimate, not a bound (EstimateDggBytesLowerBound is the
+// bound): for admission and scheduling, which need the order of magnitude.
+struct DggBuildEstimate {
+  uint64_t bytes = 0;
+  double seconds = 0;  // on one thread
+};
+// Power laws in epsilon per vertex, fitted to BENCHMARKS.md's build table
+// (every shared mesh at three epsilons); pseudo vertices scale them by
+// factors fitted to its pseudo-vertex table, whose anisotropic mesh is the
+// worst case measured. Epsilon outside (0, 1) gives UINT64_MAX bytes.
+DggBuildEstimate EstimateDggBuild(uint64_t num_vertices, double epsilon, bool pseudo);
+
 // A graph edge as seen from one end: a direct geodesic from the source to
 // `to`, its length rounded up to float, and its polar angles at both ends.
 struct DggHalfEdge {

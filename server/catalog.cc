@@ -1,6 +1,7 @@
 #include "server/catalog.h"
 
 #include <fcntl.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -207,8 +208,38 @@ absl::StatusOr<CatalogState> CatalogFromJson(const std::string& text, const std:
   return state;
 }
 
-Catalog::Catalog(std::string dir)
-    : dir_(std::move(dir)), path_(dir_ + "/catalog.json"), lock_path_(dir_ + "/catalog.lock") {}
+Catalog::Catalog(std::string dir, Writer writer)
+    : dir_(std::move(dir)),
+      path_(dir_ + "/catalog.json"),
+      lock_path_(dir_ + "/catalog.lock"),
+      writer_(std::move(writer)) {
+  if (!writer_) {
+    writer_ = [](const std::string& path, const std::string& text) -> absl::Status {
+      ASSIGN_OR_RETURN(AtomicFileWriter out, AtomicFileWriter::Create(path));
+      RETURN_IF_ERROR(out.Append(text.data(), text.size()));
+      return std::move(out).Commit();
+    };
+  }
+}
+
+absl::Status Catalog::EnsureReserve() const {
+  const std::string path = reserve_path();
+  struct stat st;
+  if (::stat(path.c_str(), &st) == 0 && uint64_t(st.st_size) >= kReserveBytes) {
+    return absl::OkStatus();
+  }
+  const int fd = ::open(path.c_str(), O_WRONLY | O_CREAT | O_CLOEXEC, 0644);
+  if (fd < 0) return ErrnoStatus("cannot create", path);
+  // Allocated blocks, not a sparse file: deleting it must free real space.
+  const int e = ::posix_fallocate(fd, 0, static_cast<off_t>(kReserveBytes));
+  ::close(fd);
+  if (e != 0) {
+    ::unlink(path.c_str());
+    errno = e;
+    return ErrnoStatus("cannot allocate the catalog's reserve", path);
+  }
+  return absl::OkStatus();
+}
 
 absl::StatusOr<CatalogState> Catalog::Read() const {
   std::ifstream in(path_, std::ios::binary);
@@ -222,16 +253,21 @@ absl::StatusOr<CatalogState> Catalog::Read() const {
   return CatalogFromJson(text.str(), path_);
 }
 
-absl::StatusOr<CatalogState> Catalog::Update(
-    absl::FunctionRef<absl::Status(CatalogState&)> change) {
+absl::StatusOr<CatalogState> Catalog::Update(absl::FunctionRef<absl::Status(CatalogState&)> change,
+                                             Reserve reserve) {
   ASSIGN_OR_RETURN(FileLock lock, FileLock::Acquire(lock_path_));
   ASSIGN_OR_RETURN(CatalogState state, Read());
   RETURN_IF_ERROR(change(state));
   ++state.generation;
   const std::string text = CatalogToJson(state);
-  ASSIGN_OR_RETURN(AtomicFileWriter out, AtomicFileWriter::Create(path_));
-  RETURN_IF_ERROR(out.Append(text.data(), text.size()));
-  RETURN_IF_ERROR(std::move(out).Commit());
+  absl::Status written = writer_(path_, text);
+  if (absl::IsResourceExhausted(written) && reserve == Reserve::kFreesSpace &&
+      ::unlink(reserve_path().c_str()) == 0) {
+    written = writer_(path_, text);
+    // Made again when the disk has room; the follower retries meanwhile.
+    EnsureReserve().IgnoreError();
+  }
+  RETURN_IF_ERROR(written);
   return state;
 }
 

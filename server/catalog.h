@@ -14,6 +14,7 @@
 #define GEODESIC_SERVER_CATALOG_H_
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -57,8 +58,17 @@ struct CatalogState {
 class Catalog {
  public:
   static constexpr uint32_t kFormatVersion = 1;
+  // A file of real blocks kept beside the catalog: on a full disk, a change
+  // that cannot be written deletes it and tries again, so that unloads and
+  // cancels, which free space, never fail for want of it.
+  static constexpr char kReserveFileName[] = ".geodesicd-reserve";
+  static constexpr uint64_t kReserveBytes = uint64_t{4} << 20;
 
-  explicit Catalog(std::string dir);
+  // Writes `text` as the file `path`, whole or not at all.
+  using Writer = std::function<absl::Status(const std::string& path, const std::string& text)>;
+
+  // `writer`: empty for AtomicFileWriter (tests inject failures).
+  explicit Catalog(std::string dir, Writer writer = {});
 
   const std::string& path() const { return path_; }
 
@@ -70,10 +80,21 @@ class Catalog {
   // Applies `change` to the current state under the lock and, if it
   // returns OK, writes the result with the next generation. The state
   // written is returned. An error from `change` writes nothing.
-  absl::StatusOr<CatalogState> Update(absl::FunctionRef<absl::Status(CatalogState&)> change);
+  // With kFreesSpace (a change that lets files go: an unload, a cancel), a
+  // write that fails with RESOURCE_EXHAUSTED (a full disk) is tried again
+  // once the reserve file is deleted; other changes fail on a full disk.
+  enum class Reserve { kKeep, kFreesSpace };
+  absl::StatusOr<CatalogState> Update(absl::FunctionRef<absl::Status(CatalogState&)> change,
+                                      Reserve reserve = Reserve::kKeep);
+
+  // Makes the reserve file if it is missing (at start, and whenever the
+  // disk may have room again); RESOURCE_EXHAUSTED while there is none.
+  absl::Status EnsureReserve() const;
+  std::string reserve_path() const { return dir_ + "/" + kReserveFileName; }
 
  private:
   std::string dir_, path_, lock_path_;
+  Writer writer_;
 };
 
 // The JSON text of a state, and back; exposed for tests and `info`.

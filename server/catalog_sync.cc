@@ -92,10 +92,12 @@ absl::Status CatalogSync::RecordMesh(const CatalogMesh& mesh) {
 absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
   absl::MutexLock lock(&mu_);
   bool listed = false;
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
-    listed = s.RemoveMesh(name);
-    return absl::OkStatus();
-  }));
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update(
+                                           [&](CatalogState& s) {
+                                             listed = s.RemoveMesh(name);
+                                             return absl::OkStatus();
+                                           },
+                                           Catalog::Reserve::kFreesSpace));
   // The caller unloads the mesh itself.
   meshes_.erase(name);
   std::erase_if(graphs_, [&](const auto& g) { return g.first == name; });
@@ -123,10 +125,12 @@ absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const Dgg
 absl::StatusOr<bool> CatalogSync::ForgetGraph(const std::string& mesh, const DggParams& params) {
   absl::MutexLock lock(&mu_);
   bool listed = false;
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
-    listed = s.RemoveGraph(mesh, params);
-    return absl::OkStatus();
-  }));
+  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update(
+                                           [&](CatalogState& s) {
+                                             listed = s.RemoveGraph(mesh, params);
+                                             return absl::OkStatus();
+                                           },
+                                           Catalog::Reserve::kFreesSpace));
   // The caller cancels the graph itself.
   graphs_.erase({mesh, params});
   RETURN_IF_ERROR(ApplyLocked(state));

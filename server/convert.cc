@@ -72,6 +72,8 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
   out->set_prune_redundant(s.params.prune_redundant);
   out->set_exact_fans(s.params.exact_fans);
   out->set_candidate_rule(s.params.candidate_rule);
+  out->set_estimated_bytes(s.estimated_bytes);
+  out->set_estimated_seconds(s.estimated_seconds);
 }
 
 grpc::Status ToGrpc(const absl::Status& s) {

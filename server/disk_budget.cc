@@ -25,6 +25,12 @@ struct Candidate {
   FileRole role;
 };
 
+// Space held for the catalog's writes, not part of what the directory
+// stores.
+bool Counted(const fs::directory_entry& entry) {
+  return entry.path().filename() != Catalog::kReserveFileName;
+}
+
 bool Removable(const std::string& name) {
   return absl::EndsWith(name, ".dgg") || absl::EndsWith(name, ".mesh");
 }
@@ -63,7 +69,7 @@ absl::StatusOr<uint64_t> DirectoryBytes(const std::string& dir) {
     std::error_code file_ec;
     // A file removed between listing and stat (another replica's cleanup)
     // simply no longer counts.
-    if (entry.is_regular_file(file_ec)) {
+    if (entry.is_regular_file(file_ec) && Counted(entry)) {
       const uint64_t size = entry.file_size(file_ec);
       if (!file_ec) total += size;
     }
@@ -82,7 +88,7 @@ absl::StatusOr<DiskReport> EnforceDiskLimit(
   std::error_code ec;
   for (const fs::directory_entry& entry : fs::directory_iterator(dir, ec)) {
     std::error_code file_ec;
-    if (!entry.is_regular_file(file_ec)) continue;
+    if (!entry.is_regular_file(file_ec) || !Counted(entry)) continue;
     const uint64_t bytes = entry.file_size(file_ec);
     if (file_ec) continue;
     report.bytes_before += bytes;
@@ -120,6 +126,54 @@ absl::StatusOr<DiskReport> EnforceDiskLimit(
   }
   report.over_limit = report.bytes_after > limit;
   return report;
+}
+
+DiskBudget::DiskBudget(std::string dir, uint64_t limit,
+                       std::function<absl::StatusOr<uint64_t>(uint64_t target)> evict)
+    : dir_(std::move(dir)), limit_(limit), evict_(std::move(evict)) {}
+
+absl::Status DiskBudget::Scan() {
+  auto bytes = DirectoryBytes(dir_);
+  if (!bytes.ok()) return bytes.status();
+  Set(*bytes);
+  return absl::OkStatus();
+}
+
+absl::Status DiskBudget::Reserve(uint64_t bytes) {
+  absl::MutexLock lock(&mu_);
+  auto fits = [&] {
+    return limit_ == 0 || (bytes <= limit_ && on_disk_ + pending_ <= limit_ - bytes);
+  };
+  if (!fits() && evict_ && bytes + pending_ <= limit_) {
+    // Under the lock: two writes admitted at once must not both count on
+    // the same evicted bytes.
+    auto left = evict_(limit_ - pending_ - bytes);
+    if (left.ok()) on_disk_ = *left;
+  }
+  if (!fits()) {
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "writing %u bytes would take %s past --disk-limit: it holds %u bytes (%u more being "
+        "written) of %u, and nothing more may be evicted",
+        bytes, dir_, on_disk_, pending_, limit_));
+  }
+  pending_ += bytes;
+  return absl::OkStatus();
+}
+
+void DiskBudget::Done(uint64_t reserved, uint64_t written) {
+  absl::MutexLock lock(&mu_);
+  pending_ -= std::min(pending_, reserved);
+  on_disk_ += written;
+}
+
+void DiskBudget::Set(uint64_t bytes) {
+  absl::MutexLock lock(&mu_);
+  on_disk_ = bytes;
+}
+
+uint64_t DiskBudget::used() const {
+  absl::MutexLock lock(&mu_);
+  return on_disk_ + pending_;
 }
 
 void MarkFileUsed(const std::string& path) {

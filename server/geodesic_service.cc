@@ -411,17 +411,11 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
     NameLocks::Hold hold(names_, req->mesh(), absl::FromChrono(ctx->deadline()));
     if (!hold.held()) return NameBusy(req->mesh());
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    const double eps = key.params.epsilon;
     auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
-    const uint64_t budget = graphs_->memory_limit();
-    const uint64_t estimate = EstimateDggBytesLowerBound((*m)->mesh->num_vertices(), eps);
-    if (budget > 0 && estimate > budget) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "the graph of %s at epsilon %g needs at least %u bytes, over the server's memory "
-          "limit of %u bytes: use a larger epsilon",
-          req->mesh(), eps, estimate, budget));
-    }
+    // Refused at once, before the catalog records it: a graph that cannot
+    // fit the limits would otherwise hold a build worker for nothing.
+    RETURN_IF_ERROR(graphs_->Admit(**m, key.params).status());
     if (catalog_) RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
     ToProto(graphs_->Request(*m, key.params), resp);
     return absl::OkStatus();

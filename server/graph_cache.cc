@@ -1,10 +1,17 @@
 #include "server/graph_cache.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
 #include <chrono>
 #include <filesystem>
+#include <set>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "core/atomic_file.h"
 #include "core/landmarks.h"
 #include "server/log.h"
 
@@ -81,27 +88,65 @@ absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {
 
 namespace {
 
-// A temporary file is what a writer killed mid-write leaves behind. Replicas
-// may share the directory and be writing right now, so only files too old to
-// belong to a live write are removed.
-constexpr auto kStaleTemporaryAge = std::chrono::hours(1);
-
-void RemoveStaleTemporaries(const std::string& dir) {
-  std::error_code ec;
-  const auto now = std::filesystem::file_time_type::clock::now();
-  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
-    const std::string name = entry.path().filename().string();
-    // Graph files and the mesh snapshots the registry keeps beside them.
-    if (name.find(".dgg.tmp.") == std::string::npos &&
-        name.find(".mesh.tmp.") == std::string::npos) {
-      continue;
-    }
-    auto written = entry.last_write_time(ec);
-    if (ec || now - written < kStaleTemporaryAge) continue;
-    if (std::filesystem::remove(entry.path(), ec)) {
-      Log(LogLevel::kInfo, "stale_temporary_removed", {{"path", entry.path().string()}});
-    }
+// An exclusive flock on a graph's ".<file>.lock", so that of the replicas
+// sharing --graph-dir one builds the graph. The holder unlinks the file
+// before it lets go, so nothing stays behind; a replica that locked the
+// unlinked file meanwhile sees that the path names another file (or none)
+// and tries again on the one there now.
+class ReplicaLock {
+ public:
+  ReplicaLock() = default;
+  ReplicaLock(ReplicaLock&& other) noexcept
+      : path_(std::move(other.path_)), fd_(std::exchange(other.fd_, -1)) {}
+  ReplicaLock& operator=(ReplicaLock&& other) noexcept {
+    Release();
+    path_ = std::move(other.path_);
+    fd_ = std::exchange(other.fd_, -1);
+    return *this;
   }
+  ~ReplicaLock() { Release(); }
+
+  // Held, not held (another process holds it), or an error (a directory
+  // that refuses the file: the build goes on unlocked).
+  static absl::StatusOr<ReplicaLock> TryAcquire(const std::string& path) {
+    for (int attempt = 0; attempt < 8; ++attempt) {
+      const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+      if (fd < 0) return ErrnoStatus("cannot open lock file", path);
+      if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
+        const bool busy = errno == EWOULDBLOCK;
+        absl::Status s = ErrnoStatus("cannot lock", path);
+        ::close(fd);
+        if (busy) return ReplicaLock();
+        return s;
+      }
+      struct stat held, named;
+      if (::fstat(fd, &held) == 0 && ::stat(path.c_str(), &named) == 0 &&
+          held.st_dev == named.st_dev && held.st_ino == named.st_ino) {
+        ReplicaLock lock;
+        lock.path_ = path;
+        lock.fd_ = fd;
+        return lock;
+      }
+      ::close(fd);  // a holder unlinked it while we locked it
+    }
+    return absl::AbortedError(absl::StrFormat("%s keeps being replaced", path));
+  }
+  bool held() const { return fd_ >= 0; }
+  void Release() {
+    if (fd_ < 0) return;
+    ::unlink(path_.c_str());
+    ::close(std::exchange(fd_, -1));
+  }
+
+ private:
+  std::string path_;
+  int fd_ = -1;
+};
+
+// Hidden, as the catalog's reserve: bookkeeping, not a graph.
+std::string BuildLockPath(const std::string& graph_path) {
+  const std::filesystem::path p(graph_path);
+  return (p.parent_path() / ("." + p.filename().string() + ".lock")).string();
 }
 
 std::string Describe(const GraphKey& key) {
@@ -110,15 +155,39 @@ std::string Describe(const GraphKey& key) {
 
 }  // namespace
 
+std::string GraphCache::BuildLockFile(const std::string& graph_path) {
+  return BuildLockPath(graph_path);
+}
+
+std::vector<std::string> GraphCache::RemoveStaleBuildLocks(const std::string& dir,
+                                                           std::chrono::seconds min_age) {
+  std::vector<std::string> removed;
+  std::error_code ec;
+  const auto now = std::filesystem::file_time_type::clock::now();
+  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
+    const std::string name = entry.path().filename().string();
+    if (!name.starts_with(".") || !name.ends_with(".dgg.lock")) continue;
+    std::error_code file_ec;
+    const auto written = entry.last_write_time(file_ec);
+    if (file_ec || now - written < min_age) continue;
+    // Only a lock nobody holds: its builder died. Taking it and letting it
+    // go unlinks it.
+    auto lock = ReplicaLock::TryAcquire(entry.path().string());
+    if (lock.ok() && lock->held()) {
+      lock->Release();
+      removed.push_back(name);
+    }
+  }
+  return removed;
+}
+
 GraphCache::GraphCache(Options options) : options_(std::move(options)) {
   if (!options_.maker) options_.maker = std::make_shared<GraphMaker>();
-  if (!options_.graph_dir.empty()) {
-    std::filesystem::create_directories(options_.graph_dir);
-    RemoveStaleTemporaries(options_.graph_dir);
-  }
+  if (!options_.graph_dir.empty()) std::filesystem::create_directories(options_.graph_dir);
   for (int i = 0; i < std::max(1, options_.build_workers); ++i) {
-    workers_.emplace_back([this] { Worker(); });
+    workers_.emplace_back([this] { Worker(/*large_lane=*/false); });
   }
+  workers_.emplace_back([this] { Worker(/*large_lane=*/true); });
 }
 
 GraphCache::~GraphCache() {
@@ -152,7 +221,67 @@ bool GraphCache::Current(const GraphKey& key, const Entry& e) const {
   return it != entries_.end() && it->second.get() == &e;
 }
 
-void GraphCache::Enqueue(const GraphKey& key) { queue_.push_back(key); }
+void GraphCache::Enqueue(const GraphKey& key) {
+  auto it = entries_.find(key);
+  if (it != entries_.end()) {
+    Entry& e = *it->second;
+    // A graph whose file is there only needs mapping, however large.
+    std::error_code ec;
+    const bool have_file = !e.path.empty() && std::filesystem::exists(e.path, ec);
+    e.large = !have_file && e.status.estimated_seconds > options_.large_build_seconds;
+    e.not_before = absl::InfinitePast();
+  }
+  queue_.push_back(key);
+  ++queue_changes_;
+}
+
+DggBuildEstimate GraphCache::Estimate(const RegisteredMesh& mesh, const DggParams& params) const {
+  DggBuildEstimate estimate =
+      EstimateDggBuild(mesh.mesh->num_vertices(), params.epsilon, params.pseudo_vertices);
+  const int threads = options_.build_threads > 0
+                          ? options_.build_threads
+                          : std::max(1, static_cast<int>(std::thread::hardware_concurrency()));
+  // Builds scale nearly linearly with threads (BENCHMARKS.md).
+  if (threads > 1) estimate.seconds /= 0.95 * threads;
+  return estimate;
+}
+
+absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
+                                                   const DggParams& params) const {
+  DggBuildEstimate estimate = Estimate(mesh, params);
+  uint64_t least = EstimateDggBytesLowerBound(mesh.mesh->num_vertices(), params.epsilon);
+  {
+    absl::MutexLock lock(&mu_);
+    if (auto it = built_bytes_.find({mesh.fingerprint, params}); it != built_bytes_.end()) {
+      estimate.bytes = least = it->second;
+    }
+  }
+  const std::string what =
+      absl::StrFormat("the graph of '%s' at epsilon %g%s", mesh.name, params.epsilon,
+                      params.pseudo_vertices ? " with pseudo vertices" : "");
+  if (options_.memory_limit > 0 && least > options_.memory_limit) {
+    return absl::ResourceExhaustedError(
+        absl::StrFormat("%s needs at least %u bytes, over the server's memory limit of %u bytes "
+                        "(--memory-limit): use a larger epsilon",
+                        what, least, options_.memory_limit));
+  }
+  const std::string path = GraphPath(mesh.fingerprint, params);
+  std::error_code ec;
+  if (!path.empty() && std::filesystem::exists(path, ec)) return estimate;
+  if (options_.max_graph_bytes > 0 && estimate.bytes > options_.max_graph_bytes) {
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "%s is estimated at %u bytes (a %.0f s build), over the server's limit of %u bytes per "
+        "graph (--max-graph-bytes): use a larger epsilon",
+        what, estimate.bytes, estimate.seconds, options_.max_graph_bytes));
+  }
+  if (options_.disk && options_.disk->limit() > 0 && least > options_.disk->limit()) {
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "%s needs at least %u bytes on disk, over the server's disk limit of %u bytes "
+        "(--disk-limit): use a larger epsilon",
+        what, least, options_.disk->limit()));
+  }
+  return estimate;
+}
 
 void GraphCache::Touch(Entry& e) {
   e.last_used = absl::Now();
@@ -187,6 +316,7 @@ GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
     }
     return e.status;  // single flight: join the running or finished operation
   }
+  const DggBuildEstimate estimate = Estimate(*mesh, params);
   // New, being cancelled, or the mesh was registered again with other
   // contents: a new entry, so that an operation still running for the old
   // one publishes nothing.
@@ -197,6 +327,8 @@ GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
   e->status.params = params;
   e->status.epsilon = params.epsilon;
   e->status.state = GraphState::kQueued;
+  e->status.estimated_bytes = estimate.bytes;
+  e->status.estimated_seconds = estimate.seconds;
   e->status.version = slot ? slot->status.version + 1 : 1;
   if (slot) slot->cancel = true;
   Touch(*e);
@@ -205,18 +337,54 @@ GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
   return e->status;
 }
 
-void GraphCache::Worker() {
+bool GraphCache::TakeNext(bool large_lane, GraphKey* key, absl::Time* wake) {
+  const absl::Time now = absl::Now();
+  std::deque<GraphKey> live;
+  const Entry* best = nullptr;
+  size_t best_at = 0;
+  std::set<GraphKey> seen;
+  for (const GraphKey& k : queue_) {
+    auto it = entries_.find(k);
+    // Entries dropped, taken up already, or queued twice need no run.
+    if (it == entries_.end() || it->second->status.state != GraphState::kQueued ||
+        !seen.insert(k).second) {
+      continue;
+    }
+    live.push_back(k);
+    const Entry& e = *it->second;
+    // build_workers count small builds only: the large lane is extra.
+    if (e.large != large_lane) continue;
+    if (e.not_before > now) {
+      *wake = std::min(*wake, e.not_before);
+      continue;
+    }
+    if (!best || e.status.estimated_seconds < best->status.estimated_seconds) {
+      best = &e;
+      best_at = live.size() - 1;
+    }
+  }
+  queue_ = std::move(live);
+  if (!best) return false;
+  *key = queue_[best_at];
+  queue_.erase(queue_.begin() + best_at);
+  return true;
+}
+
+void GraphCache::Worker(bool large_lane) {
   while (true) {
     GraphKey key;
     {
       absl::MutexLock lock(&mu_);
-      mu_.Await(absl::Condition(
-          +[](GraphCache* c)
-               ABSL_EXCLUSIVE_LOCKS_REQUIRED(c->mu_) { return c->stopping_ || !c->queue_.empty(); },
-          this));
-      if (stopping_) return;
-      key = queue_.front();
-      queue_.pop_front();
+      while (true) {
+        if (stopping_) return;
+        absl::Time wake = absl::InfiniteFuture();
+        if (TakeNext(large_lane, &key, &wake)) break;
+        const uint64_t seen = queue_changes_;
+        auto changed = [this, seen]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
+          return stopping_ || queue_changes_ != seen;
+        };
+        mu_.AwaitWithDeadline(absl::Condition(&changed), wake);
+      }
     }
     Run(key);
   }
@@ -249,8 +417,37 @@ void GraphCache::Run(const GraphKey& key) {
   const auto start = std::chrono::steady_clock::now();
   std::string note;
   std::shared_ptr<const DggGraph> graph;
+  ReplicaLock building;
   if (!e->path.empty()) {
+    std::error_code ec;
+    if (!std::filesystem::exists(e->path, ec)) {
+      // No file: this replica builds it, unless another is building it.
+      auto lock = ReplicaLock::TryAcquire(BuildLockPath(e->path));
+      if (lock.ok() && !lock->held()) {
+        absl::MutexLock hold(&mu_);
+        if (!Current(key, *e) || e->status.state != GraphState::kQueued) return;
+        if (e->cancel) {
+          Transition(*e, GraphState::kCancelled);
+          return;
+        }
+        if (e->status.phase != kWaitingForReplicaPhase) {
+          Log(LogLevel::kInfo, "graph_build_waiting", {{"mesh", key.mesh}, {"path", e->path}});
+        }
+        e->status.phase = kWaitingForReplicaPhase;
+        ++e->status.version;
+        Enqueue(key);
+        e->not_before = absl::Now() + options_.replica_poll;
+        return;
+      }
+      if (lock.ok()) {
+        building = *std::move(lock);
+      } else {
+        Log(LogLevel::kWarning, "graph_lock_failed", {{"error", lock.status().ToString()}});
+      }
+    }
     if (!SetPhase(key, e, GraphState::kLoading, "mapping", 0)) return;
+    // Also when the lock was just taken: the holder before may have
+    // written the file between the look and the lock.
     graph = Load(*e, &note);
   }
   const bool from_file = graph != nullptr;
@@ -264,9 +461,15 @@ void GraphCache::Run(const GraphKey& key) {
     graph = *std::move(built);
     if (!e->path.empty()) {
       if (!SetPhase(key, e, GraphState::kPersisting, "writing", 1)) return;
-      graph = Persist(key, *e, std::move(graph), &note);
+      auto persisted = Persist(key, *e, std::move(graph), &note);
+      if (!persisted.ok()) {
+        Abandon(key, e, persisted.status());
+        return;
+      }
+      graph = *std::move(persisted);
     }
   }
+  building.Release();
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::shared_ptr<const GeodesicEngine> engine =
@@ -321,6 +524,7 @@ std::shared_ptr<const DggGraph> GraphCache::Load(Entry& e, std::string* note) {
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey& key, Entry& e) {
   Log(LogLevel::kInfo, "graph_build_started",
       {{"mesh", key.mesh}, {"params", DescribeParams(key.params)}});
+  ++builds_started_;
   ++builds_running_;
   DggBuildOptions options;
   options.params = key.params;
@@ -362,10 +566,30 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey
   return built;
 }
 
-std::shared_ptr<const DggGraph> GraphCache::Persist(const GraphKey& key, Entry& e,
-                                                    std::shared_ptr<const DggGraph> graph,
-                                                    std::string* note) {
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
+    const GraphKey& key, Entry& e, std::shared_ptr<const DggGraph> graph, std::string* note) {
+  // The arrays are the file but for its header and alignment.
+  const uint64_t bytes = graph->byte_size();
+  {
+    absl::MutexLock lock(&mu_);
+    built_bytes_[{e.mesh->fingerprint, key.params}] = bytes;
+  }
+  if (options_.disk) {
+    if (absl::Status room = options_.disk->Reserve(bytes); !room.ok()) {
+      Log(LogLevel::kWarning, "graph_write_refused",
+          {{"mesh", key.mesh}, {"path", e.path}, {"error", room.ToString()}});
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "the graph was built but its file was not kept: %s; use a larger epsilon or raise "
+          "--disk-limit",
+          room.message()));
+    }
+  }
   absl::Status written = options_.maker->Write(*graph, e.path);
+  if (options_.disk) {
+    std::error_code ec;
+    const uint64_t on_disk = written.ok() ? std::filesystem::file_size(e.path, ec) : 0;
+    options_.disk->Done(bytes, ec ? bytes : on_disk);
+  }
   if (!written.ok()) {
     *note = absl::StrFormat("graph kept in memory only: %s", written.message());
     Log(LogLevel::kWarning, "graph_write_failed",

@@ -26,12 +26,28 @@
 // - Persistence: built graphs are written atomically to --graph-dir; a file
 //   that fails validation, or was built with other parameters, is moved
 //   aside, reported and rebuilt, never served.
+// - Admission and lanes: each request carries an estimate of its graph's
+//   file bytes and build time (EstimateDggBuild). Admit() refuses, before
+//   any work, a graph over --max-graph-bytes or one that cannot fit the
+//   memory or disk limit. The queue runs the shortest builds first, and
+//   builds estimated to take longer than large_build_seconds run in a lane
+//   of their own (one worker beyond build_workers), so a huge build never
+//   holds the workers small graphs need.
+// - Replicas sharing --graph-dir build each graph once: a build holds an
+//   exclusive flock on ".<graph file>.lock"; a replica that finds it held
+//   waits queued ("waiting for another replica's build"), polling, and maps
+//   the file once it appears, or builds itself if the holder died (the
+//   kernel releases a dead process's flock).
+// - Disk budget: a graph file whose write would take --graph-dir past
+//   --disk-limit (after evicting what may go) is not written, and the
+//   graph fails, naming the sizes.
 // - Callbacks (on_readiness) always run outside the cache's lock, so they
 //   may call back into it.
 #ifndef GEODESIC_SERVER_GRAPH_CACHE_H_
 #define GEODESIC_SERVER_GRAPH_CACHE_H_
 
 #include <atomic>
+#include <chrono>
 #include <deque>
 #include <functional>
 #include <map>
@@ -47,6 +63,7 @@
 #include "core/dgg_build.h"
 #include "core/graph_file.h"
 #include "core/queries.h"
+#include "server/disk_budget.h"
 #include "server/mesh_registry.h"
 
 namespace geodesic::server {
@@ -65,6 +82,9 @@ inline constexpr int kGraphStateCount = 8;
 const char* GraphStateName(GraphState s);
 // Whether the table of legal moves allows `from` -> `to`.
 bool LegalTransition(GraphState from, GraphState to);
+
+// The phase of a queued graph whose file another replica is building.
+inline constexpr char kWaitingForReplicaPhase[] = "waiting for another replica's build";
 
 // A graph's name in the cache: its mesh and its whole build record.
 struct GraphKey {
@@ -90,6 +110,10 @@ struct GraphStatus {
   uint64_t nodes = 0;
   uint64_t edges = 0;
   double build_seconds = 0;
+  // EstimateDggBuild for this mesh and build record, seconds on the
+  // cache's build threads.
+  uint64_t estimated_bytes = 0;
+  double estimated_seconds = 0;
   int64_t last_used_unix_ms = 0;
   uint64_t version = 0;  // increases on every change
 };
@@ -120,7 +144,16 @@ class GraphCache {
     // Memory the limit covers that the cache cannot evict (the registered
     // meshes): ready graphs make room for it.
     std::function<uint64_t()> resident_bytes_outside;
-    int build_workers = 1;  // graphs built at once
+    // Graphs built at once, beside the one lane for builds estimated to
+    // take longer than large_build_seconds.
+    int build_workers = 1;
+    double large_build_seconds = 60;
+    // RequestGraph refuses graphs estimated larger (0: no limit).
+    uint64_t max_graph_bytes = 0;
+    // --disk-limit's accounting for graph files written; null: none.
+    DiskBudget* disk = nullptr;
+    // How often a replica waiting for another's build looks again.
+    absl::Duration replica_poll = absl::Milliseconds(500);
     int build_threads = 0;  // threads per build (0: all cores)
     // Candidate edges a build keeps in memory before spilling them to an
     // unlinked file in graph_dir (DggBuildOptions); 0: no limit.
@@ -134,6 +167,16 @@ class GraphCache {
   };
   explicit GraphCache(Options options);
   ~GraphCache();
+
+  // Whether the graph of `mesh` with `params` may be requested, and its
+  // estimate: RESOURCE_EXHAUSTED, naming the estimate and the limit, when
+  // its estimated bytes pass max_graph_bytes, or its least possible bytes
+  // the memory limit or the disk limit (its real bytes, for both, once this
+  // cache has built it). A graph whose file is in
+  // --graph-dir needs no build: only the memory limit applies.
+  absl::StatusOr<DggBuildEstimate> Admit(const RegisteredMesh& mesh, const DggParams& params) const;
+  // EstimateDggBuild, seconds on this cache's build threads.
+  DggBuildEstimate Estimate(const RegisteredMesh& mesh, const DggParams& params) const;
 
   // Starts (or joins) the operation that makes the graph of `mesh` with
   // `params`. A failed, cancelled or evicted graph starts again.
@@ -155,6 +198,13 @@ class GraphCache {
   // build's error if it failed.
   absl::StatusOr<std::shared_ptr<const GeodesicEngine>> Acquire(const GraphKey& key);
 
+  // The lock a replica holds while it builds the graph of `graph_path`.
+  static std::string BuildLockFile(const std::string& graph_path);
+  // Removes the build locks in `dir` that builders killed mid-build left
+  // (none holds them), those older than `min_age`; returns their names.
+  static std::vector<std::string> RemoveStaleBuildLocks(const std::string& dir,
+                                                        std::chrono::seconds min_age);
+
   // The file a graph has (or would have) in --graph-dir; empty without one.
   std::string GraphPath(uint64_t mesh_fingerprint, const DggParams& params) const;
   // Whether a ready graph is mapped from `file_name` (a name in --graph-dir):
@@ -169,6 +219,8 @@ class GraphCache {
   uint64_t misses() const { return misses_; }
   uint64_t evictions() const { return evictions_; }
   int builds_running() const { return builds_running_; }
+  // Builds this cache started (not files it mapped).
+  uint64_t builds_started() const { return builds_started_; }
 
  private:
   struct Entry {
@@ -181,6 +233,10 @@ class GraphCache {
     // Landmarks being computed, counted from the start: on a large graph
     // they fill in for minutes, and other graphs make room for them first.
     uint64_t landmarks_pending = 0;
+    // Scheduling: the large lane's, and not before (a replica's build
+    // being waited for).
+    bool large = false;
+    absl::Time not_before = absl::InfinitePast();
   };
   // A readiness change to announce once the lock is released.
   struct Notice {
@@ -195,13 +251,20 @@ class GraphCache {
   // Whether `e` is still the entry for `key` (not unloaded or replaced).
   bool Current(const GraphKey& key, const Entry& e) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   void Enqueue(const GraphKey& key) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  void Worker();
+  // The queued graph a worker of the lane runs next (shortest estimate
+  // first); false, with the time one becomes due in `wake`, if none is.
+  bool TakeNext(bool large_lane, GraphKey* key, absl::Time* wake)
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  void Worker(bool large_lane);
   void Run(const GraphKey& key);
   // The steps of Run, each outside the lock except where it changes state.
   std::shared_ptr<const DggGraph> Load(Entry& e, std::string* note);
   absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const GraphKey& key, Entry& e);
-  std::shared_ptr<const DggGraph> Persist(const GraphKey& key, Entry& e,
-                                          std::shared_ptr<const DggGraph> graph, std::string* note);
+  // The written file's mapping (or `graph`, kept in memory, if the write
+  // failed); RESOURCE_EXHAUSTED if the disk budget refused the write.
+  absl::StatusOr<std::shared_ptr<const DggGraph>> Persist(const GraphKey& key, Entry& e,
+                                                          std::shared_ptr<const DggGraph> graph,
+                                                          std::string* note);
   // Makes `graph` the entry's, if the entry is still current and not
   // cancelled; returns the engine published, or null.
   std::shared_ptr<const GeodesicEngine> Publish(const GraphKey& key,
@@ -221,10 +284,16 @@ class GraphCache {
   mutable absl::Mutex mu_;
   std::map<GraphKey, std::shared_ptr<Entry>> entries_ ABSL_GUARDED_BY(mu_);
   std::deque<GraphKey> queue_ ABSL_GUARDED_BY(mu_);
+  uint64_t queue_changes_ ABSL_GUARDED_BY(mu_) = 0;
   bool stopping_ ABSL_GUARDED_BY(mu_) = false;
   std::vector<std::thread> workers_;
   std::atomic<uint64_t> hits_{0}, misses_{0}, evictions_{0};
+  // The bytes of graphs this cache built, by mesh fingerprint and build
+  // record: once a graph was refused for its real size, asking again is
+  // refused at once rather than built again to the same end.
+  std::map<std::pair<uint64_t, DggParams>, uint64_t> built_bytes_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> builds_running_{0};
+  std::atomic<uint64_t> builds_started_{0};
 };
 
 }  // namespace geodesic::server

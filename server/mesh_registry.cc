@@ -397,8 +397,24 @@ absl::Status MeshRegistry::Save(std::shared_ptr<const RegisteredMesh> m, uint64_
   // leaves no file behind.
   RETURN_IF_ERROR(NameTakenByOther(*m));
   const std::string path = (std::filesystem::path(snapshot_dir_) / MeshSnapshotName(key)).string();
+  // The snapshot holds the mesh's arrays: its size in memory, near enough.
+  const uint64_t bytes = m->mesh->memory_bytes();
+  if (reserve_disk_) {
+    if (absl::Status room = reserve_disk_(bytes); !room.ok()) {
+      if (!durable) return absl::OkStatus();  // a speed-up only
+      return absl::Status(room.code(), absl::StrFormat("mesh '%s' could not be stored: %s", m->name,
+                                                       room.message()));
+    }
+  }
+  auto done = [this, bytes, path](const absl::Status& s) {
+    if (!disk_done_) return;
+    std::error_code ec;
+    const uint64_t written = s.ok() ? std::filesystem::file_size(path, ec) : 0;
+    disk_done_(bytes, ec ? bytes : written);
+  };
   if (durable) {
     absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
+    done(s);
     if (!s.ok()) {
       return absl::Status(s.code(), absl::StrFormat("mesh '%s' could not be stored durably: %s",
                                                     m->name, s.message()));
@@ -411,8 +427,9 @@ absl::Status MeshRegistry::Save(std::shared_ptr<const RegisteredMesh> m, uint64_
   std::erase_if(saves_, [](const std::future<void>& f) {
     return f.wait_for(std::chrono::seconds(0)) == std::future_status::ready;
   });
-  saves_.push_back(std::async(std::launch::async, [m = std::move(m), key, path] {
+  saves_.push_back(std::async(std::launch::async, [m = std::move(m), key, path, done] {
     absl::Status s = WriteMeshSnapshot(*m->mesh, m->diagnostics, key, path);
+    done(s);
     if (!s.ok()) {
       Log(LogLevel::kWarning, "mesh_snapshot_failed", {{"mesh", m->name}, {"error", s.ToString()}});
     }

@@ -3,6 +3,7 @@
 #define GEODESIC_SERVER_MESH_REGISTRY_H_
 
 #include <filesystem>
+#include <functional>
 #include <future>
 #include <map>
 #include <memory>
@@ -67,6 +68,15 @@ class MeshRegistry {
   // Waits for snapshots still being written.
   ~MeshRegistry();
 
+  // Asked before each snapshot is written, with its size (--disk-limit): an
+  // error skips the snapshot, and fails a registration that must be durable.
+  // Set before the first registration.
+  void SetDiskReservation(std::function<absl::Status(uint64_t bytes)> reserve,
+                          std::function<void(uint64_t reserved, uint64_t written)> done) {
+    reserve_disk_ = std::move(reserve);
+    disk_done_ = std::move(done);
+  }
+
   // `relative_path` must stay inside the mesh root once symbolic links are
   // resolved (PERMISSION_DENIED otherwise) and name a regular file
   // (INVALID_ARGUMENT naming what it is otherwise: a FIFO is refused, not
@@ -124,6 +134,8 @@ class MeshRegistry {
   const std::string mesh_root_;
   const std::string snapshot_dir_;
   const bool durable_;
+  std::function<absl::Status(uint64_t bytes)> reserve_disk_;
+  std::function<void(uint64_t reserved, uint64_t written)> disk_done_;
   absl::Mutex saves_mu_;
   std::vector<std::future<void>> saves_ ABSL_GUARDED_BY(saves_mu_);
   mutable absl::Mutex mu_;

@@ -22,6 +22,7 @@
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
 #include "core/mesh_snapshot.h"
+#include "core/status.h"
 #include "core/version.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "grpcpp/grpcpp.h"
@@ -190,7 +191,8 @@ int RunServe(int argc, char** argv) {
       "bytes --graph-dir may hold, e.g. 50G: least recently used graph files and mesh "
       "snapshots no catalog entry names go first, then catalogued ones (rebuilt when "
       "needed); never a file in use, an uploaded mesh's snapshot or a file written in the "
-      "last two minutes (0: no limit)");
+      "last two minutes. A graph file or snapshot that would still pass it is not written: "
+      "the graph fails, the upload is refused (0: no limit)");
   app.add_option("--config", config_path,
                  "YAML file of meshes to register and graphs to build at start (see "
                  "server/config_file.h)")
@@ -204,7 +206,18 @@ int RunServe(int argc, char** argv) {
                  "candidate edges a build keeps in memory, e.g. 2G; beyond it they go to an "
                  "unlinked file in --graph-dir (the system's temporary directory without one) "
                  "(0: no limit)");
-  app.add_option("--build-workers", build_workers, "graphs built at once");
+  app.add_option("--build-workers", build_workers,
+                 "graphs built at once, besides one build estimated to take longer than "
+                 "--large-build-seconds, which runs in a lane of its own");
+  double large_build_seconds = 60;
+  app.add_option("--large-build-seconds", large_build_seconds,
+                 "builds estimated to take longer than this (on --build-threads) run one at a "
+                 "time in their own lane, so they never hold the workers small graphs need");
+  std::string max_graph_bytes_text = "0";
+  app.add_option("--max-graph-bytes", max_graph_bytes_text,
+                 "RequestGraph refuses graphs whose estimated file passes this, e.g. 4G, with "
+                 "RESOURCE_EXHAUSTED naming the estimate (0: no limit; a graph already in "
+                 "--graph-dir is always mapped)");
   app.add_flag("--exact-fans", exact_fans,
                "build graphs with fans from exact local distances: 2-3x faster fields, longer "
                "builds (graphs found in --graph-dir are used as they are)");
@@ -293,7 +306,8 @@ int RunServe(int argc, char** argv) {
   auto memory_limit = ParseByteSize(memory_limit_text, "--memory-limit");
   auto disk_limit = ParseByteSize(disk_limit_text, "--disk-limit");
   auto build_memory_limit = ParseByteSize(build_memory_limit_text, "--build-memory-limit");
-  for (const auto* size : {&memory_limit, &disk_limit, &build_memory_limit}) {
+  auto max_graph_bytes = ParseByteSize(max_graph_bytes_text, "--max-graph-bytes");
+  for (const auto* size : {&memory_limit, &disk_limit, &build_memory_limit, &max_graph_bytes}) {
     if (!size->ok()) {
       std::fprintf(stderr, "geodesicd serve: %s\n", std::string(size->status().message()).c_str());
       return 2;
@@ -334,11 +348,48 @@ int RunServe(int argc, char** argv) {
   std::unique_ptr<grpc::Server> server;
   grpc::HealthCheckServiceInterface* health = nullptr;
   std::mutex health_mu;
+  std::unique_ptr<DiskBudget> disk;
+  std::atomic<uint64_t> disk_removed{0};
+  // The sweep --disk-limit's rule makes, down to a number of bytes; set
+  // once the catalog, the registry and the cache exist.
+  std::function<absl::StatusOr<DiskReport>(uint64_t limit)> sweep;
+  if (!graph_dir.empty()) {
+    std::error_code ec;
+    std::filesystem::create_directories(graph_dir, ec);
+    // What writers and builders killed midway left (graphs, snapshots, the
+    // catalog, build locks): old enough that no live replica is at work on
+    // them.
+    for (const std::string& name : RemoveStaleTemporaries(graph_dir, kDiskGrace)) {
+      Log(LogLevel::kInfo, "stale_temporary_removed", {{"file", name}});
+    }
+    for (const std::string& name : GraphCache::RemoveStaleBuildLocks(graph_dir, kDiskGrace)) {
+      Log(LogLevel::kInfo, "stale_build_lock_removed", {{"file", name}});
+    }
+    disk = std::make_unique<DiskBudget>(
+        graph_dir, *disk_limit, [&](uint64_t target) -> absl::StatusOr<uint64_t> {
+          if (!sweep) return absl::UnavailableError("starting");
+          // A limit of 0 is none to the sweep: 1 byte asks for all it may remove.
+          ASSIGN_OR_RETURN(DiskReport report, sweep(std::max<uint64_t>(target, 1)));
+          disk_removed += report.removed.size();
+          for (const std::string& name : report.removed) {
+            Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});
+          }
+          return report.bytes_after;
+        });
+    if (absl::Status s = disk->Scan(); !s.ok()) {
+      Log(LogLevel::kWarning, "disk_scan_failed", {{"error", s.ToString()}});
+    }
+  }
   // Built meshes are saved beside the graphs, so a restarted daemon restores
   // them rather than parsing and building them again; with a graph
   // directory a registration returns once its snapshot is on disk, since
   // the catalog then records it for restarts and replicas.
   MeshRegistry meshes(mesh_root, graph_dir, /*durable=*/!graph_dir.empty());
+  if (disk && *disk_limit > 0) {
+    meshes.SetDiskReservation(
+        [&](uint64_t bytes) { return disk->Reserve(bytes); },
+        [&](uint64_t reserved, uint64_t written) { disk->Done(reserved, written); });
+  }
   GraphCache::Options cache_options;
   cache_options.graph_dir = graph_dir;
   cache_options.memory_limit = *memory_limit;
@@ -347,6 +398,9 @@ int RunServe(int argc, char** argv) {
   cache_options.build_workers = build_workers;
   cache_options.build_threads = build_threads;
   cache_options.build_memory_limit = *build_memory_limit;
+  cache_options.large_build_seconds = large_build_seconds;
+  cache_options.max_graph_bytes = *max_graph_bytes;
+  if (*disk_limit > 0) cache_options.disk = disk.get();
   cache_options.on_readiness = [&](const GraphKey& key, bool ready) {
     std::lock_guard<std::mutex> lock(health_mu);
     if (health) health->SetServingStatus(ServiceName(key), ready);
@@ -356,6 +410,9 @@ int RunServe(int argc, char** argv) {
   std::unique_ptr<CatalogSync> sync;
   if (!graph_dir.empty()) {
     catalog = std::make_unique<Catalog>(graph_dir);
+    if (absl::Status s = catalog->EnsureReserve(); !s.ok()) {
+      Log(LogLevel::kWarning, "catalog_reserve_missing", {{"error", s.ToString()}});
+    }
     sync = std::make_unique<CatalogSync>(
         catalog.get(), CatalogSync::Hooks{
                            .restore_mesh =
@@ -380,8 +437,24 @@ int RunServe(int argc, char** argv) {
                                },
                        });
   }
+  if (catalog) {
+    sweep = [&](uint64_t limit) -> absl::StatusOr<DiskReport> {
+      // A build persisting at shutdown must not reach the catalog and the
+      // registry as they are destroyed.
+      if (g_stop) return absl::UnavailableError("shutting down");
+      ASSIGN_OR_RETURN(const CatalogState state, catalog->Read());
+      const CatalogFiles files = FilesOf(state);
+      return EnforceDiskLimit(graph_dir, limit, [&](const std::string& name) {
+        // Asked afresh each time, as EnforceDiskLimit asks again just before
+        // removing: a mesh registered since the listing has its snapshot.
+        bool in_use = graphs.FileInUse(name);
+        for (const auto& m : meshes.List()) in_use |= MeshRegistry::SnapshotName(*m) == name;
+        return GraphDirFileRole(graph_dir, name, files, in_use, kDiskGrace);
+      });
+    };
+  }
   std::atomic<bool> ready{false};
-  std::atomic<uint64_t> disk_removed{0}, disk_bytes{0};
+  std::atomic<uint64_t> disk_bytes{0};
   metrics.AddInfo("geodesicd_build_info", "The daemon's version and build type.",
                   {{"version", kVersion}, {"build_type", kBuildType}});
   metrics.AddGauge("geodesicd_ready", "1 once start-up restored what the catalog holds.",
@@ -405,6 +478,9 @@ int RunServe(int argc, char** argv) {
                    [&] { return double(graphs.mapped_bytes()); });
   metrics.AddGauge("geodesicd_builds_running", "Graph builds running.",
                    [&] { return double(graphs.builds_running()); });
+  metrics.AddCounter("geodesicd_graph_builds_total",
+                     "Graph builds started here (not graphs mapped from --graph-dir).",
+                     [&] { return double(graphs.builds_started()); });
   metrics.AddGauge(
       "geodesicd_query_scratch_bytes",
       "Query scratch held by the engines of ready graphs (pooled per query in flight).",
@@ -581,15 +657,17 @@ int RunServe(int argc, char** argv) {
   }
   if (sample_mesh.ok()) graphs.Request(*sample_mesh, daemon_params(limits.default_epsilon, false));
   // Ready once every restored graph whose file was there is mapped (a
-  // missing or invalid one rebuilds in the background, and is not waited
-  // for), or after a minute at most.
+  // missing or invalid one rebuilds in the background, and one another
+  // replica is building is mapped once it is done: neither is waited for),
+  // or after a minute at most.
   const absl::Time restore_deadline = absl::Now() + absl::Seconds(60);
   size_t restored_graphs = 0;
   for (const GraphKey& key : restoring) {
     auto status = graphs.Get(key);
     while (status.ok() && !g_stop &&
            (status->state == GraphState::kQueued || status->state == GraphState::kLoading) &&
-           absl::Now() < restore_deadline) {
+           // Another replica's build may take long: serve meanwhile.
+           status->phase != kWaitingForReplicaPhase && absl::Now() < restore_deadline) {
       status = graphs.WaitForChange(key, status->version, absl::Now() + absl::Milliseconds(200));
     }
     restored_graphs += status.ok() && status->state == GraphState::kReady;
@@ -614,21 +692,16 @@ int RunServe(int argc, char** argv) {
       if (absl::Status s = sync->Reconcile(); !s.ok()) {
         Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
       }
-      auto state = catalog->Read();
-      if (!state.ok()) continue;
-      const CatalogFiles files = FilesOf(*state);
-      auto report = EnforceDiskLimit(graph_dir, *disk_limit, [&](const std::string& name) {
-        // Asked afresh each time, as EnforceDiskLimit asks again just before
-        // removing: a mesh registered since the listing has its snapshot.
-        bool in_use = graphs.FileInUse(name);
-        for (const auto& m : meshes.List()) in_use |= MeshRegistry::SnapshotName(*m) == name;
-        return GraphDirFileRole(graph_dir, name, files, in_use, kDiskGrace);
-      });
+      // A reserve the catalog used on a full disk comes back once there is
+      // room.
+      catalog->EnsureReserve().IgnoreError();
+      auto report = sweep(*disk_limit);
       if (!report.ok()) {
         Log(LogLevel::kError, "disk_limit_failed", {{"error", report.status().ToString()}});
         continue;
       }
       disk_bytes = report->bytes_after;
+      disk->Set(report->bytes_after);
       disk_removed += report->removed.size();
       for (const std::string& name : report->removed) {
         Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});

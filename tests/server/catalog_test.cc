@@ -2,6 +2,8 @@
 // from many threads and processes at once that lose nothing.
 #include "server/catalog.h"
 
+#include <fcntl.h>
+#include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -10,6 +12,7 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
+#include "core/atomic_file.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 
@@ -212,5 +215,108 @@ TEST_F(CatalogTest, ConcurrentUpdatesFromProcessesAndThreadsLoseNothing) {
   }
 }
 
+// A full disk: the catalog's reserve file is given up so that the change
+// (an unload, a cancel, which free space) is still written.
+TEST_F(CatalogTest, AFullDiskGivesUpTheReserveAndTheChangeIsWritten) {
+  int writes = 0;
+  const std::string reserve = (dir_ / Catalog::kReserveFileName).string();
+  Catalog catalog(dir_, [&](const std::string& path, const std::string& text) -> absl::Status {
+    ++writes;
+    // The disk is full as long as the reserve holds its blocks.
+    if (std::filesystem::exists(reserve)) return absl::ResourceExhaustedError("No space left");
+    std::ofstream(path) << text;
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(catalog.EnsureReserve().ok());
+  struct stat st;
+  ASSERT_EQ(::stat(reserve.c_str(), &st), 0);
+  EXPECT_GE(uint64_t(st.st_blocks) * 512, Catalog::kReserveBytes);  // real blocks, not sparse
+  // A change that takes space fails: the reserve is not for it.
+  auto added = catalog.Update([](CatalogState& s) {
+    s.PutMesh(Kitten());
+    return absl::OkStatus();
+  });
+  EXPECT_EQ(added.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ(writes, 1);
+  EXPECT_TRUE(std::filesystem::exists(reserve));
+  // One that frees space (an unload) is written once the reserve is gone.
+  auto written = catalog.Update(
+      [](CatalogState& s) {
+        s.RemoveMesh("kitten");
+        return absl::OkStatus();
+      },
+      Catalog::Reserve::kFreesSpace);
+  ASSERT_TRUE(written.ok()) << written.status();
+  EXPECT_EQ(writes, 3);
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(read->generation, 1u);
+}
+
+TEST_F(CatalogTest, WithoutAReserveAFullDiskIsReported) {
+  Catalog catalog(dir_, [](const std::string&, const std::string&) {
+    return absl::ResourceExhaustedError("No space left on device");
+  });
+  auto written = catalog.Update(
+      [](CatalogState& s) {
+        s.RemoveMesh("kitten");
+        return absl::OkStatus();
+      },
+      Catalog::Reserve::kFreesSpace);
+  EXPECT_EQ(written.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ(catalog.Read()->generation, 0u);
+}
+
+// The daemon's own writer on a disk that really is full, if the test may
+// mount a small tmpfs (root): unloading frees the reserve and succeeds.
+TEST_F(CatalogTest, OnARealFullDiskTheReserveLetsAChangeThrough) {
+  const std::filesystem::path mnt = dir_ / "small";
+  std::filesystem::create_directories(mnt);
+  if (::geteuid() != 0 ||
+      ::system(("mount -t tmpfs -o size=8m tmpfs " + mnt.string() + " 2>/dev/null").c_str()) != 0) {
+    GTEST_SKIP() << "needs root to mount a tmpfs";
+  }
+  {
+    // The daemon's writer, watched: the first attempt must meet the full
+    // disk.
+    std::vector<absl::StatusCode> attempts;
+    Catalog catalog(mnt.string(), [&](const std::string& path, const std::string& text) {
+      absl::Status s = [&]() -> absl::Status {
+        auto out = AtomicFileWriter::Create(path);
+        if (!out.ok()) return out.status();
+        if (absl::Status a = out->Append(text.data(), text.size()); !a.ok()) return a;
+        return std::move(*out).Commit();
+      }();
+      attempts.push_back(s.code());
+      return s;
+    });
+    ASSERT_TRUE(catalog.EnsureReserve().ok());
+    ASSERT_TRUE(catalog
+                    .Update([](CatalogState& s) {
+                      s.PutMesh(Kitten());
+                      return absl::OkStatus();
+                    })
+                    .ok());
+    // Fill the rest of the disk, to the last block.
+    const int fd = ::open((mnt / "fill").c_str(), O_WRONLY | O_CREAT, 0644);
+    ASSERT_GE(fd, 0);
+    const std::string block(4096, 'f');
+    while (::write(fd, block.data(), block.size()) > 0) {
+    }
+    ::close(fd);
+    attempts.clear();
+    auto unloaded = catalog.Update(
+        [](CatalogState& s) {
+          s.RemoveMesh("kitten");
+          return absl::OkStatus();
+        },
+        Catalog::Reserve::kFreesSpace);
+    EXPECT_TRUE(unloaded.ok()) << unloaded.status();
+    EXPECT_THAT(attempts, ::testing::ElementsAre(absl::StatusCode::kResourceExhausted,
+                                                 absl::StatusCode::kOk));
+    EXPECT_EQ(catalog.Read()->FindMesh("kitten"), nullptr);
+  }
+  ASSERT_EQ(::system(("umount " + mnt.string()).c_str()), 0);
+}
 }  // namespace
 }  // namespace geodesic::server

@@ -9,6 +9,7 @@
 #include <map>
 
 #include "absl/strings/str_cat.h"
+#include "core/atomic_file.h"
 #include "core/graph_file.h"
 #include "core/mesh_snapshot.h"
 #include "gmock/gmock.h"
@@ -129,6 +130,78 @@ TEST_F(DiskBudgetTest, MarkFileUsedMovesAFileToTheBackOfTheLine) {
   auto report = Enforce(150);
   ASSERT_TRUE(report.ok()) << report.status();
   EXPECT_THAT(report->removed, ElementsAre("b.dgg"));
+}
+
+TEST_F(DiskBudgetTest, AWriteThatWouldPassTheLimitIsRefusedNamingTheSizes) {
+  Add("a.dgg", 600, 100, FileRole::kInUse);
+  std::ofstream(dir_ / Catalog::kReserveFileName) << std::string(5000, 'r');  // not counted
+  DiskBudget budget(dir_, 1000);
+  ASSERT_TRUE(budget.Scan().ok());
+  EXPECT_EQ(budget.used(), 600u);
+  EXPECT_TRUE(budget.Reserve(300).ok());
+  EXPECT_EQ(budget.used(), 900u);
+  absl::Status refused = budget.Reserve(200);  // 600 + 300 admitted + 200 > 1000
+  EXPECT_EQ(refused.code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(refused.message()),
+              ::testing::AllOf(::testing::HasSubstr("200 bytes"), ::testing::HasSubstr("600"),
+                               ::testing::HasSubstr("1000"), ::testing::HasSubstr("--disk-limit")));
+  budget.Done(300, 0);  // that write failed: nothing on disk
+  EXPECT_EQ(budget.used(), 600u);
+  EXPECT_TRUE(budget.Reserve(400).ok());
+  budget.Done(400, 400);
+  EXPECT_EQ(budget.used(), 1000u);
+  EXPECT_FALSE(budget.Reserve(1).ok());
+  EXPECT_TRUE(DiskBudget(dir_, 0).Reserve(uint64_t{1} << 50).ok());  // no limit
+}
+
+TEST_F(DiskBudgetTest, AWriteEvictsWhatTheRuleAllowsBeforeItIsRefused) {
+  Add("spare.dgg", 500, 100, FileRole::kSpare);
+  Add("in-use.dgg", 400, 100, FileRole::kInUse);
+  std::vector<uint64_t> targets;
+  DiskBudget budget(dir_, 1000, [&](uint64_t target) -> absl::StatusOr<uint64_t> {
+    targets.push_back(target);
+    auto report = Enforce(target);
+    if (!report.ok()) return report.status();
+    return report->bytes_after;
+  });
+  ASSERT_TRUE(budget.Scan().ok());
+  EXPECT_TRUE(budget.Reserve(300).ok());  // spare.dgg goes
+  EXPECT_THAT(targets, ElementsAre(700u));
+  EXPECT_FALSE(Exists("spare.dgg"));
+  EXPECT_EQ(budget.used(), 700u);
+  EXPECT_EQ(budget.Reserve(400).code(), absl::StatusCode::kResourceExhausted);  // only in use left
+  EXPECT_TRUE(Exists("in-use.dgg"));
+  EXPECT_EQ(budget.Reserve(2000).code(), absl::StatusCode::kResourceExhausted);  // never fits
+}
+
+TEST(TemporaryFilesTest, OnlyOldTemporariesOfAtomicWritesAreRemoved) {
+  const fs::path dir = fs::temp_directory_path() / absl::StrCat("temporaries.", getpid());
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  auto add = [&](const std::string& name, int age_s) {
+    std::ofstream(dir / name) << "x";
+    fs::last_write_time(dir / name, fs::file_time_type::clock::now() - std::chrono::seconds(age_s));
+  };
+  add("catalog.json.tmp.123.abc0", 600);
+  add("0123-eps0.01-r2.dgg.tmp.77.ffffffff", 600);
+  add("00aa.mesh.tmp.9.1", 600);
+  add("0123-eps0.02-r2.dgg.tmp.78.beef", 10);  // a live writer's, perhaps
+  add("catalog.json", 600);
+  add("notes.tmp.txt", 600);
+  add("x.tmp.12.xyz", 600);
+  add("0123-eps0.01-r2.dgg", 600);
+  EXPECT_TRUE(IsAtomicTemporaryName("a.tmp.1.f"));
+  EXPECT_FALSE(IsAtomicTemporaryName(".tmp.1.f"));
+  EXPECT_FALSE(IsAtomicTemporaryName("a.tmp..f"));
+  auto removed = RemoveStaleTemporaries(dir, std::chrono::seconds(120));
+  EXPECT_THAT(removed,
+              UnorderedElementsAre("catalog.json.tmp.123.abc0",
+                                   "0123-eps0.01-r2.dgg.tmp.77.ffffffff", "00aa.mesh.tmp.9.1"));
+  for (const char* kept : {"0123-eps0.02-r2.dgg.tmp.78.beef", "catalog.json", "notes.tmp.txt",
+                           "x.tmp.12.xyz", "0123-eps0.01-r2.dgg"}) {
+    EXPECT_TRUE(fs::exists(dir / kept)) << kept;
+  }
+  fs::remove_all(dir);
 }
 
 // The daemon's rule (serve --disk-limit) on a catalog with a mesh from a

@@ -2,9 +2,12 @@
 // that holds each step (load, build, persist) until the test lets it go.
 #include "server/graph_cache.h"
 
+#include <fcntl.h>
+#include <sys/file.h>
 #include <unistd.h>
 
 #include <atomic>
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 
@@ -12,6 +15,7 @@
 #include "absl/synchronization/notification.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
+#include "server/convert.h"
 
 namespace geodesic::server {
 namespace {
@@ -81,10 +85,11 @@ class HeldMaker : public GraphMaker {
  private:
   struct Gate {
     absl::Notification reached, release;
+    std::atomic<bool> taken{false};  // only the first call to pass is held
   };
   void Pass(Step s) {
     ++calls_[s];
-    if (held_[s]) {
+    if (held_[s] && !held_[s]->taken.exchange(true)) {
       held_[s]->reached.Notify();
       held_[s]->release.WaitForNotification();
       held_[s].reset();
@@ -439,6 +444,185 @@ TEST_F(GraphCacheTest, AReplacedMeshsOldOperationPublishesNothing) {
   auto engine = cache.Acquire(key);
   ASSERT_TRUE(engine.ok());
   EXPECT_EQ((*engine)->mesh().num_vertices(), other->mesh->num_vertices());
+}
+
+// A build estimated to take long runs in a lane of its own: with one build
+// worker, a small graph requested while a huge build runs is made at once.
+TEST_F(GraphCacheTest, ASmallGraphBuildsWhileAHugeOneRuns) {
+  auto big = GridMesh("big", 8), small = GridMesh("small", 4);
+  const GraphKey huge{"big", Eps(0.01)}, quick{"small", Eps(0.2)};
+  GraphCache::Options options;
+  options.build_threads = 1;
+  options.build_workers = 1;
+  options.maker = maker_;
+  cache_ = std::make_unique<GraphCache>(options);
+  const double huge_seconds = cache_->Estimate(*big, huge.params).seconds;
+  const double quick_seconds = cache_->Estimate(*small, quick.params).seconds;
+  ASSERT_GT(huge_seconds, 4 * quick_seconds);
+  options.large_build_seconds = std::sqrt(huge_seconds * quick_seconds);
+  cache_ = std::make_unique<GraphCache>(options);
+
+  maker_->Hold(HeldMaker::kBuild);
+  cache_->Request(big, huge.params);
+  maker_->AwaitReached(HeldMaker::kBuild);  // the huge build holds a worker
+  cache_->Request(small, quick.params);
+  WaitFor(quick, GraphState::kReady);
+  EXPECT_EQ(cache_->Get(huge)->state, GraphState::kBuilding);
+  maker_->Release(HeldMaker::kBuild);
+  WaitFor(huge, GraphState::kReady);
+}
+
+// While a worker is busy, the queue runs the shortest estimated build first.
+TEST_F(GraphCacheTest, TheQueueRunsTheShortestBuildFirst) {
+  auto mesh = GridMesh("grid", 6);
+  GraphCache::Options options;
+  options.build_threads = 1;
+  options.build_workers = 1;
+  options.large_build_seconds = 1e9;  // one lane: only the order counts
+  options.maker = maker_;
+  std::vector<double> order;
+  absl::Mutex order_mu;
+  options.on_readiness = [&](const GraphKey& key, bool ready) {
+    absl::MutexLock lock(&order_mu);
+    if (ready) order.push_back(key.params.epsilon);
+  };
+  cache_ = std::make_unique<GraphCache>(options);
+  maker_->Hold(HeldMaker::kBuild);
+  cache_->Request(mesh, Eps(0.3));
+  maker_->AwaitReached(HeldMaker::kBuild);
+  for (double eps : {0.01, 0.05, 0.02, 0.2}) cache_->Request(mesh, Eps(eps));
+  EXPECT_GT(cache_->Get({"grid", Eps(0.01)})->estimated_seconds,
+            cache_->Get({"grid", Eps(0.2)})->estimated_seconds);
+  maker_->Release(HeldMaker::kBuild);
+  WaitFor({"grid", Eps(0.01)}, GraphState::kReady);
+  // Readiness is announced after the state changes.
+  absl::MutexLock lock(&order_mu);
+  order_mu.AwaitWithTimeout(absl::Condition(
+                                +[](std::vector<double>* o) { return o->size() == 5; }, &order),
+                            absl::Seconds(30));
+  EXPECT_THAT(order, ::testing::ElementsAre(0.3, 0.2, 0.05, 0.02, 0.01));
+}
+
+TEST_F(GraphCacheTest, AdmitRefusesAGraphOverTheLimitNamingItsEstimate) {
+  auto mesh = GridMesh("grid", 20);
+  GraphCache::Options options;
+  options.maker = maker_;
+  options.max_graph_bytes = 1 << 20;
+  cache_ = std::make_unique<GraphCache>(options);
+  const DggBuildEstimate fine = *cache_->Admit(*mesh, Eps(0.1));
+  EXPECT_GT(fine.bytes, 0u);
+  EXPECT_GT(fine.seconds, 0);
+  auto refused = cache_->Admit(*mesh, Eps(1e-6));
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kResourceExhausted);
+  const std::string estimate = std::to_string(cache_->Estimate(*mesh, Eps(1e-6)).bytes);
+  EXPECT_THAT(std::string(refused.status().message()),
+              ::testing::AllOf(HasSubstr(estimate), HasSubstr("1048576"),
+                               HasSubstr("--max-graph-bytes"), HasSubstr("larger epsilon")));
+  // The estimate is part of the graph's status.
+  const GraphStatus queued = cache_->Request(mesh, Eps(0.1));
+  EXPECT_EQ(queued.estimated_bytes, fine.bytes);
+  EXPECT_DOUBLE_EQ(queued.estimated_seconds, fine.seconds);
+  v1::Graph answer;  // what RequestGraph and GetGraph answer
+  ToProto(queued, &answer);
+  EXPECT_EQ(answer.estimated_bytes(), fine.bytes);
+  EXPECT_DOUBLE_EQ(answer.estimated_seconds(), fine.seconds);
+}
+
+TEST_F(GraphCacheTest, AGraphFileOverTheDiskLimitIsNotWrittenAndTheGraphFails) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  fs::create_directories(dir_);
+  DiskBudget disk(dir_, /*limit=*/4096);
+  ASSERT_TRUE(disk.Scan().ok());
+  GraphCache::Options options;
+  options.graph_dir = dir_;
+  options.maker = maker_;
+  options.disk = &disk;
+  cache_ = std::make_unique<GraphCache>(options);
+  cache_->Request(mesh, key.params);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  EXPECT_THAT(failed.error, ::testing::AllOf(HasSubstr("--disk-limit"), HasSubstr("4096")));
+  EXPECT_EQ(maker_->calls(HeldMaker::kWrite), 0);
+  EXPECT_FALSE(fs::exists(cache_->GraphPath(mesh->fingerprint, key.params)));
+  EXPECT_EQ(disk.used(), 0u);
+}
+
+// Two caches on one directory (two replicas) asking for one graph: one
+// builds it, the other waits for that build and maps the file.
+TEST_F(GraphCacheTest, ReplicasOnOneDirectoryBuildAGraphOnce) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& first = Cache();
+  auto other_maker = std::make_shared<HeldMaker>();
+  GraphCache::Options options;
+  options.graph_dir = dir_;
+  options.maker = other_maker;
+  options.replica_poll = absl::Milliseconds(20);
+  GraphCache second(options);
+
+  maker_->Hold(HeldMaker::kBuild);
+  first.Request(mesh, key.params);
+  maker_->AwaitReached(HeldMaker::kBuild);
+  second.Request(mesh, key.params);
+  auto waiting = second.Get(key);
+  for (int i = 0; i < 500 && waiting->phase.find("another replica") == std::string::npos; ++i) {
+    absl::SleepFor(absl::Milliseconds(10));
+    waiting = second.Get(key);
+  }
+  EXPECT_EQ(waiting->state, GraphState::kQueued);
+  EXPECT_THAT(waiting->phase, HasSubstr("waiting for another replica's build"));
+  maker_->Release(HeldMaker::kBuild);
+  EXPECT_FALSE(WaitFor(key, GraphState::kReady).from_file);
+  auto s = second.Get(key);
+  const absl::Time deadline = absl::Now() + absl::Seconds(30);
+  while (s.ok() && s->state != GraphState::kReady && absl::Now() < deadline) {
+    s = second.WaitForChange(key, s->version, deadline);
+  }
+  ASSERT_TRUE(s.ok());
+  EXPECT_EQ(s->state, GraphState::kReady);
+  EXPECT_TRUE(s->from_file);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild) + other_maker->calls(HeldMaker::kBuild), 1);
+  EXPECT_EQ(first.builds_started() + second.builds_started(), 1u);
+  // The lock file goes with the build.
+  EXPECT_FALSE(
+      fs::exists(GraphCache::BuildLockFile(first.GraphPath(mesh->fingerprint, key.params))));
+}
+
+// A replica that held the lock and died (its flock released) leaves the
+// build to whoever asks next.
+TEST_F(GraphCacheTest, ALockLeftByADeadReplicaDoesNotBlockTheBuild) {
+  auto mesh = GridMesh("grid", 5);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache();
+  fs::create_directories(dir_);
+  const std::string lock =
+      GraphCache::BuildLockFile(cache.GraphPath(mesh->fingerprint, key.params));
+  std::ofstream(lock) << "";
+  cache.Request(mesh, key.params);
+  EXPECT_FALSE(WaitFor(key, GraphState::kReady).from_file);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+  EXPECT_FALSE(fs::exists(lock));
+}
+
+TEST_F(GraphCacheTest, StartUpRemovesOnlyOldBuildLocksNobodyHolds) {
+  fs::create_directories(dir_);
+  auto add = [&](const std::string& name, int age_s) {
+    std::ofstream(dir_ / name) << "";
+    fs::last_write_time(dir_ / name,
+                        fs::file_time_type::clock::now() - std::chrono::seconds(age_s));
+  };
+  add(".dead-eps0.01-r2.dgg.lock", 600);
+  add(".young-eps0.01-r2.dgg.lock", 5);
+  add(".held-eps0.01-r2.dgg.lock", 600);
+  add("graph-eps0.01-r2.dgg", 600);
+  const int held = ::open((dir_ / ".held-eps0.01-r2.dgg.lock").c_str(), O_RDWR);
+  ASSERT_EQ(::flock(held, LOCK_EX), 0);  // a live builder
+  EXPECT_THAT(GraphCache::RemoveStaleBuildLocks(dir_, std::chrono::seconds(120)),
+              ::testing::ElementsAre(".dead-eps0.01-r2.dgg.lock"));
+  ::close(held);
+  EXPECT_TRUE(fs::exists(dir_ / ".young-eps0.01-r2.dgg.lock"));
+  EXPECT_TRUE(fs::exists(dir_ / ".held-eps0.01-r2.dgg.lock"));
+  EXPECT_TRUE(fs::exists(dir_ / "graph-eps0.01-r2.dgg"));
 }
 
 }  // namespace
