@@ -34,6 +34,12 @@ absl::Status NameBusy(const std::string& mesh) {
       mesh));
 }
 
+// States an operation leaves by itself, with the graph ready or failed.
+bool InProgress(GraphState s) {
+  return s == GraphState::kQueued || s == GraphState::kLoading || s == GraphState::kBuilding ||
+         s == GraphState::kPersisting;
+}
+
 // Polled by long solves: the client went away or its deadline passed.
 std::function<bool()> Cancelled(grpc::ServerContext* ctx) {
   return [ctx] { return ctx->IsCancelled() || ctx->deadline() < std::chrono::system_clock::now(); };
@@ -219,21 +225,51 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> GeodesicService::FindMesh(
   return m;
 }
 
+absl::StatusOr<GraphStatus> GeodesicService::StartGraph(
+    const GraphKey& key, const std::shared_ptr<const RegisteredMesh>& mesh) {
+  // Refused at once, before the catalog records it: a graph that cannot fit
+  // the limits would otherwise hold a build worker for nothing.
+  RETURN_IF_ERROR(graphs_->Admit(*mesh, key.params).status());
+  if (catalog_) RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
+  return graphs_->Request(mesh, key.params);
+}
+
 absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEngine(
-    const GraphKey& key) {
+    const GraphKey& key, grpc::ServerContext* ctx) {
   auto engine = graphs_->Acquire(key);
-  if (engine.ok() || !catalog_ || graphs_->Get(key).ok()) return engine;
-  // Requested on another replica, perhaps: follow the catalog, and give a
-  // graph that only needs mapping from its file the moment that takes.
-  RETURN_IF_ERROR(catalog_->ReconcileIfChanged());
-  auto status = graphs_->Get(key);
-  const absl::Time deadline = absl::Now() + absl::Seconds(2);
-  while (status.ok() &&
-         (status->state == GraphState::kQueued || status->state == GraphState::kLoading) &&
-         absl::Now() < deadline) {
-    status = graphs_->WaitForChange(key, status->version, deadline);
+  if (engine.ok()) return engine;
+  const absl::Time deadline = std::min(absl::FromChrono(ctx->deadline()),
+                                       absl::Now() + absl::Seconds(limits_.build_wait_seconds));
+  if (catalog_ && !graphs_->Get(key).ok()) {
+    // Requested on another replica, perhaps: follow the catalog.
+    RETURN_IF_ERROR(catalog_->ReconcileIfChanged());
   }
-  return graphs_->Acquire(key);
+  if (!graphs_->Get(key).ok()) {
+    // Never requested: a query starts the graph as RequestGraph would
+    // (unless the operator preloads graphs and wants no builds on demand).
+    if (!limits_.build_on_query) return engine;
+    NameLocks::Hold hold(names_, key.mesh, deadline);
+    if (!hold.held()) return NameBusy(key.mesh);
+    if (!graphs_->Get(key).ok()) {
+      ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> mesh, FindMesh(key.mesh));
+      RETURN_IF_ERROR(StartGraph(key, mesh).status());
+    }
+  }
+  // Queued, built, mapped (an evicted graph is mapped again by Acquire):
+  // wait for it within the call's deadline.
+  auto status = graphs_->Get(key);
+  while (status.ok() && InProgress(status->state) && absl::Now() < deadline &&
+         !ctx->IsCancelled()) {
+    status = graphs_->WaitForChange(key, status->version,
+                                    std::min(deadline, absl::Now() + absl::Seconds(1)));
+  }
+  engine = graphs_->Acquire(key);
+  if (engine.ok() || !absl::IsUnavailable(engine.status()) || !status.ok()) return engine;
+  return absl::UnavailableError(absl::StrFormat(
+      "the graph of mesh '%s' at epsilon %g%s is still %s (%s, %.0f%%) after waiting what the "
+      "call allows: retry, or follow it with WatchGraph",
+      key.mesh, key.params.epsilon, key.params.pseudo_vertices ? " with pseudo vertices" : "",
+      GraphStateName(status->state), status->phase, 100 * status->progress));
 }
 
 template <typename Body>
@@ -413,11 +449,8 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
-    // Refused at once, before the catalog records it: a graph that cannot
-    // fit the limits would otherwise hold a build worker for nothing.
-    RETURN_IF_ERROR(graphs_->Admit(**m, key.params).status());
-    if (catalog_) RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
-    ToProto(graphs_->Request(*m, key.params), resp);
+    ASSIGN_OR_RETURN(const GraphStatus started, StartGraph(key, *m));
+    ToProto(started, resp);
     return absl::OkStatus();
   });
 }
@@ -492,7 +525,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     const double eps = key.params.epsilon;
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    auto engine = AcquireEngine(key);
+    auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources;
@@ -583,7 +616,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
                                     pairs * kPairResultBytes + kAnswerOverhead));
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    auto engine = AcquireEngine(key);
+    auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     // The reply and, once the handler returns, its serialized copy.
@@ -653,7 +686,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
         absl::StrFormat("a %d x %d matrix", req->sources_size(), req->targets_size()), answer));
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    auto engine = AcquireEngine(key);
+    auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources, targets;
@@ -697,7 +730,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    auto engine = AcquireEngine(key);
+    auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
     std::vector<SurfacePoint> sources, targets;
@@ -782,7 +815,7 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key));
+    ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key, ctx));
     // A field's arrays and each vertex's distance to the samples so far.
     ASSIGN_OR_RETURN(Admission::Ticket run,
                      StartQuery(ctx, 2 * (uint64_t(req->count()) * 6 + kAnswerOverhead),

@@ -29,6 +29,12 @@ struct ServiceLimits {
   uint64_t max_upload_bytes = uint64_t{256} << 20;
   int field_chunk = 65536;  // values per streamed chunk
   bool log_requests = true;
+  // A query on a graph never requested starts it (at the daemon's default
+  // epsilon unless the query names one) and waits for it, up to the call's
+  // deadline and at most build_wait_seconds; off: FAILED_PRECONDITION, for
+  // operators who build every graph ahead (--config, RequestGraph).
+  bool build_on_query = true;
+  double build_wait_seconds = 300;
   // Graphs this daemon builds use exact fans (geodesicd serve --exact-fans):
   // part of the build record of every graph it requests.
   bool exact_fans = false;
@@ -110,9 +116,15 @@ class GeodesicService final : public v1::Geodesic::Service {
   absl::Status Record(const RegisteredMesh& m, bool existed);
   // The registry's mesh, or the catalog's if another replica registered it.
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> FindMesh(const std::string& name);
-  // The cache's engine, or, for a graph only the catalog knows, the graph
-  // requested and (if it only needs mapping) waited for up to 2 s.
-  absl::StatusOr<std::shared_ptr<const GeodesicEngine>> AcquireEngine(const GraphKey& key);
+  // Admits, records and requests a graph (RequestGraph, and queries that
+  // start the graph they need).
+  absl::StatusOr<GraphStatus> StartGraph(const GraphKey& key,
+                                         const std::shared_ptr<const RegisteredMesh>& mesh);
+  // The engine of a ready graph. One that is being made (built, mapped,
+  // known only to the catalog) is waited for within the call's deadline,
+  // and one never requested is started first (ServiceLimits::build_on_query).
+  absl::StatusOr<std::shared_ptr<const GeodesicEngine>> AcquireEngine(const GraphKey& key,
+                                                                      grpc::ServerContext* ctx);
 
   MeshRegistry* meshes_;
   GraphCache* graphs_;

@@ -235,6 +235,14 @@ int RunServe(int argc, char** argv) {
   app.add_option("--max-sources", limits.max_sources, "sources per field");
   app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
   app.add_option("--default-epsilon", limits.default_epsilon, "epsilon when a request gives none");
+  bool no_build_on_query = false;
+  app.add_flag("--no-build-on-query", no_build_on_query,
+               "a query on a graph nobody requested fails (FAILED_PRECONDITION) instead of "
+               "starting its build and waiting for it: for daemons whose graphs are built ahead");
+  app.add_option("--build-wait-seconds", limits.build_wait_seconds,
+                 "longest a query waits for its graph to be built or mapped (within its own "
+                 "deadline); then UNAVAILABLE with the build's progress, to retry")
+      ->check(CLI::Range(0.0, 86400.0));
   app.add_option("--http-listen", http_listen,
                  "serve the HTTP/JSON API and the web viewer on HOST:PORT (same TLS and token; "
                  "port 0: any free port)");
@@ -290,6 +298,7 @@ int RunServe(int argc, char** argv) {
   SetLogLevel(*ParseLogLevel(log_level));
   SetLogFormat(*ParseLogFormat(log_format));
   limits.log_requests = LogEnabled(LogLevel::kInfo);
+  limits.build_on_query = !no_build_on_query;
   if (limits.max_inflight < 1 || limits.max_streams < 1 || query_threads < 0) {
     std::fprintf(stderr,
                  "geodesicd serve: --max-inflight and --max-streams must be at least 1, "

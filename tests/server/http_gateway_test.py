@@ -271,9 +271,11 @@ class GatewayTest(unittest.TestCase):
         self.assert_error(status, body, 400, "OUT_OF_RANGE")
         status, body = self.post("field", {"sources": ["v:1"], "eps": 0.9})
         self.assert_error(status, body, 400, "INVALID_ARGUMENT")
-        # No graph was requested at this epsilon.
+        # No graph was requested at this epsilon: the query starts it and waits.
         status, body = self.post("field", {"sources": ["v:1"], "eps": 0.2})
-        self.assert_error(status, body, 409, "FAILED_PRECONDITION")
+        self.assertEqual(status, 200, body)
+        self.assertEqual(len(body["distances"]), 2930)
+        self.assertEqual(body["eps"], 0.2)
         status, body = self.post("distance", {"pairs": [["v:0", "v:1"]] * 51, "eps": EPS})
         self.assert_error(status, body, 429, "RESOURCE_EXHAUSTED")
         status, body = self.post("matrix", None, raw="{not json")
