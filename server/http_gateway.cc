@@ -23,6 +23,7 @@
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
 #include "server/http_server.h"
+#include "server/upload.h"
 
 namespace geodesic::server {
 namespace {
@@ -486,6 +487,112 @@ struct HttpGateway::Impl {
     return s;
   }
 
+  // POST /v1/meshes registers a mesh, as the gRPC calls do: JSON naming a
+  // file under --mesh-root ({"name", "path"}) or holding the mesh as arrays
+  // ({"name", "vertices": [[x, y, z], ...], "faces": [[i, j, k], ...]}), or
+  // the file's own bytes with ?name=NAME&format=obj|off|ply|stl (any
+  // content type but JSON). Arrays and bytes go through UploadMesh, whose
+  // declared size and SHA-256 the gateway computes.
+  grpc::Status RegisterMesh(const Call& call, const HttpRequest& http, json* out) {
+    v1::Mesh mesh;
+    grpc::Status s;
+    if (!http.header("Content-Type").starts_with("application/json")) {
+      if (!http.has_param("name") || !http.has_param("format")) {
+        return Invalid(
+            "a mesh file as the body needs ?name=NAME&format=obj|off|ply|stl (or send JSON "
+            "with \"path\", or \"vertices\" and \"faces\", and Content-Type: "
+            "application/json)");
+      }
+      v1::UploadMeshRequest first;
+      first.set_name(http.param("name"));
+      first.set_format(http.param("format"));
+      first.set_total_bytes(http.body.size());
+      first.set_sha256(Sha256Hex(http.body));
+      first.set_data(http.body);
+      s = Upload(call, {std::move(first)}, &mesh);
+    } else {
+      json body;
+      if (s = ParseBody(http, &body); !s.ok()) return s;
+      if (s = OnlyKeys(body, {"name", "path", "vertices", "faces", "repair_non_manifold"});
+          !s.ok()) {
+        return s;
+      }
+      auto name = body.find("name");
+      if (name == body.end() || !name->is_string()) return Invalid("\"name\" must be a string");
+      bool repair = false;
+      if (s = BoolField(body, "repair_non_manifold", &repair); !s.ok()) return s;
+      if (auto path = body.find("path"); path != body.end()) {
+        if (!path->is_string()) return Invalid("\"path\" must be a string");
+        v1::RegisterMeshRequest req;
+        req.set_name(name->get<std::string>());
+        req.set_path(path->get<std::string>());
+        req.set_repair_non_manifold(repair);
+        s = stub->RegisterMesh(call.Context().get(), req, &mesh);
+      } else {
+        v1::UploadMeshRequest first;
+        first.set_name(name->get<std::string>());
+        first.set_repair_non_manifold(repair);
+        std::vector<double> vertices;
+        std::vector<uint32_t> faces;
+        if (s = Rows(body, "vertices", &vertices); !s.ok()) return s;
+        if (s = Rows(body, "faces", &faces); !s.ok()) return s;
+        first.set_total_bytes(vertices.size() * sizeof(double) + faces.size() * sizeof(uint32_t));
+        first.set_sha256(Sha256HexOfArrays(vertices, faces));
+        first.mutable_vertices()->Add(vertices.begin(), vertices.end());
+        first.mutable_faces()->Add(faces.begin(), faces.end());
+        s = Upload(call, {std::move(first)}, &mesh);
+      }
+    }
+    if (s.ok()) *out = MeshJson(mesh);
+    return s;
+  }
+
+  // "key": [[a, b, c], ...] as a flat array of T (doubles, or vertex ids).
+  template <typename T>
+  static grpc::Status Rows(const json& body, const char* key, std::vector<T>* out) {
+    auto it = body.find(key);
+    if (it == body.end() || !it->is_array()) {
+      return Invalid(absl::StrFormat("\"%s\" must be an array of [a, b, c] rows", key));
+    }
+    out->reserve(3 * it->size());
+    for (size_t i = 0; i < it->size(); ++i) {
+      const json& row = (*it)[i];
+      bool ok = row.is_array() && row.size() == 3;
+      for (size_t k = 0; ok && k < 3; ++k) {
+        ok = std::is_floating_point_v<T>
+                 ? row[k].is_number()
+                 : row[k].is_number_unsigned() && row[k].template get<uint64_t>() <= UINT32_MAX;
+        if (ok) out->push_back(row[k].template get<T>());
+      }
+      if (!ok) {
+        return Invalid(absl::StrFormat("%s row %u: expected three %s, got %s", key, i,
+                                       std::is_floating_point_v<T> ? "numbers" : "vertex ids",
+                                       Quote(row)));
+      }
+    }
+    return grpc::Status::OK;
+  }
+
+  grpc::Status Upload(const Call& call, std::vector<v1::UploadMeshRequest> messages,
+                      v1::Mesh* mesh) {
+    auto ctx = call.Context();
+    auto writer = stub->UploadMesh(ctx.get(), mesh);
+    for (const auto& m : messages) {
+      if (!writer->Write(m)) break;  // Finish says why
+    }
+    writer->WritesDone();
+    return writer->Finish();
+  }
+
+  grpc::Status UnloadMesh(const Call& call, const std::string& name, json* out) {
+    v1::UnloadMeshRequest req;
+    req.set_name(name);
+    v1::UnloadMeshResponse resp;
+    grpc::Status s = stub->UnloadMesh(call.Context().get(), req, &resp);
+    if (s.ok()) *out = {{"name", name}, {"unloaded", true}};
+    return s;
+  }
+
   // Geometry has no RPC: GetMesh authorises the call and names a missing
   // mesh, then the registry's arrays are sent as they are, in file order,
   // so that a face id and its barycentrics mean the same on both sides.
@@ -805,10 +912,22 @@ struct HttpGateway::Impl {
                              json* out) { return g.ListMeshes(call, out); }),
         Rpc("/v1/graphs", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
                              json* out) { return g.ListGraphs(call, out); }),
+        Rpc(
+            "/v1/meshes",
+            [](Impl& g, const Call& call, const std::string&, const HttpRequest& req, json* out) {
+              return g.RegisterMesh(call, req, out);
+            },
+            "POST"),
         Rpc("/v1/meshes/{}",
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
               return g.GetMesh(call, mesh, out);
             }),
+        Rpc(
+            "/v1/meshes/{}",
+            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
+              return g.UnloadMesh(call, mesh, out);
+            },
+            "DELETE"),
         Rpc("/v1/meshes/{}/geometry",
             [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
               return g.Geometry(call, mesh, out);

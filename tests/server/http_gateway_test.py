@@ -58,7 +58,9 @@ def curl(url, method="GET", body=None, token=TOKEN, raw=None, extra=()):
         cmd += ["-H", f"Authorization: Bearer {token}"]
     data = raw if raw is not None else (json.dumps(body) if body is not None else None)
     if data is not None:
-        cmd += ["-H", "Content-Type: application/json", "--data-binary", "@-"]
+        if not any(str(e).lower().startswith("content-type:") for e in extra):
+            cmd += ["-H", "Content-Type: application/json"]
+        cmd += ["--data-binary", "@-"]
     out = subprocess.run(cmd + [url], input=data.encode() if data is not None else None,
                          capture_output=True, check=True).stdout.decode()
     text, _, status = out.rpartition("\n")
@@ -337,6 +339,55 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(r.status, 405, r.body)
         self.assertEqual(r.headers.get("Allow"), "POST")
 
+    def test_meshes_are_registered_and_unloaded_over_http(self):
+        # A file under the mesh root, by path.
+        status, body = curl(f"{self.base}/v1/meshes", "POST", {"name": "by-path",
+                                                                "path": "spot.obj"})
+        self.assertEqual(status, 200, body)
+        self.assertEqual((body["name"], body["vertices"]), ("by-path", 2930))
+        # The file's own bytes.
+        with open(os.path.join(SRC, "data", "spot.obj"), "rb") as f:
+            spot = f.read()
+        status, body = curl(f"{self.base}/v1/meshes?name=by-bytes&format=obj", "POST",
+                            raw=spot.decode(), extra=["-H", "Content-Type: application/octet-stream"])
+        self.assertEqual(status, 200, body)
+        self.assertEqual(body["vertices"], 2930)
+        # Arrays: a tetrahedron, read back equal.
+        vertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]]
+        faces = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]
+        status, body = curl(f"{self.base}/v1/meshes", "POST",
+                            {"name": "tet", "vertices": vertices, "faces": faces})
+        self.assertEqual(status, 200, body)
+        self.assertEqual((body["vertices"], body["faces"]), (4, 4))
+        status, geometry = curl(f"{self.base}/v1/meshes/tet/geometry")
+        self.assertEqual(status, 200, geometry)
+        self.assertEqual(geometry["positions"], [c for v in vertices for c in v])
+        self.assertEqual(geometry["faces"], [i for f in faces for i in f])
+        # The first query on it just works (its graph is started and waited for).
+        status, body = self.post_to("tet", "distance", {"pairs": [["v:0", "v:3"]], "eps": 0.05})
+        self.assertEqual(status, 200, body)
+        self.assertAlmostEqual(body["distances"][0], 1.0, delta=0.05)
+        # Bad bodies name the problem.
+        status, body = curl(f"{self.base}/v1/meshes", "POST", {"name": "x", "pth": "spot.obj"})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn('"pth"', body["error"]["message"])
+        status, body = curl(f"{self.base}/v1/meshes", "POST",
+                            {"name": "x", "vertices": [[0, 0]], "faces": [[0, 1, 2]]})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = curl(f"{self.base}/v1/meshes", "POST", raw="v 0 0 0\n",
+                            extra=["-H", "Content-Type: application/octet-stream"])
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn("?name=", body["error"]["message"])
+        # Unloaded, they are gone.
+        for name in ("by-path", "by-bytes", "tet"):
+            status, body = curl(f"{self.base}/v1/meshes/{name}", "DELETE")
+            self.assertEqual(status, 200, body)
+            status, body = curl(f"{self.base}/v1/meshes/{name}")
+            self.assert_error(status, body, 404, "NOT_FOUND")
+
+    def post_to(self, mesh, what, body):
+        return curl(f"{self.base}/v1/meshes/{mesh}/{what}", "POST", body)
+
     def test_cors_for_the_configured_origin(self):
         # A preflight needs no token and names the path's methods.
         r = http_request(f"{self.base}/v1/meshes/spot/graph", "OPTIONS",
@@ -372,6 +423,8 @@ class GatewayTest(unittest.TestCase):
                      "/v1/meshes/{name}/field", "/v1/meshes/{name}/matrix",
                      "/v1/meshes/{name}/snap", "/v1/meshes/{name}/sample"]:
             self.assertIn(path, spec["paths"])
+        self.assertIn("post", spec["paths"]["/v1/meshes"])
+        self.assertIn("delete", spec["paths"]["/v1/meshes/{name}"])
         page = subprocess.run(["curl", "-sS", f"{self.base}/"], capture_output=True,
                               check=True).stdout.decode()
         self.assertIn('id="distance"', page)
