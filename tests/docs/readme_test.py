@@ -13,6 +13,9 @@ What a test may not do as written is rewritten, and only that:
   --port-file read back) and writes its graphs to a temporary directory;
   later blocks' 127.0.0.1:50051 / :8080 / :9090 are that daemon's ports;
 - paths under /var/lib/geodesicd become the temporary directory.
+The temporary directory links the repository's data/, client/ and proto/,
+which the README names by relative path; once a block has made venv/, the
+Python blocks run on it.
 The daemon is stopped at the end. A block that exits non-zero fails the test,
 naming the block's first line.
 
@@ -108,7 +111,13 @@ class Runner:
             argv = ["bash", "-euo", "pipefail", "-c", self.rewrite("\n".join(kept))]
         else:
             argv = [sys.executable, "-c", text]
-        r = subprocess.run(argv, cwd=self.work, env=self.env, capture_output=True, text=True,
+        env = dict(self.env)
+        venv_python = os.path.join(self.work, "venv", "bin", "python")
+        if language == "python" and os.path.exists(venv_python):
+            # The README installed the package: run its examples on that.
+            argv[0] = venv_python
+            env.pop("PYTHONPATH", None)
+        r = subprocess.run(argv, cwd=self.work, env=env, capture_output=True, text=True,
                            timeout=600)
         first = text.strip().splitlines()[0] if text.strip() else ""
         if r.returncode != 0:
@@ -133,7 +142,9 @@ def main():
         print(f"FAIL: only {len(found)} runnable blocks in README.md")
         return 1
     work = tempfile.mkdtemp(prefix="geodesic-readme-")
-    os.symlink(os.path.join(SRC, "data"), os.path.join(work, "data"))
+    # The repository's files the README names by relative path.
+    for name in ("data", "client", "proto"):
+        os.symlink(os.path.join(SRC, name), os.path.join(work, name))
     runner = Runner(work)
     passed = failed = 0
     try:
