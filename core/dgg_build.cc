@@ -698,16 +698,15 @@ class FanBuilder {
 
   // Fans from paths of at most two edges, into the edges. The pass reads
   // only the edges' targets and weights.
-  void TwoEdgePass() {
-    tbb::parallel_for(
-        tbb::blocked_range<uint32_t>(0, nodes_, 64), [&](const tbb::blocked_range<uint32_t>& r) {
-          Scratch& sc = Local();
-          for (uint32_t u = r.begin(); u != r.end(); ++u) {
-            CollectTurns(sc, u);
-            KeepTurns(sc, u, sc.best, [&](uint64_t i, FanRange fan) { a_.edges[i].fan = fan; });
-            Clear(sc);
-          }
-        });
+  // Reports progress from 0.95 to `progress_end`: on large graphs this pass
+  // takes long enough that a still bar looks like a hang.
+  void TwoEdgePass(Progress& progress, double progress_end) {
+    ParallelFor(nodes_, progress, "fans", 0.95, progress_end, [&](uint32_t u) {
+      Scratch& sc = Local();
+      CollectTurns(sc, u);
+      KeepTurns(sc, u, sc.best, [&](uint64_t i, FanRange fan) { a_.edges[i].fan = fan; });
+      Clear(sc);
+    });
   }
 
   // Fans from exact distances inside each node's two-edge neighbourhood,
@@ -715,7 +714,7 @@ class FanBuilder {
   // then stored there.
   void ExactPass(Progress& progress) {
     std::vector<FanRange> fans(a_.edges.size());
-    ParallelFor(nodes_, progress, "fans", 0.95, 1.0, [&](uint32_t u) {
+    ParallelFor(nodes_, progress, "fans", 0.97, 1.0, [&](uint32_t u) {
       Scratch& sc = Local();
       if (sc.exact.size() < nodes_) {
         sc.exact.assign(nodes_, kUnknown);
@@ -858,7 +857,7 @@ class FanBuilder {
 
 void ShortcutFreeFans(DggGraphArrays& a, bool exact, Progress& progress) {
   FanBuilder builder(a);
-  builder.TwoEdgePass();
+  builder.TwoEdgePass(progress, exact ? 0.97 : 1.0);
   if (exact) builder.ExactPass(progress);
 }
 
