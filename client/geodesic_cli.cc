@@ -281,6 +281,8 @@ Json GraphJson(const v1::Graph& g) {
           {"nodes", g.nodes()},
           {"edges", g.edges()},
           {"build_seconds", g.build_seconds()},
+          {"estimated_bytes", g.estimated_bytes()},
+          {"estimated_seconds", g.estimated_seconds()},
           {"landmark_bytes", g.landmark_bytes()},
           {"pseudo_vertices", g.pseudo_vertices()}};
 }

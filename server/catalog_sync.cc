@@ -65,7 +65,8 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
     it = graphs_.erase(it);
   }
   for (const CatalogGraph& g : state.graphs) {
-    if (!meshes_.contains(g.mesh)) continue;  // its mesh failed to restore
+    // Its mesh failed to restore, or is a start-up mesh this daemon lacks.
+    if (!meshes_.contains(g.mesh) && !startup_.contains(g.mesh)) continue;
     if (graphs_.emplace(g.mesh, g.params).second) hooks_.request_graph(g.mesh, g.params);
   }
   return absl::OkStatus();
@@ -105,11 +106,17 @@ absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
   return listed;
 }
 
+void CatalogSync::AddStartupMesh(const std::string& name) {
+  absl::MutexLock lock(&mu_);
+  startup_.insert(name);
+}
+
 absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const DggParams& params) {
   absl::MutexLock lock(&mu_);
-  if (!meshes_.contains(mesh)) return false;
+  const bool startup = startup_.contains(mesh) && !meshes_.contains(mesh);
+  if (!meshes_.contains(mesh) && !startup) return false;
   ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
-    if (!s.FindMesh(mesh)) {
+    if (!startup && !s.FindMesh(mesh)) {
       return absl::NotFoundError(
           absl::StrFormat("mesh '%s' was unloaded meanwhile (by another replica)", mesh));
     }

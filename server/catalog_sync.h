@@ -63,9 +63,14 @@ class CatalogSync {
   // the caller then unloads it here. false if the catalog did not list it
   // (a local-only mesh).
   absl::StatusOr<bool> ForgetMesh(const std::string& name);
-  // A client requested or cancelled a graph of a catalogued mesh; the
-  // caller requests or cancels it here. Graphs of local-only meshes are not
-  // recorded (false).
+  // A mesh every start of this daemon registers itself (the bundled sample,
+  // --config's meshes): the catalog does not own it, but records its
+  // graphs, so that a graph a client was told is ready is requested again
+  // after a restart, as a catalogued mesh's is.
+  void AddStartupMesh(const std::string& name);
+  // A client requested or cancelled a graph of a catalogued (or start-up)
+  // mesh; the caller requests or cancels it here. Graphs of other
+  // local-only meshes are not recorded (false).
   absl::StatusOr<bool> RecordGraph(const std::string& mesh, const DggParams& params);
   absl::StatusOr<bool> ForgetGraph(const std::string& mesh, const DggParams& params);
 
@@ -89,6 +94,7 @@ class CatalogSync {
   std::map<std::string, uint64_t> meshes_ ABSL_GUARDED_BY(mu_);
   std::set<std::pair<std::string, DggParams>> graphs_ ABSL_GUARDED_BY(mu_);
   std::map<std::string, std::string> failures_ ABSL_GUARDED_BY(mu_);
+  std::set<std::string> startup_ ABSL_GUARDED_BY(mu_);  // AddStartupMesh
 };
 
 }  // namespace geodesic::server

@@ -363,6 +363,8 @@ json GraphJson(const v1::Graph& g) {
           {"nodes", g.nodes()},
           {"edges", g.edges()},
           {"build_seconds", g.build_seconds()},
+          {"estimated_bytes", g.estimated_bytes()},
+          {"estimated_seconds", g.estimated_seconds()},
           {"last_used_unix_ms", g.last_used_unix_ms()},
           {"pseudo_vertices", g.pseudo_vertices()}};
 }

@@ -636,6 +636,20 @@ int RunServe(int argc, char** argv) {
   // the config declares, and the sample's graph. Queries that arrive
   // meanwhile restore what they name on demand (GeodesicService::FindMesh).
   std::vector<GraphKey> restoring;
+  // --config's meshes, before the catalog is applied: the catalog records
+  // their graphs (and the sample's), which it then requests again.
+  for (const DeclaredMesh& m : config->meshes) {
+    auto registered = std::filesystem::path(m.path).is_absolute()
+                          ? meshes.RegisterTrustedPath(m.name, m.path, m.repair_non_manifold)
+                          : meshes.RegisterPath(m.name, m.path, m.repair_non_manifold);
+    if (!registered.ok()) {
+      Log(LogLevel::kError, "config_mesh_failed",
+          {{"mesh", m.name}, {"path", m.path}, {"error", registered.status().ToString()}});
+    } else if (sync) {
+      sync->AddStartupMesh(m.name);
+    }
+  }
+  if (sync && sample_mesh.ok()) sync->AddStartupMesh("spot");
   if (sync) {
     if (absl::Status s = sync->Reconcile(); !s.ok()) {
       Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
@@ -647,15 +661,6 @@ int RunServe(int argc, char** argv) {
       for (const CatalogGraph& g : state->graphs) restoring.push_back({g.mesh, g.params});
     }
     service.UseCatalog(sync.get());
-  }
-  for (const DeclaredMesh& m : config->meshes) {
-    auto registered = std::filesystem::path(m.path).is_absolute()
-                          ? meshes.RegisterTrustedPath(m.name, m.path, m.repair_non_manifold)
-                          : meshes.RegisterPath(m.name, m.path, m.repair_non_manifold);
-    if (!registered.ok()) {
-      Log(LogLevel::kError, "config_mesh_failed",
-          {{"mesh", m.name}, {"path", m.path}, {"error", registered.status().ToString()}});
-    }
   }
   for (const DeclaredGraph& g : config->graphs) {
     if (auto m = meshes.Get(g.mesh); m.ok()) {

@@ -219,6 +219,21 @@ with tempfile.TemporaryDirectory() as work:
         state = status and status["state"]
         time.sleep(0.2)
     check("a --config mesh and graph are served", state == "ready", state)
+    # A graph a client asked of a mesh the daemon registers itself (config,
+    # sample) is requested again after a restart, with no query.
+    rc, graph, err = cli(ports["grpc"], "--mesh", "declared", "--eps", "0.03", "graph", "--wait")
+    check("a client's graph of a --config mesh is ready", rc == 0 and graph["state"] == "ready",
+          err)
+    stop(daemon)
+    daemon, ports = serve(work, os.path.join(work, "config-graphs"), "--config", config)
+    deadline, listed = time.time() + 60, []
+    while time.time() < deadline:
+        _, graphs_now, _ = cli(ports["grpc"], "status")
+        listed = [(g["epsilon"], g["state"]) for g in graphs_now or [] if g["mesh"] == "declared"]
+        if (0.03, "ready") in listed:
+            break
+        time.sleep(0.2)
+    check("after a restart it is ready again, asked by no one", (0.03, "ready") in listed, listed)
     stop(daemon)
     bad = os.path.join(work, "bad.yaml")
     with open(bad, "w") as f:
