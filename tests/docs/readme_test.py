@@ -62,7 +62,8 @@ class Runner:
         self.ports = {}
         self.daemon = None
         self.env = dict(os.environ)
-        self.env["PATH"] = BIN + os.pathsep + self.env.get("PATH", "")
+        # Debian's own python3 and tools first, as on the machine the README is for.
+        self.env["PATH"] = os.pathsep.join([BIN, "/usr/bin", self.env.get("PATH", "")])
         self.env["PYTHONPATH"] = os.path.join(SRC, "client", "python")
         self.env["HOME"] = os.path.join(work, "home")
         os.makedirs(self.env["HOME"], exist_ok=True)

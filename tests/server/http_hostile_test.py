@@ -289,8 +289,8 @@ class HostileClientTest(unittest.TestCase):
         status, headers, body = request(self.open_port, "PUT", "/v1/meshes/spot/distance")
         self.assertEqual(status, 405, body)
         self.assertEqual(headers.get("allow"), "POST")
-        status, headers, body = request(self.open_port, "POST", "/v1/meshes")
-        self.assertEqual((status, headers.get("allow")), (405, "GET, HEAD"), body)
+        status, headers, body = request(self.open_port, "PUT", "/v1/meshes")
+        self.assertEqual((status, headers.get("allow")), (405, "GET, HEAD, POST"), body)
         for path in ("/three/../../../../etc/passwd", "/../../etc/passwd",
                      "/three/%2e%2e/%2e%2e/etc/passwd", "/%2e%2e/%2e%2e/etc/passwd"):
             status, _, body = request(self.open_port, "GET", path)
