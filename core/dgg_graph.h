@@ -54,9 +54,7 @@ static_assert(sizeof(DggEdge) == 16);
 // under the old rule are told apart and rebuilt rather than served as if
 // they were today's. 2: a lit vertex needs an edge unless a corner route is
 // within 1 + 1.1 eps, the extra tenth fading out between 1e-3 and 1e-4.
-// 3: a pseudo vertex is left out when a route of one or more candidate edges
-// serves its direction, not only a single edge.
-inline constexpr uint32_t kCandidateRuleVersion = 3;
+inline constexpr uint32_t kCandidateRuleVersion = 2;
 
 // Everything a graph was built with that changes the graph: its identity.
 // Graph and part files record all of it, the daemon keys its graphs by it,
