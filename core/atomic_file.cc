@@ -38,19 +38,27 @@ bool IsAtomicTemporaryName(const std::string& file_name) {
   return file_name.compare(pid_dot - 4, 4, ".tmp") == 0 && pid_dot > 4;
 }
 
-std::vector<std::string> RemoveStaleTemporaries(const std::string& dir,
-                                                std::chrono::seconds min_age) {
-  std::vector<std::string> removed;
+void ForEachFileOlderThan(
+    const std::string& dir, std::chrono::seconds min_age,
+    const std::function<void(const std::string& name, const std::filesystem::path& path)>& visit) {
   std::error_code ec;
   const auto now = std::filesystem::file_time_type::clock::now();
   for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
-    const std::string name = entry.path().filename().string();
     std::error_code file_ec;
-    if (!IsAtomicTemporaryName(name) || !entry.is_regular_file(file_ec)) continue;
+    if (!entry.is_regular_file(file_ec)) continue;
     const auto written = entry.last_write_time(file_ec);
     if (file_ec || now - written < min_age) continue;
-    if (std::filesystem::remove(entry.path(), file_ec)) removed.push_back(name);
+    visit(entry.path().filename().string(), entry.path());
   }
+}
+
+std::vector<std::string> RemoveStaleTemporaries(const std::string& dir,
+                                                std::chrono::seconds min_age) {
+  std::vector<std::string> removed;
+  ForEachFileOlderThan(dir, min_age, [&](const std::string& name, const auto& path) {
+    std::error_code ec;
+    if (IsAtomicTemporaryName(name) && std::filesystem::remove(path, ec)) removed.push_back(name);
+  });
   return removed;
 }
 

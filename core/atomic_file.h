@@ -10,6 +10,8 @@
 
 #include <chrono>
 #include <cstddef>
+#include <filesystem>
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -53,6 +55,11 @@ bool IsAtomicTemporaryName(const std::string& file_name);
 // killed mid-write left behind, those last modified at least `min_age` ago:
 // a younger one may belong to a live writer (another process sharing the
 // directory). Returns the names removed; best effort.
+// Calls visit(name, path) for every file directly in `dir` last written at
+// least `min_age` ago (start-up clean-ups of what killed writers left).
+void ForEachFileOlderThan(
+    const std::string& dir, std::chrono::seconds min_age,
+    const std::function<void(const std::string& name, const std::filesystem::path& path)>& visit);
 std::vector<std::string> RemoveStaleTemporaries(const std::string& dir,
                                                 std::chrono::seconds min_age);
 

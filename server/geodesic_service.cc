@@ -172,6 +172,15 @@ absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContex
   return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx));
 }
 
+absl::Status GeodesicService::CheckMatrixLimits(const v1::MatrixRequest& req) const {
+  if (req.sources_size() <= limits_.max_sources && req.targets_size() <= limits_.max_pairs) {
+    return absl::OkStatus();
+  }
+  return absl::ResourceExhaustedError(absl::StrFormat(
+      "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req.sources_size(),
+      req.targets_size(), limits_.max_sources, limits_.max_pairs));
+}
+
 absl::Status GeodesicService::CheckAnswerSize(const std::string& what, uint64_t bytes) const {
   if (bytes <= limits_.max_message_bytes) return absl::OkStatus();
   return absl::ResourceExhaustedError(absl::StrFormat(
@@ -329,6 +338,20 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
 }
 
 namespace {
+
+// A request's points, each checked against the mesh; errors name the
+// point ("source 3").
+template <typename Points>
+absl::StatusOr<std::vector<SurfacePoint>> PointsFromProto(const Points& points, const Mesh& mesh,
+                                                          const char* what) {
+  std::vector<SurfacePoint> out;
+  out.reserve(points.size());
+  for (int i = 0; i < points.size(); ++i) {
+    ASSIGN_OR_RETURN(out.emplace_back(),
+                     FromProto(points[i], mesh, absl::StrFormat("%s %d", what, i)));
+  }
+  return out;
+}
 
 void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
   out->set_name(m.name);
@@ -528,12 +551,8 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
-    std::vector<SurfacePoint> sources;
-    for (int i = 0; i < req->sources_size(); ++i) {
-      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
-      if (!p.ok()) return p.status();
-      sources.push_back(*p);
-    }
+    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> sources,
+                     PointsFromProto(req->sources(), mesh, "source"));
     FieldOptions options;
     options.method =
         req->method() == "dijkstra" ? FieldMethod::kDijkstra : FieldMethod::kLabelCorrecting;
@@ -675,11 +694,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
 grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                      v1::MatrixResponse* resp) {
   return Handle("Matrix", ctx, req->mesh(), true, [&]() -> absl::Status {
-    if (req->sources_size() > limits_.max_sources || req->targets_size() > limits_.max_pairs) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
-          req->targets_size(), limits_.max_sources, limits_.max_pairs));
-    }
+    RETURN_IF_ERROR(CheckMatrixLimits(*req));
     const uint64_t entries = uint64_t(req->sources_size()) * uint64_t(req->targets_size());
     const uint64_t answer = entries * 9 + kAnswerOverhead;
     RETURN_IF_ERROR(CheckAnswerSize(
@@ -689,17 +704,10 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
-    std::vector<SurfacePoint> sources, targets;
-    for (int i = 0; i < req->sources_size(); ++i) {
-      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
-      if (!p.ok()) return p.status();
-      sources.push_back(*p);
-    }
-    for (int i = 0; i < req->targets_size(); ++i) {
-      auto p = FromProto(req->targets(i), mesh, absl::StrFormat("target %d", i));
-      if (!p.ok()) return p.status();
-      targets.push_back(*p);
-    }
+    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> sources,
+                     PointsFromProto(req->sources(), mesh, "source"));
+    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> targets,
+                     PointsFromProto(req->targets(), mesh, "target"));
     // The solver's distances, then the reply beside them and, once the
     // handler returns, the reply's serialized copy.
     ASSIGN_OR_RETURN(
@@ -723,27 +731,16 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
 grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                          grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
   return Handle("MatrixRows", ctx, req->mesh(), true, [&]() -> absl::Status {
-    if (req->sources_size() > limits_.max_sources || req->targets_size() > limits_.max_pairs) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req->sources_size(),
-          req->targets_size(), limits_.max_sources, limits_.max_pairs));
-    }
+    RETURN_IF_ERROR(CheckMatrixLimits(*req));
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
-    std::vector<SurfacePoint> sources, targets;
-    for (int i = 0; i < req->sources_size(); ++i) {
-      auto p = FromProto(req->sources(i), mesh, absl::StrFormat("source %d", i));
-      if (!p.ok()) return p.status();
-      sources.push_back(*p);
-    }
-    for (int i = 0; i < req->targets_size(); ++i) {
-      auto p = FromProto(req->targets(i), mesh, absl::StrFormat("target %d", i));
-      if (!p.ok()) return p.status();
-      targets.push_back(*p);
-    }
+    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> sources,
+                     PointsFromProto(req->sources(), mesh, "source"));
+    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> targets,
+                     PointsFromProto(req->targets(), mesh, "target"));
     // Blocks small enough that the server holds one at a time, large
     // enough that framing stays negligible.
     constexpr uint64_t kBlockBytes = uint64_t{4} << 20;

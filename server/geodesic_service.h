@@ -99,6 +99,8 @@ class GeodesicService final : public v1::Geodesic::Service {
   // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
   // `bytes` cannot fit one message.
   absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;
+  // RESOURCE_EXHAUSTED past --max-sources rows or --max-pairs columns.
+  absl::Status CheckMatrixLimits(const v1::MatrixRequest& req) const;
 
   template <typename Body>
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,

@@ -162,22 +162,16 @@ std::string GraphCache::BuildLockFile(const std::string& graph_path) {
 std::vector<std::string> GraphCache::RemoveStaleBuildLocks(const std::string& dir,
                                                            std::chrono::seconds min_age) {
   std::vector<std::string> removed;
-  std::error_code ec;
-  const auto now = std::filesystem::file_time_type::clock::now();
-  for (const auto& entry : std::filesystem::directory_iterator(dir, ec)) {
-    const std::string name = entry.path().filename().string();
-    if (!name.starts_with(".") || !name.ends_with(".dgg.lock")) continue;
-    std::error_code file_ec;
-    const auto written = entry.last_write_time(file_ec);
-    if (file_ec || now - written < min_age) continue;
+  ForEachFileOlderThan(dir, min_age, [&](const std::string& name, const auto& path) {
+    if (!name.starts_with(".") || !name.ends_with(".dgg.lock")) return;
     // Only a lock nobody holds: its builder died. Taking it and letting it
     // go unlinks it.
-    auto lock = ReplicaLock::TryAcquire(entry.path().string());
+    auto lock = ReplicaLock::TryAcquire(path.string());
     if (lock.ok() && lock->held()) {
       lock->Release();
       removed.push_back(name);
     }
-  }
+  });
   return removed;
 }
 
