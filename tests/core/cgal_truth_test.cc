@@ -196,7 +196,6 @@ TEST_P(CgalTruthAtEpsilon, FacePointPairsKeepTheContract) {
     const double a = unit(rng), b = unit(rng), c = unit(rng);
     return SurfacePoint::Face(face(rng), a / (a + b + c), b / (a + b + c), c / (a + b + c));
   };
-  double sum = 0;
   const int kPairs = 12;
   for (int i = 0; i < kPairs; ++i) {
     const SurfacePoint from = random_point(), to = random_point();
@@ -213,10 +212,11 @@ TEST_P(CgalTruthAtEpsilon, FacePointPairsKeepTheContract) {
     const double error = (ours->distance - truth) / truth / eps;
     EXPECT_GE(error * eps, -kExactTolerance)
         << FormatSurfacePoint(from) << " -> " << FormatSurfacePoint(to);
+    // The contract's bound holds for each pair; its mean is stated for
+    // fields over every vertex, not for a dozen random face points.
     EXPECT_LE(error, kContractMax) << FormatSurfacePoint(from) << " -> " << FormatSurfacePoint(to);
-    sum += error;
   }
-  EXPECT_LE(sum / kPairs, kContractMean);
+
 }
 
 INSTANTIATE_TEST_SUITE_P(BundledMesh, CgalTruthAtEpsilon, ::testing::Values(1e-2, 1e-3));
