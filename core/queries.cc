@@ -27,12 +27,18 @@ namespace {
 absl::Status ForEachInParallel(size_t n, const std::function<absl::Status(size_t)>& body) {
   std::vector<absl::Status> errors(n);
   std::atomic<bool> failed{false};
+  auto run = [&](size_t i) {
+    errors[i] = body(i);
+    if (!errors[i].ok()) failed = true;
+  };
+#ifdef GEODESIC_TSAN
+  // TSan cannot see TBB's synchronisation (core/thread_arena.h): in order.
+  for (size_t i = 0; i < n; ++i) run(i);
+#else
   tbb::parallel_for(tbb::blocked_range<size_t>(0, n, 1), [&](const tbb::blocked_range<size_t>& r) {
-    for (size_t i = r.begin(); i != r.end(); ++i) {
-      errors[i] = body(i);
-      if (!errors[i].ok()) failed = true;
-    }
+    for (size_t i = r.begin(); i != r.end(); ++i) run(i);
   });
+#endif
   if (failed) {
     for (absl::Status& e : errors) {
       if (!e.ok()) return e;

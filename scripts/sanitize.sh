@@ -3,9 +3,10 @@
 #   ASan+UBSan (build-asan): core and server unit tests, and the daemon end-to-end,
 #     fault and security tests against an instrumented daemon and CLI;
 #   TSan (build-tsan): the core and server unit tests (concurrent queries
-#     and landmark preparation on one graph, concurrent catalog updates). The large shared-mesh accuracy suites are
-#     left out: single-threaded numerics under TSan's 10x slowdown, already
-#     run plain and under ASan. So is the 1-against-4-threads build
+#     and landmark preparation on one graph, concurrent catalog updates). The
+#     accuracy suites (*SharedMeshes*, CgalTruth) are left out:
+#     single-threaded numerics under TSan's 10x slowdown, already run plain
+#     and under ASan. So is the 1-against-4-threads build
 #     comparison: TSan builds keep TBB to one thread (core/dgg_build.cc), so
 #     it could only compare one thread with one thread.
 # Debian's gRPC, Abseil, OpenMesh and TBB are not instrumented: TSan cannot
@@ -27,6 +28,6 @@ for kind in $kinds; do
   else
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
     ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
-      -E "SharedAccuracyTest|TruthTest|ManifestTest|PseudoVerticesTest|BuildIsIdenticalWhateverTheThreadCount"
+      -E "SharedMeshes|CgalTruth|BuildIsIdenticalWhateverTheThreadCount"
   fi
 done
