@@ -216,7 +216,6 @@ TEST_P(CgalTruthAtEpsilon, FacePointPairsKeepTheContract) {
     // fields over every vertex, not for a dozen random face points.
     EXPECT_LE(error, kContractMax) << FormatSurfacePoint(from) << " -> " << FormatSurfacePoint(to);
   }
-
 }
 
 INSTANTIATE_TEST_SUITE_P(BundledMesh, CgalTruthAtEpsilon, ::testing::Values(1e-2, 1e-3));
