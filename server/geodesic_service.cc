@@ -691,6 +691,18 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
   });
 }
 
+absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
+    const v1::MatrixRequest& req, grpc::ServerContext* ctx) {
+  MatrixQuery q;
+  ASSIGN_OR_RETURN(q.key, Key(req.mesh(), req.epsilon(), req.pseudo_vertices()));
+  RETURN_IF_ERROR(FindMesh(req.mesh()).status());
+  ASSIGN_OR_RETURN(q.engine, AcquireEngine(q.key, ctx));
+  const Mesh& mesh = q.engine->mesh();
+  ASSIGN_OR_RETURN(q.sources, PointsFromProto(req.sources(), mesh, "source"));
+  ASSIGN_OR_RETURN(q.targets, PointsFromProto(req.targets(), mesh, "target"));
+  return q;
+}
+
 grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                      v1::MatrixResponse* resp) {
   return Handle("Matrix", ctx, req->mesh(), true, [&]() -> absl::Status {
@@ -699,21 +711,16 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     const uint64_t answer = entries * 9 + kAnswerOverhead;
     RETURN_IF_ERROR(CheckAnswerSize(
         absl::StrFormat("a %d x %d matrix", req->sources_size(), req->targets_size()), answer));
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    auto engine = AcquireEngine(key, ctx);
-    if (!engine.ok()) return engine.status();
-    const Mesh& mesh = (*engine)->mesh();
-    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> sources,
-                     PointsFromProto(req->sources(), mesh, "source"));
-    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> targets,
-                     PointsFromProto(req->targets(), mesh, "target"));
+    ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
+    const GraphKey& key = q.key;
+    const std::vector<SurfacePoint>& sources = q.sources;
+    const std::vector<SurfacePoint>& targets = q.targets;
     // The solver's distances, then the reply beside them and, once the
     // handler returns, the reply's serialized copy.
-    ASSIGN_OR_RETURN(
-        Admission::Ticket run,
-        StartQuery(ctx, 2 * answer, FieldScratchBytes(**engine) + targets.size() * sizeof(double)));
-    auto m = (*engine)->Matrix(sources, targets, Cancelled(ctx));
+    ASSIGN_OR_RETURN(Admission::Ticket run,
+                     StartQuery(ctx, 2 * answer,
+                                FieldScratchBytes(*q.engine) + targets.size() * sizeof(double)));
+    auto m = q.engine->Matrix(sources, targets, Cancelled(ctx));
     if (!m.ok()) return m.status();
     resp->mutable_echo()->set_mesh(req->mesh());
     resp->mutable_echo()->set_epsilon(key.params.epsilon);
@@ -732,15 +739,10 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
                                          grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
   return Handle("MatrixRows", ctx, req->mesh(), true, [&]() -> absl::Status {
     RETURN_IF_ERROR(CheckMatrixLimits(*req));
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
-    auto engine = AcquireEngine(key, ctx);
-    if (!engine.ok()) return engine.status();
-    const Mesh& mesh = (*engine)->mesh();
-    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> sources,
-                     PointsFromProto(req->sources(), mesh, "source"));
-    ASSIGN_OR_RETURN(const std::vector<SurfacePoint> targets,
-                     PointsFromProto(req->targets(), mesh, "target"));
+    ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
+    const GraphKey& key = q.key;
+    const std::vector<SurfacePoint>& sources = q.sources;
+    const std::vector<SurfacePoint>& targets = q.targets;
     // Blocks small enough that the server holds one at a time, large
     // enough that framing stays negligible.
     constexpr uint64_t kBlockBytes = uint64_t{4} << 20;
@@ -751,11 +753,11 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
         CheckAnswerSize(absl::StrFormat("a block of %u rows", block_rows), block_answer));
     ASSIGN_OR_RETURN(Admission::Ticket run,
                      StartQuery(ctx, 2 * block_answer,
-                                FieldScratchBytes(**engine) + targets.size() * sizeof(double)));
+                                FieldScratchBytes(*q.engine) + targets.size() * sizeof(double)));
     for (size_t first = 0; first < sources.size() || first == 0; first += block_rows) {
       const size_t n = std::min(block_rows, sources.size() - first);
-      auto m = (*engine)->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets,
-                                 Cancelled(ctx));
+      auto m =
+          q.engine->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets, Cancelled(ctx));
       if (!m.ok()) return m.status();
       v1::MatrixRowsChunk chunk;
       if (first == 0) {

@@ -101,6 +101,14 @@ class GeodesicService final : public v1::Geodesic::Service {
   absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;
   // RESOURCE_EXHAUSTED past --max-sources rows or --max-pairs columns.
   absl::Status CheckMatrixLimits(const v1::MatrixRequest& req) const;
+  // What Matrix and MatrixRows both start from: the graph's engine (waited
+  // for or started, as any query's) and the request's points on its mesh.
+  struct MatrixQuery {
+    GraphKey key;
+    std::shared_ptr<const GeodesicEngine> engine;
+    std::vector<SurfacePoint> sources, targets;
+  };
+  absl::StatusOr<MatrixQuery> PrepareMatrix(const v1::MatrixRequest& req, grpc::ServerContext* ctx);
 
   template <typename Body>
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
