@@ -1,9 +1,15 @@
 #!/usr/bin/env bash
 # Three geodesicd replicas on 127.0.0.1 sharing one graph directory, behind
-# nginx configured with deploy/nginx/geodesicd.conf. Checks that one mesh's
-# queries land on one replica, over gRPC and over HTTP, and that when it is
-# killed its traffic moves to another that maps the graph from the shared
-# directory, not rebuilding.
+# nginx configured with deploy/nginx/geodesicd.conf and run by
+# deploy/nginx/geodesicd-upstreams.sh. Checks that nginx starts before any
+# replica exists and routes once they are listed, that one mesh's queries
+# land on one replica, over gRPC and over HTTP, that when it is killed its
+# traffic moves to another that maps the graph from the shared directory,
+# not rebuilding, and that once restarted on a new port it gets traffic
+# again with nobody reloading nginx.
+# The replicas' list is a file the test rewrites, standing in for the
+# cluster DNS, with host and ports, since a restarted replica's new port
+# stands in for a pod's new address.
 # Exits 77 (skipped) when nginx is not installed.
 # Usage: nginx_routing_test.sh BUILD_BIN_DIR SOURCE_DIR
 set -uo pipefail
@@ -19,7 +25,9 @@ source "$src/tests/server/daemon_port.sh"
 # and nginx is started again on another if that one is taken meanwhile.
 free_port() { python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1",0)); print(s.getsockname()[1])'; }
 pids=()
+watcher=
 cleanup() {
+  [ -n "$watcher" ] && kill "$watcher" 2>/dev/null
   [ -f "$work/nginx.pid" ] && kill "$(cat "$work/nginx.pid")" 2>/dev/null
   for p in "${pids[@]}"; do kill -9 "$p" 2>/dev/null; done
   wait 2>/dev/null
@@ -31,30 +39,42 @@ check() {  # check NAME COMMAND...: passes when the command succeeds
   if "$@"; then echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
 }
 json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
+wait_until() {  # wait_until SECONDS COMMAND...: fails when COMMAND has not succeeded by then
+  local deadline=$((SECONDS + $1))
+  shift
+  until "$@"; do
+    [ "$SECONDS" -lt "$deadline" ] || return 1
+    sleep 0.2
+  done
+}
 
 ports=()
 hports=()
-for i in 0 1 2; do
-  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports$i" --graph-dir "$work/graphs" \
+start_replica() {  # start_replica I: on new ports, as a pod comes back on a new address
+  rm -f "$work/ports$1"
+  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports$1" --graph-dir "$work/graphs" \
     --http-listen 127.0.0.1:0 --mesh-root "$src/data" --log-level info --build-threads 1 \
-    2>"$work/replica$i.log" &
-  pids[i]=$!
-done
-for i in 0 1 2; do
-  ports[i]=$(wait_port_file "${pids[i]}" "$work/ports$i") ||
-    { echo "replica $i did not start"; cat "$work/replica$i.log"; exit 1; }
-  hports[i]=$(wait_port_file "${pids[i]}" "$work/ports$i" http)
-done
+    2>>"$work/replica$1.log" &
+  pids[$1]=$!
+}
+wait_replica() {
+  ports[$1]=$(wait_port_file "${pids[$1]}" "$work/ports$1") ||
+    { echo "replica $1 did not start"; cat "$work/replica$1.log"; exit 1; }
+  hports[$1]=$(wait_port_file "${pids[$1]}" "$work/ports$1" http)
+}
+list_replicas() {  # list_replicas I...: what the cluster DNS would resolve now
+  for i in "$@"; do echo "127.0.0.1 ${ports[i]} ${hports[i]}"; done > "$work/backends.new"
+  mv "$work/backends.new" "$work/backends"
+}
+upstreams() {  # upstreams COMMAND...: the watcher's settings for this test
+  GEODESICD_UPSTREAMS_DIR="$work/upstreams" GEODESICD_BACKENDS_FILE="$work/backends" \
+    GEODESICD_RESOLVE_INTERVAL=1 GEODESICD_NGINX_BIN="$nginx" "$@"
+}
+watcher_script=$src/deploy/nginx/geodesicd-upstreams.sh
 write_config() {
-  sed -e "s/geodesicd-\([0-9]\)\.geodesicd-headless:50051/127.0.0.1:PORT\1/" \
-      -e "s/geodesicd-\([0-9]\)\.geodesicd-headless:8080/127.0.0.1:HPORT\1/" \
+  sed -e "s|/run/geodesicd-nginx/|$work/upstreams/|" \
       -e "s/listen 50051 http2;/listen 127.0.0.1:$front http2;/" \
       -e "s/listen 8080;/listen 127.0.0.1:$hfront;/" \
-      -e "s/127.0.0.1:PORT0/127.0.0.1:${ports[0]}/" -e "s/127.0.0.1:PORT1/127.0.0.1:${ports[1]}/" \
-      -e "s/127.0.0.1:PORT2/127.0.0.1:${ports[2]}/" \
-      -e "s/127.0.0.1:HPORT0/127.0.0.1:${hports[0]}/" \
-      -e "s/127.0.0.1:HPORT1/127.0.0.1:${hports[1]}/" \
-      -e "s/127.0.0.1:HPORT2/127.0.0.1:${hports[2]}/" \
       "$src/deploy/nginx/geodesicd.conf" > "$work/geodesicd.conf"
 }
 mkdir -m 777 "$work/tmp"
@@ -76,16 +96,61 @@ CONF
 front=$(free_port)
 hfront=$(free_port)
 write_config
+
+# The watcher's lists, before nginx runs on them: names stay as written (the
+# ring places a replica by its name, which a pod keeps across addresses), a
+# name that does not resolve is left out, and none at all is a placeholder.
+placeholder() { [ "$(grep -c '^server .* down;' "$work/upstreams/$1-servers.conf")" = 1 ]; }
+upstreams sh "$watcher_script" render 2>>"$work/watcher.log"
+check "with no replica listed, both upstreams hold one server marked down" \
+  eval 'placeholder grpc && placeholder http'
 check "nginx accepts the deploy configuration" "$nginx" -t -q -c "$work/nginx.conf" -p "$work"
+GEODESICD_UPSTREAMS_DIR="$work/render" \
+  GEODESICD_BACKENDS_CMD='printf "localhost 1001 1002\ngeodesicd-9.invalid 1003 1004\n"' \
+  sh "$watcher_script" render 2>>"$work/watcher.log"
+check "a name is kept as written, one that does not resolve is left out" \
+  eval 'grep -q "^server localhost:1001 " "$work/render/grpc-servers.conf" &&
+        grep -q "^server localhost:1002 " "$work/render/http-servers.conf" &&
+        ! grep -q "^server geodesicd-9" "$work/render/grpc-servers.conf" "$work/render/http-servers.conf"'
+
+http_status() {  # http_status PATH: prints the HTTP status through nginx, nothing when none answers
+  python3 - "$hfront" "$1" <<'PY'
+import sys, urllib.error, urllib.request
+try:
+    print(urllib.request.urlopen(f"http://127.0.0.1:{sys.argv[1]}{sys.argv[2]}", timeout=10).status)
+except urllib.error.HTTPError as e:
+    print(e.code)
+except OSError:
+    pass
+PY
+}
+started_or_gone() { ! kill -0 "$watcher" 2>/dev/null || [ -n "$(http_status /v1/meshes)" ]; }
 for _ in 1 2 3 4 5; do
-  "$nginx" -c "$work/nginx.conf" -p "$work" 2>>"$work/nginx-error.log" && break
+  upstreams sh "$watcher_script" run -c "$work/nginx.conf" -p "$work" 2>>"$work/watcher.log" &
+  watcher=$!
+  wait_until 20 started_or_gone
+  kill -0 "$watcher" 2>/dev/null && break
   front=$(free_port)
   hfront=$(free_port)
   write_config
 done
+status=$(http_status /v1/meshes)
+check "nginx started before any replica exists and answers HTTP with 502 ($status)" \
+  test "$status" = 502
+unavailable=$(timeout 60 "$bin/geodesic" --server "127.0.0.1:$front" --timeout 10 meshes 2>&1 | tail -n 1)
+# UNAVAILABLE alone could be nobody listening; 502 says nginx answered.
+check "and gRPC with UNAVAILABLE ($unavailable)" eval '[[ "$unavailable" == *UNAVAILABLE*502* ]]'
 
 cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$front" --timeout 60 "$@" 2>>"$work/cli.log"; }
-for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && break; sleep 0.1; done
+for i in 0 1 2; do start_replica "$i"; done
+for i in 0 1 2; do wait_replica "$i"; done
+list_replicas 0 1 2
+routed=false
+wait_until 30 eval 'cli meshes >/dev/null 2>&1' && routed=true
+check "once the replicas are listed nginx routes to them, with no reload by hand" $routed
+show_logs() { for f in "$work"/*.log; do echo "--- $f"; tail -n 5 "$f"; done; }
+# Nothing after this can pass without routing: stop before minutes of timeouts.
+$routed || { show_logs; exit 1; }
 requests() { grep -c "method=Distance mesh=spot" "$work/replica$1.log"; }
 
 state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
@@ -127,7 +192,7 @@ for i in 0 1 2; do before[i]=$(requests "$i"); done
 hd=
 for _ in $(seq 20); do hd=$(http_distance 2>>"$work/cli.log"); done
 gd=$(cli --json --eps 0.01 distance --from v:1 --to v:2000 | json 'd[0]["distance"]')
-check "HTTP through nginx answers as gRPC does ($hd, $gd)" test "$hd" = "$gd"
+check "HTTP through nginx answers as gRPC does ($hd, $gd)" eval '[ -n "$hd" ] && [ "$hd" = "$gd" ]'
 hcounts=$(for i in 0 1 2; do echo $(($(requests "$i") - before[i])); done | tr '\n' ' ')
 howner=-1
 for i in 0 1 2; do [ $(($(requests "$i") - before[i])) -ge 20 ] && howner=$i; done
@@ -147,5 +212,40 @@ for _ in $(seq 10); do cli --eps 0.01 distance --from v:1 --to v:2000 >/dev/null
 moved=-1
 for i in 0 1 2; do [ "$i" != "$owner" ] && [ "$(requests "$i")" -ge 10 ] && moved=$i; done
 check "queries moved to one surviving replica ($moved)" test "$moved" -ge 0
-[ "$failures" = 0 ] || for f in "$work"/*.log; do echo "--- $f"; tail -n 5 "$f"; done
+
+# The owner comes back on new ports and the list says so; nginx must follow
+# by itself. A new port moves it on the ring here (a pod keeps its name, and
+# so its place), so the check is that it owns a share of the mesh names
+# again, over both protocols: calls for meshes that do not exist, which every
+# replica answers (NOT_FOUND) and logs with the mesh's name.
+start_replica "$owner"
+wait_replica "$owner"
+list_replicas 0 1 2
+probes=30
+probed() { grep -c "method=$1 mesh=probe" "$work/replica$owner.log"; }
+probe_round() {
+  for n in $(seq "$probes"); do cli --mesh "probe$n" snap 0,0,0 >/dev/null 2>&1; done
+  python3 - "$hfront" "$probes" <<'PY'
+import sys, urllib.error, urllib.request
+for n in range(1, int(sys.argv[2]) + 1):
+    try:
+        urllib.request.urlopen(f"http://127.0.0.1:{sys.argv[1]}/v1/meshes/probe{n}/graph?eps=0.01",
+                               timeout=10)
+    except (urllib.error.HTTPError, OSError):
+        pass
+PY
+  [ "$(probed Snap)" -gt 0 ] && [ "$(probed GetGraph)" -gt 0 ]
+}
+wait_until 30 probe_round
+check "the owner restarted on a new port gets mesh names over gRPC again, unreloaded ($(probed Snap) calls)" \
+  test "$(probed Snap)" -gt 0
+check "and over HTTP ($(probed GetGraph) calls)" test "$(probed GetGraph)" -gt 0
+for i in 0 1 2; do before[i]=$(requests "$i"); done
+answered=0
+for _ in $(seq 10); do cli --eps 0.01 distance --from v:1 --to v:2000 >/dev/null && answered=$((answered + 1)); done
+back=-1
+for i in 0 1 2; do [ $(($(requests "$i") - before[i])) = 10 ] && back=$i; done
+check "after the change spot's 10 queries are answered ($answered) on one replica ($back)" \
+  eval '[ "$answered" = 10 ] && [ "$back" -ge 0 ]'
+[ "$failures" = 0 ] || show_logs
 exit $((failures > 0))
