@@ -5,7 +5,9 @@ kustomizations list files that exist, probes are native gRPC probes on the
 serving port, HTTP is served and exposed where it is listened on, the Dockerfile
 is multi-stage with a non-root user, a health check and the viewer's files and
 three.js, and the nginx configuration routes by the mesh header (gRPC) and
-the mesh in the URL (HTTP).
+the mesh in the URL (HTTP). The nginx Deployment runs nginx through
+geodesicd-upstreams.sh on the files of deploy/nginx, with somewhere to write
+the server lists geodesicd.conf includes, and tries every StatefulSet pod.
 
 Usage: manifests_test.py SOURCE_DIR
 """
@@ -58,6 +60,13 @@ def check_document(path, doc):
         base = os.path.dirname(path)
         for r in doc.get("resources", []):
             need(os.path.exists(os.path.join(base, r)), f"{where}: lists missing file {r}")
+        # `kubectl apply -k` of the base silently leaves out a file it does
+        # not list (the build Job's merge is applied by hand, on purpose).
+        if os.path.basename(base) == "base":
+            for f in sorted(glob.glob(os.path.join(base, "*.yaml"))):
+                name = os.path.basename(f)
+                need(name == "kustomization.yaml" or name in doc.get("resources", []),
+                     f"{where}: does not list {name}")
         return
     need(doc.get("metadata", {}).get("name"), f"{where}: no metadata.name")
     spec = doc.get("spec", {})
@@ -81,6 +90,11 @@ def check_document(path, doc):
             for m in mounts:
                 need("persistentVolumeClaim" in volumes.get(m["name"], {}),
                      f"{where}: --mesh-root volume {m['name']} is not a PersistentVolumeClaim")
+    elif kind == "Deployment":
+        check_pod_spec(where, spec["template"]["spec"])
+        labels = spec["template"]["metadata"]["labels"]
+        for k, v in spec["selector"]["matchLabels"].items():
+            need(labels.get(k) == v, f"{where}: selector {k}={v} does not match the pod labels")
     elif kind == "Job":
         check_pod_spec(where, spec["template"]["spec"])
         if spec.get("completionMode") == "Indexed":
@@ -97,10 +111,73 @@ def check_document(path, doc):
         errors.append(f"{where}: unexpected kind")
 
 
+def check_nginx_deployment(docs):
+    """The nginx pods run deploy/nginx's files through geodesicd-upstreams.sh."""
+    where = "deploy/k8s/base nginx"
+    conf = open(os.path.join(DEPLOY, "nginx", "geodesicd.conf")).read()
+    script = open(os.path.join(DEPLOY, "nginx", "geodesicd-upstreams.sh")).read()
+    def runs_script(c):
+        return "geodesicd-upstreams.sh" in " ".join(c.get("command", []) + c.get("args", []))
+
+    deployments = [d for d in docs if d.get("kind") == "Deployment"
+                   and any(runs_script(c) for c in d["spec"]["template"]["spec"]["containers"])]
+    need(len(deployments) == 1, f"{where}: no Deployment runs nginx through geodesicd-upstreams.sh")
+    if not deployments:
+        return
+    pod = deployments[0]["spec"]["template"]["spec"]
+    c = next(c for c in pod["containers"] if runs_script(c))
+    argv = c.get("command", []) + c.get("args", [])
+    volumes = {v["name"]: v for v in pod.get("volumes", [])}
+    mounts = {m["mountPath"]: volumes.get(m["name"], {}) for m in c.get("volumeMounts", [])}
+    maps = {d["metadata"]["name"]: d.get("data", {}) for d in docs if d.get("kind") == "ConfigMap"}
+
+    def mounted(path):  # the ConfigMap data a file path in the container reads, or None
+        d, name = os.path.split(path)
+        cm = mounts.get(d, {}).get("configMap")
+        return maps.get(cm["name"], {}).get(name) if cm else None
+
+    script_path = next((a for a in argv if a.endswith("geodesicd-upstreams.sh")), "")
+    need(mounted(script_path) == script,
+         f"{where}: {script_path} is not deploy/nginx/geodesicd-upstreams.sh "
+         "(copy it into nginx-configmap.yaml, indented under its key)")
+    need("run" in argv, f"{where}: the script does not run nginx")
+    main_conf = argv[argv.index("-c") + 1] if "-c" in argv[:-1] else ""
+    main = mounted(main_conf) or ""
+    need(main, f"{where}: nginx's -c {main_conf!r} is not a ConfigMap file")
+    included = re.findall(r"^\s*include\s+(\S+);", main, re.M)
+    need(any(mounted(p) == conf for p in included),
+         f"{where}: nginx.conf includes no copy of deploy/nginx/geodesicd.conf "
+         "(copy it into nginx-configmap.yaml, indented under its key)")
+    need(not re.search(r"^\s*daemon\s", main, re.M),
+         f"{where}: nginx.conf sets daemon, which the script sets to off")
+    # Where the script writes the server lists is where geodesicd.conf reads them.
+    env = {e["name"]: e.get("value") for e in c.get("env", [])}
+    default_dir = re.search(r"dir=\$\{GEODESICD_UPSTREAMS_DIR:-(\S+?)\}", script)
+    lists_dir = env.get("GEODESICD_UPSTREAMS_DIR") or (default_dir.group(1) if default_dir else "")
+    for f in ("grpc-servers.conf", "http-servers.conf"):
+        need(f"include {lists_dir}/{f};" in conf,
+             f"{where}: geodesicd.conf does not include {lists_dir}/{f}")
+    need("emptyDir" in mounts.get(lists_dir, {}), f"{where}: no writable volume at {lists_dir}")
+    # Pods the script does not try never get traffic.
+    sets = [d for d in docs if d.get("kind") == "StatefulSet"]
+    for st in sets:
+        n = int(env.get("GEODESICD_REPLICAS") or 3)
+        need(n >= st["spec"].get("replicas", 1),
+             f"{where}: GEODESICD_REPLICAS={n} leaves out some of the "
+             f"{st['spec']['replicas']} pods")
+        name = env.get("GEODESICD_REPLICA_NAME") or "geodesicd-%d.geodesicd-headless"
+        need(name == f"{st['metadata']['name']}-%d.{st['spec']['serviceName']}",
+             f"{where}: GEODESICD_REPLICA_NAME {name} does not name the StatefulSet's pods")
+    ports = {p["name"]: p["containerPort"] for p in c.get("ports", [])}
+    need(f"listen {ports.get('grpc')} http2;" in conf and f"listen {ports.get('http')};" in conf,
+         f"{where}: the container's grpc and http ports are not the ones geodesicd.conf listens on")
+
+
 def main():
     paths = sorted(glob.glob(os.path.join(DEPLOY, "k8s", "**", "*.yaml"), recursive=True))
     need(paths, "no Kubernetes manifests under deploy/k8s")
     kinds = set()
+    base_docs = []
     for path in paths:
         try:
             docs = [d for d in yaml.safe_load_all(open(path)) if d]
@@ -110,8 +187,11 @@ def main():
         for doc in docs:
             kinds.add(doc.get("kind"))
             check_document(path, doc)
-    for kind in ("StatefulSet", "Service", "PodDisruptionBudget", "ConfigMap", "Job"):
+        if os.path.basename(os.path.dirname(path)) == "base":
+            base_docs += docs
+    for kind in ("StatefulSet", "Service", "PodDisruptionBudget", "ConfigMap", "Job", "Deployment"):
         need(kind in kinds, f"no {kind} in deploy/k8s")
+    check_nginx_deployment(base_docs)
 
     docker = open(os.path.join(DEPLOY, "Dockerfile")).read()
     stages = re.findall(r"^FROM\s+(\S+)\s+AS\s+(\S+)", docker, re.M | re.I)
