@@ -101,10 +101,22 @@ install_new() {
   for f in grpc http; do mv -f "$dir/$f-servers.conf.new" "$dir/$f-servers.conf"; done
 }
 
+# A HUP that comes before nginx handles it (its configuration is still being
+# read, and resolving names can take a while) ends nginx instead. Where /proc
+# cannot tell, nginx is taken to be up.
+handles_hup() {
+  caught=$(awk '/^SigCgt:/ { print $2 }' "/proc/$nginx_pid/status" 2>/dev/null)
+  case $caught in
+    '' | *[13579bdfBDF]) return 0 ;;
+    *) return 1 ;;
+  esac
+}
+
 # Each round: write the lists again and, when they changed, check the whole
 # configuration before reloading, so that a name that stopped resolving in
 # between leaves the running configuration alone until the next round.
 update() {
+  handles_hup || return
   render || return
   changed || return
   for f in grpc http; do
@@ -143,16 +155,25 @@ if [ "$mode" = render ]; then
   exit 0
 fi
 
-# nginx must start on lists that it accepts: with none resolving, that is
-# the placeholder.
+nginx_pid=
+stopping=
+# shellcheck disable=SC2317  # called from the traps
+stop() {
+  stopping=$1
+  [ -z "$nginx_pid" ] || kill -"$1" "$nginx_pid" 2>/dev/null
+}
+# TERM (Kubernetes stopping the pod) lets the calls in flight finish; INT
+# does not. A HUP meant for nginx (this script may be the container's first
+# process) reaches it once nginx can take it.
+trap 'stop QUIT' TERM QUIT
+trap 'stop TERM' INT
+trap '[ -z "$nginx_pid" ] || ! handles_hup || kill -HUP "$nginx_pid" 2>/dev/null' HUP
+# With no name resolving, nginx starts on the placeholder.
 render || exit 1
 install_new
 "$nginx" "$@" -g 'daemon off;' &
 nginx_pid=$!
-stopping=
-# TERM (Kubernetes stopping the pod) finishes the calls in flight; INT does not.
-trap 'stopping=1; kill -QUIT "$nginx_pid" 2>/dev/null' TERM QUIT
-trap 'stopping=1; kill -TERM "$nginx_pid" 2>/dev/null' INT
+[ -z "$stopping" ] || kill -"$stopping" "$nginx_pid"
 while [ -z "$stopping" ] && kill -0 "$nginx_pid" 2>/dev/null; do
   # A signal ends the wait, not the sleep; so the wait.
   sleep "$interval" &
