@@ -72,7 +72,7 @@ render() {
   while read -r host grpc_port http_port _; do
     case $host in '' | '#'*) continue ;; esac
     # getaddrinfo, as nginx itself resolves the name when it reloads.
-    addrs=$(getent ahosts "$host" | awk '{ print $1 }' | sort -u | paste -sd ' ' -)
+    addrs=$(getent ahosts "$host" < /dev/null | awk '{ print $1 }' | sort -u | paste -sd ' ' -)
     if [ -z "$addrs" ]; then
       for f in grpc http; do echo "# $host does not resolve" >> "$dir/$f-servers.conf.new"; done
       continue
