@@ -10,6 +10,9 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <set>
+#include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/notification.h"
@@ -18,6 +21,10 @@
 #include "server/convert.h"
 
 namespace geodesic::server {
+
+// Trails of states print by name.
+void PrintTo(GraphState s, std::ostream* os) { *os << GraphStateName(s); }
+
 namespace {
 
 namespace fs = std::filesystem;
@@ -56,10 +63,28 @@ class HeldMaker : public GraphMaker {
  public:
   enum Step { kOpen, kBuild, kWrite, kSteps };
 
-  void Hold(Step s) { held_[s] = std::make_unique<Gate>(); }
-  // Waits until the step is reached, then lets it go on.
-  void AwaitReached(Step s) { held_[s]->reached.WaitForNotification(); }
-  void Release(Step s) { held_[s]->release.Notify(); }
+  void Hold(Step s) {
+    absl::MutexLock lock(&mu_);
+    gates_[s] = std::make_shared<Gate>();
+  }
+  // Waits until the step is reached; false (and the test fails) if it is
+  // not within 30 s, so that a step never taken cannot hang the test.
+  bool AwaitReached(Step s) {
+    std::shared_ptr<Gate> gate = GateOf(s);
+    if (gate && gate->reached.WaitForNotificationWithTimeout(absl::Seconds(30))) return true;
+    ADD_FAILURE() << "step " << s << " was not reached";
+    return false;
+  }
+  // Lets a held step go on (or pass unheld, if not reached yet).
+  void Release(Step s) {
+    std::shared_ptr<Gate> gate = GateOf(s);
+    if (gate && !gate->release.HasBeenNotified()) gate->release.Notify();
+  }
+  // A test that stops early must not leave a worker held for the cache's
+  // destructor to wait on.
+  void ReleaseAll() {
+    for (int s = 0; s < kSteps; ++s) Release(Step(s));
+  }
   void FailBuild(bool fail) { fail_build_ = fail; }
   int calls(Step s) const { return calls_[s]; }
 
@@ -85,17 +110,30 @@ class HeldMaker : public GraphMaker {
  private:
   struct Gate {
     absl::Notification reached, release;
-    std::atomic<bool> taken{false};  // only the first call to pass is held
+    bool taken = false;  // only the first call to pass is held
   };
+  std::shared_ptr<Gate> GateOf(Step s) {
+    absl::MutexLock lock(&mu_);
+    return gates_[s];
+  }
   void Pass(Step s) {
     ++calls_[s];
-    if (held_[s] && !held_[s]->taken.exchange(true)) {
-      held_[s]->reached.Notify();
-      held_[s]->release.WaitForNotification();
-      held_[s].reset();
+    std::shared_ptr<Gate> gate;
+    {
+      absl::MutexLock lock(&mu_);
+      if (gates_[s] && !gates_[s]->taken) {
+        gate = gates_[s];
+        gate->taken = true;
+      }
     }
+    if (!gate) return;
+    gate->reached.Notify();
+    gate->release.WaitForNotification();
+    absl::MutexLock lock(&mu_);
+    if (gates_[s] == gate) gates_[s].reset();
   }
-  std::unique_ptr<Gate> held_[kSteps];
+  absl::Mutex mu_;
+  std::shared_ptr<Gate> gates_[kSteps] ABSL_GUARDED_BY(mu_);
   std::atomic<int> calls_[kSteps] = {};
   std::atomic<bool> fail_build_{false};
 };
@@ -110,13 +148,15 @@ class GraphCacheTest : public ::testing::Test {
     maker_ = std::make_shared<HeldMaker>();
   }
   void TearDown() override {
+    maker_->ReleaseAll();
     cache_.reset();
     fs::remove_all(dir_);
   }
-  GraphCache& Cache(bool persist = true, uint64_t memory_limit = 0) {
+  GraphCache& Cache(bool persist = true, uint64_t memory_limit = 0, DiskBudget* disk = nullptr) {
     GraphCache::Options options;
     if (persist) options.graph_dir = dir_;
     options.memory_limit = memory_limit;
+    options.disk = disk;
     options.resident_bytes_outside = [this] { return outside_bytes_.load(); };
     options.build_threads = 1;
     options.maker = maker_;
@@ -148,6 +188,54 @@ class GraphCacheTest : public ::testing::Test {
         << GraphStateName(s.ok() ? s->state : GraphState::kFailed);
     return s.ok() ? *s : GraphStatus{};
   }
+  // A new cache on an empty directory, with a maker of its own.
+  GraphCache& Fresh(bool persist = true, uint64_t memory_limit = 0, DiskBudget* disk = nullptr) {
+    if (maker_) maker_->ReleaseAll();
+    cache_.reset();
+    fs::remove_all(dir_);
+    maker_ = std::make_shared<HeldMaker>();
+    return Cache(persist, memory_limit, disk);
+  }
+  // The state the graph comes to rest in (ready, failed, cancelled or
+  // evicted: no worker holds it), or the last seen after 30 s.
+  GraphState Settle(const GraphKey& key) {
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    auto s = cache_->Get(key);
+    auto resting = [](GraphState g) {
+      return g == GraphState::kReady || g == GraphState::kFailed || g == GraphState::kCancelled ||
+             g == GraphState::kEvicted;
+    };
+    while (s.ok() && !resting(s->state) && absl::Now() < deadline) {
+      s = cache_->WaitForChange(key, s->version, deadline);
+    }
+    EXPECT_TRUE(s.ok()) << s.status();
+    EXPECT_TRUE(s.ok() && resting(s->state))
+        << "still " << (s.ok() ? GraphStateName(s->state) : "gone") << " after 30 s";
+    return s.ok() ? s->state : GraphState::kFailed;
+  }
+  // Requests the graph and follows it: each step in `held` is held in turn
+  // and the graph's state noted there, `at_last` runs while the last one
+  // is held, and the state it comes to rest in ends the trail. Holding
+  // every step the graph takes makes every state it passes through seen.
+  std::vector<GraphState> Walk(std::shared_ptr<const RegisteredMesh> mesh, const GraphKey& key,
+                               std::vector<HeldMaker::Step> held,
+                               const std::function<void()>& at_last = {}) {
+    for (HeldMaker::Step s : held) maker_->Hold(s);
+    // Request's answer, not a later look: the worker may have moved on.
+    std::vector<GraphState> trail = {cache_->Request(mesh, key.params).state};
+    for (size_t i = 0; i < held.size(); ++i) {
+      if (!maker_->AwaitReached(held[i])) {
+        maker_->ReleaseAll();
+        return trail;
+      }
+      trail.push_back(cache_->Get(key)->state);
+      if (i + 1 == held.size() && at_last) at_last();
+      maker_->Release(held[i]);
+    }
+    trail.push_back(Settle(key));
+    return trail;
+  }
+
   std::vector<std::string> Notices() {
     absl::MutexLock lock(&notices_mu_);
     return notices_;
@@ -168,26 +256,6 @@ class GraphCacheTest : public ::testing::Test {
   absl::Mutex notices_mu_;
   std::vector<std::string> notices_;
 };
-
-TEST(GraphStateTest, TheTableAllowsExactlyTheDocumentedMoves) {
-  using S = GraphState;
-  const std::vector<std::pair<S, S>> legal = {
-      {S::kQueued, S::kLoading},    {S::kQueued, S::kBuilding},      {S::kQueued, S::kCancelled},
-      {S::kLoading, S::kBuilding},  {S::kLoading, S::kReady},        {S::kLoading, S::kFailed},
-      {S::kLoading, S::kCancelled}, {S::kBuilding, S::kPersisting},  {S::kBuilding, S::kReady},
-      {S::kBuilding, S::kFailed},   {S::kBuilding, S::kCancelled},   {S::kPersisting, S::kReady},
-      {S::kPersisting, S::kFailed}, {S::kPersisting, S::kCancelled}, {S::kReady, S::kEvicted},
-      {S::kFailed, S::kQueued},     {S::kCancelled, S::kQueued},     {S::kEvicted, S::kQueued},
-  };
-  for (int from = 0; from < kGraphStateCount; ++from) {
-    for (int to = 0; to < kGraphStateCount; ++to) {
-      const std::pair<S, S> move{S(from), S(to)};
-      const bool documented = std::find(legal.begin(), legal.end(), move) != legal.end();
-      EXPECT_EQ(LegalTransition(S(from), S(to)), documented)
-          << GraphStateName(S(from)) << " -> " << GraphStateName(S(to));
-    }
-  }
-}
 
 TEST_F(GraphCacheTest, BuildsPersistsAndARestartLoadsTheFile) {
   auto mesh = GridMesh("grid", 6);
@@ -623,6 +691,260 @@ TEST_F(GraphCacheTest, StartUpRemovesOnlyOldBuildLocksNobodyHolds) {
   EXPECT_TRUE(fs::exists(dir_ / ".young-eps0.01-r2.dgg.lock"));
   EXPECT_TRUE(fs::exists(dir_ / ".held-eps0.01-r2.dgg.lock"));
   EXPECT_TRUE(fs::exists(dir_ / "graph-eps0.01-r2.dgg"));
+}
+
+// The moves of each graph's state machine, taken by driving a cache through
+// requests, builds that finish or fail, cancels, evictions and requests
+// again. Each walk returns the states one graph passed through, in order.
+class GraphMovesTest : public GraphCacheTest {
+ protected:
+  using S = GraphState;
+  using Trail = std::vector<GraphState>;
+  static constexpr HeldMaker::Step kOpen = HeldMaker::kOpen, kBuild = HeldMaker::kBuild,
+                                   kWrite = HeldMaker::kWrite;
+
+  // A graph whose file is already in --graph-dir: mapped, not built.
+  Trail MapsAFile() {
+    Fresh();
+    cache_->Request(mesh_, key_.params);
+    WaitFor(key_, S::kReady);
+    maker_ = std::make_shared<HeldMaker>();
+    Cache();
+    return Walk(mesh_, key_, {kOpen});
+  }
+  // With --graph-dir but no file: looked for, built, written.
+  Trail BuildsAndWrites() {
+    Fresh();
+    return Walk(mesh_, key_, {kOpen, kBuild, kWrite});
+  }
+  // Without --graph-dir: built and served from memory.
+  Trail BuildsInMemory() {
+    Fresh(/*persist=*/false);
+    return Walk(mesh_, key_, {kBuild});
+  }
+  // A build that fails, then a request that starts it again.
+  Trail FailsAndIsRequestedAgain() {
+    Fresh(/*persist=*/false);
+    maker_->FailBuild(true);
+    Trail trail = Walk(mesh_, key_, {kBuild});
+    maker_->FailBuild(false);
+    Trail again = Walk(mesh_, key_, {kBuild});
+    trail.insert(trail.end(), again.begin(), again.end());
+    return trail;
+  }
+  // A graph file the disk budget has no room for: the graph fails while
+  // persisting. The budget's eviction, asked for room, looks at the state.
+  Trail FailsWhilePersisting() {
+    Fresh();
+    fs::create_directories(dir_);
+    constexpr uint64_t kLimit = 1 << 20;
+    // The directory all but full: the graph alone would fit, so the budget
+    // asks for room, and none is made.
+    std::ofstream(dir_ / "filler") << std::string(kLimit - 64, 'x');
+    std::vector<GraphState> seen;
+    absl::Mutex seen_mu;
+    DiskBudget disk(dir_, kLimit, [&](uint64_t) -> absl::StatusOr<uint64_t> {
+      absl::MutexLock lock(&seen_mu);
+      seen.push_back(cache_->Get(key_)->state);
+      return DirectoryBytes(dir_);
+    });
+    EXPECT_TRUE(disk.Scan().ok());
+    Cache(/*persist=*/true, /*memory_limit=*/0, &disk);
+    Trail trail = Walk(mesh_, key_, {kOpen, kBuild});
+    absl::MutexLock lock(&seen_mu);
+    EXPECT_EQ(seen.size(), 1u) << "the budget was not asked for room";
+    trail.insert(trail.end() - 1, seen.begin(), seen.end());
+    cache_.reset();  // before the budget it points to goes
+    return trail;
+  }
+  // A cancel while queued behind another build (no worker to tell), then a
+  // request that makes it after all.
+  Trail CancelledWhileQueued() {
+    Fresh(/*persist=*/false);
+    const GraphKey blocker{"grid", Eps(0.1)};
+    maker_->Hold(kBuild);
+    cache_->Request(mesh_, blocker.params);
+    Trail trail;
+    if (!maker_->AwaitReached(kBuild)) return trail;
+    trail.push_back(cache_->Request(mesh_, key_.params).state);
+    auto cancelled = cache_->Cancel(key_);
+    trail.push_back(cancelled.ok() ? cancelled->state : S::kFailed);
+    maker_->Release(kBuild);
+    EXPECT_EQ(Settle(blocker), S::kReady);
+    Trail again = Walk(mesh_, key_, {kBuild});
+    trail.insert(trail.end(), again.begin(), again.end());
+    return trail;
+  }
+  // A cancel while the worker is at `step` (a file to map for kOpen), then
+  // a request that makes the graph after all.
+  Trail CancelledAt(HeldMaker::Step step) {
+    std::vector<HeldMaker::Step> held = {kOpen, kBuild, kWrite};
+    if (step == kOpen) {
+      MapsAFile();
+      // A new cache, so that the graph is loading again.
+      maker_ = std::make_shared<HeldMaker>();
+      Cache();
+      held = {kOpen};
+    } else {
+      Fresh();
+      held.resize(step == kBuild ? 2 : 3);
+    }
+    Trail trail = Walk(mesh_, key_, held, [&] { ASSERT_TRUE(cache_->Cancel(key_).ok()); });
+    // Only a graph cancelled mid-build has no file to map: a cancel while
+    // writing comes too late to stop the file.
+    Trail again =
+        Walk(mesh_, key_, step == kBuild ? std::vector{kOpen, kBuild, kWrite} : std::vector{kOpen});
+    trail.insert(trail.end(), again.begin(), again.end());
+    return trail;
+  }
+  // Evicted over the memory budget by another graph, then requested again:
+  // mapped from its file.
+  Trail EvictedAndMappedAgain() {
+    Fresh(/*persist=*/true, /*memory_limit=*/1);
+    Trail trail = Walk(mesh_, key_, {kOpen, kBuild, kWrite});
+    const GraphKey other{"grid", Eps(0.1)};
+    EXPECT_EQ(Walk(mesh_, other, {kOpen, kBuild, kWrite}).back(), S::kReady);
+    trail.push_back(cache_->Get(key_)->state);
+    Trail again = Walk(mesh_, key_, {kOpen});
+    trail.insert(trail.end(), again.begin(), again.end());
+    return trail;
+  }
+
+  std::shared_ptr<const RegisteredMesh> mesh_ = GridMesh("grid", 5);
+  const GraphKey key_{"grid", Eps(0.05)};
+};
+
+TEST_F(GraphMovesTest, AGraphWhoseFileIsThereIsMappedNotBuilt) {
+  EXPECT_THAT(MapsAFile(), ::testing::ElementsAre(S::kQueued, S::kLoading, S::kReady));
+  EXPECT_TRUE(cache_->Get(key_)->from_file);
+  EXPECT_EQ(maker_->calls(kBuild), 0);
+}
+
+TEST_F(GraphMovesTest, ANewGraphIsLookedForThenBuiltThenWritten) {
+  EXPECT_THAT(BuildsAndWrites(), ::testing::ElementsAre(S::kQueued, S::kLoading, S::kBuilding,
+                                                        S::kPersisting, S::kReady));
+  EXPECT_FALSE(cache_->Get(key_)->from_file);
+  EXPECT_TRUE(fs::exists(cache_->GraphPath(mesh_->fingerprint, key_.params)));
+}
+
+TEST_F(GraphMovesTest, WithoutAGraphDirAGraphIsBuiltAndNotWritten) {
+  EXPECT_THAT(BuildsInMemory(), ::testing::ElementsAre(S::kQueued, S::kBuilding, S::kReady));
+  EXPECT_EQ(maker_->calls(kWrite), 0);
+  EXPECT_FALSE(cache_->Get(key_)->mapped);
+}
+
+TEST_F(GraphMovesTest, AFailedBuildIsFailedUntilRequestedAgain) {
+  EXPECT_THAT(FailsAndIsRequestedAgain(),
+              ::testing::ElementsAre(S::kQueued, S::kBuilding, S::kFailed, S::kQueued, S::kBuilding,
+                                     S::kReady));
+}
+
+TEST_F(GraphMovesTest, AGraphFileTheDiskHasNoRoomForFailsTheGraphWhilePersisting) {
+  EXPECT_THAT(FailsWhilePersisting(), ::testing::ElementsAre(S::kQueued, S::kLoading, S::kBuilding,
+                                                             S::kPersisting, S::kFailed));
+  EXPECT_EQ(maker_->calls(kWrite), 0);
+}
+
+TEST_F(GraphMovesTest, ACancelWhileQueuedTakesEffectAtOnce) {
+  EXPECT_THAT(CancelledWhileQueued(), ::testing::ElementsAre(S::kQueued, S::kCancelled, S::kQueued,
+                                                             S::kBuilding, S::kReady));
+}
+
+TEST_F(GraphMovesTest, ACancelAtEachStepEndsCancelledAndARequestMakesItAgain) {
+  EXPECT_THAT(CancelledAt(kOpen), ::testing::ElementsAre(S::kQueued, S::kLoading, S::kCancelled,
+                                                         S::kQueued, S::kLoading, S::kReady));
+  EXPECT_THAT(CancelledAt(kBuild), ::testing::ElementsAre(S::kQueued, S::kLoading, S::kBuilding,
+                                                          S::kCancelled, S::kQueued, S::kLoading,
+                                                          S::kBuilding, S::kPersisting, S::kReady));
+  EXPECT_THAT(CancelledAt(kWrite),
+              ::testing::ElementsAre(S::kQueued, S::kLoading, S::kBuilding, S::kPersisting,
+                                     S::kCancelled, S::kQueued, S::kLoading, S::kReady));
+}
+
+TEST_F(GraphMovesTest, AnEvictedGraphIsMappedAgainWhenRequested) {
+  EXPECT_THAT(EvictedAndMappedAgain(),
+              ::testing::ElementsAre(S::kQueued, S::kLoading, S::kBuilding, S::kPersisting,
+                                     S::kReady, S::kEvicted, S::kQueued, S::kLoading, S::kReady));
+  EXPECT_TRUE(cache_->Get(key_)->from_file);
+}
+
+// Every move the walks take is one the table allows, and every move the
+// table allows is one some walk takes: the table has no rule the cache
+// never uses, and the cache no move the table refuses.
+TEST_F(GraphMovesTest, TheCacheTakesEveryMoveTheTableAllowsAndNoOther) {
+  std::set<std::pair<S, S>> taken;
+  for (const Trail& trail :
+       {MapsAFile(), BuildsAndWrites(), BuildsInMemory(), FailsAndIsRequestedAgain(),
+        FailsWhilePersisting(), CancelledWhileQueued(), CancelledAt(kOpen), CancelledAt(kBuild),
+        CancelledAt(kWrite), EvictedAndMappedAgain()}) {
+    for (size_t i = 1; i < trail.size(); ++i) taken.insert({trail[i - 1], trail[i]});
+  }
+  for (const auto& [from, to] : taken) {
+    EXPECT_TRUE(LegalTransition(from, to))
+        << "taken but not allowed: " << GraphStateName(from) << " -> " << GraphStateName(to);
+  }
+  for (int from = 0; from < kGraphStateCount; ++from) {
+    for (int to = 0; to < kGraphStateCount; ++to) {
+      // Loading never fails: a file that cannot be mapped is rebuilt.
+      if (S(from) == S::kLoading && S(to) == S::kFailed) continue;
+      if (LegalTransition(S(from), S(to))) {
+        EXPECT_TRUE(taken.count({S(from), S(to)}))
+            << "allowed but never taken: " << GraphStateName(S(from)) << " -> "
+            << GraphStateName(S(to));
+      }
+    }
+  }
+}
+
+// What a call would make an illegal move is refused: the graph stays where
+// it is, and nothing is built again.
+TEST_F(GraphMovesTest, CallsThatWouldMakeAnIllegalMoveLeaveTheGraphWhereItIs) {
+  Fresh(/*persist=*/false);
+  const GraphKey failing{"grid", Eps(0.2)}, cancelled{"grid", Eps(0.3)};
+  maker_->Hold(kBuild);
+  cache_->Request(mesh_, key_.params);
+  ASSERT_TRUE(maker_->AwaitReached(kBuild));
+  // building -> queued: a request while it builds joins the build.
+  EXPECT_EQ(cache_->Request(mesh_, key_.params).state, S::kBuilding);
+  // queued -> queued again: a second request joins the first.
+  EXPECT_EQ(cache_->Request(mesh_, cancelled.params).state, S::kQueued);
+  const uint64_t version = cache_->Get(cancelled)->version;
+  EXPECT_EQ(cache_->Request(mesh_, cancelled.params).state, S::kQueued);
+  EXPECT_EQ(cache_->Get(cancelled)->version, version);
+  ASSERT_EQ(cache_->Cancel(cancelled)->state, S::kCancelled);
+  maker_->Release(kBuild);
+  ASSERT_EQ(Settle(key_), S::kReady);
+  EXPECT_EQ(maker_->calls(kBuild), 1);
+
+  // ready -> cancelled, ready -> queued.
+  EXPECT_EQ(cache_->Cancel(key_)->state, S::kReady);
+  EXPECT_EQ(cache_->Request(mesh_, key_.params).state, S::kReady);
+  EXPECT_EQ(Settle(key_), S::kReady);
+  EXPECT_EQ(maker_->calls(kBuild), 1);
+
+  // cancelled -> cancelled again, and no use restarts it: only a request.
+  EXPECT_EQ(cache_->Cancel(cancelled)->state, S::kCancelled);
+  EXPECT_EQ(cache_->Acquire(cancelled).status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(cache_->Get(cancelled)->state, S::kCancelled);
+
+  // failed -> cancelled, and no use restarts it either.
+  maker_->FailBuild(true);
+  cache_->Request(mesh_, failing.params);
+  ASSERT_EQ(Settle(failing), S::kFailed);
+  EXPECT_EQ(cache_->Cancel(failing)->state, S::kFailed);
+  EXPECT_EQ(cache_->Acquire(failing).status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_EQ(cache_->Get(failing)->state, S::kFailed);
+  EXPECT_EQ(maker_->calls(kBuild), 2);
+
+  // evicted -> cancelled.
+  Fresh(/*persist=*/true, /*memory_limit=*/1);
+  cache_->Request(mesh_, key_.params);
+  ASSERT_EQ(Settle(key_), S::kReady);
+  cache_->Request(mesh_, failing.params);
+  ASSERT_EQ(Settle(failing), S::kReady);
+  ASSERT_EQ(cache_->Get(key_)->state, S::kEvicted);
+  EXPECT_EQ(cache_->Cancel(key_)->state, S::kEvicted);
+  EXPECT_EQ(cache_->Get(key_)->state, S::kEvicted);
 }
 
 }  // namespace
