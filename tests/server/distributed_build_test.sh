@@ -7,14 +7,9 @@ set -uo pipefail
 bin=$1
 mesh=$2/data/spot.obj
 work=$(mktemp -d)
-trap 'rm -rf "$work"' EXIT
-failures=0
-check() {  # check NAME COMMAND...: passes when the command succeeds
-  local name=$1; shift
-  if "$@"; then echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
-}
+source "$(dirname "$0")/daemon.sh"
+trap 'daemon_cleanup; rm -rf "$work"' EXIT
 geodesicd() { timeout 300 "$bin/geodesicd" "$@"; }
-quietly() { "$@" >/dev/null 2>&1; }
 
 geodesicd build "$mesh" --eps 0.005 --threads 1 --quiet --out "$work/single.dgg" >/dev/null
 for i in 0 1 2; do
@@ -22,7 +17,8 @@ for i in 0 1 2; do
 done
 geodesicd merge "$mesh" "$work/p2.part" "$work/p0.part" "$work/p1.part" --quiet \
   --out "$work/merged.dgg" >/dev/null
-check "3 parts merged equal the single build byte for byte" cmp "$work/single.dgg" "$work/merged.dgg"
+check "3 parts merged equal the single build byte for byte" \
+  same_file "$work/single.dgg" "$work/merged.dgg"
 check "merged graph passes full validation" quietly geodesicd info "$work/merged.dgg"
 
 geodesicd merge "$mesh" "$work/p0.part" "$work/p2.part" --out "$work/x.dgg" 2>"$work/e1"
@@ -67,12 +63,7 @@ check "part index out of range" grep -q "index must be in" "$work/e5"
 # (the Kubernetes build Job's flow), instead of building.
 geodesicd merge "$mesh" "$work/p0.part" "$work/p1.part" "$work/p2.part" --quiet \
   --graph-dir "$work/graphs" >/dev/null
-source "$(dirname "$0")/daemon_port.sh"
-"$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --graph-dir "$work/graphs" \
-  --log-level warning 2>"$work/daemon.log" &
-daemon=$!
-trap 'kill "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; rm -rf "$work"' EXIT
-port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
+daemon_start "$bin" "$work" --graph-dir "$work/graphs" --log-level warning || exit 1
 from_file=
 for _ in $(seq 50); do
   from_file=$(timeout 60 "$bin/geodesic" --server "127.0.0.1:$port" --json --eps 0.005 graph --wait 2>/dev/null |

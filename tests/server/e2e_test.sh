@@ -5,28 +5,15 @@ set -uo pipefail
 bin=$1
 src=$2
 work=$(mktemp -d)
-failures=0
-passes=0
-source "$(dirname "$0")/daemon_port.sh"
-port=
-daemon=
+source "$(dirname "$0")/daemon.sh"
+trap 'daemon_cleanup; rm -rf "$work"' EXIT
 start_daemon() {
-  rm -f "$work/ports"
-  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --graph-dir "$work/graphs" \
-    --mesh-root "$src/data" --log-level warning "$@" 2>>"$work/daemon.log" &
-  daemon=$!
-  port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
-  for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && return 0; sleep 0.1; done
-  echo "daemon did not start"; cat "$work/daemon.log"; exit 1
+  daemon_start "$bin" "$work" --graph-dir "$work/graphs" --mesh-root "$src/data" \
+    --log-level warning "$@" || exit 1
+  retry_for 10 quietly cli meshes || daemon_fail "geodesicd does not answer"
 }
-stop_daemon() { kill -TERM "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; }
-trap 'stop_daemon; rm -rf "$work"' EXIT
+stop_daemon() { daemon_stop; }
 cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$port" "$@"; }
-check() {  # check NAME COMMAND...: passes when the command succeeds
-  local name=$1; shift
-  if "$@"; then passes=$((passes + 1)); echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
-}
-json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
 
 start_daemon
 check "sample mesh registered" test "$(cli --json meshes | json 'd[0]["name"]')" = spot
@@ -35,7 +22,8 @@ check "sample mesh parsed and built the first time" \
 state=$(cli --json --eps 0.01 graph --wait | json 'd["state"]')
 check "graph builds to ready" test "$state" = ready
 graph=$(ls "$work"/graphs/*eps0.01-r*.dgg)
-check "graph persisted atomically (no temp files)" test "$(ls "$work/graphs" | grep -c tmp)" = 0
+check "graph persisted atomically (no temp files)" \
+  test -s "$graph" -a "$(ls "$work/graphs" | grep -c tmp)" = 0
 
 # Query results equal the offline core results on the same graph file.
 cli --json --eps 0.01 distance --from f:10:0.2,0.3,0.5 --to v:2000 > "$work/d_daemon.json"
@@ -43,10 +31,10 @@ cli --json --eps 0.01 distance --from f:10:0.2,0.3,0.5 --to v:2000 > "$work/d_da
   --from f:10:0.2,0.3,0.5 --to v:2000 --json > "$work/d_offline.json"
 d1=$(json 'd[0]["distance"]' < "$work/d_daemon.json")
 d2=$(json 'd["distance"]' < "$work/d_offline.json")
-check "distance equals the offline result ($d1)" test "$d1" = "$d2"
+check "distance equals the offline result ($d1)" same_number "$d1" "$d2"
 cli --eps 0.01 field --source v:7 --out "$work/f_daemon.f64" >/dev/null
 "$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$graph" --source v:7 --out "$work/f_offline.f64" >/dev/null
-check "streamed field equals the offline field" cmp -s "$work/f_daemon.f64" "$work/f_offline.f64"
+check "streamed field equals the offline field" same_file "$work/f_daemon.f64" "$work/f_offline.f64"
 plen=$(cli --json --eps 0.01 path --from v:1 --to v:2500 | json 'len(d[0]["path"])')
 check "path has points ($plen)" test "$plen" -gt 2
 # The graph with pseudo vertices is its own graph: --wait watches it (not the
@@ -59,12 +47,12 @@ check "status lists the pseudo-vertex graph beside the plain one" \
 pgraph=$(ls "$work"/graphs/*eps0.01-pseudo-r*.dgg)
 cli --eps 0.01 field --pseudo-vertices --source v:7 --out "$work/pf_daemon.f64" >/dev/null
 "$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$pgraph" --source v:7 --out "$work/pf_offline.f64" >/dev/null
-check "pseudo-vertex field equals the offline one" cmp -s "$work/pf_daemon.f64" "$work/pf_offline.f64"
-check "and differs from the plain graph's field" bash -c "! cmp -s '$work/pf_daemon.f64' '$work/f_daemon.f64'"
+check "pseudo-vertex field equals the offline one" same_file "$work/pf_daemon.f64" "$work/pf_offline.f64"
+check "and differs from the plain graph's field" different_files "$work/pf_daemon.f64" "$work/f_daemon.f64"
 pd=$(cli --json --eps 0.01 --pseudo-vertices distance --from f:10:0.2,0.3,0.5 --to v:2000 | json 'd[0]["distance"]')
 poff=$("$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$pgraph" \
   --from f:10:0.2,0.3,0.5 --to v:2000 --json | json 'd["distance"]')
-check "pseudo-vertex distance equals the offline one ($pd)" test "$pd" = "$poff"
+check "pseudo-vertex distance equals the offline one ($pd)" same_number "$pd" "$poff"
 # A non-manifold upload (a bow tie: two triangles sharing only a vertex) is
 # refused naming the vertex, and registered with repair, the copy listed.
 printf 'v 0 0 0\nv 1 0 0\nv 0 1 0\nv -1 0 0\nv 0 -1 0\nf 1 2 3\nf 1 4 5\n' > "$work/bowtie.obj"
@@ -79,7 +67,7 @@ cli --mesh bowtie unload >/dev/null
 snapd=$(cli --json --eps 0.01 distance --from v:1 --to xyz:0.3,0.1,0 | json 'd[0]["to_snap_distance"]')
 offd=$("$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$graph" --from v:1 \
   --to xyz:0.3,0.1,0 --json | json 'd["to_snap_distance"]')
-check "snap distance reported ($snapd) and equal to the offline one" test "$snapd" = "$offd"
+check "snap distance reported ($snapd) and equal to the offline one" same_number "$snapd" "$offd"
 # Farthest-point sampling on the server: distinct vertices, one per seed.
 s1=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
 s2=$(cli --json --eps 0.01 sample --count 6 --seed 3 | json 'd["vertices"]')
@@ -91,13 +79,13 @@ check "sample: a finite covering radius ($radius)" python3 -c "import math,sys; 
 cli --eps 0.01 field --source v:7 --source v:900 --out "$work/f_daemon.npy" --labels-out "$work/l_daemon.csv" >/dev/null
 "$bin/geodesicd" field --mesh "$src/data/spot.obj" --graph "$graph" --source v:7 --source v:900 \
   --out "$work/f_offline.npy" --labels-out "$work/l_offline.csv" >/dev/null
-check "npy field equals the offline one" cmp -s "$work/f_daemon.npy" "$work/f_offline.npy"
-check "Voronoi labels equal the offline ones" cmp -s "$work/l_daemon.csv" "$work/l_offline.csv"
+check "npy field equals the offline one" same_file "$work/f_daemon.npy" "$work/f_offline.npy"
+check "Voronoi labels equal the offline ones" same_file "$work/l_daemon.csv" "$work/l_offline.csv"
 cli --eps 0.01 field --source v:7 --out "$work/f.txt" 2>"$work/e_ext"
 check "unknown field format refused" grep -q "'.txt'" "$work/e_ext"
 check "nothing written for it" test ! -e "$work/f.txt"
 cli --eps 0.01 path --from v:1 --to v:2500 --out "$work/p.obj" >/dev/null
-check "path polyline written ($plen points)" test "$(grep -c '^v ' "$work/p.obj")" = "$plen"
+check "path polyline written ($plen points)" same_number "$(grep -c '^v ' "$work/p.obj")" "$plen"
 
 # Bad requests get precise codes and the daemon keeps serving.
 cli --eps 0.01 distance --from v:999999 --to v:1 2>"$work/e1"; check "vertex id too large" grep -q OUT_OF_RANGE "$work/e1"

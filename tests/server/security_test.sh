@@ -7,37 +7,20 @@ set -uo pipefail
 bin=$1
 src=$2
 work=$(mktemp -d)
-failures=0
-source "$(dirname "$0")/daemon_port.sh"
-port=
-daemon=
+source "$(dirname "$0")/daemon.sh"
+trap 'daemon_cleanup; rm -rf "$work"' EXIT
+# The port file is written once the listener accepts connections; the
+# client needs a token or TLS, so readiness is not probed with a call.
 start_daemon() {
-  rm -f "$work/ports"
-  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --graph-dir "$work/graphs" \
-    --mesh-root "$src/data" --log-level warning --default-epsilon 0.02 "$@" 2>>"$work/daemon.log" &
-  daemon=$!
-  port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
-  for _ in $(seq 100); do
-    python3 - "$port" <<'PY' 2>/dev/null && return 0
-import socket, sys
-socket.create_connection(("127.0.0.1", int(sys.argv[1])), timeout=1).close()
-PY
-    sleep 0.1
-  done
-  echo "daemon did not start"; cat "$work/daemon.log"; exit 1
+  daemon_start "$bin" "$work" --graph-dir "$work/graphs" --mesh-root "$src/data" \
+    --log-level warning --default-epsilon 0.02 "$@" || exit 1
 }
-stop_daemon() { kill -TERM "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; }
-trap 'stop_daemon; rm -rf "$work"' EXIT
+stop_daemon() { daemon_stop; }
 cli() { timeout 60 "$bin/geodesic" --server "127.0.0.1:$port" --timeout 20 "$@"; }
-check() {  # check NAME COMMAND...: passes when the command succeeds
-  local name=$1; shift
-  if "$@"; then echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
-}
 fails_with() {  # fails_with CODE COMMAND...: the command fails and prints CODE
   local code=$1; shift
   ! "$@" >/dev/null 2>"$work/err" && grep -q "$code" "$work/err"
 }
-quietly() { "$@" >/dev/null 2>&1; }
 py_client() {  # py_client [TOKEN [CA CERT KEY]]: the Python client lists meshes
   /usr/bin/python3 - "$port" "$src" "$@" <<'PY'
 import sys
@@ -119,12 +102,12 @@ check "mTLS: Python client with certificate and token is served" \
 stop_daemon
 
 # Misconfiguration is refused at start, naming the flag.
-"$bin/geodesicd" serve --listen 127.0.0.1:0 --tls-cert "$work/server.crt" 2>"$work/e1"
+timeout 60 "$bin/geodesicd" serve --listen 127.0.0.1:0 --tls-cert "$work/server.crt" 2>"$work/e1"
 check "--tls-cert without --tls-key refused" grep -q "go together" "$work/e1"
-"$bin/geodesicd" serve --listen 127.0.0.1:0 --tls-client-ca "$work/ca.crt" 2>"$work/e3"
+timeout 60 "$bin/geodesicd" serve --listen 127.0.0.1:0 --tls-client-ca "$work/ca.crt" 2>"$work/e3"
 check "--tls-client-ca without a server certificate refused" \
   grep -q "tls-client-ca needs --tls-cert" "$work/e3"
 : > "$work/empty"
-"$bin/geodesicd" serve --listen 127.0.0.1:0 --auth-token-file "$work/empty" 2>"$work/e2"
+timeout 60 "$bin/geodesicd" serve --listen 127.0.0.1:0 --auth-token-file "$work/empty" 2>"$work/e2"
 check "empty token file refused" grep -q "auth-token-file" "$work/e2"
 exit $((failures > 0))
