@@ -1,46 +1,68 @@
 #!/usr/bin/env bash
 # Faults: kill -9 during a build and during a graph write, graph files
-# truncated, deleted or replaced under a running daemon, a full disk. After
-# each, nothing untrustworthy is served and the daemon keeps serving.
-# Usage: faults_test.sh BUILD_BIN_DIR SOURCE_DIR
+# truncated, deleted or replaced under a running daemon. After each, nothing
+# untrustworthy is served and the daemon keeps serving.
+# With --full-disk, only a full disk while writing a graph: it mounts a small
+# tmpfs, so it needs root; without root it exits 77 (skipped), and as root a
+# mount that fails is a failure, not a skip.
+# Usage: faults_test.sh BUILD_BIN_DIR SOURCE_DIR [--full-disk]
 set -uo pipefail
 bin=$1
 src=$2
+full_disk=${3:-}
 work=$(mktemp -d)
 graphs=$work/graphs
-failures=0
-source "$(dirname "$0")/daemon_port.sh"
-port=
-daemon=
+source "$(dirname "$0")/daemon.sh"
 tmpfs=
-start_daemon() {
-  rm -f "$work/ports"
-  "$bin/geodesicd" serve --listen 127.0.0.1:0 --port-file "$work/ports" --mesh-root "$src/data" \
-    --log-level warning --build-threads 1 --graph-dir "$@" 2>>"$work/daemon.log" &
-  daemon=$!
-  port=$(wait_port_file "$daemon" "$work/ports") || { echo "daemon did not start"; cat "$work/daemon.log"; exit 1; }
-  for _ in $(seq 100); do cli meshes >/dev/null 2>&1 && return 0; sleep 0.1; done
-  echo "daemon did not start"; cat "$work/daemon.log"; exit 1
-}
-stop_daemon() { kill -TERM "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null; }
 cleanup() {
-  kill -9 "$daemon" 2>/dev/null; wait "$daemon" 2>/dev/null
+  daemon_cleanup
   [ -n "$tmpfs" ] && umount "$tmpfs" 2>/dev/null
   rm -rf "$work"
 }
 trap cleanup EXIT
-cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$port" "$@"; }
-check() {  # check NAME COMMAND...: passes when the command succeeds
-  local name=$1; shift
-  if "$@"; then echo "ok   $name"; else failures=$((failures + 1)); echo "FAIL $name"; fi
+start_daemon() {  # start_daemon GRAPH_DIR
+  daemon_start "$bin" "$work" --mesh-root "$src/data" --log-level warning --build-threads 1 \
+    --graph-dir "$@" || exit 1
+  retry_for 10 quietly cli meshes || daemon_fail "geodesicd does not answer"
 }
-json() { python3 -c "import json,sys; d=json.load(sys.stdin); print($1)"; }
+stop_daemon() { daemon_stop; }
+cli() { timeout 120 "$bin/geodesic" --server "127.0.0.1:$port" "$@"; }
 graph_field() { cli --json --eps "$1" graph --wait | json "d[\"$2\"]"; }
 offline_distance() {
   "$bin/geodesicd" distance --mesh "$src/data/spot.obj" --graph "$1" --from v:5 --to v:2500 --json |
     json 'd["distance"]'
 }
 daemon_distance() { cli --json --eps "$1" distance --from v:5 --to v:2500 | json 'd[0]["distance"]'; }
+finish() {
+  [ "$failures" = 0 ] || { echo "--- daemon log"; cat "$work/daemon.log"; }
+  exit $((failures > 0))
+}
+
+# A full disk while writing a graph: the write fails cleanly (no partial or
+# temporary file) and the graph is served from memory, saying so.
+if [ "$full_disk" = --full-disk ]; then
+  if [ "$(id -u)" != 0 ]; then
+    echo "skip: mounting a small tmpfs needs root"
+    exit 77
+  fi
+  mkdir -p "$work/full"
+  mount -t tmpfs -o size=256k tmpfs "$work/full" ||
+    { echo "FAIL cannot mount a tmpfs, although root"; exit 1; }
+  tmpfs=$work/full
+  "$bin/geodesicd" build "$src/data/spot.obj" --eps 0.01 --out "$work/good.dgg" >/dev/null 2>&1
+  check "the reference graph is built offline" test -s "$work/good.dgg"
+  start_daemon "$tmpfs"
+  check "full disk: graph still becomes ready" test "$(graph_field 0.01 state)" = ready
+  check "full disk: the error says it is kept in memory only" \
+    grep -q "kept in memory only" <(cli --json --eps 0.01 graph)
+  # The catalog and its lock (it records the sample's graphs) are all there is.
+  left=$(ls "$tmpfs" | grep -vx -e catalog.json -e catalog.lock)
+  check "full disk: no graph file left behind ($left)" test -d "$tmpfs" -a -z "$left"
+  check "full disk: queries answer" \
+    same_number "$(daemon_distance 0.01)" "$(offline_distance "$work/good.dgg")"
+  stop_daemon
+  finish
+fi
 
 # kill -9 in the middle of a build: no graph file appears, and a restart
 # builds again rather than trusting anything left behind. At eps 1e-5 spot
@@ -57,8 +79,9 @@ for _ in $(seq 200); do
 done
 sleep 0.5
 check "the build is running when the daemon is killed" test "$(graph_state)" = building/False
-kill -9 "$daemon"; wait "$daemon" 2>/dev/null
-check "kill -9 during a build leaves no graph file" test -z "$(ls "$graphs" | grep 'eps1e-05')"
+daemon_kill
+check "kill -9 during a build leaves no graph file" \
+  test -d "$graphs" -a -z "$(ls "$graphs" | grep 'eps1e-05')"
 start_daemon "$graphs"
 cli --eps $slow graph >/dev/null
 # A fresh request is queued, then either mapped from a file (loading, then
@@ -86,7 +109,7 @@ mv "$good" "$work/good.dgg"
 start_daemon "$graphs"
 check "a half-written temporary file is not mapped" test "$(graph_field 0.01 from_file)" = False
 check "the rebuilt graph answers like the good one" \
-  test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+  same_number "$(daemon_distance 0.01)" "$(offline_distance "$work/good.dgg")"
 check "an old temporary file is removed at start" test ! -e "$good.tmp.4242.beef"
 check "a recent temporary file (a live writer's) is left alone" test -e "$good.tmp.4343.cafe"
 
@@ -102,7 +125,7 @@ printf '\xff' | dd of="$good" bs=1 seek=$((size / 2)) conv=notrunc status=none
 start_daemon "$graphs"
 check "a bit-flipped graph file is rebuilt, not mapped" test "$(graph_field 0.01 from_file)" = False
 check "and answers like the good one" \
-  test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+  same_number "$(daemon_distance 0.01)" "$(offline_distance "$work/good.dgg")"
 
 # A valid graph of another mesh (spot with one vertex nudged: same counts,
 # another fingerprint) under this mesh's file name is refused, not served.
@@ -115,7 +138,7 @@ check "another mesh's graph is rebuilt, not mapped" test "$(graph_field 0.01 fro
 check "and the refusal says so, with both fingerprints" \
   grep -q "built for another mesh (fingerprint" "$work/daemon.log"
 check "and answers like the good one" \
-  test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
+  same_number "$(daemon_distance 0.01)" "$(offline_distance "$work/good.dgg")"
 
 # Files deleted or replaced (by rename, as every writer here does) under a
 # running daemon: it keeps serving the graph it mapped.
@@ -124,28 +147,12 @@ start_daemon "$graphs"
 check "graph mapped from the directory" test "$(graph_field 0.01 from_file)" = True
 before=$(daemon_distance 0.01)
 rm "$good"
-check "graph file deleted under the daemon: still serving" test "$(daemon_distance 0.01)" = "$before"
+check "graph file deleted under the daemon: still serving" \
+  same_number "$(daemon_distance 0.01)" "$before"
 head -c 10000 /dev/urandom > "$work/garbage"
 mv "$work/garbage" "$good"
-check "graph file replaced under the daemon: still serving" test "$(daemon_distance 0.01)" = "$before"
+check "graph file replaced under the daemon: still serving" \
+  same_number "$(daemon_distance 0.01)" "$before"
 stop_daemon
 
-# A full disk while writing a graph: the write fails cleanly (no partial or
-# temporary file) and the graph is served from memory, saying so.
-mkdir -p "$work/full"
-if mount -t tmpfs -o size=256k tmpfs "$work/full" 2>/dev/null; then
-  tmpfs=$work/full
-  start_daemon "$tmpfs"
-  check "full disk: graph still becomes ready" test "$(graph_field 0.01 state)" = ready
-  check "full disk: the error says it is kept in memory only" \
-    grep -q "kept in memory only" <(cli --json --eps 0.01 graph)
-  # The catalog and its lock (it records the sample's graphs) are all there is.
-  left=$(ls "$tmpfs" | grep -vx -e catalog.json -e catalog.lock)
-  check "full disk: no graph file left behind ($left)" test -z "$left"
-  check "full disk: queries answer" test "$(daemon_distance 0.01)" = "$(offline_distance "$work/good.dgg")"
-  stop_daemon
-else
-  echo "skip full-disk checks: cannot mount a small tmpfs here (needs root)"
-fi
-[ "$failures" = 0 ] || { echo "--- daemon log"; cat "$work/daemon.log"; }
-exit $((failures > 0))
+finish
