@@ -18,6 +18,7 @@ import urllib.request
 
 CMAKE, BUILD, SRC = sys.argv[1], sys.argv[2], sys.argv[3]
 sys.path.insert(0, os.path.join(SRC, "tests", "server"))
+import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 errors = []
@@ -80,8 +81,7 @@ def main():
                  f"installed CLI: `geodesic meshes` gave {status.returncode}: "
                  f"{status.stdout[:200]}{status.stderr[:200]}")
         finally:
-            daemon.terminate()
-            daemon.wait(timeout=30)
+            daemon_ports.stop(daemon)
     return report()
 
 

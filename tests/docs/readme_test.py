@@ -21,7 +21,6 @@ naming the block's first line.
 
 Usage: readme_test.py BUILD_BIN_DIR SOURCE_DIR
 """
-import json
 import os
 import re
 import shutil
@@ -29,7 +28,9 @@ import signal
 import subprocess
 import sys
 import tempfile
-import time
+
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "server"))
+import daemon_ports  # noqa: E402
 
 BIN, SRC = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
 DEFAULT_PORTS = {"grpc": "50051", "http": "8080", "metrics": "9090"}
@@ -61,6 +62,7 @@ class Runner:
         self.work = work
         self.ports = {}
         self.daemon = None
+        self.starts = 0
         self.env = dict(os.environ)
         # Debian's own python3 and tools first, as on the machine the README is for.
         self.env["PATH"] = os.pathsep.join([BIN, "/usr/bin", self.env.get("PATH", "")])
@@ -77,7 +79,9 @@ class Runner:
 
     def start_daemon(self, line):
         """Runs a `geodesicd serve ... &` line on free ports, in the background."""
-        port_file = os.path.join(self.work, "ports.json")
+        self.starts += 1
+        # One file per start: a second daemon's ports are never the first's.
+        port_file = os.path.join(self.work, f"ports.{self.starts}.json")
         command = line.rstrip().rstrip("&").strip()
         for flag in ("--listen", "--http-listen", "--metrics-listen"):
             command = re.sub(rf"{flag}[ =]\S+", f"{flag} 127.0.0.1:0", command)
@@ -89,12 +93,9 @@ class Runner:
         self.daemon = subprocess.Popen(["bash", "-c", "exec " + command], cwd=self.work,
                                        env=self.env, stdout=log, stderr=subprocess.STDOUT,
                                        start_new_session=True)
-        deadline = time.time() + 60
-        while time.time() < deadline and not os.path.exists(port_file):
-            if self.daemon.poll() is not None:
-                raise RuntimeError("the README's daemon exited:\n" + open(log.name).read())
-            time.sleep(0.1)
-        self.ports = {k: str(v) for k, v in json.load(open(port_file)).items()}
+        daemon_ports.watch(self.daemon)
+        ports = daemon_ports.wait_for_ports(self.daemon, port_file, 60, log.name)
+        self.ports = {k: str(v) for k, v in ports.items()}
         # The CLI and the Python client default to $GEODESIC_SERVER.
         self.env["GEODESIC_SERVER"] = f"127.0.0.1:{self.ports['grpc']}"
         print(f"     daemon on {self.ports}", flush=True)

@@ -30,6 +30,7 @@ sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
 from geodesic_client import Client  # noqa: E402
 from geodesic_client._stubs import pb, rpc  # noqa: E402
+import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 SPOT_VERTICES = 2930
@@ -167,8 +168,7 @@ class DefaultFlagsTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         cls.channel.close()
-        cls.daemon.terminate()
-        cls.daemon.wait(timeout=30)
+        daemon_ports.stop(cls.daemon)
         shutil.rmtree(cls.work)
 
     def timed(self, what, call):
@@ -342,8 +342,7 @@ class MemoryLimitTest(unittest.TestCase):
                                  f"peak RSS {peak >> 20} MiB over the limit {self.LIMIT >> 20} "
                                  f"MiB + idle {baseline >> 20} MiB")
         finally:
-            daemon.terminate()
-            daemon.wait(timeout=30)
+            daemon_ports.stop(daemon)
             shutil.rmtree(work)
 
 

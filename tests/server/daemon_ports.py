@@ -1,31 +1,90 @@
-"""Starts geodesicd on 127.0.0.1 port 0 and reads back the ports it bound.
+"""The Python tests' daemon fixture: geodesicd serve on 127.0.0.1 port 0, the
+ports it bound read back from --port-file, every wait bounded, and every
+daemon started here stopped when the test process exits, however it exits.
 
 Picking a "free" port by binding and closing a socket races with other tests;
 the daemon's --port-file names the ports it really listens on.
 """
+import atexit
+import itertools
 import json
 import os
+import signal
 import subprocess
 import time
 
+_started = []
+_starts = itertools.count(1)
 
-def start_daemon(bin_dir, work, args, stderr=subprocess.DEVNULL, metrics=False):
-    """Returns (process, ports): ports["grpc"], and ports["metrics"] when asked for."""
-    port_file = os.path.join(work, "ports.json")
-    if os.path.exists(port_file):
-        os.remove(port_file)
+
+def watch(process):
+    """Stops `process` at exit if it still runs (for daemons started elsewhere)."""
+    _started.append(process)
+    return process
+
+
+def wait_for_ports(process, port_file, timeout=60, log=None):
+    """The ports `process` wrote to `port_file`: RuntimeError, the process
+    killed and the end of the file `log` quoted, if it exits first or has not
+    written them within `timeout` s."""
+    deadline = time.time() + timeout
+    while not os.path.exists(port_file):
+        why = None
+        if process.poll() is not None:
+            why = f"geodesicd exited with {process.returncode} before listening"
+        elif time.time() > deadline:
+            process.kill()
+            process.wait(timeout=30)
+            why = f"geodesicd wrote no {port_file} within {timeout} s"
+        if why:
+            if log:
+                with open(log, errors="replace") as f:
+                    why += ":\n" + f.read()[-4000:]
+            raise RuntimeError(why)
+        time.sleep(0.05)
+    # The daemon writes the file by rename: once there, it is whole.
+    with open(port_file) as f:
+        return json.load(f)
+
+
+def start_daemon(bin_dir, work, args, stderr=subprocess.DEVNULL, metrics=False, http=False,
+                 timeout=60):
+    """Returns (process, ports): ports["grpc"], and ports["metrics"] and
+    ports["http"] when asked for (or listened on by `args`)."""
+    os.makedirs(work, exist_ok=True)
+    # One file per start: a restarted daemon's file is never taken for the
+    # last one's, and daemons sharing `work` each have their own.
+    port_file = os.path.join(work, f"ports.{next(_starts)}.json")
     command = [f"{bin_dir}/geodesicd", "serve", "--listen", "127.0.0.1:0",
                "--port-file", port_file] + list(args)
     if metrics:
         command += ["--metrics-listen", "127.0.0.1:0"]
-    daemon = subprocess.Popen(command, stderr=stderr)
-    deadline = time.time() + 60
-    while not os.path.exists(port_file):
-        if daemon.poll() is not None:
-            raise RuntimeError(f"geodesicd exited with {daemon.returncode} before listening")
-        if time.time() > deadline:
-            daemon.kill()
-            raise RuntimeError(f"geodesicd wrote no {port_file} within 60 s")
-        time.sleep(0.05)
-    with open(port_file) as f:
-        return daemon, json.load(f)
+    if http:
+        command += ["--http-listen", "127.0.0.1:0"]
+    daemon = watch(subprocess.Popen(command, stderr=stderr))
+    return daemon, wait_for_ports(daemon, port_file, timeout, getattr(stderr, "name", None))
+
+
+def stop(process, sig=signal.SIGTERM, timeout=30):
+    """Sends `sig` and waits at most `timeout` s, then kills. Returns the exit
+    code, or None if it had to be killed."""
+    if process.poll() is not None:
+        return process.returncode
+    process.send_signal(sig)
+    try:
+        return process.wait(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        process.wait(timeout=30)
+        return None
+
+
+@atexit.register
+def _stop_all():
+    for process in _started:
+        if process.poll() is None:
+            process.kill()
+            try:
+                process.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                pass

@@ -20,6 +20,7 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 bin_dir, src = sys.argv[1], sys.argv[2]
@@ -50,8 +51,7 @@ def serve(work, graphs, *extra, metrics=False):
 
 
 def stop(daemon, sig=signal.SIGTERM):
-    daemon.send_signal(sig)
-    daemon.wait(timeout=60)
+    daemon_ports.stop(daemon, sig, timeout=60)
 
 
 def distance_within(port, mesh, seconds):

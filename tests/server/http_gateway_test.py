@@ -11,7 +11,6 @@ Usage: http_gateway_test.py BUILD_BIN_DIR SOURCE_DIR
 import json
 import math
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -25,30 +24,21 @@ BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 from geodesic_client import Client  # noqa: E402
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import daemon_ports  # noqa: E402
+
 EPS = 0.01
 TOKEN = "s3cret-token"
 ORIGIN = "https://app.example"
 
 
 def start_daemon(work, name, *flags):
+    """(process, log, gRPC port, HTTP port) of a daemon logging to {work}/{name}.log."""
     log = open(f"{work}/{name}.log", "w+")
-    daemon = subprocess.Popen(
-        [f"{BIN}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
-         "--graph-dir", f"{work}/graphs-{name}", "--log-level", "warning", *flags],
-        stderr=log)
-    deadline = time.time() + 30
-    while time.time() < deadline:
-        log.seek(0)
-        text = log.read()
-        grpc_port = re.search(r"serving on \S+ \(port (\d+)", text)
-        http_port = re.search(r"http port (\d+)", text)
-        if grpc_port and http_port:
-            return daemon, log, int(grpc_port.group(1)), int(http_port.group(1))
-        if daemon.poll() is not None:
-            raise RuntimeError(f"daemon exited: {text}")
-        time.sleep(0.05)
-    daemon.kill()
-    raise RuntimeError("daemon did not report its ports")
+    daemon, ports = daemon_ports.start_daemon(
+        BIN, work, ["--graph-dir", f"{work}/graphs-{name}", "--log-level", "warning", *flags],
+        stderr=log, http=True)
+    return daemon, log, ports["grpc"], ports["http"]
 
 
 def curl(url, method="GET", body=None, token=TOKEN, raw=None, extra=()):
@@ -109,8 +99,7 @@ class GatewayTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         cls.client.close()
-        cls.daemon.terminate()
-        cls.daemon.wait(timeout=30)
+        daemon_ports.stop(cls.daemon)
         cls.log.close()
         shutil.rmtree(cls.work)
 
@@ -450,8 +439,7 @@ class GatewayTest(unittest.TestCase):
                                     f"http://127.0.0.1:{port}/v1/meshes"], capture_output=True)
             self.assertNotEqual(plain.returncode, 0)
         finally:
-            daemon.terminate()
-            daemon.wait(timeout=30)
+            daemon_ports.stop(daemon)
             log.close()
 
     def test_mutual_tls_uses_the_grpc_client_ca(self):
@@ -483,8 +471,7 @@ class GatewayTest(unittest.TestCase):
                                         f"{work}/ca.crt", url], capture_output=True)
             self.assertNotEqual(anonymous.returncode, 0, anonymous.stdout)
         finally:
-            daemon.terminate()
-            daemon.wait(timeout=30)
+            daemon_ports.stop(daemon)
             log.close()
 
 

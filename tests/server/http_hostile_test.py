@@ -21,6 +21,7 @@ import unittest
 
 BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 TOKEN = "hostile-test-token"
@@ -122,11 +123,7 @@ class HostileClientTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         for daemon in (cls.guarded, cls.open):
-            daemon.terminate()
-            try:
-                daemon.wait(timeout=30)
-            except Exception:
-                daemon.kill()
+            daemon_ports.stop(daemon)
         shutil.rmtree(cls.work)
 
     def auth(self):

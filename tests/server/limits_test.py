@@ -17,6 +17,7 @@ import time
 import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 bin_dir, src = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
@@ -56,8 +57,7 @@ def serve(work, graphs, *extra, metrics=False):
 
 
 def stop(daemon):
-    daemon.terminate()
-    daemon.wait(timeout=60)
+    daemon_ports.stop(daemon, timeout=60)
 
 
 def counted_bytes(graphs):
@@ -165,7 +165,6 @@ def replicas(work):
     # builds, the other waits for it and maps the file.
     graphs = os.path.join(work, "shared")
     one, one_ports = serve(work, graphs, "--build-threads", "1", metrics=True)
-    os.rename(os.path.join(work, "ports.json"), os.path.join(work, "ports-one.json"))
     two, two_ports = serve(work, graphs, "--build-threads", "1", metrics=True)
     rc, _, err = cli(one_ports["grpc"], "--mesh", "spot", "load", "spot.obj")
     check("spot registered on the first replica", rc == 0, err)

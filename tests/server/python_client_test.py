@@ -24,6 +24,7 @@ import geodesic_client  # noqa: E402
 from geodesic_client import (Client, Graph, GraphState, Mesh, MeshDiagnostics,  # noqa: E402
                              MeshSolver, Path, VertexCopy)
 from geodesic_client._stubs import pb, rpc  # noqa: E402
+import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 
@@ -47,8 +48,7 @@ class ClientTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         cls.client.close()
-        cls.daemon.terminate()
-        cls.daemon.wait(timeout=30)
+        daemon_ports.stop(cls.daemon)
         shutil.rmtree(cls.work)
 
     def graph_file(self, pseudo_vertices=False):
@@ -203,8 +203,7 @@ class ClientTest(unittest.TestCase):
                 self.assertEqual(tight.snap("spot", positions), self.client.snap("spot", positions))
                 self.assertEqual((tight.max_pairs, tight.max_sources), (50, 4))
         finally:
-            daemon.terminate()
-            daemon.wait(timeout=30)
+            daemon_ports.stop(daemon)
             shutil.rmtree(work)
 
     def test_one_position_is_one_source_and_a_missing_upload_names_the_file(self):

@@ -7,7 +7,6 @@ Usage: python_package_test.py BUILD_BIN_DIR SOURCE_DIR
 """
 import json
 import os
-import re
 import shutil
 import subprocess
 import sys
@@ -17,6 +16,10 @@ import unittest
 from concurrent import futures
 
 import numpy as np
+
+# The script's own directory: imported before the venv run drops the clone
+# from sys.path.
+import daemon_ports
 
 BIN, SRC = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
 EPS = 0.01
@@ -58,20 +61,14 @@ def install(work):
 def start_daemon(work, *extra):
     """geodesicd serve on 127.0.0.1:0; returns (process, port)."""
     with open(f"{work}/daemon.log", "w") as log:
-        daemon = subprocess.Popen(
-            [f"{BIN}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--graph-dir",
-             f"{work}/graphs", "--mesh-root", f"{SRC}/data", "--log-level", "warning",
-             "--default-epsilon", str(EPS), *extra], stderr=log)
-    deadline = time.time() + 30
-    while time.time() < deadline and daemon.poll() is None:
-        with open(f"{work}/daemon.log") as log:
-            m = re.search(r"serving on \S+ \(port (\d+),", log.read())
-        if m:
-            return daemon, int(m.group(1))
-        time.sleep(0.05)
-    daemon.kill()
-    with open(f"{work}/daemon.log") as log:
-        sys.exit(f"FAIL geodesicd did not report its port:\n{log.read()}")
+        try:
+            daemon, ports = daemon_ports.start_daemon(
+                BIN, work, ["--graph-dir", f"{work}/graphs", "--mesh-root", f"{SRC}/data",
+                            "--log-level", "warning", "--default-epsilon", str(EPS), *extra],
+                stderr=log)
+        except RuntimeError as e:
+            sys.exit(f"FAIL {e}")
+    return daemon, ports["grpc"]
 
 
 def cli_distances(port, pairs_lines, work):
@@ -108,8 +105,7 @@ class PackageTest(unittest.TestCase):
     @classmethod
     def tearDownClass(cls):
         cls.client.close()
-        cls.daemon.terminate()
-        cls.daemon.wait(timeout=30)
+        daemon_ports.stop(cls.daemon)
 
     def test_installed_not_from_the_source_tree(self):
         self.assertTrue(self.gc.__file__.startswith(os.path.join(self.work, "venv")),

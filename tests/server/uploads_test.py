@@ -80,7 +80,8 @@ class UploadsTest(unittest.TestCase):
         cls.daemon, ports = start_daemon(
             BIN, cls.work, ["--graph-dir", cls.graphs, "--mesh-root", cls.root, "--no-sample",
                             "--max-upload-bytes", str(MAX_UPLOAD), "--log-level", "warning"])
-        cls.channel = grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}")
+        cls.address = f"127.0.0.1:{ports['grpc']}"
+        cls.channel = grpc.insecure_channel(cls.address)
         cls.stub = rpc.GeodesicStub(cls.channel)
         cls.client = Client(f"127.0.0.1:{ports['grpc']}", timeout=60)
         for _ in range(100):
@@ -253,8 +254,7 @@ class UploadsTest(unittest.TestCase):
         self.client.unload_mesh("by-cli")
 
     def client_address(self):
-        with open(os.path.join(self.work, "ports.json")) as f:
-            return f"127.0.0.1:{json.load(f)['grpc']}"
+        return self.address
 
     # -- files and names ----------------------------------------------------------
 

@@ -17,7 +17,6 @@ import math
 import os
 import re
 import shutil
-import subprocess
 import sys
 import tempfile
 import time
@@ -33,6 +32,9 @@ from selenium.webdriver.common.action_chains import ActionChains  # noqa: E402
 from selenium.webdriver.common.by import By  # noqa: E402
 from selenium.webdriver.common.keys import Keys  # noqa: E402
 from selenium.webdriver.support.ui import Select, WebDriverWait  # noqa: E402
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import daemon_ports  # noqa: E402
 
 DEFAULT_EPS = 0.02  # the daemon's --default-epsilon; the page must not pick its own
 TOKEN = "viewer-token"
@@ -113,27 +115,15 @@ return seen.size;
 
 
 def start_daemon(work):
+    """(process, log, gRPC port, HTTP port) of the viewer's daemon."""
     with open(f"{work}/token", "w") as f:
         f.write(TOKEN)
     log = open(f"{work}/daemon.log", "w+")
-    daemon = subprocess.Popen(
-        [f"{BIN}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--http-listen", "127.0.0.1:0",
-         "--graph-dir", f"{work}/graphs", "--log-level", "warning", "--auth-token-file",
-         f"{work}/token", "--default-epsilon", str(DEFAULT_EPS)],
-        stderr=log)
-    deadline = time.time() + 30
-    while time.time() < deadline:
-        log.seek(0)
-        text = log.read()
-        grpc_port = re.search(r"serving on \S+ \(port (\d+)", text)
-        http_port = re.search(r"http port (\d+)", text)
-        if grpc_port and http_port:
-            return daemon, log, int(grpc_port.group(1)), int(http_port.group(1))
-        if daemon.poll() is not None:
-            raise RuntimeError(f"daemon exited: {text}")
-        time.sleep(0.05)
-    daemon.kill()
-    raise RuntimeError("daemon did not report its ports")
+    daemon, ports = daemon_ports.start_daemon(
+        BIN, work, ["--graph-dir", f"{work}/graphs", "--log-level", "warning", "--auth-token-file",
+                    f"{work}/token", "--default-epsilon", str(DEFAULT_EPS)],
+        stderr=log, http=True)
+    return daemon, log, ports["grpc"], ports["http"]
 
 
 def face_point(spec, positions, faces):
@@ -168,8 +158,7 @@ class ViewerTest(unittest.TestCase):
     def tearDownClass(cls):
         cls.browser.quit()
         cls.client.close()
-        cls.daemon.terminate()
-        cls.daemon.wait(timeout=30)
+        daemon_ports.stop(cls.daemon)
         cls.log.close()
         shutil.rmtree(cls.work)
 
