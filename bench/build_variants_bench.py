@@ -8,7 +8,8 @@ the same threads.
   bench/build_variants_bench.py --runs spot:1e-3,camelhead:1e-3,blade_aniso:1e-2 \
       --variants default,prune,pseudo
 
-Prints a Markdown table (for bench/notes.md) and the rows as JSON on stderr.
+Prints a Markdown table (for bench/measurements.md, which BENCHMARKS.md
+carries) and the rows as JSON on stderr.
 """
 import argparse
 import glob

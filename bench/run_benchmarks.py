@@ -101,7 +101,8 @@ def bench_mesh(name, eps_list, rows, quick, plain_max_vertices):
         for threads in (1, 2):
             builds[threads] = run_json([f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps),
                                         "--out", graph, "--threads", str(threads), "--json"])
-        # Plain Algorithm 1 costs minutes per mesh beyond ~20K vertices at 1e-3.
+        # Plain Algorithm 1 is the slowest build of the run by far, and more so
+        # as meshes grow: --plain-max-vertices keeps the run's length in hand.
         plain = {} if n > plain_max_vertices else run_json(
             [f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps), "--out", f"{work}/plain.dgg",
              "--threads", "1", "--plain-candidates", "--json"])
@@ -208,7 +209,7 @@ LARGE_MESH = "armadillo_loop2.ply"
 def bench_large(eps=1e-2, sources=(0, 266603, 533206)):
     """The 800K mesh: one two-thread build and the fan solver's field time."""
     mesh = os.path.join(SHARED, "meshes", LARGE_MESH)
-    with tempfile.TemporaryDirectory() as work:  # the graph is half a gigabyte
+    with tempfile.TemporaryDirectory() as work:  # too large a graph to keep
         graph = f"{work}/large.dgg"
         b = run_json([f"{BIN}/geodesicd", "build", mesh, "--eps", str(eps), "--out", graph,
                       "--threads", "2", "--json"])
@@ -304,7 +305,11 @@ def write_plots(rows, plot_dir):
     return files
 
 
-HAND_WRITTEN = ("notes.md", "daemon.md", "load.md", "measurements.md")
+# Hand-written files under bench/ that BENCHMARKS.md carries after the tables
+# this script writes: the latest result of each benchmark run by hand, then
+# the goals read against all of them. bench/notes.md (what past runs taught)
+# is not carried.
+HAND_WRITTEN = ("measurements.md", "daemon.md", "load.md", "goals.md")
 
 
 def goals_table(rows, large):
@@ -355,12 +360,14 @@ def write_markdown(rows, command, seconds, plots, large=None):
     if "--rows-from" in command:
         # Those rows come from an earlier run of this script; say how to make them.
         regenerate = ("`bench/run_benchmarks.py --eps 1e-4 --plain-max-vertices 0 | grep '^{' > "
-                      "bench/rows-1e4.jsonl` (the ε = 1e-4 rows, about 13 min), then " + regenerate +
+                      "bench/rows-1e4.jsonl` (the ε = 1e-4 rows), then " + regenerate +
                       "; the ε = 1e-4 rows come first in each table")
     out.append(f"Regenerate: {regenerate}. "
                f"Machine: {machine()}. Absolute times are noisy on this shared machine; the ratios "
                "compare runs made in the same invocation. Accuracy is measured against the exact "
-               "fields and pairs in `../shared/truth` (an independent exact solver).\n")
+               "fields and pairs in `../shared/truth` (an independent exact solver). What "
+               "earlier experiments taught, and why the defaults are what they are: "
+               "`bench/notes.md`.\n")
     out.append("## Graph construction\n")
     out.append("Ours against plain Algorithm 1 of the DGG paper (the same code with the corner "
                "early stop off: Theorem 2's d_max only), both on 1 thread. Average degree counts "
@@ -424,10 +431,11 @@ def write_markdown(rows, command, seconds, plots, large=None):
     if plots:
         out.append("\n## Plots\n")
         out.extend(f"![{f}](bench/plots/{f})" for f in plots)
-    # Hand-written analysis and the figures of other commands live in
-    # bench/notes.md, bench/daemon.md (bench/daemon_bench.py) and
-    # bench/measurements.md (hand-run measurements) and are carried over
-    # verbatim; tests/bench_docs_test.py checks that nothing else is kept.
+    # The figures of other commands live in bench/measurements.md (hand-run
+    # benchmarks), bench/daemon.md (bench/daemon_bench.py) and bench/load.md
+    # (bench/load_bench.py), and the goals read against them in
+    # bench/goals.md; they are carried over verbatim, and
+    # tests/bench/bench_docs_test.py checks that nothing else is kept.
     for name in HAND_WRITTEN:
         path = os.path.join(ROOT, "bench", name)
         if os.path.exists(path):

@@ -24,8 +24,9 @@ namespace geodesic {
 
 // Relative slack for the inequalities that must hold exactly: only rounding
 // may cross them. Both engines compute in double precision, but a needle
-// triangle unfolds with up to ~1e-11 relative error, and a real miss is
-// orders of magnitude larger (graph edges are rounded up to float).
+// triangle unfolds with errors well above double rounding (though below this
+// slack), and a real miss is orders of magnitude larger (graph edges are
+// rounded up to float).
 inline constexpr double kCheckRoundingSlack = 1e-10;
 
 // One source's field from the graph against the exact one, vertex by vertex.

@@ -101,8 +101,9 @@ absl::Status CandidateRuns::OpenSpillFile() {
 
 void CandidateRuns::VisitChunk(const std::byte* data, size_t bytes, const Visitor& visit) {
   // Records have their own lengths: find where each starts (a walk over the
-  // headers only), then copy them out in parallel. Sequential copying was a
-  // twentieth of a two-thread build (armadillo at 1e-3).
+  // headers only), then copy them out in parallel. Copied one after another,
+  // they were a serial step that held two-thread builds back from scaling
+  // (BENCHMARKS.md, "Graph construction", the 2t speed-up column).
   std::vector<size_t> starts;
   for (size_t at = 0; at < bytes;) {
     RecordHeader header;

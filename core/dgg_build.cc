@@ -36,20 +36,20 @@ constexpr double kPruningFanScale = 0.9;
 // corners) may lengthen a shortest path by 1 + e_c, and pruning (when asked
 // for) each replaced edge by 1 + e_p, with (1 + e_c)(1 + e_p) = 1 + b eps.
 // Pruning gets a tenth of eps: its loss compounds the most. It then removes
-// well under 1% of the candidates for a quarter of the build, so by default
-// it is skipped and the candidates get the whole budget.
+// few candidates for a large share of the build (BENCHMARKS.md, "Build
+// variants: pruning and pseudo vertices"), so by default it is skipped and
+// the candidates get the whole budget.
 //
 // The budget b eps is a point on a trade-off, not a bound: routes through
 // corners that are themselves served routes compound, so a field's largest
-// error exceeds what one route may use, and its mean is a quarter of it.
-// b = 1.1 instead of 1 (the paper's rule) gives 4-5% fewer edges, for means
-// up to 0.28 eps and maxima up to 1.41 eps on the shared meshes at 1e-2 and
-// 1e-3 (from 0.25 and 1.36; the contract is 0.3 and 1.5). At the same degree
-// this is more accurate than FastDGG's rule, which tests corners by their
-// exact distance rather than by their routes (bench/notes.md, "Candidate
-// budget"). Smaller eps chains more corners and compounds more: at 1e-4,
-// b = 1 already reaches 1.45 eps and b = 1.1 reached 1.58 eps, so the extra
-// tenth fades out between 1e-3 and 1e-4.
+// error exceeds what one route may use. b = 1.1 instead of 1 (the paper's
+// rule) keeps fewer edges while every shared mesh at 1e-2 and 1e-3 stays
+// within the contract (mean 0.3 eps, max 1.5 eps), and at the same degree it
+// is more accurate than FastDGG's rule, which tests corners by their exact
+// distance rather than by their routes. Smaller eps chains more corners and
+// compounds more: at 1e-4 the extra tenth took maxima past the contract, so
+// it fades out between 1e-3 and 1e-4 (bench/notes.md, "Candidate budget";
+// today's errors: BENCHMARKS.md, "Distance fields, side by side with CGAL").
 double CornerBudgetFactor(double epsilon) {
   return 1 + 0.1 * std::clamp(std::log10(epsilon / 1e-4), 0.0, 1.0);
 }
@@ -726,13 +726,13 @@ class FanBuilder {
   }
 
   // One walk over u's two-edge neighbourhood. A node there is reached by
-  // about ten of u's turns (armadillo, 1e-3), so rather than walking again
-  // to test each turn against the final shortest path, the walk lists the
-  // turns that were close to the shortest found so far: a turn that fails
-  // then fails at the end too (the shortest only shrinks). About a fifth of
-  // the turns are listed. The walk does not branch on what it finds (a
-  // branch here is mispredicted often enough to double its cost): every
-  // turn and node is written, and kept by moving the end past it.
+  // many of u's turns, so rather than walking again to test each turn
+  // against the final shortest path, the walk lists the turns that were
+  // close to the shortest found so far: a turn that fails then fails at the
+  // end too (the shortest only shrinks), and most turns are never listed.
+  // The walk does not branch on what it finds (which way such a branch goes
+  // is close to random, so it is mispredicted often): every turn and node is
+  // written, and kept by moving the end past it.
   void CollectTurns(Scratch& sc, uint32_t u) {
     const auto edges = of(u);
     size_t turns = 0;

@@ -68,8 +68,9 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
 // A lower estimate of the bytes of the graph of a mesh with `vertices`
 // vertices at `epsilon`, to refuse builds that cannot fit a memory budget
 // before spending minutes on them. DGG degree grows like 1/sqrt(epsilon);
-// measured averages are 3.0-3.5/sqrt(epsilon) (BENCHMARKS.md), so half that
-// keeps the estimate below the real size on meshes not measured.
+// it assumes a degree well below every average degree of BENCHMARKS.md's
+// "Graph construction" table (compared as degree times sqrt(epsilon)), so
+// that the estimate stays below the real size on meshes not measured.
 uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon);
 
 // What a build will likely cost: its graph file's bytes and its time on one

@@ -4,19 +4,20 @@
 // Nodes 0..n-1 are the mesh vertices and nodes n.. are pseudo vertices (section
 // 4.3), each a point inside a face. Vertex nodes are numbered along a Z-order
 // curve through their positions, not in the mesh file's order: a search's next
-// nodes then lie near each other in memory (armadillo at 1e-3: a Dijkstra field
-// 25 -> 20 ms, point-to-point 4.6 -> 3.8 ms). node_of_vertex and vertex_of_node
-// translate; callers speak mesh vertex ids. Edges are stored directed in
-// compressed adjacency (CSR): every undirected DGG edge appears once from each
-// end. Per node, outgoing edges are sorted by their polar angle at the node
-// (the node's intrinsic tangent frame, core/mesh.h), and each directed edge
-// u->v carries its fan: the range of v's outgoing edges that a shortest path
-// arriving along u->v can continue on (section 5.1.2), which the DGG-tailored
-// solver scans instead of all of v's edges.
+// nodes then lie near each other in memory, and a search waits on memory more
+// than on arithmetic (bench/notes.md, "Memory order"). node_of_vertex and
+// vertex_of_node translate; callers speak mesh vertex ids. Edges are stored
+// directed in compressed adjacency (CSR): every undirected DGG edge appears
+// once from each end. Per node, outgoing edges are sorted by their polar angle
+// at the node (the node's intrinsic tangent frame, core/mesh.h), and each
+// directed edge u->v carries its fan: the range of v's outgoing edges that a
+// shortest path arriving along u->v can continue on (section 5.1.2), which the
+// DGG-tailored solver scans instead of all of v's edges.
 //
 // Weights are float32 lengths of real surface paths, rounded up, so graph
 // distances never undercut exact geodesic distances (float32's 6e-8 relative
-// step is far below any useful epsilon; see BENCHMARKS.md).
+// step is far below any useful epsilon; BENCHMARKS.md's fields table shows it
+// in its "most below exact" column).
 #ifndef GEODESIC_CORE_DGG_GRAPH_H_
 #define GEODESIC_CORE_DGG_GRAPH_H_
 
@@ -61,20 +62,21 @@ inline constexpr uint32_t kCandidateRuleVersion = 2;
 // and file names are made from it (GraphFileName).
 struct DggParams {
   double epsilon = 1e-3;
-  // Section 4.3's pseudo vertices. Off by default: on the isotropic meshes
-  // measured (BENCHMARKS.md) they double the node count for no accuracy gain;
-  // turn them on for anisotropic meshes.
+  // Section 4.3's pseudo vertices. Off by default: they add nodes and build
+  // time that grow quickly as epsilon shrinks, and only anisotropic meshes
+  // gain accuracy from them (BENCHMARKS.md, "Build variants: pruning and
+  // pseudo vertices"); turn them on for such meshes.
   bool pseudo_vertices = false;
   // Phase 2 of Algorithm 1 (PRUNEREDUNDANTEDGES), with a tenth of epsilon
-  // taken from the candidates' budget. Off by default: measured on the shared
-  // meshes it removes well under 1% of the edges for about a quarter of the
-  // build, while giving its budget to the candidates instead stops them
-  // earlier, for 4-6% fewer edges (bench/notes.md).
+  // taken from the candidates' budget. Off by default: with a tenth less
+  // the candidates keep more edges than pruning then removes, and pruning
+  // takes a large share of the build (BENCHMARKS.md, "Build variants:
+  // pruning and pseudo vertices").
   bool prune_redundant = false;
   // Fans from each node's exact local distances, not only its paths of at
-  // most two edges (core/dgg_build.cc): armadillo fans of 2.1 edges instead
-  // of 7.4 (1e-2) and 16.7 (1e-3), fields 1.9x and 3.1x faster, for builds
-  // 1.6x and 2.2x longer on one thread. Distances are the same either way.
+  // most two edges (core/dgg_build.cc): much smaller fans and faster fields,
+  // for a build that takes much longer, so it is for graphs that serve many
+  // fields (bench/notes.md, "Exact fans"). Distances are the same either way.
   bool exact_fans = false;
   uint32_t candidate_rule = kCandidateRuleVersion;
   friend auto operator<=>(const DggParams&, const DggParams&) = default;

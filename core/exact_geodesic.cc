@@ -23,24 +23,23 @@ constexpr double kMinHeight = 1e-14;
 // margin, so rounding never trims the true geodesic.
 constexpr double kFilterSlack = 1e-12;
 // Root-finding steps when cutting off rays served by a corner: the cut is
-// conservative, so fewer steps only keep a little more of a window. Two
-// against five (both stopping at kRelayCloseEnough): armadillo at 1e-3 7%
-// faster with the same windows and edges, at 1e-2 6% faster with 0.5% more
-// edges; one step gave 1% more windows and edges at 1e-3.
+// conservative, so fewer steps only keep a little more of a window. Two were
+// faster than five with about the same windows and edges, where one left
+// more of both (bench/notes.md, "Corner cuts").
 constexpr int kRelaySteps = 2;
 // Root finding for those cuts also stops once the cut is known to within this
 // fraction of the window. A deeper cut is not better: it leaves the descendants
-// a corner whose route is closer to its limit. Armadillo (1e-2 and 1e-3, one
-// thread), against always taking five steps: 1% fewer windows, up to 0.4% fewer
-// edges, candidates 11% and 8% faster; 0.1 and 0.2 were about level.
+// a corner whose route is closer to its limit, so stopping early costs no
+// windows or edges and saves time (bench/notes.md, "Corner cuts").
 constexpr double kRelayCloseEnough = 0.3;
 // Root-finding steps when trimming by the vertex behind a window: also
 // conservative, the cut stays on the dominated side of the root.
 constexpr int kFilterSteps = 6;
 // A cut moves the window's corner to the cut point, whose route is only just
 // within 1 + eps there: a worse corner for every descendant than the vertex it
-// replaces. Cuts smaller than this fraction of the window are not worth that
-// (measured: 25% fewer windows per source than cutting every served sliver).
+// replaces. Cuts smaller than this fraction of the window are not worth that:
+// skipping them leaves fewer windows per source than cutting every served
+// sliver (bench/notes.md, "Corner cuts").
 constexpr double kMinRelayCut = 0.2;
 // Scratch larger than this after a call is released (bytes).
 constexpr size_t kScratchKeepBytes = size_t{64} << 20;
@@ -57,8 +56,8 @@ bool HypotExceeds(double x, double y, double k) { return k < 0 || x * x + y * y 
 // limit, from both sides of the ray through it: where edges run along that
 // ray (collinear vertices, as CAD meshes and flat strips of thin triangles
 // have), those windows degenerate and a whole line of vertices went unlit
-// (blade_aniso: +inf, or 2.9% long, beyond such a line). Radiating from flat
-// vertices makes the continuation a window of its own.
+// (on the anisotropic blade: unreached, or too long, beyond such a line).
+// Radiating from flat vertices makes the continuation a window of its own.
 bool RadiatesFrom(const Mesh& mesh, VertexId v) {
   return mesh.is_saddle_or_boundary(v) || mesh.total_angle(v) >= kTwoPi * (1 - 1e-10);
 }
@@ -70,8 +69,8 @@ bool RadiatesFrom(const Mesh& mesh, VertexId v) {
 // The height comes from the triangle's area by Kahan's formula ("Miscalculating
 // area and angles of a needle-like triangle"), not from sqrt(d0^2 - x^2):
 // for a needle (aspect 100 and more, common in CAD meshes) that difference
-// cancels most of its digits, and unfolded sources then carried ~1e-11
-// relative errors into distances (measured on blade_aniso).
+// cancels most of its digits, and unfolded sources then carried errors far
+// above double rounding into distances.
 Vec2 PlaceFromDistances(double L, double d0, double d1, bool above) {
   const double x = (L * L + d0 * d0 - d1 * d1) / (2 * L);
   double a = L, b = d0, c = d1;  // sorted below: a >= b >= c
@@ -309,7 +308,7 @@ bool ExactGeodesic::TrimByFaceBehind(Window& w) const {
   // |I x| - |R x| is not monotone along the edge this needs its own test:
   // where it exceeds d(R) - sigma the window is useless.
   // In direct mode with corners R is a corner of the window's shadow, whose
-  // cut (TrimByRelays) already covers this (measured: the same windows).
+  // cut (TrimByRelays) already covers this: the test would remove nothing.
   if (relays_) return true;
   const HalfedgeId back = mesh_.twin(w.h);
   if (back == kNone) return true;
@@ -539,8 +538,8 @@ bool ExactGeodesic::TrimByRelays(Window& w) const {
 
 void ExactGeodesic::Propagate(uint32_t index) {
   // A copy: children may reallocate windows_. The window is not trimmed again
-  // by distances that improved while it was queued: on armadillo that
-  // removed under 1% of the windows and cost a fifth of the solve.
+  // by distances that improved while it was queued: that removed few windows
+  // for a large share of the solve (bench/notes.md, "Exact engine").
   const Window w = windows_[index];
   ++stats_.windows_propagated;
   const FaceFrame& face = FrameOf(w.h);
@@ -598,7 +597,8 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const double len = edge.length;
     if (g == kNone || len <= 0) return;
     // The child's face is read when it is propagated, usually soon: asking
-    // for it now hides that miss (8% of the build's candidate phase).
+    // for it now hides that miss, which the candidate phase would otherwise
+    // wait on (bench/notes.md, "Build engine").
     if (frames_) __builtin_prefetch(&(*frames_)[g]);
     const Vec2 u = (toward - origin) * (1 / len);
     auto to_child = [&](const Vec2& p) {

@@ -12,9 +12,9 @@
 // instead. Because sigma + |I x| - |Px| is monotone along the edge, the useful
 // part is one interval, found in closed form. The third vertex R of the face
 // the window came through filters the same way (|Rx| is a segment in that
-// face); that test halves the windows of a full solve. Windows are trimmed
-// once, when queued. Saddle and boundary vertices become pseudo-sources once
-// their distance is final.
+// face); that test removes a large share of a full solve's windows. Windows
+// are trimmed once, when queued. Saddle and boundary vertices become
+// pseudo-sources once their distance is final.
 //
 // Three uses of one propagation:
 //  1. Distances from a source (vertex, edge point or face point) to all
@@ -195,8 +195,8 @@ class ExactGeodesic {
   bool TrimByRelays(Window& w) const;
   void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
   bool TrimByFaceBehind(Window& w) const;
-  // Trims w in place (a copy of the 120-byte window per child cost 4% of the
-  // DGG candidates) and queues what is left.
+  // Trims w in place (copying the window for each child showed in the DGG
+  // candidates' time) and queues what is left.
   bool TrimAndPush(Window& w, const EdgeEnds& edge);
   uint32_t Allocate(const Window& w);
   void Push(double key, uint32_t item);

@@ -36,10 +36,9 @@ struct HeapQueue {
 };
 
 // How a bucket queue suits a graph: buckets one mean edge weight wide, and
-// keys at most the longest edge ahead. Armadillo fields (default fans, 1e-2
-// and 1e-3): 5-7% faster than at half a mean weight, though 1.04-1.07 nodes
-// per vertex are taken out instead of 1.01-1.02; level up to two mean
-// weights, slower at three; a quarter was 10% slower than a half.
+// keys at most the longest edge ahead. Wider buckets take a few nodes out
+// more than once but visit fewer empty buckets; one mean weight was the
+// fastest of the widths tried (bench/notes.md, "Bucket width").
 struct BucketShape {
   double width = 1;
   double max_step = 1;

@@ -79,8 +79,9 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   // Twins and edge ids. A directed edge used twice means a non-manifold edge
   // or two neighbours with opposite orientation; both are rejected. The
   // half-edges of one edge are found by sorting (a hash map of directed
-  // edges took a third of a million-face load); the clash reported is the
-  // first in half-edge order, as a scan in that order would meet it.
+  // edges was a large part of loading a million-face mesh); the clash
+  // reported is the first in half-edge order, as a scan in that order would
+  // meet it.
   EdgeUses by_edge(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
     by_edge[h] = {UndirectedEdgeKey(m.tail(h), m.head(h)), h};

@@ -45,8 +45,8 @@ inline uint64_t UndirectedEdgeKey(VertexId a, VertexId b) {
 
 // Sorts (UndirectedEdgeKey, index) pairs, listed in increasing index order,
 // into the order std::sort gives pairs, so the uses of one edge are
-// adjacent. A radix sort on the keys' significant bits: on million-face
-// meshes a comparison sort took a fifth of a load.
+// adjacent. A radix sort on the keys' significant bits: a comparison sort
+// was a large part of loading a million-face mesh.
 using EdgeUses = std::vector<std::pair<uint64_t, uint32_t>>;
 void SortEdgeUses(EdgeUses& uses, size_t num_vertices);
 

@@ -336,8 +336,9 @@ class EndpointBound {
   std::vector<double> lo_, hi_;
 };
 
-// Measured on armadillo at eps = 1e-3 (64 landmarks): 8 to 16 active ones
-// search as fast as each other and 15% faster than all 64 or 6.
+// Few active landmarks bound a pair almost as tightly as all of them for a
+// cheaper potential per node; too few settle more nodes. The value is in
+// the flat middle of that trade-off (bench/notes.md, "Landmarks").
 constexpr size_t kActiveLandmarks = 12;
 constexpr int kFloatsPerLine = 64 / sizeof(float);
 

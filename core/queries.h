@@ -133,9 +133,8 @@ class GeodesicEngine {
   absl::Status PrepareLandmarks() const { return PrepareLandmarks(DefaultLandmarkCount()); }
   // As many landmarks as a quarter of the graph's bytes pays for (each holds
   // 4 bytes per node), from 16 to 64: a denser graph (smaller epsilon)
-  // relaxes more edges per settled node, so tighter bounds save more there.
-  // Armadillo at 1e-3, shared pairs: 16 landmarks settle 1063 nodes per
-  // query, 32 settle 653, 64 settle 356.
+  // relaxes more edges per settled node, so tighter bounds save more there,
+  // and more landmarks settle fewer nodes (bench/notes.md, "Landmarks").
   int DefaultLandmarkCount() const;
   // Bytes held by the landmark distances (0 before PrepareLandmarks).
   uint64_t landmark_bytes() const;

@@ -5,7 +5,7 @@
 #   TSan (build-tsan): the core and server unit tests (concurrent queries
 #     and landmark preparation on one graph, concurrent catalog updates). The
 #     accuracy suites (*SharedMeshes*, CgalTruth) are left out:
-#     single-threaded numerics under TSan's 10x slowdown, already run plain
+#     single-threaded numerics under TSan's slowdown, already run plain
 #     and under ASan. So is the 1-against-4-threads build
 #     comparison: TSan builds keep TBB to one thread (core/dgg_build.cc), so
 #     it could only compare one thread with one thread.
