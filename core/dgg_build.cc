@@ -12,6 +12,7 @@
 #include <limits>
 #include <mutex>
 #include <numbers>
+#include <optional>
 #include <queue>
 #include <span>
 
@@ -481,91 +482,176 @@ void DropRedundant(Adjacency& adj, const std::vector<uint8_t>& redundant) {
 // point, connect it to the vertices it sees directly. Gaps are measured on
 // the candidate edges: a pruned edge's direction is still served by the path
 // that replaced it.
+//
+// Most shots are decided without a propagation, by the routes along their
+// own strip. On anisotropic meshes at small eps almost every shot stays
+// unserved, and a pseudo vertex for each would multiply the graph many times
+// over, each costing a propagation (bench/notes.md, "Pruning and pseudo
+// vertices"); past a limit on their number the build is refused, with the
+// estimate, before any of that is spent.
 struct PseudoVertex {
   SurfacePoint point;
   std::vector<DggHalfEdge> edges;  // to mesh vertices
 };
 
-std::vector<PseudoVertex> AddPseudoVertices(const Mesh& mesh, const NodeOrder& order,
-                                            const Adjacency& candidates, double epsilon,
-                                            double candidate_epsilon, Progress& progress) {
-  const uint32_t n = mesh.num_vertices();
+// A shot whose end point no route along its strip serves.
+struct UnservedShot {
+  uint32_t source;
+  SurfacePoint end;
+  double length;
+};
+
+// The gaps wider than `threshold` between the directions of `s`'s candidate
+// edges: (from, to) in raw angles and a shot length (the mean of the two
+// edges' lengths).
+std::vector<std::tuple<double, double, double>> DirectionGaps(const Mesh& mesh, uint32_t s,
+                                                              std::span<const DggHalfEdge> cand,
+                                                              double threshold) {
+  const double period = mesh.total_angle(s);
+  const double to_raw = period / kTwoPi;
+  std::vector<std::pair<float, float>> dirs;  // (normalised angle, length)
+  for (const auto& e : cand) dirs.push_back({e.angle_here, e.weight});
+  std::sort(dirs.begin(), dirs.end());
+  std::vector<std::tuple<double, double, double>> gaps;
+  auto add = [&](double from, double to, double length) {
+    if (to - from >= threshold) gaps.push_back({from, to, length});
+  };
+  for (size_t i = 0; i + 1 < dirs.size(); ++i) {
+    add(dirs[i].first * to_raw, dirs[i + 1].first * to_raw,
+        0.5 * (dirs[i].second + dirs[i + 1].second));
+  }
+  // Around a boundary vertex the directions span [0, period] without
+  // wrapping.
+  if (mesh.is_boundary(s)) {
+    add(0.0, dirs.front().first * to_raw, dirs.front().second);
+    add(dirs.back().first * to_raw, period, dirs.back().second);
+  } else {
+    add(dirs.back().first * to_raw, dirs.front().first * to_raw + period,
+        0.5 * (dirs.back().second + dirs.front().second));
+  }
+  return gaps;
+}
+
+// Every shot from s into its gaps that no route along the shot's strip
+// serves within 1 + candidate_epsilon: s's edge to a vertex of the strip,
+// then the straight segment in the strip to the end point.
+std::vector<UnservedShot> UnservedShots(const Mesh& mesh, const NodeOrder& order,
+                                        std::span<const DggHalfEdge> cand, uint32_t s,
+                                        double epsilon, double candidate_epsilon, uint64_t& shots) {
+  std::vector<UnservedShot> out;
+  if (cand.empty()) return out;
+  const double period = mesh.total_angle(s);
   const double step = std::sqrt(epsilon);
-  const double threshold = std::sqrt(2 * epsilon);
-  std::vector<std::vector<PseudoVertex>> per_vertex(n);
-  tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
-      [&] { return std::make_unique<ExactGeodesic>(mesh); });
-  ParallelFor(n, progress, "pseudo", 0.7, 0.8, [&](uint32_t s) {
-    auto cand = candidates.of(order.node(s));
-    if (cand.empty()) return;
-    const double period = mesh.total_angle(s);
-    const double to_raw = period / kTwoPi;
-    std::vector<std::pair<float, float>> dirs;  // (normalised angle, length)
-    for (const auto& e : cand) dirs.push_back({e.angle_here, e.weight});
-    std::sort(dirs.begin(), dirs.end());
-    const bool boundary = mesh.is_boundary(s);
-    // Gaps between consecutive directions; around a boundary vertex the
-    // directions span [0, period] without wrapping.
-    std::vector<std::tuple<double, double, double>> gaps;  // from, to (raw), length
-    for (size_t i = 0; i + 1 < dirs.size(); ++i) {
-      gaps.push_back({dirs[i].first * to_raw, dirs[i + 1].first * to_raw,
-                      0.5 * (dirs[i].second + dirs[i + 1].second)});
-    }
-    if (boundary) {
-      gaps.push_back({0.0, dirs.front().first * to_raw, dirs.front().second});
-      gaps.push_back({dirs.back().first * to_raw, period, dirs.back().second});
-    } else {
-      gaps.push_back({dirs.back().first * to_raw, dirs.front().first * to_raw + period,
-                      0.5 * (dirs.back().second + dirs.front().second)});
-    }
-    ExactGeodesic& engine = *engines.local();
-    for (auto [from, to, length] : gaps) {
-      const double gap = to - from;
-      if (gap < threshold) continue;
-      const int count = static_cast<int>(gap / step);
-      for (int j = 1; j <= count; ++j) {
-        double angle = from + gap * j / (count + 1);
-        if (angle >= period) angle -= period;
-        auto end = ShootGeodesic(mesh, s, angle, length);
-        if (!end.ok() || end->hit_vertex || end->point.kind == SurfacePoint::Kind::kVertex ||
-            end->length <= 0) {
-          continue;
-        }
-        // COMPUTECANDIDATEEDGES from the pseudo vertex with Theorem 2's early
-        // termination but not the corners': the test below needs every
-        // vertex p sees directly, and the pseudo vertices kept are few.
-        DirectOptions options;
-        options.epsilon = candidate_epsilon;
-        options.stop_at_corners = false;
-        options.max_distance = end->length * (1 + 1e-9) + 1e-300;
-        auto hits = engine.DirectGeodesics(end->point, options);
-        if (!hits.ok() || hits->empty()) continue;
-        // A direction the graph already serves needs no pseudo vertex: an
-        // edge s-v and the direct path v-p within 1 + eps of the pseudo
-        // edge. Our candidates' corners leave wide gaps wherever routes
-        // through near vertices serve, and the gap rule alone filled them
-        // all (7 pseudo vertices per vertex on the blade at 1e-2, 0.14 now).
-        const double served = (1 + candidate_epsilon) * end->length;
-        const bool redundant = std::any_of(hits->begin(), hits->end(), [&](const DirectHit& h) {
-          if (h.vertex == s || h.distance >= served) return false;
-          const DggHalfEdge* edge = Find(cand, order.node(h.vertex));
-          return edge && edge->weight + h.distance <= served;
-        });
-        if (redundant) continue;
-        PseudoVertex p{end->point, {}};
-        for (const DirectHit& h : *hits) {
-          p.edges.push_back({order.node(h.vertex), RoundUp(h.distance),
-                             Normalized(h.angle_at_source, kTwoPi),
-                             Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
-        }
-        std::sort(p.edges.begin(), p.edges.end(), ByTarget);  // rows are sorted by node
-        per_vertex[s].push_back(std::move(p));
+  ShotStrip strip;
+  for (auto [from, to, length] : DirectionGaps(mesh, s, cand, std::sqrt(2 * epsilon))) {
+    const double gap = to - from;
+    const int count = static_cast<int>(gap / step);
+    for (int j = 1; j <= count; ++j) {
+      double angle = from + gap * j / (count + 1);
+      if (angle >= period) angle -= period;
+      auto end = ShootGeodesic(mesh, s, angle, length, &strip);
+      if (!end.ok() || end->hit_vertex || end->point.kind == SurfacePoint::Kind::kVertex ||
+          end->length <= 0) {
+        continue;
+      }
+      ++shots;
+      double best = std::numeric_limits<double>::infinity();
+      for (VertexId w : strip.Vertices(s)) {
+        const DggHalfEdge* edge = Find(cand, order.node(w));
+        if (edge) best = std::min(best, edge->weight + strip.StraightDistanceToEnd(w));
+      }
+      if (best > (1 + candidate_epsilon) * end->length) {
+        out.push_back({s, end->point, end->length});
       }
     }
+  }
+  return out;
+}
+
+// FAILED_PRECONDITION when more than `limit` pseudo vertices per mesh vertex
+// could be needed (limit 0: no limit).
+absl::StatusOr<std::vector<PseudoVertex>> AddPseudoVertices(
+    const Mesh& mesh, const NodeOrder& order, const Adjacency& candidates, double epsilon,
+    double candidate_epsilon, double limit, Progress& progress, DggBuildStats& stats) {
+  const uint32_t n = mesh.num_vertices();
+  std::vector<std::vector<UnservedShot>> per_vertex(n);
+  std::atomic<uint64_t> all_shots{0};
+  ParallelFor(n, progress, "pseudo", 0.7, 0.75, [&](uint32_t s) {
+    uint64_t shots = 0;
+    per_vertex[s] = UnservedShots(mesh, order, candidates.of(order.node(s)), s, epsilon,
+                                  candidate_epsilon, shots);
+    all_shots += shots;
   });
+  std::vector<UnservedShot> unserved;
+  for (auto& list : per_vertex) {
+    unserved.insert(unserved.end(), list.begin(), list.end());
+    list = {};
+  }
+  stats.pseudo_shots = all_shots;
+
+  // COMPUTECANDIDATEEDGES from each unserved end point with Theorem 2's
+  // early termination but not the corners': the test below needs every
+  // vertex p sees directly. Stops once past the limit: the answer is then
+  // a refusal whatever the rest would give.
+  const uint64_t most = limit > 0 ? static_cast<uint64_t>(limit * n) : UINT64_MAX;
+  std::atomic<uint64_t> kept{0}, propagated{0};
+  std::atomic<bool> over{false};
+  const auto start = std::chrono::steady_clock::now();
+  std::vector<std::optional<PseudoVertex>> chosen(unserved.size());
+  tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
+      [&] { return std::make_unique<ExactGeodesic>(mesh); });
+  ParallelFor(unserved.size(), progress, "pseudo", 0.75, 0.8, [&](uint32_t i) {
+    if (over.load(std::memory_order_relaxed)) return;
+    ++propagated;
+    const UnservedShot& shot = unserved[i];
+    DirectOptions options;
+    options.epsilon = candidate_epsilon;
+    options.stop_at_corners = false;
+    options.max_distance = shot.length * (1 + 1e-9) + 1e-300;
+    auto hits = engines.local()->DirectGeodesics(shot.end, options);
+    if (!hits.ok() || hits->empty()) return;
+    // A direction the graph already serves needs no pseudo vertex: an edge
+    // s-v and the direct path v-p within 1 + eps of the pseudo edge, for
+    // any v p sees.
+    auto cand = candidates.of(order.node(shot.source));
+    const double served = (1 + candidate_epsilon) * shot.length;
+    const bool redundant = std::any_of(hits->begin(), hits->end(), [&](const DirectHit& h) {
+      if (h.vertex == shot.source || h.distance >= served) return false;
+      const DggHalfEdge* edge = Find(cand, order.node(h.vertex));
+      return edge && edge->weight + h.distance <= served;
+    });
+    if (redundant) return;
+    if (++kept > most) over = true;
+    PseudoVertex p{shot.end, {}};
+    for (const DirectHit& h : *hits) {
+      p.edges.push_back({order.node(h.vertex), RoundUp(h.distance),
+                         Normalized(h.angle_at_source, kTwoPi),
+                         Normalized(h.angle_at_vertex, mesh.total_angle(h.vertex))});
+    }
+    std::sort(p.edges.begin(), p.edges.end(), ByTarget);  // rows are sorted by node
+    chosen[i] = std::move(p);
+  });
+  stats.pseudo_propagations = propagated;
+  if (over) {
+    // The rest, at the rate of those done.
+    const double done = propagated.load(), share = unserved.size() / done;
+    uint64_t edges = 0;
+    for (const auto& p : chosen)
+      if (p) edges += 2 * p->edges.size();
+    constexpr double kFileBytesPerHalfEdge = 20;
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "pseudo vertices at eps %g: the graph would get about %.0f (%.1f per mesh vertex, over "
+        "the limit of %g) for about %.0f MB and %.0f s more than its plain graph's %.0f MB; "
+        "a plain graph at a quarter of this eps is usually both more accurate and far smaller "
+        "(bench/notes.md, \"Pruning and pseudo vertices\"); or raise the limit "
+        "(--pseudo-vertex-limit, 0 for none)",
+        epsilon, kept * share, kept * share / n, limit, edges * share * kFileBytesPerHalfEdge / 1e6,
+        Seconds(start) * share, candidates.edges.size() * kFileBytesPerHalfEdge / 1e6));
+  }
+  // In the order chosen, which does not depend on threads.
   std::vector<PseudoVertex> all;
-  for (auto& list : per_vertex)
-    for (auto& p : list) all.push_back(std::move(p));
+  for (auto& p : chosen)
+    if (p) all.push_back(*std::move(p));
   return all;
 }
 
@@ -851,11 +937,9 @@ absl::Status CheckBuildParams(const DggParams& params) {
 // Phases 2-4 on the candidates of every vertex (`counts` long lists, by
 // vertex, fed by `feed`): pseudo vertices, pruning, fans. Runs inside the
 // caller's arena; null when cancelled.
-absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(const Mesh& mesh,
-                                                            std::span<const uint32_t> counts,
-                                                            const CandidateFeed& feed,
-                                                            const DggParams& params,
-                                                            Progress& progress, DggBuildStats& st) {
+absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(
+    const Mesh& mesh, std::span<const uint32_t> counts, const CandidateFeed& feed,
+    const DggParams& params, double pseudo_vertex_limit, Progress& progress, DggBuildStats& st) {
   const double epsilon = params.epsilon;
   const bool prune = params.prune_redundant, exact_fans = params.exact_fans;
   auto t = std::chrono::steady_clock::now();
@@ -868,8 +952,9 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(const Mesh& mesh,
   t = std::chrono::steady_clock::now();
   std::vector<PseudoVertex> pseudo;
   if (params.pseudo_vertices) {
-    pseudo =
-        AddPseudoVertices(mesh, order, cand, epsilon, CandidateBudget(epsilon, prune), progress);
+    ASSIGN_OR_RETURN(pseudo,
+                     AddPseudoVertices(mesh, order, cand, epsilon, CandidateBudget(epsilon, prune),
+                                       pseudo_vertex_limit, progress, st));
     if (progress.cancelled()) return nullptr;
     AddPseudoRows(cand, pseudo);
   }
@@ -915,17 +1000,18 @@ uint64_t EstimateDggBytesLowerBound(uint64_t vertices, double epsilon) {
 DggBuildEstimate EstimateDggBuild(uint64_t num_vertices, double epsilon, bool pseudo) {
   constexpr double kBytesPerVertex = 64.5, kBytesExponent = 0.486;
   constexpr double kSecondsPerVertex = 2.1e-6, kSecondsExponent = 0.646;
-  // Pseudo vertices are negligible at 1e-2 and multiply the graph as the
-  // test for a gap tightens: 1 + c (1e-2 / epsilon)^k.
+  // Pseudo vertices grow quickly as epsilon shrinks, as 1 + c (1e-2 /
+  // epsilon)^k, up to the default limit on their number
+  // (DggBuildOptions::pseudo_vertex_limit), which about doubles the graph.
   constexpr double kPseudoBytesC = 0.05, kPseudoBytesK = 2.85;
-  constexpr double kPseudoSecondsC = 2.9, kPseudoSecondsK = 1.62;
+  constexpr double kPseudoSecondsC = 0.5, kPseudoSecondsK = 1.62;
   if (!(epsilon > 0 && epsilon < 1)) return {UINT64_MAX, HUGE_VAL};
   double bytes = double(num_vertices) * kBytesPerVertex * std::pow(epsilon, -kBytesExponent);
   double seconds = double(num_vertices) * kSecondsPerVertex * std::pow(epsilon, -kSecondsExponent);
   if (pseudo) {
     const double finer = 1e-2 / epsilon;
-    bytes *= 1 + kPseudoBytesC * std::pow(finer, kPseudoBytesK);
-    seconds *= 1 + kPseudoSecondsC * std::pow(finer, kPseudoSecondsK);
+    bytes *= 1 + std::min(1.0, kPseudoBytesC * std::pow(finer, kPseudoBytesK));
+    seconds *= 1 + std::min(1.0, kPseudoSecondsC * std::pow(finer, kPseudoSecondsK));
   }
   return {bytes >= 1.8e19 ? UINT64_MAX : static_cast<uint64_t>(bytes), seconds};
 }
@@ -955,7 +1041,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
     if (progress.cancelled()) return;
     graph = FinishBuild(
         mesh, runs.counts(), [&](const auto& visit) { return runs.Drain(visit); }, options.params,
-        progress, st);
+        options.pseudo_vertex_limit, progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
@@ -1089,7 +1175,9 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   Progress progress(options);
   ThreadArena arena(options.threads);
   absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
-  arena.execute([&] { graph = FinishBuild(mesh, counts, feed, params, progress, st); });
+  arena.execute([&] {
+    graph = FinishBuild(mesh, counts, feed, params, options.pseudo_vertex_limit, progress, st);
+  });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);
   return graph;

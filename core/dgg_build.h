@@ -30,6 +30,11 @@ struct DggBuildOptions {
   // directory when empty) and are read back once, in a stream. The rest of
   // the build works on one edge array the size of the graph's, in place.
   uint64_t candidate_memory_limit = 0;
+  // With params.pseudo_vertices: the most pseudo vertices per mesh vertex
+  // the build may add (0: no limit). Past it the build fails with
+  // FAILED_PRECONDITION giving the estimated cost, as soon as it is passed:
+  // at 1 the graph stays within about twice the plain one's size and time.
+  double pseudo_vertex_limit = 0;
   std::string spill_dir;
   // Called now and then from any build thread with the current phase
   // ("candidates", "pruning", "pseudo", "fans") and the fraction of the whole
@@ -54,6 +59,10 @@ struct DggBuildStats {
   uint64_t windows_created = 0;  // by the candidate propagation, all sources
   uint64_t spilled_bytes = 0;    // candidate runs that went to disk
   uint32_t pseudo_vertices = 0;
+  // Geodesics shot into the gaps between edge directions, and those of them
+  // whose end point needed a propagation to decide (section 4.3).
+  uint64_t pseudo_shots = 0;
+  uint64_t pseudo_propagations = 0;
   uint32_t max_degree = 0;
   double average_degree = 0;
   double average_fan = 0;  // edges a node reached along an edge relaxes

@@ -1,7 +1,9 @@
 #include "core/geodesic_shooting.h"
 
+#include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
@@ -34,7 +36,7 @@ std::array<double, 3> Barycentric(const Vec2& a, const Vec2& b, const Vec2& c, c
 }  // namespace
 
 absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar_angle,
-                                      double length) {
+                                      double length, ShotStrip* strip) {
   if (v >= mesh.num_vertices() || mesh.is_isolated(v)) {
     return absl::InvalidArgumentError(absl::StrFormat("cannot shoot from vertex %u", v));
   }
@@ -70,6 +72,14 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
   double travelled = 0;
   HalfedgeId entry = kNone;  // the half-edge of f we came in through
   ShotEnd end;
+  if (strip) strip->portals.clear();
+  // Where the shot stops, in face f.
+  auto finish = [&](const Vec2& q) {
+    if (!strip) return;
+    for (int e = 0; e < 3; ++e) strip->last_face[e] = mesh.tail(Mesh::halfedge(f, e));
+    strip->last_images = pos;
+    strip->end = q;
+  };
   for (size_t step = 0; step < 4 * mesh.num_faces() + 8; ++step) {
     // Leave f through the first edge the ray meets (other than the entry).
     double best_s = std::numeric_limits<double>::infinity();
@@ -99,6 +109,7 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
       end.point =
           CanonicalizeSurfacePoint(mesh, SurfacePoint::Face(f, b[0] / sum, b[1] / sum, b[2] / sum));
       end.length = travelled + s;
+      finish(q);
       return end;
     }
     travelled += best_s;
@@ -110,6 +121,7 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
       end.point = SurfacePoint::Vertex(x);
       end.length = travelled;
       end.hit_vertex = true;
+      finish(p);
       return end;
     }
     const HalfedgeId twin = mesh.twin(exit);
@@ -119,7 +131,12 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
           SurfacePoint::Edge(mesh.edge(exit),
                              mesh.edge_halfedge(mesh.edge(exit)) == exit ? exit_t : 1 - exit_t));
       end.length = travelled;
+      finish(p);
       return end;
+    }
+    if (strip) {
+      strip->portals.push_back({mesh.tail(exit), mesh.head(exit), pos[Mesh::corner(exit)],
+                                pos[(Mesh::corner(exit) + 1) % 3]});
     }
     // Unfold the next face across the exit edge.
     const int e = Mesh::corner(exit);
@@ -132,6 +149,50 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
     entry = twin;
   }
   return absl::InternalError("geodesic shooting did not terminate");
+}
+
+double ShotStrip::StraightDistanceToEnd(VertexId w) const {
+  constexpr double kNever = std::numeric_limits<double>::infinity();
+  // From w's last image on the way: the segment must then cross every later
+  // portal, between its ends.
+  size_t first = portals.size();
+  Vec2 from;
+  bool found = false;
+  for (size_t i = portals.size(); i-- > 0 && !found;) {
+    if (portals[i].a == w || portals[i].b == w) {
+      from = portals[i].a == w ? portals[i].image_a : portals[i].image_b;
+      first = i + 1;
+      found = true;
+    }
+  }
+  if (!found) {
+    const auto k = std::find(last_face.begin(), last_face.end(), w) - last_face.begin();
+    if (k == 3) return kNever;
+    from = last_images[k];
+  }
+  const Vec2 dir = end - from;
+  for (size_t i = first; i < portals.size(); ++i) {
+    const Vec2 a = portals[i].image_a, edge = portals[i].image_b - portals[i].image_a;
+    const double den = Cross(dir, edge);
+    if (den == 0) return kNever;
+    const double t = Cross(a - from, edge) / den;  // along the segment
+    const double u = Cross(a - from, dir) / den;   // along the portal
+    if (t < 0 || t > 1 || u < 0 || u > 1) return kNever;
+  }
+  return Norm(dir);
+}
+
+std::vector<VertexId> ShotStrip::Vertices(VertexId shooter) const {
+  std::vector<VertexId> out;
+  for (const Portal& p : portals) {
+    out.push_back(p.a);
+    out.push_back(p.b);
+  }
+  out.insert(out.end(), last_face.begin(), last_face.end());
+  std::sort(out.begin(), out.end());
+  out.erase(std::unique(out.begin(), out.end()), out.end());
+  std::erase(out, shooter);
+  return out;
 }
 
 }  // namespace geodesic

@@ -61,6 +61,8 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
     PrintJson({{"vertices", n},
                {"nodes", graph.num_nodes()},
                {"pseudo_vertices", stats.pseudo_vertices},
+               {"pseudo_shots", stats.pseudo_shots},
+               {"pseudo_propagations", stats.pseudo_propagations},
                {"edges", stats.edges},
                {"candidate_edges", stats.candidate_edges},
                {"average_degree", stats.average_degree},
@@ -159,6 +161,12 @@ int RunBuild(int argc, char** argv) {
   app.add_flag("--pseudo-vertices", pseudo,
                "add pseudo vertices where edge directions leave gaps (section 4.3; for "
                "anisotropic meshes)");
+  double pseudo_limit = 1;
+  app.add_option("--pseudo-vertex-limit", pseudo_limit,
+                 "with --pseudo-vertices: refuse the build, with its estimated cost, when it "
+                 "would add more pseudo vertices than this many per mesh vertex (0: no limit)")
+      ->check(CLI::NonNegativeNumber)
+      ->capture_default_str();
   app.add_option("--part", part,
                  "I/N: only the candidate edges of the I-th (0-based) of N vertex ranges, for "
                  "'geodesicd merge'");
@@ -198,6 +206,7 @@ int RunBuild(int argc, char** argv) {
   DggBuildOptions options;
   options.params.epsilon = epsilon;
   options.params.pseudo_vertices = pseudo;
+  options.pseudo_vertex_limit = pseudo_limit;
   options.threads = threads;
   options.stop_at_corners = !plain;
   options.params.prune_redundant = prune;
@@ -232,6 +241,10 @@ int RunMerge(int argc, char** argv) {
                  "in its --graph-dir")
       ->excludes(out);
   app.add_option("--threads", threads, "threads (0: all cores)");
+  double pseudo_limit = 1;
+  app.add_option("--pseudo-vertex-limit", pseudo_limit,
+                 "for parts built with --pseudo-vertices: as for 'geodesicd build'")
+      ->check(CLI::NonNegativeNumber);
   app.add_flag("--json", json, "print a JSON object (the keys of 'geodesicd build --json')");
   app.add_flag("--quiet", quiet, "no progress bar");
   bool prune = false, exact_fans = false;
@@ -266,6 +279,7 @@ int RunMerge(int argc, char** argv) {
   }
   DggBuildOptions options;
   options.threads = threads;
+  options.pseudo_vertex_limit = pseudo_limit;
   options.progress = ProgressBar(!json && !quiet);
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);

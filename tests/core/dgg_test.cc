@@ -630,5 +630,25 @@ TEST(PseudoVerticesOnSharedMeshes, FewOnTheAnisotropicBladeAndWithinTheContract)
   }
 }
 
+// At 1e-3 the blade's gaps would take tens of pseudo vertices per vertex:
+// with the offline build's limit the build is refused with the estimate
+// instead of running for minutes.
+TEST(PseudoVerticesOnSharedMeshes, RefusedOnTheBladeAtSmallEpsilonWithTheEstimate) {
+  ASSERT_TRUE(testing::SharedDataAvailable());
+  auto mesh = LoadMesh(testing::SharedMeshPath("blade_aniso"));
+  ASSERT_OK(mesh);
+  DggBuildOptions options;
+  options.params.epsilon = 1e-3;
+  options.params.pseudo_vertices = true;
+  options.pseudo_vertex_limit = 1;
+  DggBuildStats stats;
+  auto refused = BuildDgg(*mesh, options, &stats);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_NE(refused.status().message().find("over the limit of 1"), std::string::npos)
+      << refused.status().message();
+  EXPECT_LT(stats.pseudo_propagations, stats.pseudo_shots / 10);
+}
+
 }  // namespace
 }  // namespace geodesic
