@@ -156,6 +156,7 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200, body)
         self.assertTrue(body["pseudo_vertices"])
         expected = self.client.distances("spot", a, b, epsilon=EPS, pseudo_vertices=True)
+        self.assertTrue(all(isinstance(d, float) and d > 0 for d in body["distances"]), body)
         self.assertEqual(body["distances"], list(expected))
         status, plain = self.post("distance", {"pairs": pairs, "eps": EPS})
         self.assertFalse(plain["pseudo_vertices"])
@@ -164,6 +165,8 @@ class GatewayTest(unittest.TestCase):
         status, body = self.post("field", {"sources": ["v:3"], "eps": EPS, "pseudo_vertices": True})
         self.assertEqual(status, 200, body)
         self.assertTrue(body["pseudo_vertices"])
+        # spot is one piece: every distance is a number, on both sides.
+        self.assertTrue(body["distances"] and all(isinstance(d, float) for d in body["distances"]))
         self.assertEqual(body["distances"], inf_to_none(
             self.client.field("spot", ["v:3"], epsilon=EPS, pseudo_vertices=True)))
         status, body = self.post("matrix", {"sources": a, "targets": b, "eps": EPS,

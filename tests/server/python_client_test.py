@@ -26,6 +26,7 @@ from geodesic_client import (Client, Graph, GraphState, Mesh, MeshDiagnostics,  
 from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
+from comparisons import assert_close, assert_same  # noqa: E402
 
 
 class ClientTest(unittest.TestCase):
@@ -63,7 +64,7 @@ class ClientTest(unittest.TestCase):
         subprocess.run([f"{BIN}/geodesicd", "field", "--mesh", f"{SRC}/data/spot.obj", "--graph",
                         f"{self.work}/graphs/{self.graph_file()}", "--source", "v:3", "--out", out],
                        check=True, capture_output=True)
-        np.testing.assert_array_equal(field, np.fromfile(out))
+        assert_same(field, np.fromfile(out))
 
     def exact_field(self, source):
         out = f"{self.work}/exact-{source.replace(':', '_')}.f64"
@@ -126,7 +127,7 @@ class ClientTest(unittest.TestCase):
         out = f"{self.work}/offline-pseudo.f64"
         subprocess.run([f"{BIN}/geodesicd", "field", "--mesh", f"{SRC}/data/spot.obj", "--graph",
                         graph, "--source", "v:3", "--out", out], check=True, capture_output=True)
-        np.testing.assert_array_equal(field, np.fromfile(out))
+        assert_same(field, np.fromfile(out))
         a, b = "f:0:0.2,0.3,0.5", "v:1500"
         d = self.client.distance("spot", a, b, epsilon=0.01, pseudo_vertices=True)
         offline = subprocess.run([f"{BIN}/geodesicd", "distance", "--mesh", f"{SRC}/data/spot.obj",
@@ -144,7 +145,7 @@ class ClientTest(unittest.TestCase):
         self.assertEqual((vertices.dtype, vertices.shape), (np.uint32, (8,)))
         self.assertEqual(len(set(vertices.tolist())), 8)
         again, _ = self.client.sample_points("spot", 8, seed=5, epsilon=0.01)
-        np.testing.assert_array_equal(vertices, again)
+        assert_same(vertices, again)
         # The covering radius is the farthest any vertex lies from its nearest sample.
         field = self.client.field("spot", [f"v:{v}" for v in vertices], epsilon=0.01)
         self.assertAlmostEqual(radius, field.max(), delta=1e-12 * radius)
@@ -171,7 +172,7 @@ class ClientTest(unittest.TestCase):
         # Equal to the last bit: a search that meets at another node (before
         # and after the landmarks are ready) still sums the path from its
         # first point.
-        np.testing.assert_array_equal(got, want)
+        assert_same(got, want)
 
     def test_lower_server_limits_are_learnt_by_every_call(self):
         # A daemon with tighter limits than the client's defaults: matrix,
@@ -192,11 +193,11 @@ class ClientTest(unittest.TestCase):
                 targets = np.arange(0, 2930, 14)[:200]
                 got = tight.matrix("spot", [0, 7, 900], targets, epsilon=0.01)
                 want = self.client.matrix("spot", [0, 7, 900], targets, epsilon=0.01)
-                np.testing.assert_array_equal(got, want)
+                assert_same(got, want)
                 sources = list(range(0, 2930, 293))  # 10
                 # The minimum of three partial fields: equal up to an ulp where
                 # two sources tie.
-                np.testing.assert_allclose(tight.field("spot", sources, epsilon=0.01),
+                assert_close(tight.field("spot", sources, epsilon=0.01),
                                            self.client.field("spot", sources, epsilon=0.01),
                                            rtol=1e-14)
                 positions = np.random.default_rng(5).normal(size=(200, 3)) * 0.5
@@ -208,7 +209,7 @@ class ClientTest(unittest.TestCase):
 
     def test_one_position_is_one_source_and_a_missing_upload_names_the_file(self):
         one = self.client.field("spot", np.array([0.1, 0.2, 0.3]), epsilon=0.01)
-        np.testing.assert_array_equal(
+        assert_same(
             one, self.client.field("spot", [[0.1, 0.2, 0.3]], epsilon=0.01))
         self.assertEqual(one.shape, (2930,))
         with self.assertRaises(FileNotFoundError):
@@ -282,25 +283,25 @@ class ClientTest(unittest.TestCase):
         self.assertEqual(solver.request_graph().state, GraphState.READY)
         a, b = np.array([0, 5, 17, 900]), ["v:1500", "f:0:0.2,0.3,0.5", "v:17", "v:2000"]
         kw = dict(epsilon=0.01)
-        np.testing.assert_array_equal(solver.distances(a, b), c.distances("spot", a, b, **kw))
+        assert_same(solver.distances(a, b), c.distances("spot", a, b, **kw))
         (d1, p1), (d2, p2) = (solver.distances(a, b, with_path=True),
                               c.distances("spot", a, b, with_path=True, **kw))
-        np.testing.assert_array_equal(d1, d2)
+        assert_same(d1, d2)
         self.assertEqual([(p.length, p.points) for p in p1], [(p.length, p.points) for p in p2])
         self.assertEqual(solver.distance(3, "v:40"), c.distance("spot", 3, "v:40", **kw))
         path, want = solver.path(3, "v:40"), c.path("spot", 3, "v:40", **kw)
         self.assertEqual((path.length, path.points), (want.length, want.points))
-        np.testing.assert_array_equal(path.xyz, want.xyz)
-        np.testing.assert_array_equal(solver.field([3, 700]), c.field("spot", [3, 700], **kw))
+        assert_same(path.xyz, want.xyz)
+        assert_same(solver.field([3, 700]), c.field("spot", [3, 700], **kw))
         f1, l1 = solver.field([3, 700], nearest_source=True, targets=[1, 2, 3])
         f2, l2 = c.field("spot", [3, 700], targets=[1, 2, 3], nearest_source=True, **kw)
-        np.testing.assert_array_equal(f1, f2)
-        np.testing.assert_array_equal(l1, l2)
-        np.testing.assert_array_equal(solver.matrix([0, 1], [2, 3, 4]),
+        assert_same(f1, f2)
+        assert_same(l1, l2)
+        assert_same(solver.matrix([0, 1], [2, 3, 4]),
                                       c.matrix("spot", [0, 1], [2, 3, 4], **kw))
         v1, r1 = solver.sample_points(6, seed=2)
         v2, r2 = c.sample_points("spot", 6, seed=2, **kw)
-        np.testing.assert_array_equal(v1, v2)
+        assert_same(v1, v2)
         self.assertEqual(r1, r2)
         positions = [(0.1, 0.2, 0.3), (-0.2, 0.1, 0.0)]
         self.assertEqual(solver.snap(positions), c.snap("spot", positions))
@@ -313,7 +314,7 @@ class ClientTest(unittest.TestCase):
 
         pseudo = c.mesh_solver("spot", 0.01, pseudo_vertices=True)
         self.assertTrue(pseudo.request_graph().pseudo_vertices)
-        np.testing.assert_array_equal(pseudo.field([3]),
+        assert_same(pseudo.field([3]),
                                       c.field("spot", [3], pseudo_vertices=True, **kw))
         with Client(f"127.0.0.1:{self.port}", epsilon=0.01) as other:
             self.assertEqual(other.mesh_solver("spot").epsilon, 0.01)  # the client's default

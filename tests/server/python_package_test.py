@@ -20,6 +20,7 @@ import numpy as np
 # The script's own directory: imported before the venv run drops the clone
 # from sys.path.
 import daemon_ports
+from comparisons import assert_close, assert_same
 
 BIN, SRC = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
 EPS = 0.01
@@ -129,7 +130,7 @@ class PackageTest(unittest.TestCase):
         self.assertEqual(m.diagnostics.details["vertices"], 2930)
         solver = self.client.mesh_solver("spot")
         self.assertEqual(solver.epsilon, EPS)
-        np.testing.assert_array_equal(solver.distances([1, 2, 3], [2000, 1000, 3]),
+        assert_same(solver.distances([1, 2, 3], [2000, 1000, 3]),
                                       self.client.distances("spot", [1, 2, 3], [2000, 1000, 3]))
         seen = []
         self.assertIs(solver.request_graph(progress=seen.append).state, self.gc.GraphState.READY)
@@ -149,9 +150,9 @@ class PackageTest(unittest.TestCase):
                  for v, f, b in zip(a.tolist(), faces.tolist(), bary.tolist())]
         want = cli_distances(self.port, lines, self.work)
         # Same server, same graph, same doubles in: equal to the last bit (the CLI prints %.17g).
-        np.testing.assert_array_equal(got, want)
+        assert_same(got, want)
         # The same points as (face_ids, barycentrics) tuple and as spec strings.
-        np.testing.assert_array_equal(
+        assert_same(
             self.client.distances("spot", (faces[:50], bary[:50]), a[:50]),
             self.client.distances("spot", [ln.split()[1] for ln in lines[:50]],
                                   [f"v:{v}" for v in a[:50].tolist()]))
@@ -162,9 +163,9 @@ class PackageTest(unittest.TestCase):
         got = self.client.distances("spot", xyz, ids)
         want = cli_distances(self.port, [f"xyz:{p[0]!r},{p[1]!r},{p[2]!r} v:{v}"
                                          for p, v in zip(xyz.tolist(), ids.tolist())], self.work)
-        np.testing.assert_array_equal(got, want)
+        assert_same(got, want)
         snapped = self.client.snap("spot", xyz)
-        np.testing.assert_array_equal(self.client.distances("spot", snapped, ids), want)
+        assert_same(self.client.distances("spot", snapped, ids), want)
 
     def test_paths_are_k_by_3_arrays(self):
         dist, paths = self.client.distances("spot", [1, 2, 3], [2000, 1000, 3], with_path=True)
@@ -177,8 +178,8 @@ class PackageTest(unittest.TestCase):
         verts = spot_vertices()
         length, xyz = self.client.path("spot", 1, 2000)
         self.assertGreaterEqual(len(xyz), 2)
-        np.testing.assert_allclose(xyz[0], verts[1], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(xyz[-1], verts[2000], rtol=0, atol=1e-12)
+        assert_close(xyz[0], verts[1], rtol=0, atol=1e-12)
+        assert_close(xyz[-1], verts[2000], rtol=0, atol=1e-12)
         # Straight segments across faces: the polyline is the path.
         polyline = np.linalg.norm(np.diff(xyz, axis=0), axis=1).sum()
         self.assertAlmostEqual(polyline / length, 1.0, delta=1e-9)
@@ -191,14 +192,14 @@ class PackageTest(unittest.TestCase):
         self.assertTrue(np.all(whole[sources] == 0))
         split = self.gc.Client(f"127.0.0.1:{self.port}", epsilon=EPS, max_sources=2)
         parts, part_labels = split.field("spot", sources, nearest_source=True)
-        np.testing.assert_allclose(parts, whole, rtol=1e-12, atol=0)
+        assert_close(parts, whole, rtol=1e-12, atol=0)
         agree = np.isclose(parts, whole, rtol=1e-12, atol=0) & (labels == part_labels)
         self.assertGreater(agree.mean(), 0.99)  # ties may pick either source
-        np.testing.assert_array_equal(self.client.field("spot", 3, targets=[3, 10]),
+        assert_same(self.client.field("spot", 3, targets=[3, 10]),
                                       self.client.field("spot", [3])[[3, 10]])
         m = split.matrix("spot", sources, np.arange(0, 2930, 7))
         self.assertEqual(m.shape, (5, len(range(0, 2930, 7))))
-        np.testing.assert_array_equal(m, self.client.matrix("spot", sources,
+        assert_same(m, self.client.matrix("spot", sources,
                                                             np.arange(0, 2930, 7)))
 
     def test_errors_map_to_exceptions(self):

@@ -31,6 +31,7 @@ import grpc  # noqa: E402
 from geodesic_client import Client  # noqa: E402
 from geodesic_client._stubs import pb, rpc  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
+from comparisons import assert_same  # noqa: E402
 
 with open(os.path.join(SRC, "data", "spot.obj"), "rb") as _f:
     SPOT = _f.read()
@@ -329,8 +330,8 @@ class UploadsTest(unittest.TestCase):
         self.assertEqual((m.diagnostics.vertices, m.diagnostics.faces), (len(vertices), len(faces)))
         v, f = self.client.geometry("arrays")
         self.assertEqual((v.dtype, f.dtype), (np.float64, np.uint32))
-        np.testing.assert_array_equal(v, vertices)
-        np.testing.assert_array_equal(f, faces)
+        assert_same(v, vertices)
+        assert_same(f, faces)
         # The same mesh as the file it came from.
         from_file = self.upload(messages("arrays-file", SPOT))
         self.assertEqual(m.fingerprint, from_file.fingerprint)
