@@ -290,14 +290,19 @@ grpc::Status BodyGraph(const json& body, GraphChoice* out) {
   return BoolField(body, "pseudo_vertices", &out->pseudo_vertices);
 }
 
+template <typename Request>
+void SetGraph(const std::string& mesh, const GraphChoice& graph, Request* req) {
+  req->set_mesh(mesh);
+  req->set_epsilon(graph.epsilon);
+  req->set_pseudo_vertices(graph.pseudo_vertices);
+}
+
 // A request for `mesh` on the graph the body chooses.
 template <typename Request>
 grpc::Status ForGraphOf(const std::string& mesh, const json& body, Request* req) {
   GraphChoice graph;
   if (grpc::Status s = BodyGraph(body, &graph); !s.ok()) return s;
-  req->set_mesh(mesh);
-  req->set_epsilon(graph.epsilon);
-  req->set_pseudo_vertices(graph.pseudo_vertices);
+  SetGraph(mesh, graph, req);
   return grpc::Status::OK;
 }
 
@@ -313,6 +318,14 @@ grpc::Status QueryGraph(const HttpRequest& req, GraphChoice* out) {
     return Invalid(
         absl::StrFormat("query parameter pseudo_vertices=%s: expected true or false", text));
   }
+  return grpc::Status::OK;
+}
+
+template <typename Request>
+grpc::Status ForGraphOfQuery(const std::string& mesh, const HttpRequest& http, Request* req) {
+  GraphChoice graph;
+  if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
+  SetGraph(mesh, graph, req);
   return grpc::Status::OK;
 }
 
@@ -386,6 +399,15 @@ json MeshJson(const v1::Mesh& m) {
   if (!diagnostics.is_discarded()) out["diagnostics"] = std::move(diagnostics);
   return out;
 }
+
+// What a route's handler reads: the mesh its path names (empty when it
+// names none), the HTTP request, and the JSON body the route takes (an
+// empty object for routes that take none).
+struct ApiRequest {
+  const std::string& mesh;
+  const HttpRequest& http;
+  const json& body;
+};
 
 }  // namespace
 
@@ -470,7 +492,7 @@ struct HttpGateway::Impl {
     return Resolve(call, mesh, std::vector<json>(array->begin(), array->end()), what, out);
   }
 
-  grpc::Status ListMeshes(const Call& call, json* out) {
+  grpc::Status ListMeshes(const Call& call, const ApiRequest&, json* out) {
     v1::ListMeshesResponse resp;
     grpc::Status s = stub->ListMeshes(call.Context().get(), {}, &resp);
     if (!s.ok()) return s;
@@ -480,9 +502,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status GetMesh(const Call& call, const std::string& name, json* out) {
+  grpc::Status GetMesh(const Call& call, const ApiRequest& r, json* out) {
     v1::GetMeshRequest req;
-    req.set_name(name);
+    req.set_name(r.mesh);
     v1::Mesh resp;
     grpc::Status s = stub->GetMesh(call.Context().get(), req, &resp);
     if (s.ok()) *out = MeshJson(resp);
@@ -495,7 +517,8 @@ struct HttpGateway::Impl {
   // the file's own bytes with ?name=NAME&format=obj|off|ply|stl (any
   // content type but JSON). Arrays and bytes go through UploadMesh, whose
   // declared size and SHA-256 the gateway computes.
-  grpc::Status RegisterMesh(const Call& call, const HttpRequest& http, json* out) {
+  grpc::Status RegisterMesh(const Call& call, const ApiRequest& r, json* out) {
+    const HttpRequest& http = r.http;
     v1::Mesh mesh;
     grpc::Status s;
     if (!http.header("Content-Type").starts_with("application/json")) {
@@ -586,7 +609,8 @@ struct HttpGateway::Impl {
     return writer->Finish();
   }
 
-  grpc::Status UnloadMesh(const Call& call, const std::string& name, json* out) {
+  grpc::Status UnloadMesh(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& name = r.mesh;
     v1::UnloadMeshRequest req;
     req.set_name(name);
     v1::UnloadMeshResponse resp;
@@ -598,9 +622,10 @@ struct HttpGateway::Impl {
   // Geometry has no RPC: GetMesh authorises the call and names a missing
   // mesh, then the registry's arrays are sent as they are, in file order,
   // so that a face id and its barycentrics mean the same on both sides.
-  grpc::Status Geometry(const Call& call, const std::string& name, json* out) {
+  grpc::Status Geometry(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& name = r.mesh;
     json info;
-    if (grpc::Status s = GetMesh(call, name, &info); !s.ok()) return s;
+    if (grpc::Status s = GetMesh(call, r, &info); !s.ok()) return s;
     auto m = meshes->Get(name);
     if (!m.ok()) return FromAbsl(m.status());
     const Mesh& mesh = *(*m)->mesh;
@@ -618,40 +643,35 @@ struct HttpGateway::Impl {
     return grpc::Status::OK;
   }
 
-  grpc::Status RequestGraph(const Call& call, const std::string& mesh, const json& body,
-                            json* out) {
+  grpc::Status RequestGraph(const Call& call, const ApiRequest& r, json* out) {
     v1::RequestGraphRequest req;
-    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
+    if (grpc::Status s = ForGraphOf(r.mesh, r.body, &req); !s.ok()) return s;
     v1::Graph g;
     grpc::Status s = stub->RequestGraph(call.Context().get(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
 
-  grpc::Status GetGraph(const Call& call, const std::string& mesh, const HttpRequest& http,
-                        bool cancel, json* out) {
-    GraphChoice graph;
-    if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
+  // GET and DELETE name the graph in the query string: ?eps=E&pseudo_vertices=true.
+  grpc::Status GetGraph(const Call& call, const ApiRequest& r, json* out) {
+    v1::GetGraphRequest req;
+    if (grpc::Status s = ForGraphOfQuery(r.mesh, r.http, &req); !s.ok()) return s;
     v1::Graph g;
-    grpc::Status s;
-    if (cancel) {
-      v1::CancelGraphRequest req;
-      req.set_mesh(mesh);
-      req.set_epsilon(graph.epsilon);
-      req.set_pseudo_vertices(graph.pseudo_vertices);
-      s = stub->CancelGraph(call.Context().get(), req, &g);
-    } else {
-      v1::GetGraphRequest req;
-      req.set_mesh(mesh);
-      req.set_epsilon(graph.epsilon);
-      req.set_pseudo_vertices(graph.pseudo_vertices);
-      s = stub->GetGraph(call.Context().get(), req, &g);
-    }
+    grpc::Status s = stub->GetGraph(call.Context().get(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
 
-  grpc::Status ListGraphs(const Call& call, json* out) {
+  grpc::Status CancelGraph(const Call& call, const ApiRequest& r, json* out) {
+    v1::CancelGraphRequest req;
+    if (grpc::Status s = ForGraphOfQuery(r.mesh, r.http, &req); !s.ok()) return s;
+    v1::Graph g;
+    grpc::Status s = stub->CancelGraph(call.Context().get(), req, &g);
+    if (s.ok()) *out = GraphJson(g);
+    return s;
+  }
+
+  grpc::Status ListGraphs(const Call& call, const ApiRequest&, json* out) {
     v1::ListGraphsResponse resp;
     grpc::Status s = stub->ListGraphs(call.Context().get(), {}, &resp);
     if (!s.ok()) return s;
@@ -661,7 +681,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Distance(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Distance(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::DistanceRequest req;
     bool with_path;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
@@ -709,7 +731,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Field(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Field(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::DistanceFieldRequest req;
     bool nearest;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
@@ -764,7 +788,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Matrix(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Matrix(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::MatrixRequest req;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     std::vector<v1::SurfacePoint> sources, targets;
@@ -792,7 +818,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Sample(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Sample(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::SamplePointsRequest req;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     auto count = body.find("count");
@@ -814,7 +842,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Snap(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Snap(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     const json* positions;
     if (grpc::Status s = ArrayField(body, "positions", &positions); !s.ok()) return s;
     v1::SnapRequest req;
@@ -841,25 +871,79 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  // The API, one row per path and method. A "{}" segment matches one path
-  // segment (a mesh name), handed to the handler; `open` rows need no token.
+  // The API, one row per path and method: a "{}" segment matches one path
+  // segment (a mesh name), handed to the handler. `call` rows answer JSON
+  // from the gRPC service once the Call's checks (token, timeout) pass; a
+  // `page` row answers by itself, with no token. A POST body is parsed
+  // before `call` runs when the row lists the keys it takes: a key not
+  // listed is refused rather than ignored, since a typo such as
+  // "pseudo_vertex" would otherwise quietly answer from another graph.
+  using Handler = grpc::Status (Impl::*)(const Call&, const ApiRequest&, json* out);
+  using Page = HttpResponse (Impl::*)() const;
   struct Route {
     const char* method;
     const char* pattern;
-    bool open;
-    std::function<HttpResponse(Impl&, const HttpRequest&, const std::vector<std::string>&)> handle;
+    Handler call;
+    std::vector<std::string> body_keys;
+    Page page;
   };
-  using Api = std::function<grpc::Status(Impl&, const Call&, const std::string& mesh,
-                                         const HttpRequest&, json* out)>;
-  using BodyApi = grpc::Status (Impl::*)(const Call&, const std::string&, const json&, json*);
 
-  // A JSON answer: the Call (token, deadline) is checked, then the handler.
-  static HttpResponse Reply(Impl& g, const HttpRequest& req, const std::vector<std::string>& args,
-                            const Api& handle) {
+  static const std::vector<Route>& Routes() {
+    static const std::vector<Route> routes = {
+        {"GET", "/v1/openapi.json", nullptr, {}, &Impl::OpenApi},
+        {"GET", "/v1/meshes", &Impl::ListMeshes, {}, nullptr},
+        {"GET", "/v1/graphs", &Impl::ListGraphs, {}, nullptr},
+        // Reads its body itself: JSON, or a mesh file's bytes.
+        {"POST", "/v1/meshes", &Impl::RegisterMesh, {}, nullptr},
+        {"GET", "/v1/meshes/{}", &Impl::GetMesh, {}, nullptr},
+        {"DELETE", "/v1/meshes/{}", &Impl::UnloadMesh, {}, nullptr},
+        {"GET", "/v1/meshes/{}/geometry", &Impl::Geometry, {}, nullptr},
+        {"GET", "/v1/meshes/{}/graph", &Impl::GetGraph, {}, nullptr},
+        {"DELETE", "/v1/meshes/{}/graph", &Impl::CancelGraph, {}, nullptr},
+        {"POST",
+         "/v1/meshes/{}/graph",
+         &Impl::RequestGraph,
+         {"eps", "epsilon", "pseudo_vertices"},
+         nullptr},
+        {"POST",
+         "/v1/meshes/{}/distance",
+         &Impl::Distance,
+         {"pairs", "path", "eps", "epsilon", "pseudo_vertices"},
+         nullptr},
+        {"POST",
+         "/v1/meshes/{}/field",
+         &Impl::Field,
+         {"sources", "targets", "max_distance", "method", "nearest_source", "eps", "epsilon",
+          "pseudo_vertices"},
+         nullptr},
+        {"POST",
+         "/v1/meshes/{}/matrix",
+         &Impl::Matrix,
+         {"sources", "targets", "eps", "epsilon", "pseudo_vertices"},
+         nullptr},
+        {"POST", "/v1/meshes/{}/snap", &Impl::Snap, {"positions"}, nullptr},
+        {"POST",
+         "/v1/meshes/{}/sample",
+         &Impl::Sample,
+         {"count", "seed", "eps", "epsilon", "pseudo_vertices"},
+         nullptr},
+    };
+    return routes;
+  }
+
+  // A route's answer. For `call` rows: the Call is checked, then the body,
+  // then the handler runs; an answer that comes after the request's timeout
+  // is an error, as over gRPC.
+  HttpResponse Answer(const Route& route, const HttpRequest& req,
+                      const std::vector<std::string>& args) {
+    if (route.page) return (this->*route.page)();
     Call call(req, args);
-    json out;
-    grpc::Status s = call.status().ok() ? handle(g, call, args.empty() ? "" : args[0], req, &out)
-                                        : call.status();
+    json body = json::object(), out;
+    grpc::Status s = call.status();
+    if (s.ok() && !route.body_keys.empty()) {
+      if (s = ParseBody(req, &body); s.ok()) s = OnlyKeys(body, route.body_keys);
+    }
+    if (s.ok()) s = (this->*route.call)(call, {args.empty() ? "" : args[0], req, body}, &out);
     if (s.ok() && call.expired()) {
       s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
     }
@@ -871,31 +955,6 @@ struct HttpGateway::Impl {
     return res;
   }
 
-  // A route whose answer is JSON from the gRPC service.
-  static Route Rpc(const char* pattern, Api handle, const char* method = "GET") {
-    return {method, pattern, false,
-            [handle = std::move(handle)](Impl& g, const HttpRequest& req,
-                                         const std::vector<std::string>& args) {
-              return Reply(g, req, args, handle);
-            }};
-  }
-
-  // POST bodies are parsed after the Call's checks, before the RPC. A key
-  // the route does not take is refused rather than ignored: a typo such as
-  // "pseudo_vertex" would otherwise quietly answer from another graph.
-  static Route Post(const char* pattern, BodyApi handle, std::vector<std::string> keys) {
-    return Rpc(
-        pattern,
-        [handle, keys = std::move(keys)](Impl& g, const Call& call, const std::string& mesh,
-                                         const HttpRequest& req, json* out) {
-          json body;
-          if (grpc::Status s = ParseBody(req, &body); !s.ok()) return s;
-          if (grpc::Status s = OnlyKeys(body, keys); !s.ok()) return s;
-          return (g.*handle)(call, mesh, body, out);
-        },
-        "POST");
-  }
-
   static grpc::Status OnlyKeys(const json& body, const std::vector<std::string>& keys) {
     if (!body.is_object()) return grpc::Status::OK;  // the handler names what it expected
     for (const auto& [key, value] : body.items()) {
@@ -904,57 +963,6 @@ struct HttpGateway::Impl {
                                      absl::StrJoin(keys, ", ")));
     }
     return grpc::Status::OK;
-  }
-
-  static const std::vector<Route>& Routes() {
-    static const std::vector<Route> routes = {
-        {"GET", "/v1/openapi.json", true,
-         [](Impl& g, const HttpRequest&, const std::vector<std::string>&) { return g.OpenApi(); }},
-        Rpc("/v1/meshes", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
-                             json* out) { return g.ListMeshes(call, out); }),
-        Rpc("/v1/graphs", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
-                             json* out) { return g.ListGraphs(call, out); }),
-        Rpc(
-            "/v1/meshes",
-            [](Impl& g, const Call& call, const std::string&, const HttpRequest& req, json* out) {
-              return g.RegisterMesh(call, req, out);
-            },
-            "POST"),
-        Rpc("/v1/meshes/{}",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
-              return g.GetMesh(call, mesh, out);
-            }),
-        Rpc(
-            "/v1/meshes/{}",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
-              return g.UnloadMesh(call, mesh, out);
-            },
-            "DELETE"),
-        Rpc("/v1/meshes/{}/geometry",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
-              return g.Geometry(call, mesh, out);
-            }),
-        Rpc("/v1/meshes/{}/graph",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
-               json* out) { return g.GetGraph(call, mesh, req, false, out); }),
-        Rpc(
-            "/v1/meshes/{}/graph",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
-               json* out) { return g.GetGraph(call, mesh, req, true, out); },
-            "DELETE"),
-        Post("/v1/meshes/{}/graph", &Impl::RequestGraph, {"eps", "epsilon", "pseudo_vertices"}),
-        Post("/v1/meshes/{}/distance", &Impl::Distance,
-             {"pairs", "path", "eps", "epsilon", "pseudo_vertices"}),
-        Post("/v1/meshes/{}/field", &Impl::Field,
-             {"sources", "targets", "max_distance", "method", "nearest_source", "eps", "epsilon",
-              "pseudo_vertices"}),
-        Post("/v1/meshes/{}/matrix", &Impl::Matrix,
-             {"sources", "targets", "eps", "epsilon", "pseudo_vertices"}),
-        Post("/v1/meshes/{}/snap", &Impl::Snap, {"positions"}),
-        Post("/v1/meshes/{}/sample", &Impl::Sample,
-             {"count", "seed", "eps", "epsilon", "pseudo_vertices"}),
-    };
-    return routes;
   }
 
   static bool Matches(std::string_view pattern, std::string_view path,
@@ -1068,7 +1076,7 @@ struct HttpGateway::Impl {
     std::string allow;
     if (const Route* route = FindRoute(req, &args, &allow)) {
       try {
-        return route->handle(*this, req, args);
+        return Answer(*route, req, args);
       } catch (const json::exception& e) {
         // Type checks precede every JSON read; this is the last guard.
         return ErrorResponse(Invalid(e.what()));
@@ -1129,7 +1137,7 @@ struct HttpGateway::Impl {
       if (maybe_file) return std::nullopt;
       return NotFound(head);
     }
-    if (route->open || options.bearer_token.empty()) return std::nullopt;
+    if (route->page || options.bearer_token.empty()) return std::nullopt;
     // Exactly one header: with two, a proxy and this server could each
     // read a different one.
     const size_t count = head.header_count("Authorization");
