@@ -29,6 +29,7 @@
 #include "grpc/health/v1/health.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
+#include "server/convert.h"
 
 namespace {
 
@@ -134,7 +135,7 @@ CLI::Validator NumberIn(double low, double high, const std::string& what) {
 }
 
 int Fail(const grpc::Status& s) {
-  const std::string code = absl::StatusCodeToString(static_cast<absl::StatusCode>(s.error_code()));
+  const std::string code = server::CodeName(s.error_code());
   std::fprintf(stderr, "geodesic: %s: %s\n", code.c_str(), s.error_message().c_str());
   return s.error_code() == grpc::StatusCode::UNAVAILABLE ? 3 : 1;
 }
@@ -144,89 +145,38 @@ int FailText(const std::string& message) {
   return 2;
 }
 
-bool ParsePoint(const std::string& text, v1::SurfacePoint* out, v1::Vec3* position,
-                bool* is_position, std::string* error) {
-  auto spec = ParseSurfacePointSpec(text);
-  if (!spec.ok()) {
-    *error = std::string(spec.status().message());
-    return false;
-  }
-  *is_position = spec->is_position;
-  if (spec->is_position) {
-    position->set_x(spec->position.x);
-    position->set_y(spec->position.y);
-    position->set_z(spec->position.z);
-    return true;
-  }
-  const SurfacePoint& p = spec->point;
-  if (p.kind == SurfacePoint::Kind::kVertex) out->set_vertex(p.id);
-  if (p.kind == SurfacePoint::Kind::kEdge) {
-    out->mutable_edge()->set_edge(p.id);
-    out->mutable_edge()->set_t(p.t);
-  }
-  if (p.kind == SurfacePoint::Kind::kFace) {
-    out->mutable_face()->set_face(p.id);
-    out->mutable_face()->set_b0(p.bary[0]);
-    out->mutable_face()->set_b1(p.bary[1]);
-    out->mutable_face()->set_b2(p.bary[2]);
-  }
-  return true;
-}
-
 // Resolves point specs, snapping xyz positions through the server.
 // `snap_distances`, if given, gets for each spec how far its xyz: position
 // was from the surface point it snapped to (null for other specs).
 bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<std::string>& specs,
                    std::vector<v1::SurfacePoint>* out, int* rc,
                    std::vector<nlohmann::ordered_json>* snap_distances = nullptr) {
-  out->assign(specs.size(), {});
   if (snap_distances) snap_distances->assign(specs.size(), nullptr);
-  v1::SnapRequest snap;
-  snap.set_mesh(c.mesh);
-  std::vector<size_t> snapped;
-  for (size_t i = 0; i < specs.size(); ++i) {
-    std::string error;
-    bool is_position = false;
-    v1::Vec3 position;
-    if (!ParsePoint(specs[i], &(*out)[i], &position, &is_position, &error)) {
-      *rc = FailText(error);
+  server::PointSpecs points;
+  for (const std::string& spec : specs) {
+    if (absl::Status s = points.Add(spec); !s.ok()) {
+      *rc = FailText(std::string(s.message()));
       return false;
     }
-    if (is_position) {
-      *snap.add_positions() = position;
-      snapped.push_back(i);
+  }
+  if (points.has_positions()) {
+    grpc::ClientContext ctx;
+    Prepare(&ctx, c);
+    v1::SnapResponse resp;
+    grpc::Status s = stub->Snap(&ctx, points.SnapRequest(c.mesh), &resp);
+    if (s.ok()) s = server::ToGrpc(points.Snapped(resp));
+    if (!s.ok()) {
+      *rc = Fail(s);
+      return false;
     }
-  }
-  if (snapped.empty()) return true;
-  grpc::ClientContext ctx;
-  Prepare(&ctx, c);
-  v1::SnapResponse resp;
-  grpc::Status s = stub->Snap(&ctx, snap, &resp);
-  if (!s.ok()) {
-    *rc = Fail(s);
-    return false;
-  }
-  for (size_t k = 0; k < snapped.size(); ++k) {
-    (*out)[snapped[k]] = resp.points(k);
-    if (snap_distances && k < static_cast<size_t>(resp.distances_size())) {
+    const std::vector<size_t>& snapped = points.snapped();
+    for (size_t k = 0; snap_distances && k < snapped.size() && k < size_t(resp.distances_size());
+         ++k) {
       (*snap_distances)[snapped[k]] = resp.distances(k);
     }
   }
+  *out = std::move(points.points());
   return true;
-}
-
-std::string PointText(const v1::SurfacePoint& p) {
-  switch (p.point_case()) {
-    case v1::SurfacePoint::kVertex:
-      return absl::StrFormat("v:%u", p.vertex());
-    case v1::SurfacePoint::kEdge:
-      return absl::StrFormat("e:%u:%.17g", p.edge().edge(), p.edge().t());
-    case v1::SurfacePoint::kFace:
-      return absl::StrFormat("f:%u:%.17g,%.17g,%.17g", p.face().face(), p.face().b0(),
-                             p.face().b1(), p.face().b2());
-    default:
-      return "?";
-  }
 }
 
 // --json output. Keys keep the order they are set in; strings are escaped;
@@ -668,8 +618,8 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
       if (with_path) {
         Json path = Json::array();
         for (const auto& q : r.path().points()) {
-          path.push_back(
-              {{"point", PointText(q.point())}, {"xyz", {q.xyz().x(), q.xyz().y(), q.xyz().z()}}});
+          path.push_back({{"point", server::FormatPoint(q.point())},
+                          {"xyz", {q.xyz().x(), q.xyz().y(), q.xyz().z()}}});
         }
         result["path"] = std::move(path);
       }
@@ -678,7 +628,7 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
       std::printf("%s -> %s: %s\n", specs[2 * i].c_str(), specs[2 * i + 1].c_str(),
                   r.reachable() ? absl::StrFormat("%.12g", r.distance()).c_str() : "unreachable");
       for (const auto& q : r.path().points()) {
-        std::printf("  %-48s %.9g %.9g %.9g\n", PointText(q.point()).c_str(), q.xyz().x(),
+        std::printf("  %-48s %.9g %.9g %.9g\n", server::FormatPoint(q.point()).c_str(), q.xyz().x(),
                     q.xyz().y(), q.xyz().z());
       }
     }
@@ -765,11 +715,11 @@ int CmdSnap(const Common& c, const std::vector<std::string>& positions) {
   for (size_t i = 0; i < points.size(); ++i) {
     if (c.json) {
       snapped.push_back({{"position", specs[i]},
-                         {"point", PointText(points[i])},
+                         {"point", server::FormatPoint(points[i])},
                          {"snap_distance", distances[i]}});
     } else {
       std::printf("%s -> %s (%s from the surface)\n", specs[i].c_str(),
-                  PointText(points[i]).c_str(), distances[i].dump().c_str());
+                  server::FormatPoint(points[i]).c_str(), distances[i].dump().c_str());
     }
   }
   if (c.json) PrintJson(snapped);

@@ -22,6 +22,8 @@
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
+#include "server/constant_time.h"
+#include "server/convert.h"
 #include "server/http_server.h"
 #include "server/upload.h"
 
@@ -29,11 +31,6 @@ namespace geodesic::server {
 namespace {
 
 using json = nlohmann::json;
-
-// The canonical name ("INVALID_ARGUMENT"): gRPC's codes are Abseil's.
-std::string CodeName(grpc::StatusCode code) {
-  return absl::StatusCodeToString(static_cast<absl::StatusCode>(code));
-}
 
 // FAILED_PRECONDITION means "request the graph first": the resource's state
 // conflicts with the call (409), not a failed conditional header (412).
@@ -73,11 +70,6 @@ grpc::Status Invalid(const std::string& message) {
   return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, message);
 }
 
-grpc::Status FromAbsl(const absl::Status& s) {
-  if (s.ok()) return grpc::Status::OK;
-  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
-}
-
 // JSON text of a reply. Error messages quote request paths and values, which
 // need not be UTF-8: those bytes become U+FFFD instead of an exception.
 std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
@@ -113,15 +105,6 @@ bool IsUtf8(const std::string& text) {
   } catch (const json::type_error&) {
     return false;
   }
-}
-
-// Compares in time independent of where the strings differ, so that response
-// times do not leak the token.
-bool ConstantTimeEquals(std::string_view a, std::string_view b) {
-  if (a.size() != b.size()) return false;
-  unsigned char diff = 0;
-  for (size_t i = 0; i < a.size(); ++i) diff |= static_cast<unsigned char>(a[i] ^ b[i]);
-  return diff == 0;
 }
 
 // A path's segments between slashes, empty ones included.
@@ -345,20 +328,6 @@ grpc::Status ArrayField(const json& body, const char* key, const json** out) {
   return grpc::Status::OK;
 }
 
-std::string FormatProtoPoint(const v1::SurfacePoint& p) {
-  switch (p.point_case()) {
-    case v1::SurfacePoint::kVertex:
-      return FormatSurfacePoint(SurfacePoint::Vertex(p.vertex()));
-    case v1::SurfacePoint::kEdge:
-      return FormatSurfacePoint(SurfacePoint::Edge(p.edge().edge(), p.edge().t()));
-    case v1::SurfacePoint::kFace:
-      return FormatSurfacePoint(
-          SurfacePoint::Face(p.face().face(), p.face().b0(), p.face().b1(), p.face().b2()));
-    default:
-      return "";
-  }
-}
-
 json GraphJson(const v1::Graph& g) {
   std::string state = v1::GraphState_Name(g.state());
   constexpr std::string_view kPrefix = "GRAPH_STATE_";
@@ -424,10 +393,7 @@ struct HttpGateway::Impl {
   // through the Snap RPC, all of a request's in one call.
   grpc::Status Resolve(const Call& call, const std::string& mesh, const std::vector<json>& specs,
                        const std::string& what, std::vector<v1::SurfacePoint>* out) {
-    out->assign(specs.size(), v1::SurfacePoint());
-    v1::SnapRequest snap;
-    snap.set_mesh(mesh);
-    std::vector<size_t> snapped;
+    PointSpecs points;
     for (size_t i = 0; i < specs.size(); ++i) {
       const json& s = specs[i];
       if (s.is_number_unsigned()) {
@@ -436,7 +402,7 @@ struct HttpGateway::Impl {
               grpc::StatusCode::OUT_OF_RANGE,
               absl::StrFormat("%s %u: vertex id %s is out of range", what, i, Quote(s)));
         }
-        (*out)[i].set_vertex(s.get<uint32_t>());
+        points.AddVertex(s.get<uint32_t>());
         continue;
       }
       if (!s.is_string()) {
@@ -445,43 +411,17 @@ struct HttpGateway::Impl {
                             "got %s",
                             what, i, Quote(s)));
       }
-      auto spec = ParseSurfacePointSpec(s.get<std::string>());
-      if (!spec.ok()) {
-        return Invalid(absl::StrFormat("%s %u: %s", what, i, spec.status().message()));
-      }
-      if (spec->is_position) {
-        auto* p = snap.add_positions();
-        p->set_x(spec->position.x);
-        p->set_y(spec->position.y);
-        p->set_z(spec->position.z);
-        snapped.push_back(i);
-        continue;
-      }
-      const SurfacePoint& p = spec->point;
-      switch (p.kind) {
-        case SurfacePoint::Kind::kVertex:
-          (*out)[i].set_vertex(p.id);
-          break;
-        case SurfacePoint::Kind::kEdge:
-          (*out)[i].mutable_edge()->set_edge(p.id);
-          (*out)[i].mutable_edge()->set_t(p.t);
-          break;
-        case SurfacePoint::Kind::kFace:
-          (*out)[i].mutable_face()->set_face(p.id);
-          (*out)[i].mutable_face()->set_b0(p.bary[0]);
-          (*out)[i].mutable_face()->set_b1(p.bary[1]);
-          (*out)[i].mutable_face()->set_b2(p.bary[2]);
-          break;
+      if (absl::Status bad = points.Add(s.get<std::string>()); !bad.ok()) {
+        return Invalid(absl::StrFormat("%s %u: %s", what, i, bad.message()));
       }
     }
-    if (snapped.empty()) return grpc::Status::OK;
-    v1::SnapResponse points;
-    grpc::Status s = stub->Snap(call.Context().get(), snap, &points);
-    if (!s.ok()) return s;
-    if (points.points_size() != static_cast<int>(snapped.size())) {
-      return grpc::Status(grpc::StatusCode::INTERNAL, "Snap returned a wrong number of points");
+    if (points.has_positions()) {
+      v1::SnapResponse snapped;
+      grpc::Status s = stub->Snap(call.Context().get(), points.SnapRequest(mesh), &snapped);
+      if (!s.ok()) return s;
+      if (absl::Status bad = points.Snapped(snapped); !bad.ok()) return ToGrpc(bad);
     }
-    for (size_t k = 0; k < snapped.size(); ++k) (*out)[snapped[k]] = points.points(k);
+    *out = std::move(points.points());
     return grpc::Status::OK;
   }
 
@@ -627,7 +567,7 @@ struct HttpGateway::Impl {
     json info;
     if (grpc::Status s = GetMesh(call, r, &info); !s.ok()) return s;
     auto m = meshes->Get(name);
-    if (!m.ok()) return FromAbsl(m.status());
+    if (!m.ok()) return ToGrpc(m.status());
     const Mesh& mesh = *(*m)->mesh;
     std::vector<double> positions;
     positions.reserve(3 * mesh.num_vertices());
@@ -864,7 +804,7 @@ struct HttpGateway::Impl {
     grpc::Status s = stub->Snap(call.Context().get(), req, &resp);
     if (!s.ok()) return s;
     json points = json::array();
-    for (const auto& p : resp.points()) points.push_back(FormatProtoPoint(p));
+    for (const auto& p : resp.points()) points.push_back(FormatPoint(p));
     json distances = json::array();
     for (double d : resp.distances()) distances.push_back(JsonDistance(d));
     *out = {{"points", std::move(points)}, {"distances", std::move(distances)}};
