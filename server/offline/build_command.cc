@@ -172,8 +172,8 @@ int RunBuild(int argc, char** argv) {
                  "'geodesicd merge'");
   bool prune = false, exact_fans = false;
   app.add_flag("--exact-fans", exact_fans,
-               "fans from each vertex's exact local distances: 2-3x faster fields and smaller "
-               "fans, for a longer build (same distances); parts record it for the merge");
+               "fans from each vertex's exact local distances: faster fields and smaller fans, "
+               "for a longer build (same distances); parts record it for the merge");
   app.add_flag("--prune", prune,
                "also prune redundant edges (Algorithm 1, phase 2), giving it a tenth of eps: "
                "slower, and rarely smaller (see bench/notes.md); parts record it for the merge");
