@@ -10,6 +10,7 @@
 #include <map>
 #include <optional>
 #include <sstream>
+#include <variant>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -812,78 +813,66 @@ struct HttpGateway::Impl {
   }
 
   // The API, one row per path and method: a "{}" segment matches one path
-  // segment (a mesh name), handed to the handler. `call` rows answer JSON
+  // segment (a mesh name), handed to the handler. A Handler answers JSON
   // from the gRPC service once the Call's checks (token, timeout) pass; a
-  // `page` row answers by itself, with no token. A POST body is parsed
-  // before `call` runs when the row lists the keys it takes: a key not
-  // listed is refused rather than ignored, since a typo such as
-  // "pseudo_vertex" would otherwise quietly answer from another graph.
+  // Page answers by itself, with no token. A POST body is parsed before the
+  // handler runs when the row lists the keys it takes: a key not listed is
+  // refused rather than ignored, since a typo such as "pseudo_vertex" would
+  // otherwise quietly answer from another graph.
   using Handler = grpc::Status (Impl::*)(const Call&, const ApiRequest&, json* out);
   using Page = HttpResponse (Impl::*)() const;
   struct Route {
     const char* method;
     const char* pattern;
-    Handler call;
-    std::vector<std::string> body_keys;
-    Page page;
+    std::variant<Handler, Page> handler;
+    std::vector<std::string> body_keys = {};
   };
 
+  // A query's body keys: its own, then those that choose the graph.
+  static std::vector<std::string> WithGraph(std::vector<std::string> keys) {
+    for (const char* key : {"eps", "epsilon", "pseudo_vertices"}) keys.push_back(key);
+    return keys;
+  }
+
   static const std::vector<Route>& Routes() {
+    // clang-format off
     static const std::vector<Route> routes = {
-        {"GET", "/v1/openapi.json", nullptr, {}, &Impl::OpenApi},
-        {"GET", "/v1/meshes", &Impl::ListMeshes, {}, nullptr},
-        {"GET", "/v1/graphs", &Impl::ListGraphs, {}, nullptr},
-        // Reads its body itself: JSON, or a mesh file's bytes.
-        {"POST", "/v1/meshes", &Impl::RegisterMesh, {}, nullptr},
-        {"GET", "/v1/meshes/{}", &Impl::GetMesh, {}, nullptr},
-        {"DELETE", "/v1/meshes/{}", &Impl::UnloadMesh, {}, nullptr},
-        {"GET", "/v1/meshes/{}/geometry", &Impl::Geometry, {}, nullptr},
-        {"GET", "/v1/meshes/{}/graph", &Impl::GetGraph, {}, nullptr},
-        {"DELETE", "/v1/meshes/{}/graph", &Impl::CancelGraph, {}, nullptr},
-        {"POST",
-         "/v1/meshes/{}/graph",
-         &Impl::RequestGraph,
-         {"eps", "epsilon", "pseudo_vertices"},
-         nullptr},
-        {"POST",
-         "/v1/meshes/{}/distance",
-         &Impl::Distance,
-         {"pairs", "path", "eps", "epsilon", "pseudo_vertices"},
-         nullptr},
-        {"POST",
-         "/v1/meshes/{}/field",
-         &Impl::Field,
-         {"sources", "targets", "max_distance", "method", "nearest_source", "eps", "epsilon",
-          "pseudo_vertices"},
-         nullptr},
-        {"POST",
-         "/v1/meshes/{}/matrix",
-         &Impl::Matrix,
-         {"sources", "targets", "eps", "epsilon", "pseudo_vertices"},
-         nullptr},
-        {"POST", "/v1/meshes/{}/snap", &Impl::Snap, {"positions"}, nullptr},
-        {"POST",
-         "/v1/meshes/{}/sample",
-         &Impl::Sample,
-         {"count", "seed", "eps", "epsilon", "pseudo_vertices"},
-         nullptr},
+        {"GET",    "/v1/openapi.json",       &Impl::OpenApi},
+        {"GET",    "/v1/meshes",             &Impl::ListMeshes},
+        {"GET",    "/v1/graphs",             &Impl::ListGraphs},
+        {"POST",   "/v1/meshes",             &Impl::RegisterMesh},  // reads its own body
+        {"GET",    "/v1/meshes/{}",          &Impl::GetMesh},
+        {"DELETE", "/v1/meshes/{}",          &Impl::UnloadMesh},
+        {"GET",    "/v1/meshes/{}/geometry", &Impl::Geometry},
+        {"GET",    "/v1/meshes/{}/graph",    &Impl::GetGraph},
+        {"DELETE", "/v1/meshes/{}/graph",    &Impl::CancelGraph},
+        {"POST",   "/v1/meshes/{}/graph",    &Impl::RequestGraph, WithGraph({})},
+        {"POST",   "/v1/meshes/{}/distance", &Impl::Distance,     WithGraph({"pairs", "path"})},
+        {"POST",   "/v1/meshes/{}/field",    &Impl::Field,
+         WithGraph({"sources", "targets", "max_distance", "method", "nearest_source"})},
+        {"POST",   "/v1/meshes/{}/matrix",   &Impl::Matrix,
+         WithGraph({"sources", "targets"})},
+        {"POST",   "/v1/meshes/{}/snap",     &Impl::Snap,         {"positions"}},
+        {"POST",   "/v1/meshes/{}/sample",   &Impl::Sample,       WithGraph({"count", "seed"})},
     };
+    // clang-format on
     return routes;
   }
 
-  // A route's answer. For `call` rows: the Call is checked, then the body,
+  // A route's answer. For a Handler: the Call is checked, then the body,
   // then the handler runs; an answer that comes after the request's timeout
   // is an error, as over gRPC.
   HttpResponse Answer(const Route& route, const HttpRequest& req,
                       const std::vector<std::string>& args) {
-    if (route.page) return (this->*route.page)();
+    if (const Page* page = std::get_if<Page>(&route.handler)) return (this->*(*page))();
+    const Handler handler = std::get<Handler>(route.handler);
     Call call(req, args);
     json body = json::object(), out;
     grpc::Status s = call.status();
     if (s.ok() && !route.body_keys.empty()) {
       if (s = ParseBody(req, &body); s.ok()) s = OnlyKeys(body, route.body_keys);
     }
-    if (s.ok()) s = (this->*route.call)(call, {args.empty() ? "" : args[0], req, body}, &out);
+    if (s.ok()) s = (this->*handler)(call, {args.empty() ? "" : args[0], req, body}, &out);
     if (s.ok() && call.expired()) {
       s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
     }
@@ -1077,7 +1066,9 @@ struct HttpGateway::Impl {
       if (maybe_file) return std::nullopt;
       return NotFound(head);
     }
-    if (route->page || options.bearer_token.empty()) return std::nullopt;
+    if (std::holds_alternative<Page>(route->handler) || options.bearer_token.empty()) {
+      return std::nullopt;
+    }
     // Exactly one header: with two, a proxy and this server could each
     // read a different one.
     const size_t count = head.header_count("Authorization");
