@@ -3,28 +3,67 @@
 #include "absl/status/status.h"
 #include "absl/strings/escaping.h"
 #include "absl/strings/str_format.h"
+#include "core/status.h"
 
 namespace geodesic::server {
 
-absl::StatusOr<SurfacePoint> FromProto(const v1::SurfacePoint& p, const Mesh& mesh,
-                                       const std::string& what) {
-  SurfacePoint out;
+std::optional<SurfacePoint> PointOf(const v1::SurfacePoint& p) {
   switch (p.point_case()) {
     case v1::SurfacePoint::kVertex:
-      out = SurfacePoint::Vertex(p.vertex());
-      break;
+      return SurfacePoint::Vertex(p.vertex());
     case v1::SurfacePoint::kEdge:
-      out = SurfacePoint::Edge(p.edge().edge(), p.edge().t());
-      break;
+      return SurfacePoint::Edge(p.edge().edge(), p.edge().t());
     case v1::SurfacePoint::kFace:
-      out = SurfacePoint::Face(p.face().face(), p.face().b0(), p.face().b1(), p.face().b2());
-      break;
+      return SurfacePoint::Face(p.face().face(), p.face().b0(), p.face().b1(), p.face().b2());
     default:
-      return absl::InvalidArgumentError(absl::StrFormat("%s: no point given", what));
+      return std::nullopt;
   }
-  absl::Status s = ValidateSurfacePoint(mesh, out);
+}
+
+absl::StatusOr<SurfacePoint> FromProto(const v1::SurfacePoint& p, const Mesh& mesh,
+                                       const std::string& what) {
+  const std::optional<SurfacePoint> out = PointOf(p);
+  if (!out) return absl::InvalidArgumentError(absl::StrFormat("%s: no point given", what));
+  absl::Status s = ValidateSurfacePoint(mesh, *out);
   if (!s.ok()) return absl::Status(s.code(), absl::StrFormat("%s: %s", what, s.message()));
-  return out;
+  return *out;
+}
+
+std::string FormatPoint(const v1::SurfacePoint& p) {
+  const std::optional<SurfacePoint> point = PointOf(p);
+  return point ? FormatSurfacePoint(*point) : "?";
+}
+
+absl::Status PointSpecs::Add(std::string_view text) {
+  ASSIGN_OR_RETURN(const SurfacePointSpec spec, ParseSurfacePointSpec(text));
+  if (!spec.is_position) {
+    points_.push_back(ToProto(spec.point));
+    return absl::OkStatus();
+  }
+  v1::Vec3& position = positions_.emplace_back();
+  position.set_x(spec.position.x);
+  position.set_y(spec.position.y);
+  position.set_z(spec.position.z);
+  snapped_.push_back(points_.size());
+  points_.emplace_back();
+  return absl::OkStatus();
+}
+
+void PointSpecs::AddVertex(uint32_t vertex) { points_.emplace_back().set_vertex(vertex); }
+
+v1::SnapRequest PointSpecs::SnapRequest(const std::string& mesh) const {
+  v1::SnapRequest req;
+  req.set_mesh(mesh);
+  for (const v1::Vec3& p : positions_) *req.add_positions() = p;
+  return req;
+}
+
+absl::Status PointSpecs::Snapped(const v1::SnapResponse& answer) {
+  if (answer.points_size() != static_cast<int>(snapped_.size())) {
+    return absl::InternalError("Snap returned a wrong number of points");
+  }
+  for (size_t k = 0; k < snapped_.size(); ++k) points_[snapped_[k]] = answer.points(k);
+  return absl::OkStatus();
 }
 
 v1::SurfacePoint ToProto(const SurfacePoint& p) {
@@ -79,6 +118,10 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
 grpc::Status ToGrpc(const absl::Status& s) {
   if (s.ok()) return grpc::Status::OK;
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
+}
+
+std::string CodeName(grpc::StatusCode code) {
+  return absl::StatusCodeToString(static_cast<absl::StatusCode>(code));
 }
 
 std::string Echo(std::string_view input) {

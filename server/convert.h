@@ -1,10 +1,16 @@
-// Conversions between the API's messages and core types.
+// Conversions between the API's messages and core types, shared by the
+// gRPC service, the HTTP gateway and the command-line client: surface
+// points (messages, spec strings such as "f:7:0.2,0.3,0.5"), graph states
+// and status codes.
 #ifndef GEODESIC_SERVER_CONVERT_H_
 #define GEODESIC_SERVER_CONVERT_H_
 
 #include <cstddef>
+#include <cstdint>
+#include <optional>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "core/surface_point.h"
@@ -14,11 +20,48 @@
 
 namespace geodesic::server {
 
+// The API's point as a core point, not checked against a mesh; nothing when
+// the message sets no point.
+std::optional<SurfacePoint> PointOf(const v1::SurfacePoint& p);
+// The same, checked against `mesh`; errors name the point as `what`.
 absl::StatusOr<SurfacePoint> FromProto(const v1::SurfacePoint& p, const Mesh& mesh,
                                        const std::string& what);
 v1::SurfacePoint ToProto(const SurfacePoint& p);
+// The point's spec text (FormatSurfacePoint); "?" when the message sets none.
+std::string FormatPoint(const v1::SurfacePoint& p);
+
+// The points of a request from their spec strings (ParseSurfacePointSpec):
+// "xyz:" positions are gathered for one Snap call, whose answer then fills
+// their places.
+class PointSpecs {
+ public:
+  // INVALID_ARGUMENT saying what is wrong with the text.
+  absl::Status Add(std::string_view spec);
+  void AddVertex(uint32_t vertex);
+  // The Snap call to make on `mesh`, when any spec was a position.
+  bool has_positions() const { return !snapped_.empty(); }
+  v1::SnapRequest SnapRequest(const std::string& mesh) const;
+  // Puts Snap's points in the positions' places (INTERNAL if it answered a
+  // wrong number of them).
+  absl::Status Snapped(const v1::SnapResponse& answer);
+
+  const std::vector<v1::SurfacePoint>& points() const { return points_; }
+  std::vector<v1::SurfacePoint>& points() { return points_; }
+  // The place among points() of each position, in Snap's order.
+  const std::vector<size_t>& snapped() const { return snapped_; }
+
+ private:
+  std::vector<v1::SurfacePoint> points_;
+  std::vector<v1::Vec3> positions_;
+  std::vector<size_t> snapped_;
+};
+
 void ToProto(const GraphStatus& s, v1::Graph* out);
+
 grpc::Status ToGrpc(const absl::Status& s);
+// The canonical name of a code ("INVALID_ARGUMENT"): gRPC's codes are
+// Abseil's.
+std::string CodeName(grpc::StatusCode code);
 
 // How much of a client's own input an error message repeats back.
 inline constexpr size_t kMaxEcho = 80;

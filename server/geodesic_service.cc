@@ -13,17 +13,13 @@
 #include "absl/time/time.h"
 #include "core/dgg_build.h"
 #include "core/status.h"
+#include "server/constant_time.h"
 #include "server/convert.h"
 #include "server/log.h"
 #include "server/upload.h"
 
 namespace geodesic::server {
 namespace {
-
-// The canonical name ("INVALID_ARGUMENT"): gRPC's codes are Abseil's.
-std::string CodeName(grpc::StatusCode code) {
-  return absl::StatusCodeToString(static_cast<absl::StatusCode>(code));
-}
 
 // A change of a mesh waited past the call's deadline for another change of
 // the same mesh to finish.
@@ -43,15 +39,6 @@ bool InProgress(GraphState s) {
 // Polled by long solves: the client went away or its deadline passed.
 std::function<bool()> Cancelled(grpc::ServerContext* ctx) {
   return [ctx] { return ctx->IsCancelled() || ctx->deadline() < std::chrono::system_clock::now(); };
-}
-
-// Compares in time independent of where the strings differ, so that response
-// times do not leak the token.
-bool ConstantTimeEquals(std::string_view a, std::string_view b) {
-  if (a.size() != b.size()) return false;
-  unsigned char diff = 0;
-  for (size_t i = 0; i < a.size(); ++i) diff |= static_cast<unsigned char>(a[i] ^ b[i]);
-  return diff == 0;
 }
 
 bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
@@ -245,6 +232,9 @@ absl::StatusOr<GraphStatus> GeodesicService::StartGraph(
 
 absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEngine(
     const GraphKey& key, grpc::ServerContext* ctx) {
+  // An unknown mesh is named as such, and one only the catalog knows is
+  // restored, before the graph is looked for.
+  RETURN_IF_ERROR(FindMesh(key.mesh).status());
   auto engine = graphs_->Acquire(key);
   if (engine.ok()) return engine;
   const absl::Time deadline = std::min(absl::FromChrono(ctx->deadline()),
@@ -260,6 +250,8 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
     NameLocks::Hold hold(names_, key.mesh, deadline);
     if (!hold.held()) return NameBusy(key.mesh);
     if (!graphs_->Get(key).ok()) {
+      // Found again under the name: the mesh may have been unloaded or
+      // registered anew while this call waited for it.
       ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> mesh, FindMesh(key.mesh));
       RETURN_IF_ERROR(StartGraph(key, mesh).status());
     }
@@ -547,7 +539,6 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
     const double eps = key.params.epsilon;
-    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
@@ -634,7 +625,6 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     RETURN_IF_ERROR(CheckAnswerSize(absl::StrFormat("%u pairs", pairs),
                                     pairs * kPairResultBytes + kAnswerOverhead));
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
@@ -695,7 +685,6 @@ absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
     const v1::MatrixRequest& req, grpc::ServerContext* ctx) {
   MatrixQuery q;
   ASSIGN_OR_RETURN(q.key, Key(req.mesh(), req.epsilon(), req.pseudo_vertices()));
-  RETURN_IF_ERROR(FindMesh(req.mesh()).status());
   ASSIGN_OR_RETURN(q.engine, AcquireEngine(q.key, ctx));
   const Mesh& mesh = q.engine->mesh();
   ASSIGN_OR_RETURN(q.sources, PointsFromProto(req.sources(), mesh, "source"));
@@ -813,7 +802,6 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
           "%u points exceed the limit of %d per call", req->count(), limits_.max_pairs));
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    if (auto known = FindMesh(req->mesh()); !known.ok()) return known.status();
     ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key, ctx));
     // A field's arrays and each vertex's distance to the samples so far.
     ASSIGN_OR_RETURN(Admission::Ticket run,

@@ -130,9 +130,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   // start the graph they need).
   absl::StatusOr<GraphStatus> StartGraph(const GraphKey& key,
                                          const std::shared_ptr<const RegisteredMesh>& mesh);
-  // The engine of a ready graph. One that is being made (built, mapped,
-  // known only to the catalog) is waited for within the call's deadline,
-  // and one never requested is started first (ServiceLimits::build_on_query).
+  // The engine of a ready graph; FindMesh's error when its mesh is not
+  // registered. A graph being made (built, mapped, known only to the
+  // catalog) is waited for within the call's deadline, and one never
+  // requested is started first (ServiceLimits::build_on_query).
   absl::StatusOr<std::shared_ptr<const GeodesicEngine>> AcquireEngine(const GraphKey& key,
                                                                       grpc::ServerContext* ctx);
 

@@ -417,22 +417,7 @@ void GraphCache::Run(const GraphKey& key) {
     if (!std::filesystem::exists(e->path, ec)) {
       // No file: this replica builds it, unless another is building it.
       auto lock = ReplicaLock::TryAcquire(BuildLockPath(e->path));
-      if (lock.ok() && !lock->held()) {
-        absl::MutexLock hold(&mu_);
-        if (!Current(key, *e) || e->status.state != GraphState::kQueued) return;
-        if (e->cancel) {
-          Transition(*e, GraphState::kCancelled);
-          return;
-        }
-        if (e->status.phase != kWaitingForReplicaPhase) {
-          Log(LogLevel::kInfo, "graph_build_waiting", {{"mesh", key.mesh}, {"path", e->path}});
-        }
-        e->status.phase = kWaitingForReplicaPhase;
-        ++e->status.version;
-        Enqueue(key);
-        e->not_before = absl::Now() + options_.replica_poll;
-        return;
-      }
+      if (lock.ok() && !lock->held()) return WaitForReplica(key, e);
       if (lock.ok()) {
         building = *std::move(lock);
       } else {
@@ -468,7 +453,27 @@ void GraphCache::Run(const GraphKey& key) {
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   std::shared_ptr<const GeodesicEngine> engine =
       Publish(key, e, std::move(graph), from_file, std::move(note), seconds);
-  if (!engine) return;
+  if (engine) AddLandmarks(key, e, engine);
+}
+
+void GraphCache::WaitForReplica(const GraphKey& key, const std::shared_ptr<Entry>& e) {
+  absl::MutexLock hold(&mu_);
+  if (!Current(key, *e) || e->status.state != GraphState::kQueued) return;
+  if (e->cancel) {
+    Transition(*e, GraphState::kCancelled);
+    return;
+  }
+  if (e->status.phase != kWaitingForReplicaPhase) {
+    Log(LogLevel::kInfo, "graph_build_waiting", {{"mesh", key.mesh}, {"path", e->path}});
+  }
+  e->status.phase = kWaitingForReplicaPhase;
+  ++e->status.version;
+  Enqueue(key);
+  e->not_before = absl::Now() + options_.replica_poll;
+}
+
+void GraphCache::AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>& e,
+                              const std::shared_ptr<const GeodesicEngine>& engine) {
   // Landmarks cut the nodes a point-to-point query settles several times;
   // queries that arrive before they are ready use straight-line bounds.
   const int landmark_count = engine->DefaultLandmarkCount();

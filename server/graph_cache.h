@@ -271,6 +271,13 @@ class GraphCache {
                                                 const std::shared_ptr<Entry>& e,
                                                 std::shared_ptr<const DggGraph> graph,
                                                 bool from_file, std::string note, double seconds);
+  // Another replica holds the graph's build lock: the entry waits, queued,
+  // to look again after Options::replica_poll (or ends if cancelled).
+  void WaitForReplica(const GraphKey& key, const std::shared_ptr<Entry>& e);
+  // Computes the landmarks of a published engine, counting their bytes
+  // against the memory limit from the start.
+  void AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>& e,
+                    const std::shared_ptr<const GeodesicEngine>& engine);
   // Ends the entry's operation in failed or cancelled.
   void Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e, const absl::Status& why);
   // Moves `e` to a phase of its current state (progress reports).

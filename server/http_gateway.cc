@@ -10,6 +10,7 @@
 #include <map>
 #include <optional>
 #include <sstream>
+#include <variant>
 #include <vector>
 
 #include "absl/status/status.h"
@@ -22,6 +23,8 @@
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
+#include "server/constant_time.h"
+#include "server/convert.h"
 #include "server/http_server.h"
 #include "server/upload.h"
 
@@ -29,11 +32,6 @@ namespace geodesic::server {
 namespace {
 
 using json = nlohmann::json;
-
-// The canonical name ("INVALID_ARGUMENT"): gRPC's codes are Abseil's.
-std::string CodeName(grpc::StatusCode code) {
-  return absl::StatusCodeToString(static_cast<absl::StatusCode>(code));
-}
 
 // FAILED_PRECONDITION means "request the graph first": the resource's state
 // conflicts with the call (409), not a failed conditional header (412).
@@ -73,11 +71,6 @@ grpc::Status Invalid(const std::string& message) {
   return grpc::Status(grpc::StatusCode::INVALID_ARGUMENT, message);
 }
 
-grpc::Status FromAbsl(const absl::Status& s) {
-  if (s.ok()) return grpc::Status::OK;
-  return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));
-}
-
 // JSON text of a reply. Error messages quote request paths and values, which
 // need not be UTF-8: those bytes become U+FFFD instead of an exception.
 std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
@@ -113,15 +106,6 @@ bool IsUtf8(const std::string& text) {
   } catch (const json::type_error&) {
     return false;
   }
-}
-
-// Compares in time independent of where the strings differ, so that response
-// times do not leak the token.
-bool ConstantTimeEquals(std::string_view a, std::string_view b) {
-  if (a.size() != b.size()) return false;
-  unsigned char diff = 0;
-  for (size_t i = 0; i < a.size(); ++i) diff |= static_cast<unsigned char>(a[i] ^ b[i]);
-  return diff == 0;
 }
 
 // A path's segments between slashes, empty ones included.
@@ -290,14 +274,19 @@ grpc::Status BodyGraph(const json& body, GraphChoice* out) {
   return BoolField(body, "pseudo_vertices", &out->pseudo_vertices);
 }
 
+template <typename Request>
+void SetGraph(const std::string& mesh, const GraphChoice& graph, Request* req) {
+  req->set_mesh(mesh);
+  req->set_epsilon(graph.epsilon);
+  req->set_pseudo_vertices(graph.pseudo_vertices);
+}
+
 // A request for `mesh` on the graph the body chooses.
 template <typename Request>
 grpc::Status ForGraphOf(const std::string& mesh, const json& body, Request* req) {
   GraphChoice graph;
   if (grpc::Status s = BodyGraph(body, &graph); !s.ok()) return s;
-  req->set_mesh(mesh);
-  req->set_epsilon(graph.epsilon);
-  req->set_pseudo_vertices(graph.pseudo_vertices);
+  SetGraph(mesh, graph, req);
   return grpc::Status::OK;
 }
 
@@ -316,6 +305,14 @@ grpc::Status QueryGraph(const HttpRequest& req, GraphChoice* out) {
   return grpc::Status::OK;
 }
 
+template <typename Request>
+grpc::Status ForGraphOfQuery(const std::string& mesh, const HttpRequest& http, Request* req) {
+  GraphChoice graph;
+  if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
+  SetGraph(mesh, graph, req);
+  return grpc::Status::OK;
+}
+
 // What every query's answer says about the graph that gave it.
 void AddEcho(const v1::QueryEcho& echo, json* out) {
   (*out)["eps"] = echo.epsilon();
@@ -330,20 +327,6 @@ grpc::Status ArrayField(const json& body, const char* key, const json** out) {
   }
   *out = &*it;
   return grpc::Status::OK;
-}
-
-std::string FormatProtoPoint(const v1::SurfacePoint& p) {
-  switch (p.point_case()) {
-    case v1::SurfacePoint::kVertex:
-      return FormatSurfacePoint(SurfacePoint::Vertex(p.vertex()));
-    case v1::SurfacePoint::kEdge:
-      return FormatSurfacePoint(SurfacePoint::Edge(p.edge().edge(), p.edge().t()));
-    case v1::SurfacePoint::kFace:
-      return FormatSurfacePoint(
-          SurfacePoint::Face(p.face().face(), p.face().b0(), p.face().b1(), p.face().b2()));
-    default:
-      return "";
-  }
 }
 
 json GraphJson(const v1::Graph& g) {
@@ -387,6 +370,15 @@ json MeshJson(const v1::Mesh& m) {
   return out;
 }
 
+// What a route's handler reads: the mesh its path names (empty when it
+// names none), the HTTP request, and the JSON body the route takes (an
+// empty object for routes that take none).
+struct ApiRequest {
+  const std::string& mesh;
+  const HttpRequest& http;
+  const json& body;
+};
+
 }  // namespace
 
 struct HttpGateway::Impl {
@@ -402,10 +394,7 @@ struct HttpGateway::Impl {
   // through the Snap RPC, all of a request's in one call.
   grpc::Status Resolve(const Call& call, const std::string& mesh, const std::vector<json>& specs,
                        const std::string& what, std::vector<v1::SurfacePoint>* out) {
-    out->assign(specs.size(), v1::SurfacePoint());
-    v1::SnapRequest snap;
-    snap.set_mesh(mesh);
-    std::vector<size_t> snapped;
+    PointSpecs points;
     for (size_t i = 0; i < specs.size(); ++i) {
       const json& s = specs[i];
       if (s.is_number_unsigned()) {
@@ -414,7 +403,7 @@ struct HttpGateway::Impl {
               grpc::StatusCode::OUT_OF_RANGE,
               absl::StrFormat("%s %u: vertex id %s is out of range", what, i, Quote(s)));
         }
-        (*out)[i].set_vertex(s.get<uint32_t>());
+        points.AddVertex(s.get<uint32_t>());
         continue;
       }
       if (!s.is_string()) {
@@ -423,43 +412,17 @@ struct HttpGateway::Impl {
                             "got %s",
                             what, i, Quote(s)));
       }
-      auto spec = ParseSurfacePointSpec(s.get<std::string>());
-      if (!spec.ok()) {
-        return Invalid(absl::StrFormat("%s %u: %s", what, i, spec.status().message()));
-      }
-      if (spec->is_position) {
-        auto* p = snap.add_positions();
-        p->set_x(spec->position.x);
-        p->set_y(spec->position.y);
-        p->set_z(spec->position.z);
-        snapped.push_back(i);
-        continue;
-      }
-      const SurfacePoint& p = spec->point;
-      switch (p.kind) {
-        case SurfacePoint::Kind::kVertex:
-          (*out)[i].set_vertex(p.id);
-          break;
-        case SurfacePoint::Kind::kEdge:
-          (*out)[i].mutable_edge()->set_edge(p.id);
-          (*out)[i].mutable_edge()->set_t(p.t);
-          break;
-        case SurfacePoint::Kind::kFace:
-          (*out)[i].mutable_face()->set_face(p.id);
-          (*out)[i].mutable_face()->set_b0(p.bary[0]);
-          (*out)[i].mutable_face()->set_b1(p.bary[1]);
-          (*out)[i].mutable_face()->set_b2(p.bary[2]);
-          break;
+      if (absl::Status bad = points.Add(s.get<std::string>()); !bad.ok()) {
+        return Invalid(absl::StrFormat("%s %u: %s", what, i, bad.message()));
       }
     }
-    if (snapped.empty()) return grpc::Status::OK;
-    v1::SnapResponse points;
-    grpc::Status s = stub->Snap(call.Context().get(), snap, &points);
-    if (!s.ok()) return s;
-    if (points.points_size() != static_cast<int>(snapped.size())) {
-      return grpc::Status(grpc::StatusCode::INTERNAL, "Snap returned a wrong number of points");
+    if (points.has_positions()) {
+      v1::SnapResponse snapped;
+      grpc::Status s = stub->Snap(call.Context().get(), points.SnapRequest(mesh), &snapped);
+      if (!s.ok()) return s;
+      if (absl::Status bad = points.Snapped(snapped); !bad.ok()) return ToGrpc(bad);
     }
-    for (size_t k = 0; k < snapped.size(); ++k) (*out)[snapped[k]] = points.points(k);
+    *out = std::move(points.points());
     return grpc::Status::OK;
   }
 
@@ -470,7 +433,7 @@ struct HttpGateway::Impl {
     return Resolve(call, mesh, std::vector<json>(array->begin(), array->end()), what, out);
   }
 
-  grpc::Status ListMeshes(const Call& call, json* out) {
+  grpc::Status ListMeshes(const Call& call, const ApiRequest&, json* out) {
     v1::ListMeshesResponse resp;
     grpc::Status s = stub->ListMeshes(call.Context().get(), {}, &resp);
     if (!s.ok()) return s;
@@ -480,9 +443,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status GetMesh(const Call& call, const std::string& name, json* out) {
+  grpc::Status GetMesh(const Call& call, const ApiRequest& r, json* out) {
     v1::GetMeshRequest req;
-    req.set_name(name);
+    req.set_name(r.mesh);
     v1::Mesh resp;
     grpc::Status s = stub->GetMesh(call.Context().get(), req, &resp);
     if (s.ok()) *out = MeshJson(resp);
@@ -495,7 +458,8 @@ struct HttpGateway::Impl {
   // the file's own bytes with ?name=NAME&format=obj|off|ply|stl (any
   // content type but JSON). Arrays and bytes go through UploadMesh, whose
   // declared size and SHA-256 the gateway computes.
-  grpc::Status RegisterMesh(const Call& call, const HttpRequest& http, json* out) {
+  grpc::Status RegisterMesh(const Call& call, const ApiRequest& r, json* out) {
+    const HttpRequest& http = r.http;
     v1::Mesh mesh;
     grpc::Status s;
     if (!http.header("Content-Type").starts_with("application/json")) {
@@ -586,7 +550,8 @@ struct HttpGateway::Impl {
     return writer->Finish();
   }
 
-  grpc::Status UnloadMesh(const Call& call, const std::string& name, json* out) {
+  grpc::Status UnloadMesh(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& name = r.mesh;
     v1::UnloadMeshRequest req;
     req.set_name(name);
     v1::UnloadMeshResponse resp;
@@ -598,11 +563,12 @@ struct HttpGateway::Impl {
   // Geometry has no RPC: GetMesh authorises the call and names a missing
   // mesh, then the registry's arrays are sent as they are, in file order,
   // so that a face id and its barycentrics mean the same on both sides.
-  grpc::Status Geometry(const Call& call, const std::string& name, json* out) {
+  grpc::Status Geometry(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& name = r.mesh;
     json info;
-    if (grpc::Status s = GetMesh(call, name, &info); !s.ok()) return s;
+    if (grpc::Status s = GetMesh(call, r, &info); !s.ok()) return s;
     auto m = meshes->Get(name);
-    if (!m.ok()) return FromAbsl(m.status());
+    if (!m.ok()) return ToGrpc(m.status());
     const Mesh& mesh = *(*m)->mesh;
     std::vector<double> positions;
     positions.reserve(3 * mesh.num_vertices());
@@ -618,40 +584,35 @@ struct HttpGateway::Impl {
     return grpc::Status::OK;
   }
 
-  grpc::Status RequestGraph(const Call& call, const std::string& mesh, const json& body,
-                            json* out) {
+  grpc::Status RequestGraph(const Call& call, const ApiRequest& r, json* out) {
     v1::RequestGraphRequest req;
-    if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
+    if (grpc::Status s = ForGraphOf(r.mesh, r.body, &req); !s.ok()) return s;
     v1::Graph g;
     grpc::Status s = stub->RequestGraph(call.Context().get(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
 
-  grpc::Status GetGraph(const Call& call, const std::string& mesh, const HttpRequest& http,
-                        bool cancel, json* out) {
-    GraphChoice graph;
-    if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
+  // GET and DELETE name the graph in the query string: ?eps=E&pseudo_vertices=true.
+  grpc::Status GetGraph(const Call& call, const ApiRequest& r, json* out) {
+    v1::GetGraphRequest req;
+    if (grpc::Status s = ForGraphOfQuery(r.mesh, r.http, &req); !s.ok()) return s;
     v1::Graph g;
-    grpc::Status s;
-    if (cancel) {
-      v1::CancelGraphRequest req;
-      req.set_mesh(mesh);
-      req.set_epsilon(graph.epsilon);
-      req.set_pseudo_vertices(graph.pseudo_vertices);
-      s = stub->CancelGraph(call.Context().get(), req, &g);
-    } else {
-      v1::GetGraphRequest req;
-      req.set_mesh(mesh);
-      req.set_epsilon(graph.epsilon);
-      req.set_pseudo_vertices(graph.pseudo_vertices);
-      s = stub->GetGraph(call.Context().get(), req, &g);
-    }
+    grpc::Status s = stub->GetGraph(call.Context().get(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
 
-  grpc::Status ListGraphs(const Call& call, json* out) {
+  grpc::Status CancelGraph(const Call& call, const ApiRequest& r, json* out) {
+    v1::CancelGraphRequest req;
+    if (grpc::Status s = ForGraphOfQuery(r.mesh, r.http, &req); !s.ok()) return s;
+    v1::Graph g;
+    grpc::Status s = stub->CancelGraph(call.Context().get(), req, &g);
+    if (s.ok()) *out = GraphJson(g);
+    return s;
+  }
+
+  grpc::Status ListGraphs(const Call& call, const ApiRequest&, json* out) {
     v1::ListGraphsResponse resp;
     grpc::Status s = stub->ListGraphs(call.Context().get(), {}, &resp);
     if (!s.ok()) return s;
@@ -661,7 +622,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Distance(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Distance(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::DistanceRequest req;
     bool with_path;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
@@ -709,7 +672,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Field(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Field(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::DistanceFieldRequest req;
     bool nearest;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
@@ -764,7 +729,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Matrix(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Matrix(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::MatrixRequest req;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     std::vector<v1::SurfacePoint> sources, targets;
@@ -792,7 +759,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Sample(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Sample(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     v1::SamplePointsRequest req;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     auto count = body.find("count");
@@ -814,7 +783,9 @@ struct HttpGateway::Impl {
     return s;
   }
 
-  grpc::Status Snap(const Call& call, const std::string& mesh, const json& body, json* out) {
+  grpc::Status Snap(const Call& call, const ApiRequest& r, json* out) {
+    const std::string& mesh = r.mesh;
+    const json& body = r.body;
     const json* positions;
     if (grpc::Status s = ArrayField(body, "positions", &positions); !s.ok()) return s;
     v1::SnapRequest req;
@@ -834,32 +805,74 @@ struct HttpGateway::Impl {
     grpc::Status s = stub->Snap(call.Context().get(), req, &resp);
     if (!s.ok()) return s;
     json points = json::array();
-    for (const auto& p : resp.points()) points.push_back(FormatProtoPoint(p));
+    for (const auto& p : resp.points()) points.push_back(FormatPoint(p));
     json distances = json::array();
     for (double d : resp.distances()) distances.push_back(JsonDistance(d));
     *out = {{"points", std::move(points)}, {"distances", std::move(distances)}};
     return s;
   }
 
-  // The API, one row per path and method. A "{}" segment matches one path
-  // segment (a mesh name), handed to the handler; `open` rows need no token.
+  // The API, one row per path and method: a "{}" segment matches one path
+  // segment (a mesh name), handed to the handler. A Handler answers JSON
+  // from the gRPC service once the Call's checks (token, timeout) pass; a
+  // Page answers by itself, with no token. A POST body is parsed before the
+  // handler runs when the row lists the keys it takes: a key not listed is
+  // refused rather than ignored, since a typo such as "pseudo_vertex" would
+  // otherwise quietly answer from another graph.
+  using Handler = grpc::Status (Impl::*)(const Call&, const ApiRequest&, json* out);
+  using Page = HttpResponse (Impl::*)() const;
   struct Route {
     const char* method;
     const char* pattern;
-    bool open;
-    std::function<HttpResponse(Impl&, const HttpRequest&, const std::vector<std::string>&)> handle;
+    std::variant<Handler, Page> handler;
+    std::vector<std::string> body_keys = {};
   };
-  using Api = std::function<grpc::Status(Impl&, const Call&, const std::string& mesh,
-                                         const HttpRequest&, json* out)>;
-  using BodyApi = grpc::Status (Impl::*)(const Call&, const std::string&, const json&, json*);
 
-  // A JSON answer: the Call (token, deadline) is checked, then the handler.
-  static HttpResponse Reply(Impl& g, const HttpRequest& req, const std::vector<std::string>& args,
-                            const Api& handle) {
+  // A query's body keys: its own, then those that choose the graph.
+  static std::vector<std::string> WithGraph(std::vector<std::string> keys) {
+    for (const char* key : {"eps", "epsilon", "pseudo_vertices"}) keys.push_back(key);
+    return keys;
+  }
+
+  static const std::vector<Route>& Routes() {
+    // clang-format off
+    static const std::vector<Route> routes = {
+        {"GET",    "/v1/openapi.json",       &Impl::OpenApi},
+        {"GET",    "/v1/meshes",             &Impl::ListMeshes},
+        {"GET",    "/v1/graphs",             &Impl::ListGraphs},
+        {"POST",   "/v1/meshes",             &Impl::RegisterMesh},  // reads its own body
+        {"GET",    "/v1/meshes/{}",          &Impl::GetMesh},
+        {"DELETE", "/v1/meshes/{}",          &Impl::UnloadMesh},
+        {"GET",    "/v1/meshes/{}/geometry", &Impl::Geometry},
+        {"GET",    "/v1/meshes/{}/graph",    &Impl::GetGraph},
+        {"DELETE", "/v1/meshes/{}/graph",    &Impl::CancelGraph},
+        {"POST",   "/v1/meshes/{}/graph",    &Impl::RequestGraph, WithGraph({})},
+        {"POST",   "/v1/meshes/{}/distance", &Impl::Distance,     WithGraph({"pairs", "path"})},
+        {"POST",   "/v1/meshes/{}/field",    &Impl::Field,
+         WithGraph({"sources", "targets", "max_distance", "method", "nearest_source"})},
+        {"POST",   "/v1/meshes/{}/matrix",   &Impl::Matrix,
+         WithGraph({"sources", "targets"})},
+        {"POST",   "/v1/meshes/{}/snap",     &Impl::Snap,         {"positions"}},
+        {"POST",   "/v1/meshes/{}/sample",   &Impl::Sample,       WithGraph({"count", "seed"})},
+    };
+    // clang-format on
+    return routes;
+  }
+
+  // A route's answer. For a Handler: the Call is checked, then the body,
+  // then the handler runs; an answer that comes after the request's timeout
+  // is an error, as over gRPC.
+  HttpResponse Answer(const Route& route, const HttpRequest& req,
+                      const std::vector<std::string>& args) {
+    if (const Page* page = std::get_if<Page>(&route.handler)) return (this->*(*page))();
+    const Handler handler = std::get<Handler>(route.handler);
     Call call(req, args);
-    json out;
-    grpc::Status s = call.status().ok() ? handle(g, call, args.empty() ? "" : args[0], req, &out)
-                                        : call.status();
+    json body = json::object(), out;
+    grpc::Status s = call.status();
+    if (s.ok() && !route.body_keys.empty()) {
+      if (s = ParseBody(req, &body); s.ok()) s = OnlyKeys(body, route.body_keys);
+    }
+    if (s.ok()) s = (this->*handler)(call, {args.empty() ? "" : args[0], req, body}, &out);
     if (s.ok() && call.expired()) {
       s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
     }
@@ -871,31 +884,6 @@ struct HttpGateway::Impl {
     return res;
   }
 
-  // A route whose answer is JSON from the gRPC service.
-  static Route Rpc(const char* pattern, Api handle, const char* method = "GET") {
-    return {method, pattern, false,
-            [handle = std::move(handle)](Impl& g, const HttpRequest& req,
-                                         const std::vector<std::string>& args) {
-              return Reply(g, req, args, handle);
-            }};
-  }
-
-  // POST bodies are parsed after the Call's checks, before the RPC. A key
-  // the route does not take is refused rather than ignored: a typo such as
-  // "pseudo_vertex" would otherwise quietly answer from another graph.
-  static Route Post(const char* pattern, BodyApi handle, std::vector<std::string> keys) {
-    return Rpc(
-        pattern,
-        [handle, keys = std::move(keys)](Impl& g, const Call& call, const std::string& mesh,
-                                         const HttpRequest& req, json* out) {
-          json body;
-          if (grpc::Status s = ParseBody(req, &body); !s.ok()) return s;
-          if (grpc::Status s = OnlyKeys(body, keys); !s.ok()) return s;
-          return (g.*handle)(call, mesh, body, out);
-        },
-        "POST");
-  }
-
   static grpc::Status OnlyKeys(const json& body, const std::vector<std::string>& keys) {
     if (!body.is_object()) return grpc::Status::OK;  // the handler names what it expected
     for (const auto& [key, value] : body.items()) {
@@ -904,57 +892,6 @@ struct HttpGateway::Impl {
                                      absl::StrJoin(keys, ", ")));
     }
     return grpc::Status::OK;
-  }
-
-  static const std::vector<Route>& Routes() {
-    static const std::vector<Route> routes = {
-        {"GET", "/v1/openapi.json", true,
-         [](Impl& g, const HttpRequest&, const std::vector<std::string>&) { return g.OpenApi(); }},
-        Rpc("/v1/meshes", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
-                             json* out) { return g.ListMeshes(call, out); }),
-        Rpc("/v1/graphs", [](Impl& g, const Call& call, const std::string&, const HttpRequest&,
-                             json* out) { return g.ListGraphs(call, out); }),
-        Rpc(
-            "/v1/meshes",
-            [](Impl& g, const Call& call, const std::string&, const HttpRequest& req, json* out) {
-              return g.RegisterMesh(call, req, out);
-            },
-            "POST"),
-        Rpc("/v1/meshes/{}",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
-              return g.GetMesh(call, mesh, out);
-            }),
-        Rpc(
-            "/v1/meshes/{}",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
-              return g.UnloadMesh(call, mesh, out);
-            },
-            "DELETE"),
-        Rpc("/v1/meshes/{}/geometry",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest&, json* out) {
-              return g.Geometry(call, mesh, out);
-            }),
-        Rpc("/v1/meshes/{}/graph",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
-               json* out) { return g.GetGraph(call, mesh, req, false, out); }),
-        Rpc(
-            "/v1/meshes/{}/graph",
-            [](Impl& g, const Call& call, const std::string& mesh, const HttpRequest& req,
-               json* out) { return g.GetGraph(call, mesh, req, true, out); },
-            "DELETE"),
-        Post("/v1/meshes/{}/graph", &Impl::RequestGraph, {"eps", "epsilon", "pseudo_vertices"}),
-        Post("/v1/meshes/{}/distance", &Impl::Distance,
-             {"pairs", "path", "eps", "epsilon", "pseudo_vertices"}),
-        Post("/v1/meshes/{}/field", &Impl::Field,
-             {"sources", "targets", "max_distance", "method", "nearest_source", "eps", "epsilon",
-              "pseudo_vertices"}),
-        Post("/v1/meshes/{}/matrix", &Impl::Matrix,
-             {"sources", "targets", "eps", "epsilon", "pseudo_vertices"}),
-        Post("/v1/meshes/{}/snap", &Impl::Snap, {"positions"}),
-        Post("/v1/meshes/{}/sample", &Impl::Sample,
-             {"count", "seed", "eps", "epsilon", "pseudo_vertices"}),
-    };
-    return routes;
   }
 
   static bool Matches(std::string_view pattern, std::string_view path,
@@ -1068,7 +1005,7 @@ struct HttpGateway::Impl {
     std::string allow;
     if (const Route* route = FindRoute(req, &args, &allow)) {
       try {
-        return route->handle(*this, req, args);
+        return Answer(*route, req, args);
       } catch (const json::exception& e) {
         // Type checks precede every JSON read; this is the last guard.
         return ErrorResponse(Invalid(e.what()));
@@ -1129,7 +1066,9 @@ struct HttpGateway::Impl {
       if (maybe_file) return std::nullopt;
       return NotFound(head);
     }
-    if (route->open || options.bearer_token.empty()) return std::nullopt;
+    if (std::holds_alternative<Page>(route->handler) || options.bearer_token.empty()) {
+      return std::nullopt;
+    }
     // Exactly one header: with two, a proxy and this server could each
     // read a different one.
     const size_t count = head.header_count("Authorization");

@@ -20,6 +20,7 @@
 #include <thread>
 
 #include "absl/strings/str_format.h"
+#include "core/status.h"
 #include "server/listen_socket.h"
 
 namespace geodesic::server {
@@ -506,6 +507,15 @@ std::string HttpRequest::param(std::string_view name) const {
   return "";
 }
 
+namespace {
+
+struct HostPort {
+  std::string host;  // without the brackets of an IPv6 literal
+  long port = 0;
+};
+
+}  // namespace
+
 struct HttpServer::Impl {
   std::shared_ptr<Shared> shared;
   net::io_context ioc;
@@ -513,6 +523,11 @@ struct HttpServer::Impl {
   std::optional<net::steady_timer> retry_accept;
   std::vector<std::thread> threads;
   int port = 0;
+
+  // Binds the acceptor (a port another process holds is refused).
+  absl::Status Listen(const HostPort& at, const std::string& listen);
+  // Starts accepting on the io threads.
+  void RunThreads();
 
   void Accept() {
     acceptor->async_accept(net::make_strand(ioc), [this](beast::error_code ec, tcp::socket s) {
@@ -582,8 +597,9 @@ HttpServer::~HttpServer() {
 int HttpServer::port() const { return impl_->port; }
 bool HttpServer::tls() const { return impl_->shared->tls.has_value(); }
 
-absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(HttpServerOptions options) {
-  const std::string listen = options.listen;
+namespace {
+
+absl::StatusOr<HostPort> ParseListen(const std::string& listen) {
   const auto colon = listen.rfind(':');
   char* end = nullptr;
   const long port =
@@ -596,81 +612,100 @@ absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(HttpServerOptions 
   if (host.size() >= 2 && host.front() == '[' && host.back() == ']') {
     host = host.substr(1, host.size() - 2);
   }
+  return HostPort{std::move(host), port};
+}
+
+// The TLS context of the options' files: none without a certificate; with
+// a client CA, clients must present a certificate it signed.
+absl::StatusOr<std::optional<ssl::context>> TlsContext(const HttpServerOptions& options) {
+  std::optional<ssl::context> tls;
+  if (options.tls_cert.empty()) return tls;
+  tls.emplace(ssl::context::tls_server);
+  beast::error_code ec;
+  tls->set_options(ssl::context::default_workarounds | ssl::context::no_sslv2 |
+                       ssl::context::no_sslv3 | ssl::context::no_tlsv1 | ssl::context::no_tlsv1_1,
+                   ec);
+  bool ok = !ec;
+  tls->use_certificate_chain_file(options.tls_cert, ec);
+  ok = ok && !ec;
+  tls->use_private_key_file(options.tls_key, ssl::context::pem, ec);
+  ok = ok && !ec;
+  if (ok && !options.tls_client_ca.empty()) {
+    tls->load_verify_file(options.tls_client_ca, ec);
+    ok = !ec;
+    if (ok) {
+      // Names the accepted CAs in the handshake, so clients with
+      // several certificates pick the right one.
+      if (STACK_OF(X509_NAME)* names = SSL_load_client_CA_file(options.tls_client_ca.c_str())) {
+        SSL_CTX_set_client_CA_list(tls->native_handle(), names);
+      }
+      tls->set_verify_mode(ssl::verify_peer | ssl::verify_fail_if_no_peer_cert, ec);
+      ok = !ec;
+    }
+  }
+  if (!ok) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "TLS: cannot load certificate %s or key %s%s", options.tls_cert, options.tls_key,
+        options.tls_client_ca.empty() ? "" : " or CA " + options.tls_client_ca));
+  }
+  return tls;
+}
+
+}  // namespace
+
+absl::Status HttpServer::Impl::Listen(const HostPort& at, const std::string& listen) {
+  beast::error_code ec;
+  tcp::resolver resolver(ioc);
+  auto endpoints = resolver.resolve(at.host, std::to_string(at.port),
+                                    tcp::resolver::passive | tcp::resolver::numeric_service, ec);
+  if (ec || endpoints.empty()) {
+    return absl::UnavailableError(
+        absl::StrFormat("cannot listen on %s: %s", listen, ec ? ec.message() : "no such address"));
+  }
+  const tcp::endpoint endpoint = endpoints.begin()->endpoint();
+  acceptor.emplace(ioc);
+  acceptor->open(endpoint.protocol(), ec);
+  if (!ec) ExclusiveListenSocket(acceptor->native_handle());
+  if (!ec) acceptor->bind(endpoint, ec);
+  if (!ec) acceptor->listen(net::socket_base::max_listen_connections, ec);
+  if (ec) {
+    return absl::UnavailableError(absl::StrFormat("cannot listen on %s: %s", listen, ec.message()));
+  }
+  port = acceptor->local_endpoint(ec).port();
+  return absl::OkStatus();
+}
+
+void HttpServer::Impl::RunThreads() {
+  retry_accept.emplace(ioc);
+  Accept();
+  const int io_threads = std::max(1, shared->options.limits.io_threads);
+  for (int i = 0; i < io_threads; ++i) {
+    threads.emplace_back([this] {
+      for (;;) {
+        try {
+          ioc.run();
+          return;
+        } catch (...) {
+          // A handler threw past its guard: keep serving the others.
+        }
+      }
+    });
+  }
+}
+
+absl::StatusOr<std::unique_ptr<HttpServer>> HttpServer::Start(HttpServerOptions options) {
+  const std::string listen = options.listen;
+  ASSIGN_OR_RETURN(const HostPort at, ParseListen(listen));
   if (options.tls_cert.empty() != options.tls_key.empty()) {
     return absl::InvalidArgumentError("TLS needs both a certificate and a key");
   }
   auto impl = std::make_unique<Impl>();
   try {
-    std::optional<ssl::context> tls;
-    if (!options.tls_cert.empty()) {
-      tls.emplace(ssl::context::tls_server);
-      beast::error_code ec;
-      tls->set_options(ssl::context::default_workarounds | ssl::context::no_sslv2 |
-                           ssl::context::no_sslv3 | ssl::context::no_tlsv1 |
-                           ssl::context::no_tlsv1_1,
-                       ec);
-      bool ok = !ec;
-      tls->use_certificate_chain_file(options.tls_cert, ec);
-      ok = ok && !ec;
-      tls->use_private_key_file(options.tls_key, ssl::context::pem, ec);
-      ok = ok && !ec;
-      if (ok && !options.tls_client_ca.empty()) {
-        tls->load_verify_file(options.tls_client_ca, ec);
-        ok = !ec;
-        if (ok) {
-          // Names the accepted CAs in the handshake, so clients with
-          // several certificates pick the right one.
-          if (STACK_OF(X509_NAME)* names = SSL_load_client_CA_file(options.tls_client_ca.c_str())) {
-            SSL_CTX_set_client_CA_list(tls->native_handle(), names);
-          }
-          tls->set_verify_mode(ssl::verify_peer | ssl::verify_fail_if_no_peer_cert, ec);
-          ok = !ec;
-        }
-      }
-      if (!ok) {
-        return absl::InvalidArgumentError(absl::StrFormat(
-            "TLS: cannot load certificate %s or key %s%s", options.tls_cert, options.tls_key,
-            options.tls_client_ca.empty() ? "" : " or CA " + options.tls_client_ca));
-      }
-    }
+    ASSIGN_OR_RETURN(std::optional<ssl::context> tls, TlsContext(options));
     impl->shared = std::make_shared<Shared>(std::move(options));
     impl->shared->tls = std::move(tls);
-
-    beast::error_code ec;
-    tcp::resolver resolver(impl->ioc);
-    auto endpoints = resolver.resolve(host, std::to_string(port),
-                                      tcp::resolver::passive | tcp::resolver::numeric_service, ec);
-    if (ec || endpoints.empty()) {
-      return absl::UnavailableError(absl::StrFormat("cannot listen on %s: %s", listen,
-                                                    ec ? ec.message() : "no such address"));
-    }
-    const tcp::endpoint endpoint = endpoints.begin()->endpoint();
-    impl->acceptor.emplace(impl->ioc);
-    impl->acceptor->open(endpoint.protocol(), ec);
-    if (!ec) ExclusiveListenSocket(impl->acceptor->native_handle());
-    if (!ec) impl->acceptor->bind(endpoint, ec);
-    if (!ec) impl->acceptor->listen(net::socket_base::max_listen_connections, ec);
-    if (ec) {
-      return absl::UnavailableError(
-          absl::StrFormat("cannot listen on %s: %s", listen, ec.message()));
-    }
-    impl->port = impl->acceptor->local_endpoint(ec).port();
-    impl->retry_accept.emplace(impl->ioc);
-    impl->Accept();
-    const int io_threads = std::max(1, impl->shared->options.limits.io_threads);
-    Impl* raw = impl.get();
-    for (int i = 0; i < io_threads; ++i) {
-      impl->threads.emplace_back([raw] {
-        for (;;) {
-          try {
-            raw->ioc.run();
-            return;
-          } catch (...) {
-            // A handler threw past its guard: keep serving the others.
-          }
-        }
-      });
-    }
+    RETURN_IF_ERROR(impl->Listen(at, listen));
+    impl->RunThreads();
   } catch (const std::exception& e) {
     return absl::InternalError(absl::StrFormat("cannot start HTTP on %s: %s", listen, e.what()));
   }

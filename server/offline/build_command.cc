@@ -141,86 +141,94 @@ int BuildPart(const Mesh& mesh, const DggBuildOptions& options, const std::strin
 
 }  // namespace
 
-int RunBuild(int argc, char** argv) {
-  CLI::App app{"Build the discrete geodesic graph (DGG) of a mesh", "geodesicd build"};
-  app.option_defaults()->always_capture_default();  // --help shows defaults
-  std::string mesh_path, out_path, part;
-  double epsilon = 1e-3;
+namespace {
+
+struct BuildFlags {
+  std::string mesh_path, out_path, part, graph_dir, memory_limit;
+  double epsilon = 1e-3, pseudo_limit = 1;
   int threads = 0;
-  bool json = false, pseudo = false, quiet = false;
-  app.add_option("mesh", mesh_path, "mesh file (obj, off, ply, stl)")->required();
-  app.add_option("--eps", epsilon, "accuracy: relative error of graph distances, in (0, 1)");
-  std::string graph_dir;
-  auto* out = app.add_option("--out", out_path,
+  bool json = false, pseudo = false, quiet = false, prune = false, exact_fans = false,
+       plain = false, repair = false;
+};
+
+void AddBuildFlags(CLI::App& app, BuildFlags& f) {
+  app.add_option("mesh", f.mesh_path, "mesh file (obj, off, ply, stl)")->required();
+  app.add_option("--eps", f.epsilon, "accuracy: relative error of graph distances, in (0, 1)");
+  auto* out = app.add_option("--out", f.out_path,
                              "graph file (or part file with --part) to write, atomically");
-  app.add_option("--graph-dir", graph_dir,
+  app.add_option("--graph-dir", f.graph_dir,
                  "instead of --out: write the graph under the name geodesicd serve looks for "
                  "in its --graph-dir")
       ->excludes(out);
-  app.add_option("--threads", threads, "build threads (0: all cores)");
-  app.add_flag("--pseudo-vertices", pseudo,
+  app.add_option("--threads", f.threads, "build threads (0: all cores)");
+  app.add_flag("--pseudo-vertices", f.pseudo,
                "add pseudo vertices where edge directions leave gaps (section 4.3; for "
                "anisotropic meshes)");
-  double pseudo_limit = 1;
-  app.add_option("--pseudo-vertex-limit", pseudo_limit,
+  app.add_option("--pseudo-vertex-limit", f.pseudo_limit,
                  "with --pseudo-vertices: refuse the build, with its estimated cost, when it "
                  "would add more pseudo vertices than this many per mesh vertex (0: no limit)")
       ->check(CLI::NonNegativeNumber)
       ->capture_default_str();
-  app.add_option("--part", part,
+  app.add_option("--part", f.part,
                  "I/N: only the candidate edges of the I-th (0-based) of N vertex ranges, for "
                  "'geodesicd merge'");
-  bool prune = false, exact_fans = false;
-  app.add_flag("--exact-fans", exact_fans,
-               "fans from each vertex's exact local distances: 2-3x faster fields and smaller "
-               "fans, for a longer build (same distances); parts record it for the merge");
-  app.add_flag("--prune", prune,
+  app.add_flag("--exact-fans", f.exact_fans,
+               "fans from each vertex's exact local distances: faster fields and smaller fans, "
+               "for a longer build (same distances); parts record it for the merge");
+  app.add_flag("--prune", f.prune,
                "also prune redundant edges (Algorithm 1, phase 2), giving it a tenth of eps: "
                "slower, and rarely smaller (see bench/notes.md); parts record it for the merge");
-  bool plain = false;
-  app.add_flag("--plain-candidates", plain,
+  app.add_flag("--plain-candidates", f.plain,
                "benchmarking: plain Algorithm 1 candidates (Theorem 2 only, no corner early "
                "stop)");
-  app.add_flag("--json", json, "print a JSON object");
-  app.add_flag("--quiet", quiet, "no progress bar");
-  std::string memory_limit;
-  app.add_option("--build-memory-limit", memory_limit,
+  app.add_flag("--json", f.json, "print a JSON object");
+  app.add_flag("--quiet", f.quiet, "no progress bar");
+  app.add_option("--build-memory-limit", f.memory_limit,
                  "candidate edges kept in memory (e.g. 4G); beyond it they go to an unlinked "
                  "file beside the output and are read back once. The graph itself is held once, "
                  "in place (default: no limit)");
-  bool repair = false;
-  AddRepairFlag(app, &repair);
+  AddRepairFlag(app, &f.repair);
+}
+
+}  // namespace
+
+int RunBuild(int argc, char** argv) {
+  CLI::App app{"Build the discrete geodesic graph (DGG) of a mesh", "geodesicd build"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
+  BuildFlags f;
+  AddBuildFlags(app, f);
   CLI11_PARSE(app, argc, argv);
   uint64_t candidate_memory_limit = 0;
-  if (!memory_limit.empty()) {
-    auto parsed = server::ParseByteSize(memory_limit, "--build-memory-limit");
+  if (!f.memory_limit.empty()) {
+    auto parsed = server::ParseByteSize(f.memory_limit, "--build-memory-limit");
     if (!parsed.ok()) return Fail("build", parsed.status());
     candidate_memory_limit = *parsed;
   }
-  if (out_path.empty() && (graph_dir.empty() || !part.empty())) {
+  if (f.out_path.empty() && (f.graph_dir.empty() || !f.part.empty())) {
     return Fail("build", absl::InvalidArgumentError(
                              "--out is required (or --graph-dir, for a whole graph)"));
   }
-  auto mesh = LoadMeshOrError(mesh_path, repair);
+  auto mesh = LoadMeshOrError(f.mesh_path, f.repair);
   if (!mesh.ok()) return Fail("build", mesh.status());
   DggBuildOptions options;
-  options.params.epsilon = epsilon;
-  options.params.pseudo_vertices = pseudo;
-  options.pseudo_vertex_limit = pseudo_limit;
-  options.threads = threads;
-  options.stop_at_corners = !plain;
-  options.params.prune_redundant = prune;
-  options.params.exact_fans = exact_fans;
-  options.progress = ProgressBar(!json && !quiet);
+  options.params.epsilon = f.epsilon;
+  options.params.pseudo_vertices = f.pseudo;
+  options.pseudo_vertex_limit = f.pseudo_limit;
+  options.threads = f.threads;
+  options.stop_at_corners = !f.plain;
+  options.params.prune_redundant = f.prune;
+  options.params.exact_fans = f.exact_fans;
+  options.progress = ProgressBar(!f.json && !f.quiet);
   options.candidate_memory_limit = candidate_memory_limit;
   options.spill_dir =
-      out_path.empty() ? graph_dir : std::filesystem::path(out_path).parent_path().string();
-  if (!part.empty()) return BuildPart(**mesh, options, part, out_path, json);
+      f.out_path.empty() ? f.graph_dir : std::filesystem::path(f.out_path).parent_path().string();
+  if (!f.part.empty()) return BuildPart(**mesh, options, f.part, f.out_path, f.json);
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("build", graph.status());
-  return WriteAndReport("build", **mesh, **graph, stats, out_path, graph_dir, threads, json);
+  return WriteAndReport("build", **mesh, **graph, stats, f.out_path, f.graph_dir, f.threads,
+                        f.json);
 }
 
 int RunMerge(int argc, char** argv) {

@@ -8,6 +8,7 @@
 #include "core/graph_file.h"
 #include "core/queries.h"
 #include "core/result_files.h"
+#include "core/status.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
@@ -23,124 +24,147 @@ Json PathJson(const GeodesicPath& path) {
   return points;
 }
 
+struct DistanceFlags {
+  std::string mesh_path, graph_path, from, to, pairs_path, path_out;
+  bool json = false, want_path = false, no_astar = false, repair = false;
+  std::optional<int> landmarks;
+};
+
+void AddDistanceFlags(CLI::App& app, DistanceFlags& f) {
+  app.add_option("--mesh", f.mesh_path, "mesh file the graph was built for")->required();
+  app.add_option("--graph", f.graph_path, "graph file (geodesicd build)")->required();
+  app.add_option("--from", f.from,
+                 "first point: v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's vertex "
+                 "order of that face) or xyz:X,Y,Z");
+  app.add_option("--to", f.to, "second point, same forms");
+  app.add_option("--pairs", f.pairs_path, "file with one pair of points per line");
+  app.add_flag("--path", f.want_path, "also recover the geodesic path");
+  app.add_option("--path-out", f.path_out,
+                 "write the path (implies --path; --from/--to only) as a polyline: .csv (x,y,z), "
+                 ".ply (vertices and edges) or .obj (v and l lines)");
+  app.add_flag("--no-astar", f.no_astar, "plain bidirectional Dijkstra instead of A*");
+  app.add_option("--landmarks", f.landmarks,
+                 "landmarks whose graph distances tighten the A* bounds, computed once before "
+                 "the queries (0: straight-line bounds only; default: 16 to 64 by the graph's "
+                 "density)")
+      ->check(CLI::Range(0, 64));
+  app.add_flag("--json", f.json, "print JSON");
+  AddRepairFlag(app, &f.repair);
+}
+
+// --pairs' file, or --from and --to (with --path-out, which then implies
+// --path).
+absl::StatusOr<std::vector<SpecPair>> PairsToAnswer(DistanceFlags& f) {
+  std::vector<SpecPair> pairs;
+  if (!f.pairs_path.empty()) {
+    ASSIGN_OR_RETURN(pairs, ReadSpecPairs(f.pairs_path));
+  } else if (!f.from.empty() && !f.to.empty()) {
+    if (!f.path_out.empty()) {
+      RETURN_IF_ERROR(CheckPolylinePath(f.path_out));
+      f.want_path = true;
+    }
+    pairs.push_back({f.from, f.to});
+  } else {
+    return absl::InvalidArgumentError("give --from and --to, or --pairs FILE");
+  }
+  if (!f.path_out.empty() && !f.pairs_path.empty()) {
+    return absl::InvalidArgumentError("--path-out writes one path: use --from and --to");
+  }
+  return pairs;
+}
+
+absl::Status WritePath(const std::string& path_out, const PairResult& r) {
+  if (!r.path) {
+    return absl::FailedPreconditionError(
+        "no path to write: the points are in different components");
+  }
+  std::vector<Vec3> polyline;
+  for (const PathPoint& p : r.path->points) polyline.push_back(p.xyz);
+  return WritePolyline(path_out, polyline);
+}
+
+Json PairJson(const SpecPair& pair, const PairResult& r, double seconds,
+              const PointResolver::Resolved& a, const PointResolver::Resolved& b) {
+  Json result = {{"from", pair.first},
+                 {"to", pair.second},
+                 {"distance", r.distance},
+                 {"reachable", r.distance < kInfinity},
+                 {"seconds", seconds},
+                 {"settled", r.settled},
+                 {"queued", r.queued},
+                 {"relaxed", r.relaxed},
+                 {"from_snap_distance", SnapJson(a)},
+                 {"to_snap_distance", SnapJson(b)}};
+  if (r.path) {
+    result["path"] = PathJson(*r.path);
+    result["path_length"] = r.path->length;  // the polyline's own length
+  }
+  return result;
+}
+
+std::string PairText(const SpecPair& pair, const PairResult& r, double seconds) {
+  std::string d =
+      r.distance < kInfinity ? absl::StrFormat("%.12g", r.distance) : std::string("unreachable");
+  std::string out = absl::StrFormat("%s -> %s: %s (%.3f ms, %u nodes settled)\n", pair.first,
+                                    pair.second, d, 1e3 * seconds, r.settled);
+  if (r.path) {
+    for (const PathPoint& p : r.path->points) {
+      out += absl::StrFormat("  %s  %.9g %.9g %.9g\n", FormatSurfacePoint(p.point), p.xyz.x,
+                             p.xyz.y, p.xyz.z);
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 int RunDistance(int argc, char** argv) {
   CLI::App app{"Geodesic distance (and path) between surface points on a discrete geodesic graph",
                "geodesicd distance"};
   app.option_defaults()->always_capture_default();  // --help shows defaults
-  std::string mesh_path, graph_path, from, to, pairs_path, path_out;
-  bool json = false, want_path = false, no_astar = false;
-  std::optional<int> landmarks;
-  app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
-  app.add_option("--graph", graph_path, "graph file (geodesicd build)")->required();
-  app.add_option("--from", from,
-                 "first point: v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's vertex "
-                 "order of that face) or xyz:X,Y,Z");
-  app.add_option("--to", to, "second point, same forms");
-  app.add_option("--pairs", pairs_path, "file with one pair of points per line");
-  app.add_flag("--path", want_path, "also recover the geodesic path");
-  app.add_option("--path-out", path_out,
-                 "write the path (implies --path; --from/--to only) as a polyline: .csv (x,y,z), "
-                 ".ply (vertices and edges) or .obj (v and l lines)");
-  app.add_flag("--no-astar", no_astar, "plain bidirectional Dijkstra instead of A*");
-  app.add_option("--landmarks", landmarks,
-                 "landmarks whose graph distances tighten the A* bounds, computed once before "
-                 "the queries (0: straight-line bounds only; default: 16 to 64 by the graph's "
-                 "density)")
-      ->check(CLI::Range(0, 64));
-  app.add_flag("--json", json, "print JSON");
-  bool repair = false;
-  AddRepairFlag(app, &repair);
+  DistanceFlags f;
+  AddDistanceFlags(app, f);
   CLI11_PARSE(app, argc, argv);
-  std::vector<std::pair<std::string, std::string>> pairs;
-  if (!pairs_path.empty()) {
-    auto read = ReadSpecPairs(pairs_path);
-    if (!read.ok()) return Fail("distance", read.status());
-    pairs = *std::move(read);
-  } else if (!from.empty() && !to.empty()) {
-    if (!path_out.empty()) {
-      if (absl::Status s = CheckPolylinePath(path_out); !s.ok()) return Fail("distance", s);
-      want_path = true;
-    }
-    pairs.push_back({from, to});
-  } else {
-    return Fail("distance", absl::InvalidArgumentError("give --from and --to, or --pairs FILE"));
-  }
-  if (!path_out.empty() && !pairs_path.empty()) {
-    return Fail("distance",
-                absl::InvalidArgumentError("--path-out writes one path: use --from and --to"));
-  }
-  auto mesh = LoadMeshOrError(mesh_path, repair);
+  auto pairs = PairsToAnswer(f);
+  if (!pairs.ok()) return Fail("distance", pairs.status());
+  auto mesh = LoadMeshOrError(f.mesh_path, f.repair);
   if (!mesh.ok()) return Fail("distance", mesh.status());
-  auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
+  auto graph = GraphFile::Open(f.graph_path, **mesh, GraphFile::Check::kFull);
   if (!graph.ok()) return Fail("distance", graph.status());
   GeodesicEngine engine(*mesh, *graph);
-  if (landmarks.value_or(1) > 0 && !no_astar) {
+  if (f.landmarks.value_or(1) > 0 && !f.no_astar) {
     absl::Status prepared =
-        engine.PrepareLandmarks(landmarks.value_or(engine.DefaultLandmarkCount()));
+        engine.PrepareLandmarks(f.landmarks.value_or(engine.DefaultLandmarkCount()));
     if (!prepared.ok()) return Fail("distance", prepared);
   }
   PairOptions options;
-  options.want_path = want_path;
-  options.use_astar = !no_astar;
+  options.want_path = f.want_path;
+  options.use_astar = !f.no_astar;
   std::string out;
   Json results = Json::array();
   PointResolver resolver(**mesh);
-  for (size_t i = 0; i < pairs.size(); ++i) {
-    auto a = resolver.Resolve(pairs[i].first);
+  for (const SpecPair& pair : *pairs) {
+    auto a = resolver.Resolve(pair.first);
     if (!a.ok()) return Fail("distance", a.status());
-    auto b = resolver.Resolve(pairs[i].second);
+    auto b = resolver.Resolve(pair.second);
     if (!b.ok()) return Fail("distance", b.status());
     auto t0 = std::chrono::steady_clock::now();
     auto r = engine.Distance(a->point, b->point, options);
     const double seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     if (!r.ok()) return Fail("distance", r.status());
-    if (!path_out.empty() && !r->path) {
-      return Fail("distance", absl::FailedPreconditionError(
-                                  "no path to write: the points are in different components"));
+    if (!f.path_out.empty()) {
+      if (absl::Status s = WritePath(f.path_out, *r); !s.ok()) return Fail("distance", s);
     }
-    if (!path_out.empty()) {
-      std::vector<Vec3> polyline;
-      for (const PathPoint& p : r->path->points) polyline.push_back(p.xyz);
-      if (absl::Status s = WritePolyline(path_out, polyline); !s.ok()) return Fail("distance", s);
-    }
-    if (json) {
-      Json result = {{"from", pairs[i].first},
-                     {"to", pairs[i].second},
-                     {"distance", r->distance},
-                     {"reachable", r->distance < kInfinity},
-                     {"seconds", seconds},
-                     {"settled", r->settled},
-                     {"queued", r->queued},
-                     {"relaxed", r->relaxed},
-                     {"from_snap_distance", SnapJson(*a)},
-                     {"to_snap_distance", SnapJson(*b)}};
-      if (r->path) {
-        result["path"] = PathJson(*r->path);
-        result["path_length"] = r->path->length;  // the polyline's own length
-      }
-      // One pair: an object; --pairs: an array of them.
-      if (pairs_path.empty()) {
-        PrintJson(result);
-      } else {
-        results.push_back(std::move(result));
-      }
+    if (!f.json) {
+      out += PairText(pair, *r, seconds);
+    } else if (f.pairs_path.empty()) {
+      PrintJson(PairJson(pair, *r, seconds, *a, *b));  // one pair: an object
     } else {
-      std::string d = r->distance < kInfinity ? absl::StrFormat("%.12g", r->distance)
-                                              : std::string("unreachable");
-      out += absl::StrFormat("%s -> %s: %s (%.3f ms, %u nodes settled)\n", pairs[i].first,
-                             pairs[i].second, d, 1e3 * seconds, r->settled);
-      if (r->path) {
-        for (const PathPoint& p : r->path->points) {
-          out += absl::StrFormat("  %s  %.9g %.9g %.9g\n", FormatSurfacePoint(p.point), p.xyz.x,
-                                 p.xyz.y, p.xyz.z);
-        }
-      }
+      results.push_back(PairJson(pair, *r, seconds, *a, *b));  // --pairs: an array of them
     }
   }
-  if (json && !pairs_path.empty()) PrintJson(results);
+  if (f.json && !f.pairs_path.empty()) PrintJson(results);
   std::fputs(out.c_str(), stdout);
   return 0;
 }

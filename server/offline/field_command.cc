@@ -1,4 +1,5 @@
 // geodesicd field: a distance field on a DGG.
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 
@@ -6,59 +7,78 @@
 #include "core/graph_file.h"
 #include "core/queries.h"
 #include "core/result_files.h"
+#include "core/status.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
 namespace geodesic::offline {
 
+namespace {
+
+struct FieldFlags {
+  std::string mesh_path, graph_path, out_path, labels_path, method = "lc";
+  std::vector<std::string> source_specs;
+  double max_distance = kInfinity;
+  bool json = false, repair = false;
+};
+
+void AddFieldFlags(CLI::App& app, FieldFlags& f) {
+  app.add_option("--mesh", f.mesh_path, "mesh file the graph was built for")->required();
+  app.add_option("--graph", f.graph_path, "graph file (geodesicd build)")->required();
+  app.add_option("--source", f.source_specs,
+                 "source point(s): v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's "
+                 "vertex order of that face) or xyz:X,Y,Z; repeat for several sources")
+      ->required();
+  app.add_option("--out", f.out_path,
+                 "write the field, one value per vertex in file order: .f64 (little-endian "
+                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
+  app.add_option("--labels-out", f.labels_path,
+                 "write each vertex's nearest source (geodesic Voronoi regions: the index of its "
+                 "--source, 4294967295 unreached) as .npy, .csv or .u32");
+  app.add_option("--method", f.method,
+                 "lc (default: each vertex relaxes only the fan of the edge it was reached by) or "
+                 "dijkstra (every edge); both give the graph's shortest distances")
+      ->check(CLI::IsMember({"lc", "dijkstra"}));
+  app.add_option("--max-distance", f.max_distance, "only settle vertices within this distance")
+      ->check(kPositiveDistance);
+  app.add_flag("--json", f.json, "print a JSON object");
+  AddRepairFlag(app, &f.repair);
+}
+
+// A bad output name is refused before minutes of work, not after.
+absl::Status CheckOutputs(const FieldFlags& f) {
+  if (!f.out_path.empty()) RETURN_IF_ERROR(CheckFieldPath(f.out_path, true));
+  if (!f.labels_path.empty()) RETURN_IF_ERROR(CheckLabelPath(f.labels_path));
+  return absl::OkStatus();
+}
+
+absl::Status WriteOutputs(const FieldFlags& f, const FieldResult& field, const Mesh& mesh) {
+  if (!f.out_path.empty()) RETURN_IF_ERROR(WriteFieldFile(f.out_path, field.distance, mesh));
+  if (!f.labels_path.empty()) RETURN_IF_ERROR(WriteLabels(f.labels_path, field.nearest_source));
+  return absl::OkStatus();
+}
+
+}  // namespace
+
 int RunField(int argc, char** argv) {
   CLI::App app{"Distance field from one or more sources on a discrete geodesic graph",
                "geodesicd field"};
   app.option_defaults()->always_capture_default();  // --help shows defaults
-  std::string mesh_path, graph_path, out_path, labels_path, method = "lc";
-  std::vector<std::string> source_specs;
-  double max_distance = kInfinity;
-  bool json = false;
-  app.add_option("--mesh", mesh_path, "mesh file the graph was built for")->required();
-  app.add_option("--graph", graph_path, "graph file (geodesicd build)")->required();
-  app.add_option("--source", source_specs,
-                 "source point(s): v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's "
-                 "vertex order of that face) or xyz:X,Y,Z; repeat for several sources")
-      ->required();
-  app.add_option("--out", out_path,
-                 "write the field, one value per vertex in file order: .f64 (little-endian "
-                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
-  app.add_option("--labels-out", labels_path,
-                 "write each vertex's nearest source (geodesic Voronoi regions: the index of its "
-                 "--source, 4294967295 unreached) as .npy, .csv or .u32");
-  app.add_option("--method", method,
-                 "lc (default: each vertex relaxes only the fan of the edge it was reached by) or "
-                 "dijkstra (every edge); both give the graph's shortest distances")
-      ->check(CLI::IsMember({"lc", "dijkstra"}));
-  app.add_option("--max-distance", max_distance, "only settle vertices within this distance")
-      ->check(kPositiveDistance);
-  app.add_flag("--json", json, "print a JSON object");
-  bool repair = false;
-  AddRepairFlag(app, &repair);
+  FieldFlags f;
+  AddFieldFlags(app, f);
   CLI11_PARSE(app, argc, argv);
-  // A bad output name is refused before minutes of work, not after.
-  if (!out_path.empty()) {
-    if (absl::Status s = CheckFieldPath(out_path, true); !s.ok()) return Fail("field", s);
-  }
-  if (!labels_path.empty()) {
-    if (absl::Status s = CheckLabelPath(labels_path); !s.ok()) return Fail("field", s);
-  }
-  auto mesh = LoadMeshOrError(mesh_path, repair);
+  if (absl::Status s = CheckOutputs(f); !s.ok()) return Fail("field", s);
+  auto mesh = LoadMeshOrError(f.mesh_path, f.repair);
   if (!mesh.ok()) return Fail("field", mesh.status());
   auto t0 = std::chrono::steady_clock::now();
-  auto graph = GraphFile::Open(graph_path, **mesh, GraphFile::Check::kFull);
+  auto graph = GraphFile::Open(f.graph_path, **mesh, GraphFile::Check::kFull);
   const double open_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!graph.ok()) return Fail("field", graph.status());
   std::vector<SurfacePoint> sources;
   Json snap_distances = Json::array();
   PointResolver resolver(**mesh);
-  for (const std::string& spec : source_specs) {
+  for (const std::string& spec : f.source_specs) {
     auto p = resolver.Resolve(spec);
     if (!p.ok()) return Fail("field", p.status());
     sources.push_back(p->point);
@@ -66,29 +86,22 @@ int RunField(int argc, char** argv) {
   }
   GeodesicEngine engine(*mesh, *graph);
   FieldOptions options;
-  options.method = method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
-  options.max_distance = max_distance;
-  options.nearest_source = !labels_path.empty();
+  options.method = f.method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
+  options.max_distance = f.max_distance;
+  options.nearest_source = !f.labels_path.empty();
   auto t1 = std::chrono::steady_clock::now();
   auto field = engine.Field(sources, options);
   const double solve_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
   if (!field.ok()) return Fail("field", field.status());
-  if (!out_path.empty()) {
-    absl::Status s = WriteFieldFile(out_path, field->distance, **mesh);
-    if (!s.ok()) return Fail("field", s);
-  }
-  if (!labels_path.empty()) {
-    absl::Status s = WriteLabels(labels_path, field->nearest_source);
-    if (!s.ok()) return Fail("field", s);
-  }
+  if (absl::Status s = WriteOutputs(f, *field, **mesh); !s.ok()) return Fail("field", s);
   const size_t n = (*mesh)->num_vertices();
   size_t reached = 0;
   for (double d : field->distance) reached += d < kInfinity;
-  if (json) {
+  if (f.json) {
     PrintJson({{"vertices", n},
                {"reached", reached},
-               {"method", method},
+               {"method", f.method},
                {"solve_seconds", solve_seconds},
                {"ns_per_vertex", 1e9 * solve_seconds / std::max<size_t>(n, 1)},
                {"queue_pops_per_vertex", double(field->queue_pops) / std::max<size_t>(n, 1)},
@@ -98,7 +111,7 @@ int RunField(int argc, char** argv) {
                {"snap_distances", snap_distances}});
   } else {
     std::printf("field on %s (eps %g, %s): %zu of %zu vertices reached in %.3f ms\n",
-                graph_path.c_str(), (*graph)->params().epsilon, method.c_str(), reached, n,
+                f.graph_path.c_str(), (*graph)->params().epsilon, f.method.c_str(), reached, n,
                 1e3 * solve_seconds);
   }
   return 0;

@@ -1,0 +1,159 @@
+#include "bench/query_bench.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cstdio>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace geodesic::bench {
+namespace {
+
+using cli::Common;
+using Clock = std::chrono::steady_clock;
+
+struct MeshSize {
+  uint32_t vertices = 0, faces = 0;
+};
+
+// Random vertices, or points inside faces with random barycentrics, from a
+// seed of the worker's own (xorshift).
+class RandomPoints {
+ public:
+  RandomPoints(int worker, MeshSize mesh, bool face_points)
+      : state_(0x9e3779b97f4a7c15ull * (worker + 1)), mesh_(mesh), face_points_(face_points) {}
+
+  void Pick(v1::SurfacePoint* p) {
+    if (!face_points_) {
+      p->set_vertex(static_cast<uint32_t>(Next() % mesh_.vertices));
+      return;
+    }
+    const double u = (Next() >> 11) * 0x1p-53, v = (Next() >> 11) * 0x1p-53;
+    const double b0 = u + v > 1 ? 1 - u : u, b1 = u + v > 1 ? 1 - v : v;
+    auto* f = p->mutable_face();
+    f->set_face(static_cast<uint32_t>(Next() % mesh_.faces));
+    f->set_b0(b0);
+    f->set_b1(b1);
+    f->set_b2(1 - b0 - b1);
+  }
+
+ private:
+  uint64_t Next() {
+    state_ ^= state_ << 13, state_ ^= state_ >> 7, state_ ^= state_ << 17;
+    return state_;
+  }
+
+  uint64_t state_;
+  MeshSize mesh_;
+  bool face_points_;
+};
+
+// What the workers share: the stub, the limits, and what they measured.
+struct Load {
+  const Common& c;
+  const BenchOptions& options;
+  MeshSize mesh;
+  v1::Geodesic::Stub* stub;
+  Clock::time_point stop;
+  std::atomic<int> issued{0}, failed{0};
+  std::mutex mu;
+  std::vector<double> latencies;  // seconds of each answered query
+};
+
+void Worker(Load& load, int worker) {
+  RandomPoints points(worker, load.mesh, load.options.face_points);
+  std::vector<double> mine;
+  while (Clock::now() < load.stop && load.issued.fetch_add(1) < load.options.count) {
+    v1::DistanceRequest req;
+    req.set_mesh(load.c.mesh);
+    req.set_epsilon(load.c.epsilon);
+    req.set_pseudo_vertices(load.c.pseudo_vertices);
+    req.set_with_path(load.options.with_path);
+    auto* p = req.add_pairs();
+    points.Pick(p->mutable_from());
+    points.Pick(p->mutable_to());
+    grpc::ClientContext ctx;
+    cli::Prepare(&ctx, load.c);
+    v1::DistanceResponse resp;
+    const auto t0 = Clock::now();
+    grpc::Status s = load.stub->Distance(&ctx, req, &resp);
+    const double dt = std::chrono::duration<double>(Clock::now() - t0).count();
+    if (s.ok()) {
+      mine.push_back(dt);
+    } else {
+      ++load.failed;
+    }
+  }
+  std::lock_guard<std::mutex> lock(load.mu);
+  load.latencies.insert(load.latencies.end(), mine.begin(), mine.end());
+}
+
+void Report(const Common& c, std::vector<double> latencies, int failed, double elapsed,
+            int concurrency) {
+  std::sort(latencies.begin(), latencies.end());
+  auto pct = [&](double q) {
+    return latencies.empty() ? 0.0 : latencies[static_cast<size_t>(q * (latencies.size() - 1))];
+  };
+  const double qps = latencies.size() / elapsed;
+  if (c.json) {
+    cli::PrintJson({{"queries", latencies.size()},
+                    {"failed", failed},
+                    {"seconds", elapsed},
+                    {"qps", qps},
+                    {"p50_ms", 1e3 * pct(0.5)},
+                    {"p90_ms", 1e3 * pct(0.9)},
+                    {"p99_ms", 1e3 * pct(0.99)},
+                    {"max_ms", 1e3 * pct(1.0)},
+                    {"concurrency", concurrency}});
+  } else {
+    std::printf(
+        "%zu queries (%d failed) in %.2f s: %.1f queries/s; latency p50 %.3f ms, p90 %.3f "
+        "ms, p99 %.3f ms, max %.3f ms\n",
+        latencies.size(), failed, elapsed, qps, 1e3 * pct(0.5), 1e3 * pct(0.9), 1e3 * pct(0.99),
+        1e3 * pct(1.0));
+  }
+}
+
+}  // namespace
+
+void AddBenchFlags(CLI::App& app, BenchOptions& o) {
+  app.add_option("--concurrency", o.concurrency, "parallel clients");
+  app.add_option("--duration", o.duration, "stop after this many seconds");
+  app.add_option("--count", o.count, "stop after this many queries");
+  app.add_flag("--path", o.with_path, "also request paths");
+  app.add_flag("--face-points", o.face_points,
+               "random points inside faces (each end then joined to the graph by its own "
+               "exact direct geodesics) instead of random vertices");
+}
+
+int RunBench(const Common& c, const BenchOptions& options) {
+  auto stub = cli::Connect(c);
+  MeshSize mesh;
+  {
+    grpc::ClientContext ctx;
+    cli::Prepare(&ctx, c);
+    v1::GetMeshRequest req;
+    req.set_name(c.mesh);
+    v1::Mesh m;
+    grpc::Status s = stub->GetMesh(&ctx, req, &m);
+    if (!s.ok()) return cli::Fail(s);
+    mesh = {static_cast<uint32_t>(m.diagnostics().vertices()),
+            static_cast<uint32_t>(m.diagnostics().faces())};
+  }
+  if (options.face_points && mesh.faces == 0) {
+    return cli::Fail(grpc::Status(grpc::StatusCode::FAILED_PRECONDITION, "the mesh has no faces"));
+  }
+  const auto start = Clock::now();
+  Load load{c, options, mesh, stub.get(),
+            start + std::chrono::milliseconds(static_cast<int64_t>(options.duration * 1000))};
+  std::vector<std::thread> workers;
+  for (int w = 0; w < options.concurrency; ++w) workers.emplace_back(Worker, std::ref(load), w);
+  for (auto& t : workers) t.join();
+  const double elapsed = std::chrono::duration<double>(Clock::now() - start).count();
+  Report(c, std::move(load.latencies), load.failed.load(), elapsed, options.concurrency);
+  return load.failed.load() ? 1 : 0;
+}
+
+}  // namespace geodesic::bench

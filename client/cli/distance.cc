@@ -1,0 +1,143 @@
+// geodesic distance and geodesic path: point-to-point distances and paths.
+#include <chrono>
+#include <cstdio>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "client/cli/commands.h"
+#include "core/result_files.h"
+#include "core/surface_point.h"
+#include "server/convert.h"
+
+namespace geodesic::cli {
+namespace {
+
+// --path's polyline, written to `path_out` (a .csv, .ply or .obj): 0, or the
+// exit code of the failure.
+int WritePath(const std::string& path_out, const v1::DistanceResponse& resp) {
+  std::vector<Vec3> polyline;
+  for (const auto& q : resp.results(0).path().points()) {
+    polyline.push_back({q.xyz().x(), q.xyz().y(), q.xyz().z()});
+  }
+  if (polyline.empty()) return FailText("no path to write: the points are unreachable");
+  absl::Status w = WritePolyline(path_out, polyline);
+  if (!w.ok()) return FailText(std::string(w.message()));
+  return 0;
+}
+
+Json PathJson(const v1::Path& path) {
+  Json out = Json::array();
+  for (const auto& q : path.points()) {
+    out.push_back({{"point", server::FormatPoint(q.point())},
+                   {"xyz", {q.xyz().x(), q.xyz().y(), q.xyz().z()}}});
+  }
+  return out;
+}
+
+// Each pair's distance (and path), then, as text, the call's time and graph.
+void PrintResults(const Common& c, const std::vector<std::string>& specs,
+                  const std::vector<Json>& snap_distances, const v1::DistanceResponse& resp,
+                  bool with_path, double seconds) {
+  Json results = Json::array();
+  for (int i = 0; i < resp.results_size(); ++i) {
+    const auto& r = resp.results(i);
+    if (c.json) {
+      Json result = {{"from", specs[2 * i]},
+                     {"to", specs[2 * i + 1]},
+                     {"distance", r.distance()},
+                     {"reachable", r.reachable()},
+                     {"from_snap_distance", snap_distances[2 * i]},
+                     {"to_snap_distance", snap_distances[2 * i + 1]}};
+      if (with_path) result["path"] = PathJson(r.path());
+      results.push_back(std::move(result));
+    } else {
+      std::printf("%s -> %s: %s\n", specs[2 * i].c_str(), specs[2 * i + 1].c_str(),
+                  r.reachable() ? absl::StrFormat("%.12g", r.distance()).c_str() : "unreachable");
+      for (const auto& q : r.path().points()) {
+        std::printf("  %-48s %.9g %.9g %.9g\n", server::FormatPoint(q.point()).c_str(), q.xyz().x(),
+                    q.xyz().y(), q.xyz().z());
+      }
+    }
+  }
+  if (c.json) {
+    PrintJson(results);
+  } else {
+    std::printf("(%d pairs in %.2f ms, eps %g%s)\n", resp.results_size(), 1e3 * seconds,
+                resp.echo().epsilon(), resp.echo().pseudo_vertices() ? ", pseudo vertices" : "");
+  }
+}
+
+int CmdDistance(const Common& c, const std::string& from, const std::string& to,
+                const std::string& pairs_file, bool with_path, const std::string& path_out = {}) {
+  if (!path_out.empty()) {
+    absl::Status s = CheckPolylinePath(path_out);
+    if (!s.ok()) return FailText(std::string(s.message()));
+  }
+  auto stub = Connect(c);
+  std::vector<std::string> specs;
+  if (!pairs_file.empty()) {
+    auto pairs = ReadSpecPairs(pairs_file);
+    if (!pairs.ok()) return FailText(std::string(pairs.status().message()));
+    for (auto& [a, b] : *pairs) specs.push_back(a), specs.push_back(b);
+  } else {
+    if (from.empty() || to.empty()) return FailText("give --from and --to, or --pairs FILE");
+    specs = {from, to};
+  }
+  std::vector<v1::SurfacePoint> points;
+  int rc = 0;
+  std::vector<Json> snap_distances;
+  if (!ResolvePoints(stub.get(), c, specs, &points, &rc, &snap_distances)) return rc;
+  v1::DistanceRequest req;
+  req.set_mesh(c.mesh);
+  req.set_epsilon(c.epsilon);
+  req.set_pseudo_vertices(c.pseudo_vertices);
+  req.set_with_path(with_path);
+  for (size_t i = 0; i + 1 < points.size(); i += 2) {
+    auto* p = req.add_pairs();
+    *p->mutable_from() = points[i];
+    *p->mutable_to() = points[i + 1];
+  }
+  grpc::ClientContext ctx;
+  Prepare(&ctx, c);
+  v1::DistanceResponse resp;
+  const auto start = std::chrono::steady_clock::now();
+  grpc::Status s = stub->Distance(&ctx, req, &resp);
+  if (!s.ok()) return Fail(s);
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  if (!path_out.empty() && resp.results_size() == 1) {
+    if (int failed = WritePath(path_out, resp); failed != 0) return failed;
+  }
+  PrintResults(c, specs, snap_distances, resp, with_path, seconds);
+  return 0;
+}
+
+}  // namespace
+
+Command AddDistance(CLI::App& app, Common& c) {
+  auto* sub = app.add_subcommand("distance", "point-to-point distance");
+  struct Args {
+    std::string from, to, pairs;
+    bool with_path = false;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("--from", a->from, "first point");
+  sub->add_option("--to", a->to, "second point");
+  sub->add_option("--pairs", a->pairs, "file with one pair of points per line");
+  sub->add_flag("--path", a->with_path, "also return the geodesic path");
+  return {sub, [&c, a] { return CmdDistance(c, a->from, a->to, a->pairs, a->with_path); }, true};
+}
+
+Command AddPath(CLI::App& app, Common& c) {
+  auto* sub = app.add_subcommand("path", "geodesic path between two points");
+  struct Args {
+    std::string from, to, out;
+  };
+  auto a = std::make_shared<Args>();
+  sub->add_option("--from", a->from, "first point")->required();
+  sub->add_option("--to", a->to, "second point")->required();
+  sub->add_option("--out", a->out, "write the path as a .csv, .ply or .obj polyline");
+  return {sub, [&c, a] { return CmdDistance(c, a->from, a->to, "", true, a->out); }, true};
+}
+
+}  // namespace geodesic::cli

@@ -1,0 +1,507 @@
+#include "server/daemon.h"
+
+#include <malloc.h>
+#include <signal.h>
+
+#include <chrono>
+#include <cstdio>
+#include <filesystem>
+
+#include "absl/strings/str_format.h"
+#include "absl/time/time.h"
+#include "core/atomic_file.h"
+#include "core/status.h"
+#include "core/version.h"
+#include "grpcpp/ext/proto_server_reflection_plugin.h"
+#include "nlohmann/json.hpp"
+#include "server/log.h"
+
+namespace geodesic::server {
+namespace {
+
+// --disk-limit leaves files written this recently: the catalog it reads may
+// not list them yet, and replicas sharing the directory write files this
+// daemon does not know about.
+constexpr auto kDiskGrace = std::chrono::minutes(2);
+
+std::atomic<bool> g_stop{false};
+void OnSignal(int) { g_stop = true; }
+
+// The health-check name of a graph: "geodesic.v1.Geodesic/<mesh>@<eps>",
+// with "+pseudo" for the graph with pseudo vertices.
+std::string ServiceName(const GraphKey& key) {
+  return absl::StrFormat("geodesic.v1.Geodesic/%s@%g%s", key.mesh, key.params.epsilon,
+                         key.params.pseudo_vertices ? "+pseudo" : "");
+}
+
+// The health-check name that is NOT_SERVING while admission refuses calls.
+constexpr char kCapacity[] = "geodesic.v1.Geodesic/capacity";
+
+// --port-file: {"grpc": P}, with "metrics": Q and "http": H when they listen, written once the
+// ports are bound, by rename so that a reader never sees half of it.
+bool WritePortFile(const std::string& path, int grpc_port, int metrics_port, int http_port) {
+  nlohmann::json ports = {{"grpc", grpc_port}};
+  if (metrics_port > 0) ports["metrics"] = metrics_port;
+  if (http_port > 0) ports["http"] = http_port;
+  const std::string text = ports.dump() + "\n";
+  auto file = AtomicFileWriter::Create(path);
+  absl::Status s = file.ok() ? file->Append(text.data(), text.size()) : file.status();
+  if (s.ok()) s = std::move(*file).Commit();
+  if (!s.ok()) {
+    std::fprintf(stderr, "geodesicd serve: --port-file: %s\n", std::string(s.message()).c_str());
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+Daemon::Daemon(ServeOptions options)
+    : options_(std::move(options)), sample_mesh_(absl::NotFoundError("no sample mesh")) {}
+
+Daemon::~Daemon() = default;
+
+int Daemon::Start() {
+  OpenGraphDir();
+  // Built meshes are saved beside the graphs, so a restarted daemon restores
+  // them rather than parsing and building them again; with a graph
+  // directory a registration returns once its snapshot is on disk, since
+  // the catalog then records it for restarts and replicas.
+  meshes_ = std::make_unique<MeshRegistry>(options_.mesh_root, options_.graph_dir,
+                                           /*durable=*/!options_.graph_dir.empty());
+  if (disk_ && options_.disk_limit > 0) {
+    meshes_->SetDiskReservation(
+        [this](uint64_t bytes) { return disk_->Reserve(bytes); },
+        [this](uint64_t reserved, uint64_t written) { disk_->Done(reserved, written); });
+  }
+  GraphCache::Options cache;
+  cache.graph_dir = options_.graph_dir;
+  cache.memory_limit = options_.memory_limit;
+  cache.resident_bytes_outside = [this] { return meshes_->resident_bytes(); };
+  cache.on_file_used = MarkFileUsed;
+  cache.build_workers = options_.build_workers;
+  cache.build_threads = options_.build_threads;
+  cache.build_memory_limit = options_.build_memory_limit;
+  cache.large_build_seconds = options_.large_build_seconds;
+  cache.max_graph_bytes = options_.max_graph_bytes;
+  if (options_.disk_limit > 0) cache.disk = disk_.get();
+  cache.on_readiness = [this](const GraphKey& key, bool ready) {
+    std::lock_guard<std::mutex> lock(health_mu_);
+    if (health_) health_->SetServingStatus(ServiceName(key), ready);
+  };
+  graphs_ = std::make_unique<GraphCache>(cache);
+  OpenCatalog();
+  AddMetrics();
+  RegisterSample();
+  service_ =
+      std::make_unique<GeodesicService>(meshes_.get(), graphs_.get(), &metrics_, options_.limits);
+  if (!options_.token.empty()) service_->RequireBearerToken(options_.token);
+  AddQueryMetrics();
+  if (int rc = ListenGrpc(); rc != 0) return rc;
+  int metrics_port = 0;
+  if (int rc = ListenMetrics(&metrics_port); rc != 0) return rc;
+  if (int rc = ListenHttp(); rc != 0) return rc;
+  if (!options_.port_file.empty() &&
+      !WritePortFile(options_.port_file, grpc_port_, metrics_port, http_ ? http_->port() : 0)) {
+    return 1;
+  }
+  std::fprintf(stderr, "geodesicd: serving on %s (port %d, %s%s), graphs in %s, mesh root %s\n",
+               options_.listen.c_str(), grpc_port_,
+               options_.tls_cert.empty()        ? "plaintext"
+               : options_.tls_client_ca.empty() ? "TLS"
+                                                : "mutual TLS",
+               options_.token.empty() ? "" : ", bearer token required", options_.graph_dir.c_str(),
+               options_.mesh_root.empty() ? "(none)" : options_.mesh_root.c_str());
+  signal(SIGTERM, OnSignal);
+  signal(SIGINT, OnSignal);
+  return 0;
+}
+
+void Daemon::OpenGraphDir() {
+  const std::string& dir = options_.graph_dir;
+  if (dir.empty()) return;
+  std::error_code ec;
+  std::filesystem::create_directories(dir, ec);
+  // What writers and builders killed midway left (graphs, snapshots, the
+  // catalog, build locks): old enough that no live replica is at work on
+  // them.
+  for (const std::string& name : RemoveStaleTemporaries(dir, kDiskGrace)) {
+    Log(LogLevel::kInfo, "stale_temporary_removed", {{"file", name}});
+  }
+  for (const std::string& name : GraphCache::RemoveStaleBuildLocks(dir, kDiskGrace)) {
+    Log(LogLevel::kInfo, "stale_build_lock_removed", {{"file", name}});
+  }
+  disk_ = std::make_unique<DiskBudget>(
+      dir, options_.disk_limit, [this](uint64_t target) -> absl::StatusOr<uint64_t> {
+        if (!can_sweep_) return absl::UnavailableError("starting");
+        // A limit of 0 is none to the sweep: 1 byte asks for all it may remove.
+        ASSIGN_OR_RETURN(DiskReport report, Sweep(std::max<uint64_t>(target, 1)));
+        return report.bytes_after;
+      });
+  if (absl::Status s = disk_->Scan(); !s.ok()) {
+    Log(LogLevel::kWarning, "disk_scan_failed", {{"error", s.ToString()}});
+  }
+}
+
+void Daemon::OpenCatalog() {
+  if (options_.graph_dir.empty()) return;
+  catalog_ = std::make_unique<Catalog>(options_.graph_dir);
+  if (absl::Status s = catalog_->EnsureReserve(); !s.ok()) {
+    Log(LogLevel::kWarning, "catalog_reserve_missing", {{"error", s.ToString()}});
+  }
+  CatalogSync::Hooks hooks{
+      .restore_mesh =
+          [this](const CatalogMesh& m) {
+            return meshes_
+                ->RegisterRecorded(m.name, m.source, m.format, m.source_hash, m.fingerprint,
+                                   m.repair_non_manifold)
+                .status();
+          },
+      .drop_mesh =
+          [this](const std::string& name) {
+            meshes_->Remove(name).IgnoreError();
+            graphs_->DropMesh(name);
+          },
+      .request_graph =
+          [this](const std::string& mesh, const DggParams& params) {
+            if (auto m = meshes_->Get(mesh); m.ok()) graphs_->Request(*m, params);
+          },
+      .cancel_graph =
+          [this](const std::string& mesh, const DggParams& params) {
+            graphs_->Cancel({mesh, params}).IgnoreError();
+          },
+  };
+  sync_ = std::make_unique<CatalogSync>(catalog_.get(), std::move(hooks));
+  can_sweep_ = true;
+}
+
+absl::StatusOr<DiskReport> Daemon::Sweep(uint64_t limit) {
+  // A build persisting at shutdown must not reach the catalog and the
+  // registry as they are destroyed.
+  if (g_stop) return absl::UnavailableError("shutting down");
+  ASSIGN_OR_RETURN(const CatalogState state, catalog_->Read());
+  const CatalogFiles files = FilesOf(state);
+  ASSIGN_OR_RETURN(DiskReport report,
+                   EnforceDiskLimit(options_.graph_dir, limit, [&](const std::string& name) {
+                     // Asked afresh each time, as EnforceDiskLimit asks again just before
+                     // removing: a mesh registered since the listing has its snapshot.
+                     bool in_use = graphs_->FileInUse(name);
+                     for (const auto& m : meshes_->List())
+                       in_use |= MeshRegistry::SnapshotName(*m) == name;
+                     return GraphDirFileRole(options_.graph_dir, name, files, in_use, kDiskGrace);
+                   }));
+  disk_removed_ += report.removed.size();
+  for (const std::string& name : report.removed) {
+    Log(LogLevel::kInfo, "disk_file_removed", {{"file", name}});
+  }
+  return report;
+}
+
+void Daemon::AddMetrics() {
+  metrics_.AddInfo("geodesicd_build_info", "The daemon's version and build type.",
+                   {{"version", kVersion}, {"build_type", kBuildType}});
+  metrics_.AddGauge("geodesicd_ready", "1 once start-up restored what the catalog holds.",
+                    [this] { return ready_ ? 1.0 : 0.0; });
+  metrics_.AddGauge("geodesicd_graph_dir_bytes", "Bytes of the files in --graph-dir.",
+                    [this] { return double(disk_bytes_.load()); });
+  metrics_.AddCounter("geodesicd_disk_files_removed_total",
+                      "Graph files and mesh snapshots removed to stay within --disk-limit.",
+                      [this] { return double(disk_removed_.load()); });
+  if (sync_) {
+    metrics_.AddGauge("geodesicd_catalog_generation", "Generation of the catalog last followed.",
+                      [this] { return double(sync_->generation()); });
+  }
+  const GraphCache& graphs = *graphs_;
+  metrics_.AddGauge("geodesicd_graph_resident_bytes",
+                    "Resident bytes: graphs built in memory and landmark tables.",
+                    [&graphs] { return double(graphs.resident_bytes()); });
+  metrics_.AddGauge("geodesicd_mesh_resident_bytes",
+                    "Bytes of registered meshes (counted in --memory-limit, never evicted).",
+                    [this] { return double(meshes_->resident_bytes()); });
+  metrics_.AddGauge("geodesicd_graph_mapped_bytes", "Bytes of memory-mapped graphs.",
+                    [&graphs] { return double(graphs.mapped_bytes()); });
+  metrics_.AddGauge("geodesicd_builds_running", "Graph builds running.",
+                    [&graphs] { return double(graphs.builds_running()); });
+  metrics_.AddCounter("geodesicd_graph_builds_total",
+                      "Graph builds started here (not graphs mapped from --graph-dir).",
+                      [&graphs] { return double(graphs.builds_started()); });
+  metrics_.AddGauge(
+      "geodesicd_query_scratch_bytes",
+      "Query scratch held by the engines of ready graphs (pooled per query in flight).",
+      [&graphs] { return double(graphs.scratch_bytes()); });
+  metrics_.AddCounter("geodesicd_cache_hits_total", "Queries that found their graph ready.",
+                      [&graphs] { return double(graphs.hits()); });
+  metrics_.AddCounter("geodesicd_cache_misses_total", "Queries whose graph was not ready.",
+                      [&graphs] { return double(graphs.misses()); });
+  metrics_.AddCounter("geodesicd_graph_evictions_total",
+                      "Ready graphs evicted to stay within --memory-limit.",
+                      [&graphs] { return double(graphs.evictions()); });
+}
+
+void Daemon::AddQueryMetrics() {
+  const Admission& admission = service_->admission();
+  metrics_.AddGauge("geodesicd_queue_depth", "Queries admitted: running or waiting their turn.",
+                    [&admission] { return double(admission.admitted()); });
+  metrics_.AddGauge("geodesicd_queries_running", "Admitted queries running (--query-threads).",
+                    [&admission] { return double(admission.running()); });
+  metrics_.AddGauge("geodesicd_queries_waiting", "Admitted queries waiting for a running slot.",
+                    [&admission] { return double(admission.waiting()); });
+  metrics_.AddGauge("geodesicd_streams_open", "WatchGraph and UploadMesh streams (--max-streams).",
+                    [&admission] { return double(admission.streams()); });
+  metrics_.AddGauge("geodesicd_reserved_bytes",
+                    "Answer and scratch bytes running queries reserved against --memory-limit.",
+                    [&admission] { return double(admission.reserved_bytes()); });
+  metrics_.AddGauge("geodesicd_overloaded",
+                    "1 while admission is full or refused a call in the last second.",
+                    [&admission] { return admission.overloaded() ? 1.0 : 0.0; });
+  metrics_.AddCounter("geodesicd_overload_refusals_total",
+                      "Calls answered RESOURCE_EXHAUSTED \"server overloaded\".",
+                      [&admission] { return double(admission.refusals()); });
+}
+
+// Registered before the port opens, so that the first answer already lists
+// it; its graph is requested once health reporting is up.
+void Daemon::RegisterSample() {
+  if (options_.no_sample) return;
+  const std::string& path = options_.sample_path;
+  if (path.empty()) {
+    std::fprintf(stderr, "geodesicd: bundled sample mesh not found (set GEODESIC_DATA_DIR)\n");
+    return;
+  }
+  sample_mesh_ = meshes_->RegisterTrustedPath("spot", path);
+  if (sample_mesh_.ok()) {
+    std::fprintf(stderr, "geodesicd: registered sample mesh 'spot' from %s\n", path.c_str());
+  } else {
+    std::fprintf(stderr, "geodesicd: sample mesh: %s\n",
+                 std::string(sample_mesh_.status().message()).c_str());
+  }
+}
+
+int Daemon::ListenGrpc() {
+  grpc::EnableDefaultHealthCheckService(true);
+  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
+  grpc::ServerBuilder builder;
+  builder.AddListeningPort(options_.listen, options_.credentials, &grpc_port_);
+  // A port taken by another daemon is refused (see listen_socket.h).
+  builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);
+  builder.RegisterService(service_.get());
+  const ServiceLimits& limits = options_.limits;
+  builder.SetMaxReceiveMessageSize(static_cast<int>(limits.max_message_bytes));
+  builder.SetMaxSendMessageSize(static_cast<int>(limits.max_message_bytes));
+  // The synchronous server holds a thread per call in progress, and answers
+  // "Server Threadpool Exhausted" when the quota has none left: the quota
+  // covers every admitted query (running or waiting), every stream, the
+  // control calls and gRPC's own pollers, so that the answer past a limit is
+  // ours (RESOURCE_EXHAUSTED "server overloaded", with a retry hint).
+  constexpr int kControlThreads = 16;
+  constexpr int kPollerThreads = 8;
+  grpc::ResourceQuota quota("geodesicd");
+  quota.SetMaxThreads(limits.max_inflight + limits.max_streams + kControlThreads + kPollerThreads);
+  builder.SetResourceQuota(quota);
+  server_ = builder.BuildAndStart();
+  if (!server_ || grpc_port_ == 0) {
+    std::fprintf(stderr, "geodesicd serve: cannot listen on %s: address in use or unavailable\n",
+                 options_.listen.c_str());
+    return 1;
+  }
+  std::lock_guard<std::mutex> lock(health_mu_);
+  health_ = server_->GetHealthCheckService();
+  // Serving once start-up has restored what the catalog holds.
+  health_->SetServingStatus("", false);
+  health_->SetServingStatus("geodesic.v1.Geodesic", false);
+  health_->SetServingStatus(kCapacity, true);
+  return 0;
+}
+
+int Daemon::ListenMetrics(int* port) {
+  if (options_.metrics_listen.empty()) return 0;
+  std::string error;
+  metrics_http_ = MetricsHttpServer::Start(
+      options_.metrics_listen, &metrics_, [this] { return ready_.load(); }, &error);
+  if (!metrics_http_) {
+    std::fprintf(stderr, "geodesicd serve: %s\n", error.c_str());
+    return 1;
+  }
+  *port = metrics_http_->port();
+  return 0;
+}
+
+int Daemon::ListenHttp() {
+  if (options_.http_listen.empty()) return 0;
+  HttpGatewayOptions gateway;
+  gateway.listen = options_.http_listen;
+  gateway.tls_cert = options_.tls_cert;
+  gateway.tls_key = options_.tls_key;
+  gateway.tls_client_ca = options_.tls_client_ca;
+  gateway.bearer_token = options_.token;
+  gateway.cors_origin = options_.http_cors_origin;
+  gateway.limits = options_.http_limits;
+  auto started = HttpGateway::Start(gateway, server_.get(), meshes_.get());
+  if (!started.ok()) {
+    std::fprintf(stderr, "geodesicd serve: %s\n", std::string(started.status().message()).c_str());
+    return 1;
+  }
+  http_ = std::move(*started);
+  std::fprintf(stderr, "geodesicd: HTTP on %s (http port %d, %s)\n", options_.http_listen.c_str(),
+               http_->port(), http_->tls() ? "TLS" : "plaintext");
+  return 0;
+}
+
+// Start-up: what the catalog recorded (clients' meshes and graphs), what
+// the config declares, and the sample's graph. Queries that arrive
+// meanwhile restore what they name on demand (GeodesicService::FindMesh).
+int Daemon::Restore() {
+  RegisterConfigMeshes();
+  if (int rc = RestoreCatalog(); rc != 0) return rc;
+  RequestConfigGraphs();
+  if (sample_mesh_.ok()) {
+    graphs_->Request(*sample_mesh_, Params(options_.limits.default_epsilon, false));
+  }
+  const size_t restored = WaitForRestored();
+  ready_ = true;
+  SetHealth("", true);
+  SetHealth("geodesic.v1.Geodesic", true);
+  Log(LogLevel::kInfo, "ready",
+      {{"meshes", meshes_->List().size()},
+       {"graphs_ready", restored},
+       {"graphs_restoring", restoring_.size()}});
+  return 0;
+}
+
+// --config's meshes, before the catalog is applied: the catalog records
+// their graphs (and the sample's), which it then requests again.
+void Daemon::RegisterConfigMeshes() {
+  for (const DeclaredMesh& m : options_.config.meshes) {
+    auto registered = std::filesystem::path(m.path).is_absolute()
+                          ? meshes_->RegisterTrustedPath(m.name, m.path, m.repair_non_manifold)
+                          : meshes_->RegisterPath(m.name, m.path, m.repair_non_manifold);
+    if (!registered.ok()) {
+      Log(LogLevel::kError, "config_mesh_failed",
+          {{"mesh", m.name}, {"path", m.path}, {"error", registered.status().ToString()}});
+    } else if (sync_) {
+      sync_->AddStartupMesh(m.name);
+    }
+  }
+  if (sync_ && sample_mesh_.ok()) sync_->AddStartupMesh("spot");
+}
+
+int Daemon::RestoreCatalog() {
+  if (!sync_) return 0;
+  if (absl::Status s = sync_->Reconcile(); !s.ok()) {
+    Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
+    std::fprintf(stderr, "geodesicd serve: %s (fix or move the file; it is left as it is)\n",
+                 std::string(s.message()).c_str());
+    return 1;
+  }
+  if (auto state = catalog_->Read(); state.ok()) {
+    for (const CatalogGraph& g : state->graphs) restoring_.push_back({g.mesh, g.params});
+  }
+  service_->UseCatalog(sync_.get());
+  return 0;
+}
+
+void Daemon::RequestConfigGraphs() {
+  for (const DeclaredGraph& g : options_.config.graphs) {
+    if (auto m = meshes_->Get(g.mesh); m.ok()) {
+      const DggParams params = Params(g.epsilon, g.pseudo_vertices);
+      graphs_->Request(*m, params);
+      restoring_.push_back({g.mesh, params});
+    }
+  }
+}
+
+// The build record of the graphs this daemon requests itself.
+DggParams Daemon::Params(double epsilon, bool pseudo_vertices) const {
+  DggParams params;
+  params.epsilon = epsilon;
+  params.pseudo_vertices = pseudo_vertices;
+  params.exact_fans = options_.limits.exact_fans;
+  return params;
+}
+
+// Ready once every restored graph whose file was there is mapped (a
+// missing or invalid one rebuilds in the background, and one another
+// replica is building is mapped once it is done: neither is waited for),
+// or after a minute at most. Returns how many are ready.
+size_t Daemon::WaitForRestored() {
+  const absl::Time deadline = absl::Now() + absl::Seconds(60);
+  size_t ready = 0;
+  for (const GraphKey& key : restoring_) {
+    auto status = graphs_->Get(key);
+    while (status.ok() && !g_stop &&
+           (status->state == GraphState::kQueued || status->state == GraphState::kLoading) &&
+           // Another replica's build may take long: serve meanwhile.
+           status->phase != kWaitingForReplicaPhase && absl::Now() < deadline) {
+      status = graphs_->WaitForChange(key, status->version, absl::Now() + absl::Milliseconds(200));
+    }
+    ready += status.ok() && status->state == GraphState::kReady;
+  }
+  return ready;
+}
+
+void Daemon::Serve() {
+  // Follows the catalog (replicas' changes) and keeps --graph-dir in budget.
+  std::thread follower([this] {
+    while (!g_stop) {
+      for (int i = 0; i < options_.catalog_poll_seconds * 10 && !g_stop; ++i) {
+        std::this_thread::sleep_for(std::chrono::milliseconds(100));
+      }
+      if (!g_stop && !options_.graph_dir.empty()) FollowCatalog();
+    }
+  });
+  // Probes of "" and "geodesic.v1.Geodesic" keep SERVING under load (a
+  // restart would only lose the resident graphs); kCapacity tells balancers
+  // that this replica is refusing queries now.
+  const Admission& admission = service_->admission();
+  bool overloaded = false;
+  for (int tick = 0; !g_stop; ++tick) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(100));
+    if (admission.overloaded() != overloaded) {
+      overloaded = !overloaded;
+      SetHealth(kCapacity, !overloaded);
+    }
+    // Memory that queries and their answers freed goes back to the system,
+    // not only to malloc's free lists, so resident memory follows what the
+    // limit counts.
+    if (tick % 10 == 0) malloc_trim(0);
+  }
+  follower.join();
+}
+
+void Daemon::FollowCatalog() {
+  if (absl::Status s = sync_->Reconcile(); !s.ok()) {
+    Log(LogLevel::kError, "catalog_unreadable", {{"error", s.ToString()}});
+  }
+  // A reserve the catalog used on a full disk comes back once there is
+  // room.
+  catalog_->EnsureReserve().IgnoreError();
+  auto report = Sweep(options_.disk_limit);
+  if (!report.ok()) {
+    Log(LogLevel::kError, "disk_limit_failed", {{"error", report.status().ToString()}});
+    return;
+  }
+  disk_bytes_ = report->bytes_after;
+  disk_->Set(report->bytes_after);
+  if (report->over_limit) {
+    Log(LogLevel::kWarning, "disk_over_limit",
+        {{"bytes", report->bytes_after}, {"limit", options_.disk_limit}});
+  }
+}
+
+void Daemon::Drain() {
+  std::fprintf(stderr, "geodesicd: shutting down (draining up to %.0f s)\n",
+               options_.drain_seconds);
+  SetHealth("", false);
+  http_.reset();  // its calls go through `server_`
+  server_->Shutdown(std::chrono::system_clock::now() +
+                    std::chrono::milliseconds(static_cast<int64_t>(options_.drain_seconds * 1000)));
+  // Graph writes are atomic (temp + rename): an interrupted build leaves no
+  // file a restart would trust. The cache's destructor cancels and joins.
+}
+
+void Daemon::SetHealth(const std::string& service, bool serving) {
+  std::lock_guard<std::mutex> lock(health_mu_);
+  health_->SetServingStatus(service, serving);
+}
+
+}  // namespace geodesic::server
