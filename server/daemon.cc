@@ -81,6 +81,7 @@ int Daemon::Start() {
   cache.on_file_used = MarkFileUsed;
   cache.build_workers = options_.build_workers;
   cache.build_threads = options_.build_threads;
+  cache.pseudo_vertex_limit = options_.pseudo_vertex_limit;
   cache.build_memory_limit = options_.build_memory_limit;
   cache.large_build_seconds = options_.large_build_seconds;
   cache.max_graph_bytes = options_.max_graph_bytes;

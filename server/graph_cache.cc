@@ -528,6 +528,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey
   DggBuildOptions options;
   options.params = key.params;
   options.threads = options_.build_threads;
+  options.pseudo_vertex_limit = options_.pseudo_vertex_limit;
   options.candidate_memory_limit = options_.build_memory_limit;
   options.spill_dir = options_.graph_dir.empty() ? std::filesystem::temp_directory_path().string()
                                                  : options_.graph_dir;

@@ -155,6 +155,8 @@ class GraphCache {
     // How often a replica waiting for another's build looks again.
     absl::Duration replica_poll = absl::Milliseconds(500);
     int build_threads = 0;  // threads per build (0: all cores)
+    // DggBuildOptions::pseudo_vertex_limit.
+    double pseudo_vertex_limit = 0;
     // Candidate edges a build keeps in memory before spilling them to an
     // unlinked file in graph_dir (DggBuildOptions); 0: no limit.
     uint64_t build_memory_limit = 0;

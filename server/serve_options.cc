@@ -145,6 +145,10 @@ void AddStorageFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
 
 void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
   app.add_option("--build-threads", o.build_threads, "threads per graph build (0: all cores)");
+  app.add_option("--pseudo-vertex-limit", o.pseudo_vertex_limit,
+                 "a graph with pseudo vertices is refused, with its estimated cost, when it "
+                 "would have more than this many per mesh vertex (0: no limit)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--build-memory-limit", f.build_memory_limit,
                  "candidate edges a build keeps in memory, e.g. 2G; beyond it they go to an "
                  "unlinked file in --graph-dir (the system's temporary directory without one) "

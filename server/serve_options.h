@@ -26,6 +26,7 @@ struct ServeOptions {
   uint64_t disk_limit = 0;
   double catalog_poll_seconds = 2;
   int build_threads = 0;
+  double pseudo_vertex_limit = 1;  // DggBuildOptions::pseudo_vertex_limit
   int build_workers = 1;
   uint64_t build_memory_limit = 0;
   double large_build_seconds = 60;

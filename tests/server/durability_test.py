@@ -46,7 +46,8 @@ def serve(work, graphs, *extra, metrics=False):
     log = open(os.path.join(work, "daemon.log"), "a")
     daemon, ports = start_daemon(bin_dir, work, ["--graph-dir", graphs, "--mesh-root", data,
                                                  "--no-sample", "--log-level", "warning",
-                                                 "--catalog-poll-seconds", "0.5", *extra],
+                                                 "--catalog-poll-seconds", "0.5",
+                                                 "--pseudo-vertex-limit", "0", *extra],
                                  stderr=log, metrics=metrics)
     return daemon, ports
 

@@ -9,7 +9,7 @@ source "$(dirname "$0")/daemon.sh"
 trap 'daemon_cleanup; rm -rf "$work"' EXIT
 start_daemon() {
   daemon_start "$bin" "$work" --graph-dir "$work/graphs" --mesh-root "$src/data" \
-    --log-level warning "$@" || exit 1
+    --log-level warning --pseudo-vertex-limit 0 "$@" || exit 1
   retry_for 10 quietly cli meshes || daemon_fail "geodesicd does not answer"
 }
 stop_daemon() { daemon_stop; }

@@ -36,7 +36,8 @@ def start_daemon(work, name, *flags):
     """(process, log, gRPC port, HTTP port) of a daemon logging to {work}/{name}.log."""
     log = open(f"{work}/{name}.log", "w+")
     daemon, ports = daemon_ports.start_daemon(
-        BIN, work, ["--graph-dir", f"{work}/graphs-{name}", "--log-level", "warning", *flags],
+        BIN, work, ["--graph-dir", f"{work}/graphs-{name}", "--log-level", "warning",
+                    "--pseudo-vertex-limit", "0", *flags],
         stderr=log, http=True)
     return daemon, log, ports["grpc"], ports["http"]
 

@@ -35,7 +35,7 @@ class ClientTest(unittest.TestCase):
         cls.work = tempfile.mkdtemp()
         cls.daemon, ports = start_daemon(
             BIN, cls.work, ["--graph-dir", f"{cls.work}/graphs", "--mesh-root", f"{SRC}/data",
-                            "--log-level", "warning"])
+                            "--log-level", "warning", "--pseudo-vertex-limit", "0"])
         cls.port = ports["grpc"]
         cls.client = Client(f"127.0.0.1:{cls.port}", timeout=120)
         for _ in range(100):
@@ -203,6 +203,28 @@ class ClientTest(unittest.TestCase):
                 positions = np.random.default_rng(5).normal(size=(200, 3)) * 0.5
                 self.assertEqual(tight.snap("spot", positions), self.client.snap("spot", positions))
                 self.assertEqual((tight.max_pairs, tight.max_sources), (50, 4))
+        finally:
+            daemon_ports.stop(daemon)
+            shutil.rmtree(work)
+
+    def test_pseudo_vertices_past_the_default_limit_are_refused_with_the_estimate(self):
+        # spot would take tens of pseudo vertices per vertex at 1e-2: a daemon
+        # on default flags refuses the graph, saying what it would cost, and
+        # keeps serving the plain one.
+        work = tempfile.mkdtemp()
+        daemon, ports = start_daemon(BIN, work, ["--graph-dir", f"{work}/g", "--log-level", "error"])
+        try:
+            with Client(f"127.0.0.1:{ports['grpc']}", timeout=60) as c:
+                with self.assertRaises(RuntimeError) as refused:
+                    c.request_graph("spot", epsilon=0.01, pseudo_vertices=True)
+                message = str(refused.exception)
+                for part in ("FAILED", "pseudo vertices at eps 0.01", "per mesh vertex",
+                             "over the limit of 1", "MB", "a quarter of this eps"):
+                    self.assertIn(part, message)
+                self.assertEqual(c.graph("spot", epsilon=0.01, pseudo_vertices=True).state,
+                                 GraphState.FAILED)
+                d = c.distances("spot", [10], [20], epsilon=0.01)
+                self.assertTrue(np.isfinite(d).all() and d[0] > 0, d)
         finally:
             daemon_ports.stop(daemon)
             shutil.rmtree(work)

@@ -120,7 +120,8 @@ def start_daemon(work):
         f.write(TOKEN)
     log = open(f"{work}/daemon.log", "w+")
     daemon, ports = daemon_ports.start_daemon(
-        BIN, work, ["--graph-dir", f"{work}/graphs", "--log-level", "warning", "--auth-token-file",
+        BIN, work, ["--graph-dir", f"{work}/graphs", "--log-level", "warning",
+                    "--pseudo-vertex-limit", "0", "--auth-token-file",
                     f"{work}/token", "--default-epsilon", str(DEFAULT_EPS)],
         stderr=log, http=True)
     return daemon, log, ports["grpc"], ports["http"]
