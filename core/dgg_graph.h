@@ -160,10 +160,6 @@ class DggGraph {
   std::shared_ptr<const Storage> storage_;
 };
 
-// Hash of the mesh's positions and faces (xxHash64): a graph is only ever used
-// with the mesh it was built for.
-uint64_t MeshFingerprint(const Mesh& mesh);
-
 }  // namespace geodesic
 
 #endif  // GEODESIC_CORE_DGG_GRAPH_H_

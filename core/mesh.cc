@@ -9,6 +9,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "xxhash.h"
 
 namespace geodesic {
 namespace {
@@ -241,6 +242,18 @@ absl::StatusOr<Mesh> Mesh::FromArrays(Arrays a, std::string_view source) {
   m.a_ = std::move(a);
   if (absl::Status s = m.CheckConsistency(); !s.ok()) return damaged(s.message());
   return m;
+}
+
+uint64_t MeshFingerprint(const Mesh& mesh) {
+  XXH3_state_t* state = XXH3_createState();
+  XXH3_64bits_reset(state);
+  const uint64_t counts[2] = {mesh.num_vertices(), mesh.num_faces()};
+  XXH3_64bits_update(state, counts, sizeof(counts));
+  XXH3_64bits_update(state, mesh.positions().data(), mesh.positions().size() * sizeof(Vec3));
+  XXH3_64bits_update(state, mesh.corners().data(), mesh.corners().size() * sizeof(VertexId));
+  uint64_t hash = XXH3_64bits_digest(state);
+  XXH3_freeState(state);
+  return hash;
 }
 
 }  // namespace geodesic

@@ -154,6 +154,10 @@ class Mesh {
   Arrays a_;
 };
 
+// Hash of the mesh's positions and faces (xxHash64): a graph is only ever used
+// with the mesh it was built for, and a snapshot only restores the mesh it saved.
+uint64_t MeshFingerprint(const Mesh& mesh);
+
 }  // namespace geodesic
 
 #endif  // GEODESIC_CORE_MESH_H_
