@@ -16,6 +16,7 @@
 #include <limits>
 #include <numbers>
 #include <numeric>
+#include <optional>
 #include <sstream>
 
 #include "absl/container/flat_hash_map.h"
@@ -180,90 +181,79 @@ struct AsciiVertices {
   std::vector<Vec3> positions;
 };
 
-absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const std::string& name,
-                                                const std::string& format) {
+// Appends the vertex whose three coordinates start `text` (line
+// `line_number` of `name`), read as doubles.
+absl::Status ParseAsciiVertex(const std::string& text, const std::string& name, size_t line_number,
+                              std::vector<Vec3>& positions) {
+  std::istringstream fields(text);
+  std::string t[3];
+  fields >> t[0] >> t[1] >> t[2];
+  double x[3];
+  for (int k = 0; k < 3; ++k) {
+    char* end = nullptr;
+    x[k] = std::strtod(t[k].c_str(), &end);
+    if (t[k].empty() || end != t[k].c_str() + t[k].size() || !std::isfinite(x[k])) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s line %u: vertex %u has a bad coordinate '%s'", name, line_number,
+                          positions.size(), t[k]));
+    }
+  }
+  positions.push_back({x[0], x[1], x[2]});
+  return absl::OkStatus();
+}
+
+absl::StatusOr<AsciiVertices> ScanObjVertices(std::ifstream& in, const std::string& name) {
   AsciiVertices out;
-  std::ifstream in(path);
-  if (!in || (format != "obj" && format != "off")) return out;
   std::string line;
   size_t line_number = 0;
-  auto take = [&](const std::string& text) -> absl::Status {
-    std::istringstream fields(text);
-    std::string t[3];
-    fields >> t[0] >> t[1] >> t[2];
-    double x[3];
-    for (int k = 0; k < 3; ++k) {
-      char* end = nullptr;
-      x[k] = std::strtod(t[k].c_str(), &end);
-      if (t[k].empty() || end != t[k].c_str() + t[k].size() || !std::isfinite(x[k])) {
-        return absl::InvalidArgumentError(
-            absl::StrFormat("%s line %u: vertex %u has a bad coordinate '%s'", name, line_number,
-                            out.positions.size(), t[k]));
+  while (std::getline(in, line)) {
+    ++line_number;
+    if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
+      absl::Status s = ParseAsciiVertex(line.substr(2), name, line_number, out.positions);
+      if (!s.ok()) return s;
+    }
+    std::istringstream fields(line);
+    std::string word;
+    if (!(fields >> word) || word != "f") continue;
+    while (fields >> word) {
+      if (!IsObjFaceCorner(word)) {
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "%s line %u: face corner '%s' is not v, v/vt, v//vn or v/vt/vn with integer indices",
+            name, line_number, absl::CHexEscape(word.substr(0, 30))));
       }
     }
-    out.positions.push_back({x[0], x[1], x[2]});
-    return absl::OkStatus();
-  };
-  if (format == "obj") {
-    while (std::getline(in, line)) {
-      ++line_number;
-      if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
-        absl::Status s = take(line.substr(2));
-        if (!s.ok()) return s;
-      }
-      std::istringstream fields(line);
-      std::string word;
-      if (!(fields >> word) || word != "f") continue;
-      while (fields >> word) {
-        if (!IsObjFaceCorner(word)) {
-          return absl::InvalidArgumentError(absl::StrFormat(
-              "%s line %u: face corner '%s' is not v, v/vt, v//vn or v/vt/vn with integer indices",
-              name, line_number, absl::CHexEscape(word.substr(0, 30))));
-        }
-      }
-    }
-    out.available = true;
-    return out;
   }
-  // OFF: header "OFF" (counts may follow on the same line), counts, then one
-  // vertex per line; '#' starts a comment. Variants (COFF, NOFF, ...) keep
-  // OpenMesh's values.
+  out.available = true;
+  return out;
+}
+
+// The vertex count of an OFF header: header "OFF" (counts may follow on the
+// same line), then the counts; '#' starts a comment. nullopt for a variant
+// (COFF, NOFF, ...), whose values OpenMesh keeps; 0 if no count is found.
+std::optional<size_t> ReadOffVertexCount(std::ifstream& in, size_t& line_number) {
+  std::string line;
   std::vector<std::string> words;
-  size_t nv = 0;
-  bool header_done = false;
-  while (!header_done && std::getline(in, line)) {
+  while (std::getline(in, line)) {
     ++line_number;
     if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
     std::istringstream fields(line);
     std::string word;
     while (fields >> word) words.push_back(word);
-    if (!words.empty() && words[0] != "OFF") return out;
-    if (words.size() >= 2) {
-      nv = std::strtoull(words[1].c_str(), nullptr, 10);
-      header_done = true;
-    }
+    if (!words.empty() && words[0] != "OFF") return std::nullopt;
+    if (words.size() >= 2) return std::strtoull(words[1].c_str(), nullptr, 10);
   }
-  while (out.positions.size() < nv && std::getline(in, line)) {
-    ++line_number;
-    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
-    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
-    absl::Status s = take(line);
-    if (!s.ok()) return s;
-  }
-  // OpenMesh reads on past a short vertex list into the faces, garbage and
-  // all, and looped there (found by fuzzing).
-  if (out.positions.size() < nv) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s: the OFF header declares %u vertices, but %u vertex lines follow", name,
-                        nv, out.positions.size()));
-  }
-  out.available = true;
-  // Each face starts with its corner count, and OpenMesh reserves room for
-  // that many before reading them (it reads numbers, not lines), so a
-  // garbled count runs it out of memory (found by tests/fuzz). A face cannot
-  // have more corners than the file has vertices, and no number in the faces
-  // (counts, indices, colours) can be far above that.
+  return 0;
+}
+
+// Each face starts with its corner count, and OpenMesh reserves room for
+// that many before reading them (it reads numbers, not lines), so a garbled
+// count runs it out of memory (found by tests/fuzz). A face cannot have more
+// corners than the file has vertices, and no number in the faces (counts,
+// indices, colours) can be far above that.
+absl::Status CheckOffFaceNumbers(std::ifstream& in, const std::string& name, size_t line_number,
+                                 size_t nv) {
   const unsigned long long largest = std::max<unsigned long long>(nv, 1 << 20);
+  std::string line;
   while (std::getline(in, line)) {
     ++line_number;
     if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
@@ -290,7 +280,40 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
       }
     }
   }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<AsciiVertices> ScanOffVertices(std::ifstream& in, const std::string& name) {
+  AsciiVertices out;
+  size_t line_number = 0;
+  const std::optional<size_t> declared = ReadOffVertexCount(in, line_number);
+  if (!declared) return out;
+  const size_t nv = *declared;
+  std::string line;
+  while (out.positions.size() < nv && std::getline(in, line)) {
+    ++line_number;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    absl::Status s = ParseAsciiVertex(line, name, line_number, out.positions);
+    if (!s.ok()) return s;
+  }
+  // OpenMesh reads on past a short vertex list into the faces, garbage and
+  // all, and looped there (found by fuzzing).
+  if (out.positions.size() < nv) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: the OFF header declares %u vertices, but %u vertex lines follow", name,
+                        nv, out.positions.size()));
+  }
+  out.available = true;
+  RETURN_IF_ERROR(CheckOffFaceNumbers(in, name, line_number, nv));
   return out;
+}
+
+absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const std::string& name,
+                                                const std::string& format) {
+  std::ifstream in(path);
+  if (!in || (format != "obj" && format != "off")) return AsciiVertices{};
+  return format == "obj" ? ScanObjVertices(in, name) : ScanOffVertices(in, name);
 }
 
 // Counts the file declares, where the format declares them.
