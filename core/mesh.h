@@ -151,6 +151,13 @@ class Mesh {
  private:
   enum Flag : uint8_t { kBoundary = 1, kSaddle = 2 };
 
+  // The steps of Build after the corners and positions are in place, in
+  // this order: each reads what the ones before it filled in.
+  absl::Status LinkTwins(std::string_view source);       // twin
+  void NumberEdges();                                    // edge, edge_halfedge
+  void MeasureCorners();                                 // length, corner_angle
+  absl::Status WalkVertexFans(std::string_view source);  // the per-vertex rest
+
   Arrays a_;
 };
 
