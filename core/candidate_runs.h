@@ -18,7 +18,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
-#include "core/dgg_build.h"
+#include "core/dgg_graph.h"
 #include "core/large_array.h"
 #include "tbb/enumerable_thread_specific.h"
 

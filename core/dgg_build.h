@@ -95,15 +95,6 @@ struct DggBuildEstimate {
 // worst case measured. Epsilon outside (0, 1) gives UINT64_MAX bytes.
 DggBuildEstimate EstimateDggBuild(uint64_t num_vertices, double epsilon, bool pseudo);
 
-// A graph edge as seen from one end: a direct geodesic from the source to
-// `to`, its length rounded up to float, and its polar angles at both ends.
-struct DggHalfEdge {
-  uint32_t to;
-  float weight;
-  float angle_here;   // polar angle at this end, normalised to [0, 2*pi)
-  float angle_there;  // polar angle at the other end, normalised
-};
-
 // Distributed builds. The candidate phase (the direct geodesics from every
 // vertex) is most of the work and independent per source, so it splits into
 // vertex ranges built anywhere; merging the parts runs the remaining phases

@@ -10,7 +10,6 @@
 #include "absl/strings/str_format.h"
 #include "core/dgg_graph_internal.h"
 #include "core/status.h"
-#include "xxhash.h"
 
 namespace geodesic {
 
@@ -137,18 +136,6 @@ absl::Status DggGraph::Validate(const Mesh& mesh) const {
     }
   }
   return absl::OkStatus();
-}
-
-uint64_t MeshFingerprint(const Mesh& mesh) {
-  XXH3_state_t* state = XXH3_createState();
-  XXH3_64bits_reset(state);
-  const uint64_t counts[2] = {mesh.num_vertices(), mesh.num_faces()};
-  XXH3_64bits_update(state, counts, sizeof(counts));
-  XXH3_64bits_update(state, mesh.positions().data(), mesh.positions().size() * sizeof(Vec3));
-  XXH3_64bits_update(state, mesh.corners().data(), mesh.corners().size() * sizeof(VertexId));
-  uint64_t hash = XXH3_64bits_digest(state);
-  XXH3_freeState(state);
-  return hash;
 }
 
 std::shared_ptr<const DggGraph> DggGraphBuilder::FromArrays(DggGraphArrays arrays,

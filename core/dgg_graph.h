@@ -49,6 +49,16 @@ struct DggEdge {
 };
 static_assert(sizeof(DggEdge) == 16);
 
+// A candidate edge as a build finds it, seen from one end: a direct geodesic
+// from the source to `to`, its length rounded up to float, and its polar
+// angles at both ends.
+struct DggHalfEdge {
+  uint32_t to;
+  float weight;
+  float angle_here;   // polar angle at this end, normalised to [0, 2*pi)
+  float angle_there;  // polar angle at the other end, normalised
+};
+
 // The version of the rule that decides which candidate edges a build keeps
 // (core/dgg_build.cc, CornerBudgetFactor). Bump it whenever a change to the
 // rule changes the graphs built for the same parameters, so that files made
@@ -159,10 +169,6 @@ class DggGraph {
   std::span<const VertexId> vertex_of_node_;
   std::shared_ptr<const Storage> storage_;
 };
-
-// Hash of the mesh's positions and faces (xxHash64): a graph is only ever used
-// with the mesh it was built for.
-uint64_t MeshFingerprint(const Mesh& mesh);
 
 }  // namespace geodesic
 

@@ -9,6 +9,8 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
+#include "core/status.h"
+#include "xxhash.h"
 
 namespace geodesic {
 namespace {
@@ -41,8 +43,11 @@ void SortEdgeUses(EdgeUses& uses, size_t num_vertices) {
   for (auto& u : uses) u.first = (u.first >> bits) << 32 | (u.first & low);
 }
 
-absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
-  Mesh m;
+namespace {
+
+// Refuses what no half-edge structure can hold: ids beyond 32 bits,
+// non-finite coordinates, corners out of range and faces repeating a vertex.
+absl::Status CheckSoup(const TriangleSoup& soup, std::string_view source) {
   const size_t nv = soup.positions.size();
   const size_t nf = soup.triangles.size();
   if (nv >= kNone || 3 * nf >= kNone) {
@@ -56,7 +61,6 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
           "%s: vertex %u has a non-finite coordinate (%g, %g, %g)", source, v, p.x, p.y, p.z));
     }
   }
-  m.a_.corners.resize(3 * nf);
   for (size_t f = 0; f < nf; ++f) {
     const auto& t = soup.triangles[f];
     for (int k = 0; k < 3; ++k) {
@@ -65,35 +69,53 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
             absl::StrFormat("%s: face %u refers to vertex %u, but there are only %u vertices",
                             source, f, t[k], nv));
       }
-      m.a_.corners[3 * f + k] = t[k];
     }
     if (t[0] == t[1] || t[1] == t[2] || t[0] == t[2]) {
       return absl::InvalidArgumentError(
           absl::StrFormat("%s: face %u repeats a vertex (%u %u %u)", source, f, t[0], t[1], t[2]));
     }
   }
+  return absl::OkStatus();
+}
+
+}  // namespace
+
+absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
+  RETURN_IF_ERROR(CheckSoup(soup, source));
+  Mesh m;
+  const size_t nf = soup.triangles.size();
+  m.a_.corners.resize(3 * nf);
+  for (size_t f = 0; f < nf; ++f) {
+    for (int k = 0; k < 3; ++k) m.a_.corners[3 * f + k] = soup.triangles[f][k];
+  }
   m.a_.positions = std::move(soup.positions);
   soup.triangles.clear();
+  RETURN_IF_ERROR(m.LinkTwins(source));
+  m.NumberEdges();
+  m.MeasureCorners();
+  RETURN_IF_ERROR(m.WalkVertexFans(source));
+  return m;
+}
 
-  const size_t nh = 3 * nf;
-  // Twins and edge ids. A directed edge used twice means a non-manifold edge
-  // or two neighbours with opposite orientation; both are rejected. The
-  // half-edges of one edge are found by sorting (a hash map of directed
-  // edges was a large part of loading a million-face mesh); the clash
-  // reported is the first in half-edge order, as a scan in that order would
-  // meet it.
+absl::Status Mesh::LinkTwins(std::string_view source) {
+  const size_t nh = a_.corners.size();
+  // A directed edge used twice means a non-manifold edge or two neighbours
+  // with opposite orientation; both are rejected. The half-edges of one edge
+  // are found by sorting (a hash map of directed edges was a large part of
+  // loading a million-face mesh); the clash reported is the first in
+  // half-edge order, as a scan in that order would meet it.
   EdgeUses by_edge(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    by_edge[h] = {UndirectedEdgeKey(m.tail(h), m.head(h)), h};
+    by_edge[h] = {UndirectedEdgeKey(tail(h), head(h)), h};
   }
-  SortEdgeUses(by_edge, m.num_vertices());
-  m.a_.twin.assign(nh, kNone);
+  SortEdgeUses(by_edge, num_vertices());
+  a_.twin.assign(nh, kNone);
   HalfedgeId clash_first = kNone, clash_second = kNone;
   ForEachEdge(by_edge, [&](size_t i, size_t j) {
     HalfedgeId first[2] = {kNone, kNone};  // per direction, in half-edge order
     for (size_t u = i; u < j; ++u) {
       const HalfedgeId h = by_edge[u].second;
-      const int direction = m.tail(h) < m.head(h);
+      const int direction = tail(h) < head(h);
       if (first[direction] == kNone) {
         first[direction] = h;
       } else if (h < clash_second) {
@@ -102,68 +124,76 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
       }
     }
     if (first[0] != kNone && first[1] != kNone) {
-      m.a_.twin[first[0]] = first[1];
-      m.a_.twin[first[1]] = first[0];
+      a_.twin[first[0]] = first[1];
+      a_.twin[first[1]] = first[0];
     }
   });
   if (clash_second != kNone) {
     return absl::InvalidArgumentError(absl::StrFormat(
         "%s: edge (%u, %u) is used in the same direction by faces %u and %u: the mesh is "
         "non-manifold there or its faces are inconsistently oriented",
-        source, m.tail(clash_second), m.head(clash_second), face(clash_first), face(clash_second)));
+        source, tail(clash_second), head(clash_second), face(clash_first), face(clash_second)));
   }
-  by_edge = {};
-  m.a_.edge.assign(nh, kNone);
+  return absl::OkStatus();
+}
+
+void Mesh::NumberEdges() {
+  const size_t nh = a_.corners.size();
+  a_.edge.assign(nh, kNone);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    if (m.a_.edge[h] == kNone) {
-      EdgeId e = static_cast<EdgeId>(m.a_.edge_halfedge.size());
-      m.a_.edge_halfedge.push_back(h);
-      m.a_.edge[h] = e;
-      if (m.a_.twin[h] != kNone) m.a_.edge[m.a_.twin[h]] = e;
+    if (a_.edge[h] == kNone) {
+      EdgeId e = static_cast<EdgeId>(a_.edge_halfedge.size());
+      a_.edge_halfedge.push_back(h);
+      a_.edge[h] = e;
+      if (a_.twin[h] != kNone) a_.edge[a_.twin[h]] = e;
     }
   }
+}
 
-  // Lengths and corner angles.
-  m.a_.length.resize(nh);
+void Mesh::MeasureCorners() {
+  const size_t nh = a_.corners.size();
+  a_.length.resize(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    m.a_.length[h] = Distance(m.position(m.tail(h)), m.position(m.head(h)));
+    a_.length[h] = Distance(position(tail(h)), position(head(h)));
   }
-  m.a_.corner_angle.resize(nh);
+  a_.corner_angle.resize(nh);
   for (HalfedgeId h = 0; h < nh; ++h) {
     // At tail(h): sides h and prev(h); opposite side next(h).
-    m.a_.corner_angle[h] =
-        AngleFromLengths(m.a_.length[h], m.a_.length[prev(h)], m.a_.length[next(h)]);
+    a_.corner_angle[h] = AngleFromLengths(a_.length[h], a_.length[prev(h)], a_.length[next(h)]);
   }
+}
 
-  // Vertex rotation start: an outgoing boundary half-edge if there is one.
-  m.a_.vertex_halfedge.assign(nv, kNone);
-  m.a_.flags.assign(nv, 0);
+absl::Status Mesh::WalkVertexFans(std::string_view source) {
+  const size_t nv = a_.positions.size(), nh = a_.corners.size();
+  // Rotation start: an outgoing boundary half-edge if there is one.
+  a_.vertex_halfedge.assign(nv, kNone);
+  a_.flags.assign(nv, 0);
   std::vector<uint32_t> outgoing_count(nv, 0);
   for (HalfedgeId h = 0; h < nh; ++h) {
-    VertexId v = m.tail(h);
+    VertexId v = tail(h);
     ++outgoing_count[v];
-    if (m.a_.twin[h] == kNone) {
-      m.a_.vertex_halfedge[v] = h;
-      m.a_.flags[v] |= kBoundary;
-    } else if (m.a_.vertex_halfedge[v] == kNone) {
-      m.a_.vertex_halfedge[v] = h;
+    if (a_.twin[h] == kNone) {
+      a_.vertex_halfedge[v] = h;
+      a_.flags[v] |= kBoundary;
+    } else if (a_.vertex_halfedge[v] == kNone) {
+      a_.vertex_halfedge[v] = h;
     }
   }
   // A boundary vertex can have only one outgoing boundary half-edge in a
   // single fan; walking the fan must reach every outgoing half-edge.
-  m.a_.polar_angle.assign(nh, 0);
-  m.a_.total_angle.assign(nv, 0);
+  a_.polar_angle.assign(nh, 0);
+  a_.total_angle.assign(nv, 0);
   for (VertexId v = 0; v < nv; ++v) {
-    HalfedgeId start = m.a_.vertex_halfedge[v];
+    HalfedgeId start = a_.vertex_halfedge[v];
     if (start == kNone) continue;
     double angle = 0;
     uint32_t visited = 0;
     HalfedgeId h = start;
     do {
-      m.a_.polar_angle[h] = angle;
-      angle += m.a_.corner_angle[h];
+      a_.polar_angle[h] = angle;
+      angle += a_.corner_angle[h];
       ++visited;
-      h = m.rotate(h);
+      h = rotate(h);
     } while (h != kNone && h != start && visited <= outgoing_count[v]);
     if (visited != outgoing_count[v]) {
       return absl::InvalidArgumentError(absl::StrFormat(
@@ -171,12 +201,12 @@ absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
           "reachable around it)",
           source, v, visited, outgoing_count[v]));
     }
-    m.a_.total_angle[v] = angle;
-    if (!(m.a_.flags[v] & kBoundary) && angle > 2 * std::numbers::pi * (1 + 1e-10)) {
-      m.a_.flags[v] |= kSaddle;
+    a_.total_angle[v] = angle;
+    if (!(a_.flags[v] & kBoundary) && angle > 2 * std::numbers::pi * (1 + 1e-10)) {
+      a_.flags[v] |= kSaddle;
     }
   }
-  return m;
+  return absl::OkStatus();
 }
 
 uint64_t Mesh::memory_bytes() const {
@@ -241,6 +271,18 @@ absl::StatusOr<Mesh> Mesh::FromArrays(Arrays a, std::string_view source) {
   m.a_ = std::move(a);
   if (absl::Status s = m.CheckConsistency(); !s.ok()) return damaged(s.message());
   return m;
+}
+
+uint64_t MeshFingerprint(const Mesh& mesh) {
+  XXH3_state_t* state = XXH3_createState();
+  XXH3_64bits_reset(state);
+  const uint64_t counts[2] = {mesh.num_vertices(), mesh.num_faces()};
+  XXH3_64bits_update(state, counts, sizeof(counts));
+  XXH3_64bits_update(state, mesh.positions().data(), mesh.positions().size() * sizeof(Vec3));
+  XXH3_64bits_update(state, mesh.corners().data(), mesh.corners().size() * sizeof(VertexId));
+  uint64_t hash = XXH3_64bits_digest(state);
+  XXH3_freeState(state);
+  return hash;
 }
 
 }  // namespace geodesic

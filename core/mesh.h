@@ -151,8 +151,19 @@ class Mesh {
  private:
   enum Flag : uint8_t { kBoundary = 1, kSaddle = 2 };
 
+  // The steps of Build after the corners and positions are in place, in
+  // this order: each reads what the ones before it filled in.
+  absl::Status LinkTwins(std::string_view source);       // twin
+  void NumberEdges();                                    // edge, edge_halfedge
+  void MeasureCorners();                                 // length, corner_angle
+  absl::Status WalkVertexFans(std::string_view source);  // the per-vertex rest
+
   Arrays a_;
 };
+
+// Hash of the mesh's positions and faces (xxHash64): a graph is only ever used
+// with the mesh it was built for, and a snapshot only restores the mesh it saved.
+uint64_t MeshFingerprint(const Mesh& mesh);
 
 }  // namespace geodesic
 

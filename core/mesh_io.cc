@@ -16,6 +16,7 @@
 #include <limits>
 #include <numbers>
 #include <numeric>
+#include <optional>
 #include <sstream>
 
 #include "absl/container/flat_hash_map.h"
@@ -180,90 +181,79 @@ struct AsciiVertices {
   std::vector<Vec3> positions;
 };
 
-absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const std::string& name,
-                                                const std::string& format) {
+// Appends the vertex whose three coordinates start `text` (line
+// `line_number` of `name`), read as doubles.
+absl::Status ParseAsciiVertex(const std::string& text, const std::string& name, size_t line_number,
+                              std::vector<Vec3>& positions) {
+  std::istringstream fields(text);
+  std::string t[3];
+  fields >> t[0] >> t[1] >> t[2];
+  double x[3];
+  for (int k = 0; k < 3; ++k) {
+    char* end = nullptr;
+    x[k] = std::strtod(t[k].c_str(), &end);
+    if (t[k].empty() || end != t[k].c_str() + t[k].size() || !std::isfinite(x[k])) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s line %u: vertex %u has a bad coordinate '%s'", name, line_number,
+                          positions.size(), t[k]));
+    }
+  }
+  positions.push_back({x[0], x[1], x[2]});
+  return absl::OkStatus();
+}
+
+absl::StatusOr<AsciiVertices> ScanObjVertices(std::ifstream& in, const std::string& name) {
   AsciiVertices out;
-  std::ifstream in(path);
-  if (!in || (format != "obj" && format != "off")) return out;
   std::string line;
   size_t line_number = 0;
-  auto take = [&](const std::string& text) -> absl::Status {
-    std::istringstream fields(text);
-    std::string t[3];
-    fields >> t[0] >> t[1] >> t[2];
-    double x[3];
-    for (int k = 0; k < 3; ++k) {
-      char* end = nullptr;
-      x[k] = std::strtod(t[k].c_str(), &end);
-      if (t[k].empty() || end != t[k].c_str() + t[k].size() || !std::isfinite(x[k])) {
-        return absl::InvalidArgumentError(
-            absl::StrFormat("%s line %u: vertex %u has a bad coordinate '%s'", name, line_number,
-                            out.positions.size(), t[k]));
+  while (std::getline(in, line)) {
+    ++line_number;
+    if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
+      absl::Status s = ParseAsciiVertex(line.substr(2), name, line_number, out.positions);
+      if (!s.ok()) return s;
+    }
+    std::istringstream fields(line);
+    std::string word;
+    if (!(fields >> word) || word != "f") continue;
+    while (fields >> word) {
+      if (!IsObjFaceCorner(word)) {
+        return absl::InvalidArgumentError(absl::StrFormat(
+            "%s line %u: face corner '%s' is not v, v/vt, v//vn or v/vt/vn with integer indices",
+            name, line_number, absl::CHexEscape(word.substr(0, 30))));
       }
     }
-    out.positions.push_back({x[0], x[1], x[2]});
-    return absl::OkStatus();
-  };
-  if (format == "obj") {
-    while (std::getline(in, line)) {
-      ++line_number;
-      if (line.size() > 2 && line[0] == 'v' && (line[1] == ' ' || line[1] == '\t')) {
-        absl::Status s = take(line.substr(2));
-        if (!s.ok()) return s;
-      }
-      std::istringstream fields(line);
-      std::string word;
-      if (!(fields >> word) || word != "f") continue;
-      while (fields >> word) {
-        if (!IsObjFaceCorner(word)) {
-          return absl::InvalidArgumentError(absl::StrFormat(
-              "%s line %u: face corner '%s' is not v, v/vt, v//vn or v/vt/vn with integer indices",
-              name, line_number, absl::CHexEscape(word.substr(0, 30))));
-        }
-      }
-    }
-    out.available = true;
-    return out;
   }
-  // OFF: header "OFF" (counts may follow on the same line), counts, then one
-  // vertex per line; '#' starts a comment. Variants (COFF, NOFF, ...) keep
-  // OpenMesh's values.
+  out.available = true;
+  return out;
+}
+
+// The vertex count of an OFF header: header "OFF" (counts may follow on the
+// same line), then the counts; '#' starts a comment. nullopt for a variant
+// (COFF, NOFF, ...), whose values OpenMesh keeps; 0 if no count is found.
+std::optional<size_t> ReadOffVertexCount(std::ifstream& in, size_t& line_number) {
+  std::string line;
   std::vector<std::string> words;
-  size_t nv = 0;
-  bool header_done = false;
-  while (!header_done && std::getline(in, line)) {
+  while (std::getline(in, line)) {
     ++line_number;
     if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
     std::istringstream fields(line);
     std::string word;
     while (fields >> word) words.push_back(word);
-    if (!words.empty() && words[0] != "OFF") return out;
-    if (words.size() >= 2) {
-      nv = std::strtoull(words[1].c_str(), nullptr, 10);
-      header_done = true;
-    }
+    if (!words.empty() && words[0] != "OFF") return std::nullopt;
+    if (words.size() >= 2) return std::strtoull(words[1].c_str(), nullptr, 10);
   }
-  while (out.positions.size() < nv && std::getline(in, line)) {
-    ++line_number;
-    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
-    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
-    absl::Status s = take(line);
-    if (!s.ok()) return s;
-  }
-  // OpenMesh reads on past a short vertex list into the faces, garbage and
-  // all, and looped there (found by fuzzing).
-  if (out.positions.size() < nv) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("%s: the OFF header declares %u vertices, but %u vertex lines follow", name,
-                        nv, out.positions.size()));
-  }
-  out.available = true;
-  // Each face starts with its corner count, and OpenMesh reserves room for
-  // that many before reading them (it reads numbers, not lines), so a
-  // garbled count runs it out of memory (found by tests/fuzz). A face cannot
-  // have more corners than the file has vertices, and no number in the faces
-  // (counts, indices, colours) can be far above that.
+  return 0;
+}
+
+// Each face starts with its corner count, and OpenMesh reserves room for
+// that many before reading them (it reads numbers, not lines), so a garbled
+// count runs it out of memory (found by tests/fuzz). A face cannot have more
+// corners than the file has vertices, and no number in the faces (counts,
+// indices, colours) can be far above that.
+absl::Status CheckOffFaceNumbers(std::ifstream& in, const std::string& name, size_t line_number,
+                                 size_t nv) {
   const unsigned long long largest = std::max<unsigned long long>(nv, 1 << 20);
+  std::string line;
   while (std::getline(in, line)) {
     ++line_number;
     if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
@@ -290,7 +280,40 @@ absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const s
       }
     }
   }
+  return absl::OkStatus();
+}
+
+absl::StatusOr<AsciiVertices> ScanOffVertices(std::ifstream& in, const std::string& name) {
+  AsciiVertices out;
+  size_t line_number = 0;
+  const std::optional<size_t> declared = ReadOffVertexCount(in, line_number);
+  if (!declared) return out;
+  const size_t nv = *declared;
+  std::string line;
+  while (out.positions.size() < nv && std::getline(in, line)) {
+    ++line_number;
+    if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
+    if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    absl::Status s = ParseAsciiVertex(line, name, line_number, out.positions);
+    if (!s.ok()) return s;
+  }
+  // OpenMesh reads on past a short vertex list into the faces, garbage and
+  // all, and looped there (found by fuzzing).
+  if (out.positions.size() < nv) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: the OFF header declares %u vertices, but %u vertex lines follow", name,
+                        nv, out.positions.size()));
+  }
+  out.available = true;
+  RETURN_IF_ERROR(CheckOffFaceNumbers(in, name, line_number, nv));
   return out;
+}
+
+absl::StatusOr<AsciiVertices> ScanAsciiVertices(const std::string& path, const std::string& name,
+                                                const std::string& format) {
+  std::ifstream in(path);
+  if (!in || (format != "obj" && format != "off")) return AsciiVertices{};
+  return format == "obj" ? ScanObjVertices(in, name) : ScanOffVertices(in, name);
 }
 
 // Counts the file declares, where the format declares them.
@@ -603,63 +626,74 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
   return soup;
 }
 
-void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
-  const size_t nv = soup.positions.size(), nf = soup.triangles.size();
-  d->vertices = nv;
-  d->faces = nf;
-  // Bounding box and duplicates.
+namespace {
+
+double BoundingBoxDiagonal(const std::vector<Vec3>& positions) {
   Vec3 lo{INFINITY, INFINITY, INFINITY}, hi{-INFINITY, -INFINITY, -INFINITY};
-  for (const Vec3& p : soup.positions) {
+  for (const Vec3& p : positions) {
     lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
     hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
   }
-  d->bbox_diagonal = nv ? Distance(lo, hi) : 0;
-  {
-    std::vector<uint32_t> order(nv);
-    std::iota(order.begin(), order.end(), 0);
-    auto key = [&](uint32_t i) {
-      const Vec3& p = soup.positions[i];
-      return std::tie(p.x, p.y, p.z);
-    };
-    std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return key(a) < key(b); });
-    d->duplicate_vertices = 0;
-    for (size_t i = 1; i < nv; ++i) d->duplicate_vertices += key(order[i]) == key(order[i - 1]);
-  }
-  // Edge counts, boundary and non-manifold edges and repeated directed
-  // edges from one pass over the sorted edge uses (hash maps keyed by edge
-  // took most of a load on million-face meshes).
-  const EdgeUses uses = SortedEdgeUses(soup);
-  std::vector<uint8_t> used(nv, 0);
-  for (const auto& t : soup.triangles) used[t[0]] = used[t[1]] = used[t[2]] = 1;
-  auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
-  std::vector<uint32_t> edge_of_corner(3 * nf, kNone);
-  DisjointSets boundary_sets(nv);
-  std::vector<uint8_t> on_boundary(nv, 0);
+  return positions.empty() ? 0 : Distance(lo, hi);
+}
+
+uint64_t CountDuplicateVertices(const std::vector<Vec3>& positions) {
+  const size_t nv = positions.size();
+  std::vector<uint32_t> order(nv);
+  std::iota(order.begin(), order.end(), 0);
+  auto key = [&](uint32_t i) {
+    const Vec3& p = positions[i];
+    return std::tie(p.x, p.y, p.z);
+  };
+  std::sort(order.begin(), order.end(), [&](uint32_t a, uint32_t b) { return key(a) < key(b); });
+  uint64_t duplicates = 0;
+  for (size_t i = 1; i < nv; ++i) duplicates += key(order[i]) == key(order[i - 1]);
+  return duplicates;
+}
+
+// What one pass over the sorted edge uses finds.
+struct EdgeCensus {
+  std::vector<uint32_t> edge_of_corner;  // edge id of each corner's outgoing edge
+  DisjointSets boundary_sets;            // vertices joined by boundary edges
+  std::vector<uint8_t> on_boundary;
   double edge_sum = 0, edge_min = INFINITY;
-  uint64_t edge_count = 0, twice_directed = 0;
-  d->non_manifold_edges = 0;
+  uint64_t edge_count = 0, twice_directed = 0, non_manifold_edges = 0;
+};
+
+// Edge counts, boundary and non-manifold edges and repeated directed edges
+// from one pass over the sorted edge uses (hash maps keyed by edge took most
+// of a load on million-face meshes).
+EdgeCensus TakeEdgeCensus(const TriangleSoup& soup, const EdgeUses& uses) {
+  const size_t nv = soup.positions.size(), nf = soup.triangles.size();
+  EdgeCensus c{std::vector<uint32_t>(3 * nf, kNone), DisjointSets(nv), std::vector<uint8_t>(nv, 0)};
+  auto from_of = [&](uint32_t corner) { return soup.triangles[corner / 3][corner % 3]; };
   ForEachEdge(uses, [&](size_t i, size_t j) {
     const VertexId a = uses[i].first >> 32, b = uses[i].first & 0xffffffffu;
     const double len = Distance(soup.positions[a], soup.positions[b]);
-    edge_sum += len;
-    edge_min = std::min(edge_min, len);
+    c.edge_sum += len;
+    c.edge_min = std::min(c.edge_min, len);
     int forward = 0;  // uses walking it from a (the smaller id) to b
     for (size_t u = i; u < j; ++u) {
-      edge_of_corner[uses[u].second] = static_cast<uint32_t>(edge_count);
+      c.edge_of_corner[uses[u].second] = static_cast<uint32_t>(c.edge_count);
       forward += from_of(uses[u].second) == a;
     }
-    ++edge_count;
+    ++c.edge_count;
     const size_t count = j - i;
-    twice_directed += (forward > 1) + (static_cast<int>(count) - forward > 1);
-    if (count > 2) ++d->non_manifold_edges;
+    c.twice_directed += (forward > 1) + (static_cast<int>(count) - forward > 1);
+    if (count > 2) ++c.non_manifold_edges;
     if (count == 1) {
-      boundary_sets.Union(a, b);
-      on_boundary[a] = on_boundary[b] = 1;
+      c.boundary_sets.Union(a, b);
+      c.on_boundary[a] = c.on_boundary[b] = 1;
     }
   });
-  DisjointSets corners = CornerFans(soup, uses);
+  return c;
+}
+
+// Zero-area and near-degenerate faces and the anisotropy of the others;
+// needs d->bbox_diagonal for the area floor.
+void MeasureFaceShapes(const TriangleSoup& soup, MeshDiagnostics* d) {
   std::vector<double> anisotropy;
-  anisotropy.reserve(nf);
+  anisotropy.reserve(soup.triangles.size());
   d->zero_area_faces = d->near_degenerate_faces = 0;
   const double area_floor = 1e-12 * d->bbox_diagonal * d->bbox_diagonal;
   for (const auto& t : soup.triangles) {
@@ -677,9 +711,6 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     // Near-degenerate: so thin that angles lose most of their precision.
     if (ratio > 1e3) ++d->near_degenerate_faces;
   }
-  d->edges = edge_count;
-  d->mean_edge_length = edge_count ? edge_sum / edge_count : 0;
-  d->min_edge_length = edge_count ? edge_min : 0;
   if (!anisotropy.empty()) {
     d->anisotropy_mean =
         std::accumulate(anisotropy.begin(), anisotropy.end(), 0.0) / anisotropy.size();
@@ -687,99 +718,131 @@ void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
     d->anisotropy_p95 = anisotropy[static_cast<size_t>(0.95 * (anisotropy.size() - 1))];
     d->anisotropy_max = anisotropy.back();
   }
-  d->isolated_vertices = std::count(used.begin(), used.end(), 0);
-  // Faces OpenMesh's kernel would refuse: the ones that make an edge carry a
-  // third face or repeat a directed edge, counted in file order.
-  {
-    // Per edge: bit 0 / 1 set once a kept face walks it from its smaller /
-    // larger end, and how many kept faces it has (at most 2), times 4.
-    std::vector<uint8_t> accepted(edge_count, 0);
-    d->faces_refused = 0;
-    for (uint32_t f = 0; f < nf; ++f) {
-      const auto& t = soup.triangles[f];
-      bool refuse = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
-      for (int k = 0; k < 3 && !refuse; ++k) {
-        const uint32_t e = edge_of_corner[3 * f + k];
-        const uint8_t direction = t[k] < t[(k + 1) % 3] ? 1 : 2;
-        refuse = (accepted[e] & direction) || accepted[e] >= 8;
-      }
-      if (refuse) {
-        ++d->faces_refused;
-        continue;
-      }
-      for (int k = 0; k < 3; ++k) {
-        const uint32_t e = edge_of_corner[3 * f + k];
-        accepted[e] = (accepted[e] | (t[k] < t[(k + 1) % 3] ? 1 : 2)) + 4;
-      }
+}
+
+// Faces OpenMesh's kernel would refuse: the ones that make an edge carry a
+// third face or repeat a directed edge, counted in file order.
+uint64_t CountRefusedFaces(const TriangleSoup& soup, const EdgeCensus& edges) {
+  // Per edge: bit 0 / 1 set once a kept face walks it from its smaller /
+  // larger end, and how many kept faces it has (at most 2), times 4.
+  std::vector<uint8_t> accepted(edges.edge_count, 0);
+  uint64_t refused = 0;
+  for (uint32_t f = 0; f < soup.triangles.size(); ++f) {
+    const auto& t = soup.triangles[f];
+    bool refuse = t[0] == t[1] || t[1] == t[2] || t[0] == t[2];
+    for (int k = 0; k < 3 && !refuse; ++k) {
+      const uint32_t e = edges.edge_of_corner[3 * f + k];
+      const uint8_t direction = t[k] < t[(k + 1) % 3] ? 1 : 2;
+      refuse = (accepted[e] & direction) || accepted[e] >= 8;
+    }
+    if (refuse) {
+      ++refused;
+      continue;
+    }
+    for (int k = 0; k < 3; ++k) {
+      const uint32_t e = edges.edge_of_corner[3 * f + k];
+      accepted[e] = (accepted[e] | (t[k] < t[(k + 1) % 3] ? 1 : 2)) + 4;
     }
   }
-  // Components of faces sharing a vertex.
-  DisjointSets vertex_sets(nv);
+  return refused;
+}
+
+// How many sets of `sets` the vertices with member[v] set fall into.
+uint64_t CountSetsAmong(DisjointSets& sets, const std::vector<uint8_t>& member) {
+  std::vector<uint8_t> root_seen(member.size(), 0);
+  uint64_t count = 0;
+  for (size_t v = 0; v < member.size(); ++v) {
+    if (!member[v]) continue;
+    uint32_t r = sets.Find(v);
+    if (!root_seen[r]) {
+      root_seen[r] = 1;
+      ++count;
+    }
+  }
+  return count;
+}
+
+// Components of faces sharing a vertex.
+uint64_t CountComponents(const TriangleSoup& soup, const std::vector<uint8_t>& used) {
+  DisjointSets vertex_sets(soup.positions.size());
   for (const auto& t : soup.triangles) {
     vertex_sets.Union(t[0], t[1]);
     vertex_sets.Union(t[1], t[2]);
   }
-  std::vector<uint8_t> root_seen(nv, 0);
-  d->components = 0;
-  for (size_t v = 0; v < nv; ++v) {
-    if (!used[v]) continue;
-    uint32_t r = vertex_sets.Find(v);
-    if (!root_seen[r]) {
-      root_seen[r] = 1;
-      ++d->components;
+  return CountSetsAmong(vertex_sets, used);
+}
+
+// The corners around a manifold vertex, joined across its two-face edges,
+// form a single fan: count the vertices where they form more.
+uint64_t CountNonManifoldVertices(const TriangleSoup& soup, DisjointSets& corners) {
+  const size_t nv = soup.positions.size(), nf = soup.triangles.size();
+  std::vector<uint32_t> first_root(nv, kNone);
+  std::vector<uint8_t> pinched(nv, 0);
+  for (uint32_t c = 0; c < 3 * nf; ++c) {
+    VertexId v = soup.triangles[c / 3][c % 3];
+    uint32_t r = corners.Find(c);
+    if (first_root[v] == kNone) {
+      first_root[v] = r;
+    } else if (first_root[v] != r) {
+      pinched[v] = 1;
     }
   }
+  return std::count(pinched.begin(), pinched.end(), 1);
+}
+
+// Interior vertices whose angle sum exceeds 2 pi.
+uint64_t CountSaddleVertices(const TriangleSoup& soup, const std::vector<uint8_t>& used,
+                             const std::vector<uint8_t>& on_boundary) {
+  const size_t nv = soup.positions.size();
+  std::vector<double> angle_sum(nv, 0);
+  for (const auto& t : soup.triangles) {
+    for (int k = 0; k < 3; ++k) {
+      const Vec3& p = soup.positions[t[k]];
+      Vec3 u = soup.positions[t[(k + 1) % 3]] - p, w = soup.positions[t[(k + 2) % 3]] - p;
+      double nu = Norm(u), nw = Norm(w);
+      if (nu > 0 && nw > 0)
+        angle_sum[t[k]] += std::acos(std::clamp(Dot(u, w) / (nu * nw), -1.0, 1.0));
+    }
+  }
+  uint64_t saddles = 0;
+  for (size_t v = 0; v < nv; ++v) {
+    saddles += used[v] && !on_boundary[v] && angle_sum[v] > 2 * std::numbers::pi * (1 + 1e-10);
+  }
+  return saddles;
+}
+
+}  // namespace
+
+void ComputeDiagnostics(const TriangleSoup& soup, MeshDiagnostics* d) {
+  const size_t nv = soup.positions.size(), nf = soup.triangles.size();
+  d->vertices = nv;
+  d->faces = nf;
+  d->bbox_diagonal = BoundingBoxDiagonal(soup.positions);
+  d->duplicate_vertices = CountDuplicateVertices(soup.positions);
+  const EdgeUses uses = SortedEdgeUses(soup);
+  std::vector<uint8_t> used(nv, 0);
+  for (const auto& t : soup.triangles) used[t[0]] = used[t[1]] = used[t[2]] = 1;
+  EdgeCensus edges = TakeEdgeCensus(soup, uses);
+  DisjointSets corners = CornerFans(soup, uses);
+  MeasureFaceShapes(soup, d);
+  d->non_manifold_edges = edges.non_manifold_edges;
+  d->edges = edges.edge_count;
+  d->mean_edge_length = edges.edge_count ? edges.edge_sum / edges.edge_count : 0;
+  d->min_edge_length = edges.edge_count ? edges.edge_min : 0;
+  d->isolated_vertices = std::count(used.begin(), used.end(), 0);
+  d->faces_refused = CountRefusedFaces(soup, edges);
+  d->components = CountComponents(soup, used);
   // Boundary loops: components of the graph of boundary edges.
-  std::fill(root_seen.begin(), root_seen.end(), 0);
-  d->boundary_loops = 0;
-  d->boundary_vertices = 0;
-  for (size_t v = 0; v < nv; ++v) {
-    if (!on_boundary[v]) continue;
-    ++d->boundary_vertices;
-    uint32_t r = boundary_sets.Find(v);
-    if (!root_seen[r]) {
-      root_seen[r] = 1;
-      ++d->boundary_loops;
-    }
-  }
-  // Non-manifold vertices: the corners around a vertex, joined across its
-  // two-face edges, must form a single fan.
-  {
-    std::vector<uint32_t> first_root(nv, kNone);
-    std::vector<uint8_t> pinched(nv, 0);
-    for (uint32_t c = 0; c < 3 * nf; ++c) {
-      VertexId v = soup.triangles[c / 3][c % 3];
-      uint32_t r = corners.Find(c);
-      if (first_root[v] == kNone) {
-        first_root[v] = r;
-      } else if (first_root[v] != r) {
-        pinched[v] = 1;
-      }
-    }
-    d->non_manifold_vertices = std::count(pinched.begin(), pinched.end(), 1);
-  }
-  d->manifold = d->non_manifold_edges == 0 && d->non_manifold_vertices == 0 && twice_directed == 0;
+  d->boundary_loops = CountSetsAmong(edges.boundary_sets, edges.on_boundary);
+  d->boundary_vertices = std::count(edges.on_boundary.begin(), edges.on_boundary.end(), 1);
+  d->non_manifold_vertices = CountNonManifoldVertices(soup, corners);
+  d->manifold =
+      d->non_manifold_edges == 0 && d->non_manifold_vertices == 0 && edges.twice_directed == 0;
   // Genus per the manifest: (2 * components - euler - boundary loops) / 2.
-  const int64_t euler = int64_t(nv - d->isolated_vertices) - int64_t(edge_count) + int64_t(nf);
+  const int64_t euler =
+      int64_t(nv - d->isolated_vertices) - int64_t(edges.edge_count) + int64_t(nf);
   d->genus = (2 * int64_t(d->components) - euler - int64_t(d->boundary_loops)) / 2;
-  // Saddles: interior vertices whose angle sum exceeds 2 pi.
-  {
-    std::vector<double> angle_sum(nv, 0);
-    for (const auto& t : soup.triangles) {
-      for (int k = 0; k < 3; ++k) {
-        const Vec3& p = soup.positions[t[k]];
-        Vec3 u = soup.positions[t[(k + 1) % 3]] - p, w = soup.positions[t[(k + 2) % 3]] - p;
-        double nu = Norm(u), nw = Norm(w);
-        if (nu > 0 && nw > 0)
-          angle_sum[t[k]] += std::acos(std::clamp(Dot(u, w) / (nu * nw), -1.0, 1.0));
-      }
-    }
-    d->saddle_vertices = 0;
-    for (size_t v = 0; v < nv; ++v) {
-      d->saddle_vertices +=
-          used[v] && !on_boundary[v] && angle_sum[v] > 2 * std::numbers::pi * (1 + 1e-10);
-    }
-  }
+  d->saddle_vertices = CountSaddleVertices(soup, used, edges.on_boundary);
 }
 
 std::vector<VertexCopy> SplitNonManifoldVertices(TriangleSoup* soup) {

@@ -12,7 +12,6 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/atomic_file.h"
-#include "core/dgg_graph.h"
 #include "core/file_header.h"
 #include "core/status.h"
 #include "xxhash.h"

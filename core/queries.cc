@@ -152,17 +152,62 @@ double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field) {
   return d;
 }
 
-// The field from sources already joined to the graph.
-absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
-                                       const BucketShape& bucket_shape, QueryScratch& sc,
-                                       absl::Span<const Endpoint> sources,
-                                       const FieldOptions& options) {
-  for (VertexId t : options.targets) {
+absl::Status CheckTargets(const Mesh& mesh, absl::Span<const VertexId> targets) {
+  for (VertexId t : targets) {
     if (t >= mesh.num_vertices()) {
       return absl::OutOfRangeError(absl::StrFormat(
           "target vertex %u is out of range (the mesh has %u vertices)", t, mesh.num_vertices()));
     }
   }
+  return absl::OkStatus();
+}
+
+// Vertex sources at 0; other points through their temporary edges. A seed
+// relaxes all its edges. Returns the seeded nodes, sorted, each once.
+std::vector<uint32_t> SeedField(const DggGraph& g, QueryScratch& sc,
+                                absl::Span<const Endpoint> sources) {
+  std::vector<uint32_t> seeds;
+  auto seed = [&](uint32_t u, double d, uint32_t source) {
+    if (!(d < sc.dist[u])) return;
+    sc.dist[u] = d;
+    sc.fan[u] = AllEdges(g, u);
+    sc.label[u] = source;
+    seeds.push_back(u);
+  };
+  for (uint32_t i = 0; i < sources.size(); ++i) {
+    if (sources[i].is_node) seed(sources[i].node, 0, i);
+    for (const TemporaryEdge& e : sources[i].edges) seed(e.node, e.weight, i);
+  }
+  std::sort(seeds.begin(), seeds.end());
+  seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
+  return seeds;
+}
+
+// Back from node order to the mesh's vertex order.
+void CopyFieldToVertexOrder(const Mesh& mesh, const DggGraph& g, const QueryScratch& sc,
+                            const FieldOptions& options, FieldResult& result) {
+  const uint32_t n = mesh.num_vertices();
+  auto node_of_vertex = g.node_of_vertex();
+  result.distance.resize(n);
+  for (VertexId v = 0; v < n; ++v) {
+    const double d = sc.dist[node_of_vertex[v]];
+    result.distance[v] = d > options.max_distance ? kInfinity : d;
+  }
+  if (options.nearest_source) {
+    result.nearest_source.resize(n);
+    for (VertexId v = 0; v < n; ++v) {
+      result.nearest_source[v] =
+          result.distance[v] == kInfinity ? kNone : sc.label[node_of_vertex[v]];
+    }
+  }
+}
+
+// The field from sources already joined to the graph.
+absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
+                                       const BucketShape& bucket_shape, QueryScratch& sc,
+                                       absl::Span<const Endpoint> sources,
+                                       const FieldOptions& options) {
+  RETURN_IF_ERROR(CheckTargets(mesh, options.targets));
   const uint32_t nodes = g.num_nodes();
   sc.PrepareField(nodes);
   std::vector<double>& dist = sc.dist;
@@ -172,22 +217,7 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
   if (options.nearest_source) std::fill(label.begin(), label.begin() + nodes, kNone);
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
 
-  // Seed: vertex sources at 0; other points through their temporary edges.
-  // A seed relaxes all its edges.
-  std::vector<uint32_t> seeds;
-  auto seed = [&](uint32_t u, double d, uint32_t source) {
-    if (!(d < dist[u])) return;
-    dist[u] = d;
-    fan[u] = AllEdges(g, u);
-    label[u] = source;
-    seeds.push_back(u);
-  };
-  for (uint32_t i = 0; i < sources.size(); ++i) {
-    if (sources[i].is_node) seed(sources[i].node, 0, i);
-    for (const TemporaryEdge& e : sources[i].edges) seed(e.node, e.weight, i);
-  }
-  std::sort(seeds.begin(), seeds.end());
-  seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
+  const std::vector<uint32_t> seeds = SeedField(g, sc, sources);
 
   FieldResult result;
   size_t targets_left = options.targets.size();
@@ -235,20 +265,7 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
     run(sc.buckets);
   }
   if (cancelled) return absl::CancelledError("field cancelled");
-  // Back from node order to the mesh's vertex order.
-  const uint32_t n = mesh.num_vertices();
-  auto node_of_vertex = g.node_of_vertex();
-  result.distance.resize(n);
-  for (VertexId v = 0; v < n; ++v) {
-    const double d = dist[node_of_vertex[v]];
-    result.distance[v] = d > options.max_distance ? kInfinity : d;
-  }
-  if (options.nearest_source) {
-    result.nearest_source.resize(n);
-    for (VertexId v = 0; v < n; ++v) {
-      result.nearest_source[v] = result.distance[v] == kInfinity ? kNone : label[node_of_vertex[v]];
-    }
-  }
+  CopyFieldToVertexOrder(mesh, g, sc, options, result);
   return result;
 }
 
