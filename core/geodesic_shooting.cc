@@ -33,6 +33,47 @@ std::array<double, 3> Barycentric(const Vec2& a, const Vec2& b, const Vec2& c, c
   return {wa, wb, 1 - wa - wb};
 }
 
+// The corner of v whose angle holds `polar_angle`, or kNone.
+HalfedgeId CornerContaining(const Mesh& mesh, VertexId v, double polar_angle) {
+  HalfedgeId h = mesh.vertex_halfedge(v);
+  const HalfedgeId start = h;
+  do {
+    if (polar_angle >= mesh.polar_angle(h) &&
+        polar_angle <= mesh.polar_angle(h) + mesh.corner_angle(h)) {
+      return h;
+    }
+    h = mesh.rotate(h);
+  } while (h != kNone && h != start);
+  return kNone;
+}
+
+// Where a ray from p along dir leaves face f (corner images `pos`): the
+// first edge other than `entry` it meets, at distance s along the ray and t
+// along the edge. edge kNone: it meets none.
+struct FaceExit {
+  HalfedgeId edge = kNone;
+  double s = std::numeric_limits<double>::infinity();
+  double t = 0;
+};
+
+FaceExit FirstExit(FaceId f, const std::array<Vec2, 3>& pos, const Vec2& p, const Vec2& dir,
+                   HalfedgeId entry) {
+  FaceExit exit;
+  for (int e = 0; e < 3; ++e) {
+    const HalfedgeId g = Mesh::halfedge(f, e);
+    if (g == entry) continue;
+    const Vec2 q0 = pos[e], q1 = pos[(e + 1) % 3];
+    const double den = Cross(q1 - q0, dir);
+    if (std::abs(den) < 1e-300) continue;
+    const double s = Cross(q0 - p, q1 - q0) / -den;
+    const double t = Cross(q0 - p, dir) / -den;
+    if (s > 1e-15 && t >= -1e-12 && t <= 1 + 1e-12 && s < exit.s) {
+      exit = {g, s, std::clamp(t, 0.0, 1.0)};
+    }
+  }
+  return exit;
+}
+
 }  // namespace
 
 absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar_angle,
@@ -43,18 +84,7 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
   if (!std::isfinite(polar_angle) || !(length > 0)) {
     return absl::InvalidArgumentError("shooting needs a finite angle and a positive length");
   }
-  // The corner of v that contains the direction.
-  HalfedgeId h = mesh.vertex_halfedge(v);
-  const HalfedgeId start = h;
-  HalfedgeId corner = kNone;
-  do {
-    if (polar_angle >= mesh.polar_angle(h) &&
-        polar_angle <= mesh.polar_angle(h) + mesh.corner_angle(h)) {
-      corner = h;
-      break;
-    }
-    h = mesh.rotate(h);
-  } while (h != kNone && h != start);
+  const HalfedgeId corner = CornerContaining(mesh, v, polar_angle);
   if (corner == kNone) {
     return absl::InvalidArgumentError(
         absl::StrFormat("angle %g is outside vertex %u's faces", polar_angle, v));
@@ -81,24 +111,7 @@ absl::StatusOr<ShotEnd> ShootGeodesic(const Mesh& mesh, VertexId v, double polar
     strip->end = q;
   };
   for (size_t step = 0; step < 4 * mesh.num_faces() + 8; ++step) {
-    // Leave f through the first edge the ray meets (other than the entry).
-    double best_s = std::numeric_limits<double>::infinity();
-    HalfedgeId exit = kNone;
-    double exit_t = 0;
-    for (int e = 0; e < 3; ++e) {
-      const HalfedgeId g = Mesh::halfedge(f, e);
-      if (g == entry) continue;
-      const Vec2 q0 = pos[e], q1 = pos[(e + 1) % 3];
-      const double den = Cross(q1 - q0, dir);
-      if (std::abs(den) < 1e-300) continue;
-      const double s = Cross(q0 - p, q1 - q0) / -den;
-      const double t = Cross(q0 - p, dir) / -den;
-      if (s > 1e-15 && t >= -1e-12 && t <= 1 + 1e-12 && s < best_s) {
-        best_s = s;
-        exit = g;
-        exit_t = std::clamp(t, 0.0, 1.0);
-      }
-    }
+    const auto [exit, best_s, exit_t] = FirstExit(f, pos, p, dir, entry);
     const double remaining = length - travelled;
     if (exit == kNone || best_s >= remaining) {
       const double s = exit == kNone ? 0 : remaining;
