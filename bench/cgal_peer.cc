@@ -19,7 +19,7 @@
 #include <string>
 #include <vector>
 
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 #include "nlohmann/json.hpp"
 
 namespace {

@@ -109,6 +109,49 @@ def median_of(runs):
     return statistics.median(runs)
 
 
+def measure_fields(daemon, args, name, vertices, graph_path, workdir, rng, out):
+    """A full field: streamed to the CLI and written to a file, against the
+    core's solve alone."""
+    mesh_root = os.path.join(SHARED, "meshes")
+    streamed, solve = [], []
+    f64 = os.path.join(workdir, "field.f64")
+    for run in range(args.field_runs):
+        source = "v:%d" % rng.randrange(vertices)
+        streamed.append(daemon.json("field", "--source", source, "--out", f64,
+                                    mesh=name, eps=args.eps)["seconds"])
+        r = subprocess.run([os.path.join(BIN, "geodesicd"), "field", "--mesh",
+                            os.path.join(mesh_root, args.mesh), "--graph", graph_path,
+                            "--source", source, "--out", f64 + ".core", "--json"],
+                           capture_output=True, text=True, check=True)
+        solve.append(json.loads(r.stdout)["solve_seconds"])
+    out["field_streamed_ms"] = 1e3 * median_of(streamed)
+    out["field_core_ms"] = 1e3 * median_of(solve)
+
+
+def measure_restart(graph_dir, mesh_root, log, args, big, out):
+    """A restarted daemon: how soon it listens, restores the large mesh, maps
+    its graph and answers."""
+    daemon = Daemon(graph_dir, mesh_root, log)
+    try:
+        out["restart_listening_s"] = daemon.ready_seconds
+        t0 = time.monotonic()
+        loaded = daemon.json("load", args.big, mesh=big)
+        out["restart_mesh_load_s"] = time.monotonic() - t0
+        out["restart_mesh_restored"] = loaded["restored"]
+        t1 = time.monotonic()
+        g = daemon.json("graph", "--wait", mesh=big, eps=args.big_eps)
+        out["restart_graph_s"] = time.monotonic() - t1
+        out["restart_graph_from_file"] = g["from_file"]
+        t2 = time.monotonic()
+        daemon.json("distance", "--from", "v:0", "--to", "v:%d" % (g["nodes"] // 2),
+                    mesh=big, eps=args.big_eps)
+        out["restart_first_query_s"] = time.monotonic() - t2
+        out["restart_graph_to_answer_s"] = time.monotonic() - t1
+        out["restart_start_to_answer_s"] = time.monotonic() - daemon.started
+    finally:
+        daemon.stop()
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -169,21 +212,7 @@ def main():
                 "qps_2_cores": 2 / statistics.fmean(secs),
             }
 
-        # A full field: streamed to the CLI and written to a file, against
-        # the core's solve alone.
-        streamed, solve = [], []
-        f64 = os.path.join(workdir, "field.f64")
-        for run in range(args.field_runs):
-            source = "v:%d" % rng.randrange(vertices)
-            streamed.append(daemon.json("field", "--source", source, "--out", f64,
-                                        mesh=name, eps=args.eps)["seconds"])
-            r = subprocess.run([os.path.join(BIN, "geodesicd"), "field", "--mesh",
-                                os.path.join(mesh_root, args.mesh), "--graph", graph_path,
-                                "--source", source, "--out", f64 + ".core", "--json"],
-                               capture_output=True, text=True, check=True)
-            solve.append(json.loads(r.stdout)["solve_seconds"])
-        out["field_streamed_ms"] = 1e3 * median_of(streamed)
-        out["field_core_ms"] = 1e3 * median_of(solve)
+        measure_fields(daemon, args, name, vertices, graph_path, workdir, rng, out)
 
         # The large graph: build (or map) it once, then restart and time the
         # first answer.
@@ -199,25 +228,7 @@ def main():
     finally:
         daemon.stop()
 
-    daemon = Daemon(graph_dir, mesh_root, log)
-    try:
-        out["restart_listening_s"] = daemon.ready_seconds
-        t0 = time.monotonic()
-        loaded = daemon.json("load", args.big, mesh=big)
-        out["restart_mesh_load_s"] = time.monotonic() - t0
-        out["restart_mesh_restored"] = loaded["restored"]
-        t1 = time.monotonic()
-        g = daemon.json("graph", "--wait", mesh=big, eps=args.big_eps)
-        out["restart_graph_s"] = time.monotonic() - t1
-        out["restart_graph_from_file"] = g["from_file"]
-        t2 = time.monotonic()
-        daemon.json("distance", "--from", "v:0", "--to", "v:%d" % (g["nodes"] // 2),
-                    mesh=big, eps=args.big_eps)
-        out["restart_first_query_s"] = time.monotonic() - t2
-        out["restart_graph_to_answer_s"] = time.monotonic() - t1
-        out["restart_start_to_answer_s"] = time.monotonic() - daemon.started
-    finally:
-        daemon.stop()
+    measure_restart(graph_dir, mesh_root, log, args, big, out)
     print(json.dumps(out, indent=1), file=sys.stderr)
     text = markdown(args, out)
     if args.markdown == "-":

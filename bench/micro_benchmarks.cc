@@ -10,11 +10,11 @@
 #include <filesystem>
 #include <random>
 
-#include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
-#include "core/graph_file.h"
-#include "core/mesh_io.h"
-#include "core/queries.h"
+#include "core/dgg/dgg_build.h"
+#include "core/dgg/graph_file.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/geodesic_engine.h"
 
 namespace geodesic {
 namespace {

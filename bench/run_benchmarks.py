@@ -73,6 +73,61 @@ def truth_sources(name):
                   if f.startswith(name + ".exact.s"))
 
 
+def cgal_columns(cgal):
+    """The CGAL peer's columns of a row: times and errors against the truth."""
+    return {
+        "cgal_heat_s": cgal["heat_setup_seconds"] + cgal["heat_solve_seconds"],
+        "cgal_heat_solve_s": cgal["heat_solve_seconds"],
+        "cgal_heat_idt_s": cgal["heat_idt_setup_seconds"] + cgal["heat_idt_solve_seconds"],
+        "cgal_exact_s": cgal["exact_seconds"],
+        "cgal_heat_mean_err": cgal["heat_err"][0], "cgal_heat_max_err": cgal["heat_err"][1],
+        "cgal_heat_p99_err": cgal["heat_err"][3],
+        "cgal_heat_idt_p99_err": cgal["heat-idt_err"][3],
+        "cgal_heat_idt_mean_err": cgal["heat-idt_err"][0],
+        "cgal_heat_idt_max_err": cgal["heat-idt_err"][1],
+        "cgal_exact_max_err": cgal["exact_err"][1],
+    }
+
+
+def pair_columns(name, mesh, graph, work, quick, eps):
+    """The point-to-point columns of a row, on the shared exact pairs (none without them)."""
+    tdir = os.path.join(SHARED, "truth")
+    pairs = os.path.join(tdir, f"{name}.p2p.pairs")
+    if not os.path.exists(pairs):
+        return {}
+    lines = open(pairs).read().split("\n")
+    if quick:
+        lines = lines[:50]
+    pf = f"{work}/pairs.txt"
+    open(pf, "w").write("\n".join(lines))
+    count = len([line for line in lines if line.strip()])
+    exact_file = os.path.join(tdir, f"{name}.p2p.exact")
+    exact = np.array([float(x) for x in open(exact_file).read().split()])[:count]
+    res = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
+                    "--pairs", pf, "--json"])
+    lat = np.array([r["seconds"] for r in res])
+    dist = np.array([r["distance"] if r["distance"] is not None else np.inf for r in res])
+    plain = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
+                      "--pairs", pf, "--json", "--no-astar"])
+    straight = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
+                         "--pairs", pf, "--json", "--landmarks", "0"])
+    paths = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
+                      "--pairs", pf, "--json", "--path"])
+    m = np.isfinite(exact) & (exact > 0)
+    e = (dist[m] - exact[m]) / exact[m]
+    return {
+        "p2p_p50_ms": 1e3 * np.percentile(lat, 50), "p2p_p90_ms": 1e3 * np.percentile(lat, 90),
+        "p2p_p99_ms": 1e3 * np.percentile(lat, 99),
+        "p2p_mean_err_eps": np.abs(e).mean() / eps, "p2p_max_err_eps": np.abs(e).max() / eps,
+        "p2p_p99_err_eps": np.percentile(np.abs(e), 99) / eps,
+        "astar_settled": np.mean([r["settled"] for r in res]),
+        "straight_settled": np.mean([r["settled"] for r in straight]),
+        "straight_p50_ms": 1e3 * np.percentile([r["seconds"] for r in straight], 50),
+        "dijkstra_settled": np.mean([r["settled"] for r in plain]),
+        "path_p50_ms": 1e3 * np.percentile([r["seconds"] for r in paths], 50),
+    }
+
+
 def bench_mesh(name, eps_list, rows, quick, plain_max_vertices):
     mesh = os.path.join(SHARED, "meshes", MESHES[name])
     info = run_json([f"{BIN}/geodesicd", "info", mesh, "--json"])
@@ -155,49 +210,8 @@ def bench_mesh(name, eps_list, rows, quick, plain_max_vertices):
             "plain_peak_mem_mb": plain["peak_memory_bytes"] / 2**20 if plain else None,
         }
         if cgal:
-            row.update({
-                "cgal_heat_s": cgal["heat_setup_seconds"] + cgal["heat_solve_seconds"],
-                "cgal_heat_solve_s": cgal["heat_solve_seconds"],
-                "cgal_heat_idt_s": cgal["heat_idt_setup_seconds"] + cgal["heat_idt_solve_seconds"],
-                "cgal_exact_s": cgal["exact_seconds"],
-                "cgal_heat_mean_err": cgal["heat_err"][0], "cgal_heat_max_err": cgal["heat_err"][1],
-                "cgal_heat_p99_err": cgal["heat_err"][3],
-                "cgal_heat_idt_p99_err": cgal["heat-idt_err"][3],
-                "cgal_heat_idt_mean_err": cgal["heat-idt_err"][0],
-                "cgal_heat_idt_max_err": cgal["heat-idt_err"][1],
-                "cgal_exact_max_err": cgal["exact_err"][1],
-            })
-        pairs = os.path.join(tdir, f"{name}.p2p.pairs")
-        if os.path.exists(pairs):
-            lines = open(pairs).read().split("\n")
-            if quick:
-                lines = lines[:50]
-            pf = f"{work}/pairs.txt"
-            open(pf, "w").write("\n".join(lines))
-            exact = np.array([float(x) for x in open(os.path.join(tdir, f"{name}.p2p.exact")).read().split()])[: len([l for l in lines if l.strip()])]
-            res = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
-                            "--pairs", pf, "--json"])
-            lat = np.array([r["seconds"] for r in res])
-            dist = np.array([r["distance"] if r["distance"] is not None else np.inf for r in res])
-            plain = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
-                              "--pairs", pf, "--json", "--no-astar"])
-            straight = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
-                                 "--pairs", pf, "--json", "--landmarks", "0"])
-            paths = run_json([f"{BIN}/geodesicd", "distance", "--mesh", mesh, "--graph", graph,
-                              "--pairs", pf, "--json", "--path"])
-            m = np.isfinite(exact) & (exact > 0)
-            e = (dist[m] - exact[m]) / exact[m]
-            row.update({
-                "p2p_p50_ms": 1e3 * np.percentile(lat, 50), "p2p_p90_ms": 1e3 * np.percentile(lat, 90),
-                "p2p_p99_ms": 1e3 * np.percentile(lat, 99),
-                "p2p_mean_err_eps": np.abs(e).mean() / eps, "p2p_max_err_eps": np.abs(e).max() / eps,
-                "p2p_p99_err_eps": np.percentile(np.abs(e), 99) / eps,
-                "astar_settled": np.mean([r["settled"] for r in res]),
-                "straight_settled": np.mean([r["settled"] for r in straight]),
-                "straight_p50_ms": 1e3 * np.percentile([r["seconds"] for r in straight], 50),
-                "dijkstra_settled": np.mean([r["settled"] for r in plain]),
-                "path_p50_ms": 1e3 * np.percentile([r["seconds"] for r in paths], 50),
-            })
+            row.update(cgal_columns(cgal))
+        row.update(pair_columns(name, mesh, graph, work, quick, eps))
         rows.append(row)
         print(json.dumps({k: (round(v, 4) if isinstance(v, float) else v) for k, v in row.items()}),
               flush=True)

@@ -7,7 +7,7 @@
 #     accuracy suites (*SharedMeshes*, CgalTruth) are left out:
 #     single-threaded numerics under TSan's slowdown, already run plain
 #     and under ASan. So is the 1-against-4-threads build
-#     comparison: TSan builds keep TBB to one thread (core/dgg_build.cc), so
+#     comparison: TSan builds keep TBB to one thread (core/base/thread_arena.h), so
 #     it could only compare one thread with one thread.
 # Debian's gRPC, Abseil, OpenMesh and TBB are not instrumented: TSan cannot
 # see their synchronisation, which is why the daemon runs under ASan only.

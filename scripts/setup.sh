@@ -36,7 +36,7 @@ BUILD_PACKAGES=(
 TEST_PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
   python3 python3-grpcio python3-protobuf python3-numpy python3-yaml python3-matplotlib openssl
-  libjs-three chromium chromium-driver python3-selenium curl
+  libjs-three chromium chromium-driver python3-selenium curl universal-ctags
   python3-venv python3-pip python3-setuptools python3-wheel
 )
 PACKAGES=("${BUILD_PACKAGES[@]}")

@@ -10,8 +10,8 @@
 
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
-#include "core/atomic_file.h"
-#include "core/status.h"
+#include "core/base/atomic_file.h"
+#include "core/base/status.h"
 #include "nlohmann/json.hpp"
 
 namespace geodesic::server {

@@ -20,7 +20,7 @@
 
 #include "absl/functional/function_ref.h"
 #include "absl/status/statusor.h"
-#include "core/dgg_graph.h"
+#include "core/dgg/dgg_graph.h"
 
 namespace geodesic::server {
 
@@ -30,7 +30,7 @@ struct CatalogMesh {
   // root, or the operator's own), or "upload".
   std::string source;
   std::string format;        // "obj", "off", "ply" or "stl"
-  uint64_t source_hash = 0;  // the mesh snapshot's key (core/mesh_snapshot.h)
+  uint64_t source_hash = 0;  // the mesh snapshot's key (core/mesh/mesh_snapshot.h)
   uint64_t fingerprint = 0;  // of the built mesh: graphs are keyed by it
   bool repair_non_manifold = false;
 };

@@ -1,7 +1,7 @@
 #include "server/catalog_sync.h"
 
 #include "absl/strings/str_format.h"
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/log.h"
 
 namespace geodesic::server {

@@ -13,7 +13,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
-#include "core/surface_point.h"
+#include "core/mesh/surface_point.h"
 #include "geodesic/v1/geodesic.pb.h"
 #include "grpcpp/support/status.h"
 #include "server/graph_cache.h"

@@ -9,9 +9,9 @@
 
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
-#include "core/atomic_file.h"
-#include "core/status.h"
-#include "core/version.h"
+#include "core/base/atomic_file.h"
+#include "core/base/status.h"
+#include "core/base/version.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "nlohmann/json.hpp"
 #include "server/log.h"

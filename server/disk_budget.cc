@@ -10,8 +10,8 @@
 
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
-#include "core/graph_file.h"
-#include "core/mesh_snapshot.h"
+#include "core/dgg/graph_file.h"
+#include "core/mesh/mesh_snapshot.h"
 
 namespace geodesic::server {
 namespace {

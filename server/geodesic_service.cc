@@ -11,8 +11,8 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
-#include "core/dgg_build.h"
-#include "core/status.h"
+#include "core/base/status.h"
+#include "core/dgg/dgg_build.h"
 #include "server/constant_time.h"
 #include "server/convert.h"
 #include "server/log.h"
@@ -99,7 +99,7 @@ std::string CapMessage(std::string message, std::string_view mesh) {
   return message;
 }
 
-// What a query holds besides the graph, by kind (core/query_scratch.h): a
+// What a query holds besides the graph, by kind (core/query/query_scratch.h): a
 // field solve sizes its arrays to the graph's nodes and answers per mesh
 // vertex; a point-to-point search keeps a 4-byte index per node and records
 // for the few thousand nodes it touches.

@@ -11,8 +11,8 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
-#include "core/atomic_file.h"
-#include "core/landmarks.h"
+#include "core/base/atomic_file.h"
+#include "core/query/landmarks.h"
 #include "server/log.h"
 
 namespace geodesic::server {

@@ -60,9 +60,9 @@
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "absl/time/time.h"
-#include "core/dgg_build.h"
-#include "core/graph_file.h"
-#include "core/queries.h"
+#include "core/dgg/dgg_build.h"
+#include "core/dgg/graph_file.h"
+#include "core/query/geodesic_engine.h"
 #include "server/disk_budget.h"
 #include "server/mesh_registry.h"
 
@@ -102,7 +102,7 @@ struct GraphStatus {
   double progress = 0;
   std::string error;
   uint64_t bytes = 0;  // the graph's arrays, resident or mapped
-  // Resident memory for point-to-point bounds (core/landmarks.h), computed in
+  // Resident memory for point-to-point bounds (core/query/landmarks.h), computed in
   // the background once the graph is ready.
   uint64_t landmark_bytes = 0;
   bool mapped = false;

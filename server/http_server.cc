@@ -20,7 +20,7 @@
 #include <thread>
 
 #include "absl/strings/str_format.h"
-#include "core/status.h"
+#include "core/base/status.h"
 #include "server/listen_socket.h"
 
 namespace geodesic::server {

@@ -3,7 +3,7 @@
 #include <cstring>
 #include <string_view>
 
-#include "core/version.h"
+#include "core/base/version.h"
 #include "server/offline/commands.h"
 #include "server/serve.h"
 

@@ -21,9 +21,9 @@
 #include "absl/status/status.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/str_format.h"
-#include "core/dgg_graph.h"
-#include "core/mesh_snapshot.h"
-#include "core/status.h"
+#include "core/base/status.h"
+#include "core/dgg/dgg_graph.h"
+#include "core/mesh/mesh_snapshot.h"
 #include "server/convert.h"
 #include "server/log.h"
 

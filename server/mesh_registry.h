@@ -14,9 +14,9 @@
 #include "absl/base/thread_annotations.h"
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
-#include "core/mesh.h"
-#include "core/mesh_io.h"
-#include "core/surface_locator.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/mesh_io.h"
+#include "core/mesh/surface_locator.h"
 
 namespace geodesic::server {
 
@@ -38,7 +38,7 @@ struct RegisteredMesh {
   std::string name;
   std::string source;  // path, or "upload"
   std::string format;  // "obj", "off", "ply" or "stl"
-  // The key of its snapshot (core/mesh_snapshot.h): the source bytes' hash.
+  // The key of its snapshot (core/mesh/mesh_snapshot.h): the source bytes' hash.
   uint64_t source_hash = 0;
   uint64_t fingerprint = 0;
   std::shared_ptr<const Mesh> mesh;
@@ -55,7 +55,7 @@ class MeshRegistry {
  public:
   // `snapshot_dir`: where built meshes are saved, keyed by their file's
   // bytes, and restored from when the same bytes are registered again
-  // (core/mesh_snapshot.h); empty for never.
+  // (core/mesh/mesh_snapshot.h); empty for never.
   //
   // With `durable`, a registration returns only once its snapshot is on disk
   // (fsynced), so that a catalog entry recorded afterwards can always be

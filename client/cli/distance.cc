@@ -5,8 +5,8 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "client/cli/commands.h"
-#include "core/result_files.h"
-#include "core/surface_point.h"
+#include "core/mesh/surface_point.h"
+#include "core/query/result_files.h"
 #include "server/convert.h"
 
 namespace geodesic::cli {

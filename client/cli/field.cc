@@ -8,8 +8,8 @@
 #include "absl/status/status.h"
 #include "absl/strings/match.h"
 #include "client/cli/commands.h"
-#include "core/mesh_io.h"
-#include "core/result_files.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/result_files.h"
 
 namespace geodesic::cli {
 namespace {

@@ -3,7 +3,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/cli/commands.h"
-#include "core/version.h"
+#include "core/base/version.h"
 
 int main(int argc, char** argv) {
   using namespace geodesic::cli;

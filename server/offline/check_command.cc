@@ -7,9 +7,9 @@
 #include "CLI/CLI.hpp"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
-#include "core/accuracy_check.h"
-#include "core/graph_file.h"
-#include "core/status.h"
+#include "core/base/status.h"
+#include "core/dgg/graph_file.h"
+#include "core/query/accuracy_check.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 

@@ -8,10 +8,10 @@
 #include "absl/status/status.h"
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
-#include "core/mesh_io.h"
-#include "core/result_files.h"
-#include "core/status.h"
-#include "core/surface_locator.h"
+#include "core/base/status.h"
+#include "core/mesh/mesh_io.h"
+#include "core/mesh/surface_locator.h"
+#include "core/query/result_files.h"
 
 namespace geodesic::offline {
 

@@ -9,10 +9,10 @@
 
 #include "CLI/CLI.hpp"
 #include "absl/status/statusor.h"
-#include "core/dgg_graph.h"
-#include "core/mesh.h"
-#include "core/surface_locator.h"
-#include "core/surface_point.h"
+#include "core/dgg/dgg_graph.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/surface_locator.h"
+#include "core/mesh/surface_point.h"
 #include "nlohmann/json.hpp"
 
 namespace geodesic::offline {
@@ -65,7 +65,7 @@ absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& s
 nlohmann::ordered_json SnapJson(const PointResolver::Resolved& r);
 
 // Writes a field in the format the path's extension names
-// (core/result_files.h: .f64, .npy, .csv, or .ply coloured on `mesh`).
+// (core/query/result_files.h: .f64, .npy, .csv, or .ply coloured on `mesh`).
 absl::Status WriteFieldFile(const std::string& path, const std::vector<double>& values,
                             const Mesh& mesh);
 

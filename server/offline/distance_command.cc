@@ -5,10 +5,10 @@
 
 #include "CLI/CLI.hpp"
 #include "absl/strings/str_format.h"
-#include "core/graph_file.h"
-#include "core/queries.h"
-#include "core/result_files.h"
-#include "core/status.h"
+#include "core/base/status.h"
+#include "core/dgg/graph_file.h"
+#include "core/query/geodesic_engine.h"
+#include "core/query/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 

@@ -3,8 +3,8 @@
 #include <cstdio>
 
 #include "CLI/CLI.hpp"
-#include "core/exact_geodesic.h"
-#include "core/result_files.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/query/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 

@@ -4,10 +4,10 @@
 #include <cstdio>
 
 #include "CLI/CLI.hpp"
-#include "core/graph_file.h"
-#include "core/queries.h"
-#include "core/result_files.h"
-#include "core/status.h"
+#include "core/base/status.h"
+#include "core/dgg/graph_file.h"
+#include "core/query/geodesic_engine.h"
+#include "core/query/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 

@@ -2,7 +2,7 @@
 #include <cstdio>
 
 #include "absl/strings/str_format.h"
-#include "core/graph_file.h"
+#include "core/dgg/graph_file.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 

@@ -2,7 +2,7 @@
 #include <cstdio>
 
 #include "CLI/CLI.hpp"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 

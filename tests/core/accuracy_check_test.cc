@@ -1,17 +1,17 @@
 // The accuracy check: each broken inequality is counted where it happens,
 // errors are measured as the DGG contract states them, and a real graph on
 // real meshes passes with the contract's margins.
-#include "core/accuracy_check.h"
+#include "core/query/accuracy_check.h"
 
 #include <algorithm>
 #include <cmath>
 #include <memory>
 #include <set>
 
-#include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
-#include "core/mesh_io.h"
-#include "core/queries.h"
+#include "core/dgg/dgg_build.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/geodesic_engine.h"
 #include "gmock/gmock.h"
 #include "tests/core/test_util.h"
 

@@ -1,4 +1,4 @@
-#include "core/bucket_queue.h"
+#include "core/base/bucket_queue.h"
 
 #include <algorithm>
 #include <cmath>
@@ -6,7 +6,7 @@
 #include <random>
 #include <vector>
 
-#include "core/node_heap.h"
+#include "core/base/node_heap.h"
 #include "gtest/gtest.h"
 
 namespace geodesic {

@@ -6,10 +6,10 @@
 #include <thread>
 #include <vector>
 
-#include "core/candidate_runs.h"
-#include "core/dgg_build.h"
-#include "core/large_array.h"
-#include "core/mesh_io.h"
+#include "core/base/large_array.h"
+#include "core/dgg/candidate_runs.h"
+#include "core/dgg/dgg_build.h"
+#include "core/mesh/mesh_io.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"

@@ -17,10 +17,10 @@
 #include <random>
 #include <vector>
 
-#include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
-#include "core/mesh_io.h"
-#include "core/queries.h"
+#include "core/dgg/dgg_build.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {

@@ -11,11 +11,11 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
-#include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
-#include "core/graph_file.h"
-#include "core/mesh_io.h"
-#include "core/queries.h"
+#include "core/dgg/dgg_build.h"
+#include "core/dgg/graph_file.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/geodesic_engine.h"
 #include "tbb/global_control.h"
 #include "tests/core/test_util.h"
 
@@ -320,7 +320,7 @@ TEST_F(SpotGraphTest, CancelledFieldSaysSo) {
 // One thread against four, whatever the machine: the global control lets TBB
 // run more workers than there are cores, and the progress callback (called
 // from whichever thread finished a chunk) shows that more than one thread
-// really took part. TSan builds keep TBB to one thread (core/dgg_build.cc),
+// really took part. TSan builds keep TBB to one thread (core/base/thread_arena.h),
 // so there this cannot compare anything; scripts/sanitize.sh leaves it out.
 TEST_F(SpotGraphTest, BuildIsIdenticalWhateverTheThreadCount) {
 #ifdef GEODESIC_TSAN

@@ -1,10 +1,10 @@
-#include "core/exact_geodesic.h"
+#include "core/exact/exact_geodesic.h"
 
 #include <cmath>
 #include <filesystem>
 #include <random>
 
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {

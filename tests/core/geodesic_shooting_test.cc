@@ -1,10 +1,10 @@
-#include "core/geodesic_shooting.h"
+#include "core/exact/geodesic_shooting.h"
 
 #include <cmath>
 
-#include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
-#include "core/mesh_io.h"
+#include "core/dgg/dgg_build.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"
 

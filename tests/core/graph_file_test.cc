@@ -1,6 +1,6 @@
 // Graph files as untrusted input, beyond checksums: structurally wrong files
 // with valid checksums, other format versions, and failed writes.
-#include "core/graph_file.h"
+#include "core/dgg/graph_file.h"
 
 #include <signal.h>
 #include <sys/resource.h>
@@ -12,7 +12,7 @@
 #include <set>
 
 #include "absl/strings/str_cat.h"
-#include "core/dgg_graph_internal.h"
+#include "core/dgg/dgg_graph_internal.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"
 

@@ -1,7 +1,7 @@
 // Mesh loading: the shared meshes load with their manifest's counts and the
 // file's vertex order; diagnostics match the manifest; broken files get
 // precise errors; the half-edge structure is consistent.
-#include "core/mesh_io.h"
+#include "core/mesh/mesh_io.h"
 
 #include <cmath>
 #include <filesystem>
@@ -10,8 +10,8 @@
 #include <random>
 #include <sstream>
 
-#include "core/surface_locator.h"
-#include "core/surface_point.h"
+#include "core/mesh/surface_locator.h"
+#include "core/mesh/surface_point.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {

@@ -1,11 +1,11 @@
-#include "core/mesh_snapshot.h"
+#include "core/mesh/mesh_snapshot.h"
 
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 
-#include "core/dgg_graph.h"
-#include "core/mesh_io.h"
+#include "core/dgg/dgg_graph.h"
+#include "core/mesh/mesh_io.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {

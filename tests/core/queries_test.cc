@@ -1,7 +1,5 @@
 // Point-to-point queries and paths on a DGG against the independent exact
 // solver's pairs (../shared/truth/<mesh>.p2p.*) and our exact engine.
-#include "core/queries.h"
-
 #include <atomic>
 #include <cmath>
 #include <filesystem>
@@ -10,10 +8,11 @@
 #include <sstream>
 #include <thread>
 
-#include "core/dgg_build.h"
-#include "core/exact_geodesic.h"
-#include "core/mesh_io.h"
-#include "core/node_heap.h"
+#include "core/base/node_heap.h"
+#include "core/dgg/dgg_build.h"
+#include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -422,7 +421,7 @@ std::vector<SurfacePoint> MixedPoints(const Mesh& mesh, uint32_t seed) {
 
 // A matrix entry is the pair's distance, to the last bit: Matrix and
 // Distance join points to the graph the same way and sum a path's hops in
-// the same order (SumAlongPath in queries.cc). A point's distance to itself
+// the same order (SumAlongRoute in core/query/point_to_point.cc). A point's distance to itself
 // is 0, whatever kind of point it is.
 void ExpectMatrixEqualsPairs(const GeodesicEngine& engine,
                              const std::vector<SurfacePoint>& points) {

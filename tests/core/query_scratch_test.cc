@@ -1,11 +1,11 @@
 // Query scratch: the point-to-point hash table and the engine's pool.
-#include "core/query_scratch.h"
+#include "core/query/query_scratch.h"
 
 #include <random>
 #include <set>
 
-#include "core/dgg_build.h"
-#include "core/queries.h"
+#include "core/dgg/dgg_build.h"
+#include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {

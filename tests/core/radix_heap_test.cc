@@ -1,4 +1,4 @@
-#include "core/radix_heap.h"
+#include "core/base/radix_heap.h"
 
 #include <algorithm>
 #include <cmath>

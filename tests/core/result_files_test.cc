@@ -1,5 +1,5 @@
 // Result files in every format, read back byte by byte.
-#include "core/result_files.h"
+#include "core/query/result_files.h"
 
 #include <cstring>
 #include <fstream>

@@ -6,7 +6,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
-#include "core/mesh.h"
+#include "core/mesh/mesh.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 

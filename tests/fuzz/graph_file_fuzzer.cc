@@ -9,9 +9,9 @@
 #include <memory>
 #include <string>
 
-#include "core/graph_file.h"
-#include "core/mesh_io.h"
-#include "core/queries.h"
+#include "core/dgg/graph_file.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/geodesic_engine.h"
 
 namespace {
 

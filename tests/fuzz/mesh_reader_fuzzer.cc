@@ -5,8 +5,8 @@
 #include <cstdint>
 #include <string_view>
 
-#include "core/mesh.h"
-#include "core/mesh_io.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/mesh_io.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   if (size == 0) return 0;

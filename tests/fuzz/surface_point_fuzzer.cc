@@ -5,8 +5,8 @@
 #include <memory>
 #include <string_view>
 
-#include "core/mesh_io.h"
-#include "core/surface_point.h"
+#include "core/mesh/mesh_io.h"
+#include "core/mesh/surface_point.h"
 
 extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
   static const auto* mesh = new geodesic::Mesh(*geodesic::LoadMesh(GEODESIC_SAMPLE_MESH));

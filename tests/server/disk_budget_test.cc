@@ -9,9 +9,9 @@
 #include <map>
 
 #include "absl/strings/str_cat.h"
-#include "core/atomic_file.h"
-#include "core/graph_file.h"
-#include "core/mesh_snapshot.h"
+#include "core/base/atomic_file.h"
+#include "core/dgg/graph_file.h"
+#include "core/mesh/mesh_snapshot.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 

@@ -1,0 +1,245 @@
+// Exact polyhedral geodesics by window propagation (the MMP / Chen-Han
+// family).
+//
+// A window is an interval of a mesh edge through which geodesics from one
+// (pseudo-)source cross into a face along straight lines of the unfolding
+// (Surazhsky et al. 2005, section 3). Windows are processed in order of their
+// smallest distance (a Dijkstra sweep, as in MMP and ICH's priority-queue
+// variant; the keys only grow, so the queue is a radix heap), and every new
+// window is trimmed by the vertex-distance filter of Xin & Wang 2009: a point x
+// of a window on edge (P, Q) is useless when d(P) + |Px| (or d(Q) + |Qx|) is
+// already shorter, since every geodesic through x could take that route
+// instead. Because sigma + |I x| - |Px| is monotone along the edge, the useful
+// part is one interval, found in closed form. The third vertex R of the face
+// the window came through filters the same way (|Rx| is a segment in that
+// face); that test removes a large share of a full solve's windows. Windows
+// are trimmed once, when queued. Saddle and boundary vertices become
+// pseudo-sources once their distance is final.
+//
+// Three uses of one propagation:
+//  1. Distances from a source (vertex, edge point or face point) to all
+//     vertices, optionally within a radius or until given targets settle.
+//  2. Direct-only propagation for the DGG: only windows lit directly by the
+//     source, each limited by d_max of Theorem 2 of the DGG paper (section
+//     4.2.1); reports each lit vertex with its direct distance and the
+//     geodesic's direction at both ends.
+//  3. Backtrace: the geodesic from the source to a vertex or surface point as
+//     a polyline of edge crossings, whose length equals the distance.
+//
+// Numerical tolerances (relative to the local edge length L): windows
+// narrower than 1e-12 L are dropped, as are windows whose source image lies
+// within 1e-14 L of the edge line (a zero-area face: no direction crosses it);
+// the vertex filter trims only what is dominated by more than 1e-12 of the
+// distance, so rounding never removes the true geodesic. Distances are
+// double precision throughout.
+//
+// An ExactGeodesic object holds per-call scratch that is reused across calls
+// (and shrunk when a call left it very large); use one per thread. The mesh
+// is only read, so any number of objects may share one mesh.
+#ifndef GEODESIC_CORE_EXACT_EXACT_GEODESIC_H_
+#define GEODESIC_CORE_EXACT_EXACT_GEODESIC_H_
+
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "core/base/radix_heap.h"
+#include "core/base/vec.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/surface_point.h"
+
+namespace geodesic {
+
+struct ExactOptions {
+  // Stop once the wavefront passes this distance; vertices beyond are +inf.
+  double max_distance = std::numeric_limits<double>::infinity();
+  // If non-empty, stop as soon as all of these are settled.
+  std::vector<VertexId> targets;
+  // Keep every window so that Trace() can recover paths afterwards.
+  bool keep_windows = false;
+  // Polled now and then; returning true aborts with CANCELLED.
+  std::function<bool()> cancelled;
+};
+
+struct DirectOptions {
+  // The DGG accuracy: windows stop travelling at d_max of Theorem 2.
+  // Zero or negative disables the early termination.
+  double epsilon = 0;
+  // Lit vertices farther than this are not reported (and windows beyond it are
+  // not propagated).
+  double max_distance = std::numeric_limits<double>::infinity();
+  bool keep_windows = false;
+  // With epsilon: also stop rays that a route through a corner of their
+  // window's shadow already serves within 1+epsilon (our FastDGG-style early
+  // stop). Off gives plain Algorithm 1 with Theorem 2 only, for comparison.
+  bool stop_at_corners = true;
+};
+
+// A vertex lit directly by the source.
+struct DirectHit {
+  VertexId vertex;
+  double distance;
+  // Polar angles (raw radians of each end's cone, see core/mesh/mesh.h) of the
+  // geodesic's direction at the source and at the vertex (pointing back
+  // towards the source). For a non-vertex source the frame is the face
+  // plane with the face's first edge as reference (edge points: the
+  // canonical half-edge's direction), angles in [0, 2*pi).
+  double angle_at_source;
+  double angle_at_vertex;
+};
+
+struct ExactStats {
+  uint64_t windows_created = 0;
+  uint64_t windows_propagated = 0;
+  uint64_t pseudo_sources = 0;
+  uint64_t peak_queue = 0;
+};
+
+// What propagating a window across half-edge h reads about face(h), in h's
+// frame: tail at the origin, head at (length, 0), the face above.
+struct alignas(64) FaceFrame {
+  Vec2 apex;             // the face's third vertex
+  double length;         // |h|
+  double length_prev;    // |prev(h)|: tail to apex
+  double length_next;    // |next(h)|: apex to head
+  HalfedgeId twin_prev;  // across prev(h), running tail -> apex (kNone: boundary)
+  HalfedgeId twin_next;  // across next(h), running apex -> head
+  VertexId tail, head, apex_vertex;
+
+  static FaceFrame Of(const Mesh& mesh, HalfedgeId h);
+};
+
+// The frames of every half-edge, for engines that share one mesh over many
+// sources (the DGG build): one cache line per window propagated instead of
+// reads from five mesh arrays and a square root. 64 bytes per half-edge,
+// built once and shared read-only.
+class FaceFrames {
+ public:
+  explicit FaceFrames(const Mesh& mesh);
+  const FaceFrame& operator[](HalfedgeId h) const { return frames_[h]; }
+
+ private:
+  std::vector<FaceFrame> frames_;
+};
+
+class ExactGeodesic {
+ public:
+  // `frames`, if given, must be built from `mesh` and outlive the engine.
+  explicit ExactGeodesic(const Mesh& mesh, const FaceFrames* frames = nullptr);
+  ~ExactGeodesic();
+  ExactGeodesic(const ExactGeodesic&) = delete;
+  ExactGeodesic& operator=(const ExactGeodesic&) = delete;
+
+  // Use 1: distances to every vertex (+inf where unreachable or beyond the
+  // limit). The source is validated (OUT_OF_RANGE / INVALID_ARGUMENT).
+  absl::StatusOr<std::vector<double>> Distances(const SurfacePoint& source,
+                                                const ExactOptions& options = {});
+
+  // Use 2: vertices lit directly by the source, sorted by vertex id. The
+  // source itself (if a vertex) is not reported.
+  absl::StatusOr<std::vector<DirectHit>> DirectGeodesics(const SurfacePoint& source,
+                                                         const DirectOptions& options);
+
+  // After a call with keep_windows: the distance from the source to an
+  // arbitrary surface point (+inf if unreached) ...
+  absl::StatusOr<double> DistanceTo(const SurfacePoint& target) const;
+  // ... and the geodesic path to it, from the source to the target. Points
+  // are the source, each edge crossing (as edge + t) or vertex passed, and the
+  // target.
+  struct TracePoint {
+    SurfacePoint point;
+    Vec3 xyz;
+  };
+  absl::StatusOr<std::vector<TracePoint>> Trace(const SurfacePoint& target) const;
+
+  // What the engine holds between runs: its per-vertex state and the
+  // window and queue buffers it keeps for the next run.
+  uint64_t memory_bytes() const;
+
+  const ExactStats& stats() const { return stats_; }
+  const Mesh& mesh() const { return mesh_; }
+
+ private:
+  struct Window;
+  struct Seed;
+  enum class Mode { kFull, kDirect };
+
+  absl::Status Run(const SurfacePoint& source, Mode mode, double max_distance,
+                   const std::vector<VertexId>* targets, bool keep_windows,
+                   const std::function<bool()>* cancelled, double epsilon,
+                   bool stop_at_corners = false);
+  void Reset();
+  void SeedSource(const SurfacePoint& source);
+  void EmitFromVertex(VertexId v, double sigma, uint32_t provenance_vertex);
+  void EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma, uint32_t pseudo_source,
+                        double angle_tail, double angle_head);
+  void Propagate(uint32_t index);
+  static double RayAngle(const Window& w, double x);
+  double DirectLimit(const Window& w, double L) const;
+  void ReachApex(uint32_t index, const Window& w, const FaceFrame& face, double xc);
+  void UpdateVertex(VertexId v, double d, uint32_t window, uint32_t via_vertex, double angle_src,
+                    double angle_vertex);
+  // The edge a window lies on, as its creator knows it: a child's edge is a
+  // side of its parent's face, so trimming it reads nothing of its own face.
+  struct EdgeEnds {
+    double length;
+    VertexId tail, head;
+  };
+  EdgeEnds EndsOf(HalfedgeId h) const { return {mesh_.length(h), mesh_.tail(h), mesh_.head(h)}; }
+  const FaceFrame& FrameOf(HalfedgeId h) {
+    if (frames_) return (*frames_)[h];
+    own_frame_ = FaceFrame::Of(mesh_, h);
+    return own_frame_;
+  }
+  bool Trim(Window& w, const EdgeEnds& edge) const;
+  bool TrimByRelays(Window& w) const;
+  void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
+  bool TrimByFaceBehind(Window& w) const;
+  // Trims w in place (copying the window for each child showed in the DGG
+  // candidates' time) and queues what is left.
+  bool TrimAndPush(Window& w, const EdgeEnds& edge);
+  uint32_t Allocate(const Window& w);
+  void Push(double key, uint32_t item);
+
+  struct Candidate;
+  Candidate BestCandidate(const SurfacePoint& target) const;
+
+  const Mesh& mesh_;
+  const FaceFrames* frames_;
+  FaceFrame own_frame_;  // FrameOf's answer without frames_
+  ExactStats stats_;
+  Mode mode_ = Mode::kFull;
+  bool keep_windows_ = false;
+  double epsilon_ = 0;
+  bool relays_ = false;  // direct mode with epsilon: stop rays served by corners
+  double max_distance_ = 0;
+  SurfacePoint source_;
+  bool have_source_ = false;
+
+  // Per-vertex state, valid for vertices in touched_.
+  std::vector<double> dist_;
+  std::vector<uint32_t> via_window_;  // window that lit the vertex, or kNone
+  std::vector<uint32_t> via_vertex_;  // pseudo-source it was reached from
+  std::vector<double> angle_src_;     // direct mode: direction at the source
+  std::vector<double> angle_vtx_;     // direct mode: direction at the vertex
+  std::vector<uint8_t> emitted_;      // pseudo-source already emitted
+  std::vector<double> route_;         // relay mode: length of a known graph route
+  std::vector<uint8_t> excluded_;     // relay mode: best lighting is served by a relay
+  std::vector<VertexId> touched_;
+
+  std::vector<Window> windows_;
+  std::vector<uint32_t> free_windows_;
+  // Queued windows, and saddle or boundary vertices waiting to radiate.
+  struct QueueItem {
+    uint32_t item;
+    bool is_vertex;
+  };
+  RadixHeap<QueueItem> heap_;
+};
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_EXACT_EXACT_GEODESIC_H_

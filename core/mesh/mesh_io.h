@@ -1,0 +1,54 @@
+// Reading meshes (OBJ, OFF, PLY ascii/binary, STL) into a TriangleSoup with
+// the file's own vertex and face order, diagnostics of what was read, and the
+// conversion to a Mesh.
+#ifndef GEODESIC_CORE_MESH_MESH_IO_H_
+#define GEODESIC_CORE_MESH_MESH_IO_H_
+
+#include <cstdint>
+#include <string>
+#include <string_view>
+
+#include "absl/status/statusor.h"
+#include "core/mesh/corner_fans.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/mesh_diagnostics.h"
+
+namespace geodesic {
+
+struct LoadOptions {
+  // Split non-manifold vertices into one copy per fan (copies get new ids
+  // after the file's vertices) instead of rejecting the mesh.
+  bool repair_non_manifold = false;
+};
+
+// The format a path names by its extension, lower case ("ply" for a.PLY).
+std::string MeshFormatOfPath(const std::string& path);
+
+// Reads the file as it is. NOT_FOUND / PERMISSION_DENIED for a missing or
+// unreadable file; INVALID_ARGUMENT for an unknown format, an empty or
+// truncated file, NaN/Inf coordinates or out-of-range indices, naming the
+// file, the problem and the first offending element.
+absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
+                                              MeshDiagnostics* diagnostics = nullptr);
+
+// The same from bytes in memory (uploads); `format` is "obj", "off", "ply" or
+// "stl", and `name` is used in messages.
+absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
+                                                        std::string_view format,
+                                                        std::string_view name,
+                                                        MeshDiagnostics* diagnostics = nullptr);
+
+// INVALID_ARGUMENT naming `name` when the soup has no triangle: a point
+// cloud parses, but no distance on it is defined, and such a file is as
+// often a torn copy of a mesh.
+absl::Status RequireFaces(const TriangleSoup& soup, std::string_view name);
+
+// ReadTriangleSoup + ComputeDiagnostics + RequireFaces + Mesh::Build (with
+// optional repair). A refusal after reading leaves the diagnostics filled,
+// with mesh_error saying why.
+absl::StatusOr<Mesh> LoadMesh(const std::string& path, const LoadOptions& options = {},
+                              MeshDiagnostics* diagnostics = nullptr);
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_MESH_MESH_IO_H_

@@ -1,0 +1,64 @@
+// The locally augmented graph (Appendix A of the paper): a query's end point
+// that is not a graph node joins the graph by temporary edges, its direct
+// geodesics to the mesh vertices it sees. Fields, pairs and matrices join
+// their points here, so all of them search one augmented graph. Internal to
+// core/query/.
+#ifndef GEODESIC_CORE_QUERY_AUGMENTED_GRAPH_H_
+#define GEODESIC_CORE_QUERY_AUGMENTED_GRAPH_H_
+
+#include <string_view>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/status/statusor.h"
+#include "absl/types/span.h"
+#include "core/base/vec.h"
+#include "core/dgg/dgg_graph.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/surface_point.h"
+#include "core/query/geodesic_engine.h"
+#include "core/query/query_scratch.h"
+
+namespace geodesic::query_internal {
+
+constexpr uint32_t kViaSource = kNone;         // reached from a source node itself
+constexpr uint32_t kViaTemporary = kNone - 1;  // reached by a temporary edge
+
+// Direct edges from a point that is not a graph node to mesh vertices
+// (Appendix A: the locally augmented graph).
+struct TemporaryEdge {
+  VertexId vertex;
+  uint32_t node;  // the vertex's graph node
+  double weight;
+};
+
+// OK, or the point's problem prefixed by `what` ("first point", "source 3").
+absl::Status CheckPoint(const Mesh& mesh, const SurfacePoint& p, std::string_view what);
+
+// One end of a query (a field's source, a pair's point, a matrix's row or
+// column): a graph node, or a point joined to the graph by temporary edges.
+struct Endpoint {
+  SurfacePoint point;
+  Vec3 xyz;
+  bool is_node = false;
+  uint32_t node = kNone;
+  std::vector<TemporaryEdge> edges;
+};
+
+// Joins `raw` to the graph: a vertex is its own node; any other point runs
+// the exact engine's direct propagation, whose lit vertices become its
+// temporary edges. With `keep_windows` the propagation stays in the
+// scratch's exact engine, so that its DistanceTo then answers direct
+// geodesic distances from the point (the same-face and nearby cases no path
+// through vertices gets right).
+absl::StatusOr<Endpoint> JoinToGraph(const Mesh& mesh, const DggGraph& graph, QueryScratch& sc,
+                                     const SurfacePoint& raw, bool keep_windows);
+
+// The distance of an end point from a field given in mesh vertex order: at
+// its node, or the best of its temporary edges (the last hop of a path that
+// enters it through them).
+double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field);
+
+}  // namespace geodesic::query_internal
+
+#endif  // GEODESIC_CORE_QUERY_AUGMENTED_GRAPH_H_

@@ -1,0 +1,210 @@
+#include "core/query/field_solver.h"
+
+#include <algorithm>
+#include <cmath>
+#include <functional>
+#include <limits>
+#include <numeric>
+#include <span>
+#include <vector>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "core/base/for_each_in_parallel.h"
+#include "core/base/status.h"
+
+namespace geodesic::query_internal {
+namespace {
+
+absl::Status CheckTargets(const Mesh& mesh, absl::Span<const VertexId> targets) {
+  for (VertexId t : targets) {
+    if (t >= mesh.num_vertices()) {
+      return absl::OutOfRangeError(absl::StrFormat(
+          "target vertex %u is out of range (the mesh has %u vertices)", t, mesh.num_vertices()));
+    }
+  }
+  return absl::OkStatus();
+}
+
+// Vertex sources at 0; other points through their temporary edges. A seed
+// relaxes all its edges. Returns the seeded nodes, sorted, each once.
+std::vector<uint32_t> SeedField(const DggGraph& g, QueryScratch& sc,
+                                absl::Span<const Endpoint> sources) {
+  std::vector<uint32_t> seeds;
+  auto seed = [&](uint32_t u, double d, uint32_t source) {
+    if (!(d < sc.dist[u])) return;
+    sc.dist[u] = d;
+    sc.fan[u] = AllEdges(g, u);
+    sc.label[u] = source;
+    seeds.push_back(u);
+  };
+  for (uint32_t i = 0; i < sources.size(); ++i) {
+    if (sources[i].is_node) seed(sources[i].node, 0, i);
+    for (const TemporaryEdge& e : sources[i].edges) seed(e.node, e.weight, i);
+  }
+  std::sort(seeds.begin(), seeds.end());
+  seeds.erase(std::unique(seeds.begin(), seeds.end()), seeds.end());
+  return seeds;
+}
+
+// Back from node order to the mesh's vertex order.
+void CopyFieldToVertexOrder(const Mesh& mesh, const DggGraph& g, const QueryScratch& sc,
+                            const FieldOptions& options, FieldResult& result) {
+  const uint32_t n = mesh.num_vertices();
+  auto node_of_vertex = g.node_of_vertex();
+  result.distance.resize(n);
+  for (VertexId v = 0; v < n; ++v) {
+    const double d = sc.dist[node_of_vertex[v]];
+    result.distance[v] = d > options.max_distance ? kInfinity : d;
+  }
+  if (options.nearest_source) {
+    result.nearest_source.resize(n);
+    for (VertexId v = 0; v < n; ++v) {
+      result.nearest_source[v] =
+          result.distance[v] == kInfinity ? kNone : sc.label[node_of_vertex[v]];
+    }
+  }
+}
+
+}  // namespace
+
+// The field from sources already joined to the graph.
+absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
+                                       const BucketShape& bucket_shape, QueryScratch& sc,
+                                       absl::Span<const Endpoint> sources,
+                                       const FieldOptions& options) {
+  RETURN_IF_ERROR(CheckTargets(mesh, options.targets));
+  const uint32_t nodes = g.num_nodes();
+  sc.PrepareField(nodes);
+  std::vector<double>& dist = sc.dist;
+  std::vector<FanRange>& fan = sc.fan;
+  std::vector<uint32_t>& label = sc.label;
+  std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
+  if (options.nearest_source) std::fill(label.begin(), label.begin() + nodes, kNone);
+  const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
+
+  const std::vector<uint32_t> seeds = SeedField(g, sc, sources);
+
+  FieldResult result;
+  size_t targets_left = options.targets.size();
+  std::vector<uint8_t> is_target;
+  if (targets_left) {
+    is_target.assign(nodes, 0);
+    for (VertexId t : options.targets) is_target[g.node_of_vertex(t)] = 1;
+    targets_left = std::count(is_target.begin(), is_target.end(), 1);
+  }
+  bool cancelled = false;
+  auto visit = [&](uint32_t u) {
+    if (dist[u] > options.max_distance) return Visit::kSkip;
+    if (options.cancelled && (result.queue_pops & 4095) == 0 && options.cancelled()) {
+      cancelled = true;
+      return Visit::kStop;
+    }
+    ++result.queue_pops;
+    if (targets_left && is_target[u] && --targets_left == 0) return Visit::kStop;
+    return Visit::kRelax;
+  };
+  // Each combination of fans and labels is its own search, so the inner
+  // loop tests neither (labels cost a read and a write per improvement).
+  auto search = [&]<bool kUseFans>(auto& queue) {
+    if (options.nearest_source) {
+      auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
+      return SearchGraph<kUseFans>(g, queue, dist.data(), fan.data(), visit, improved);
+    }
+    return SearchGraph<kUseFans>(g, queue, dist.data(), fan.data(), visit,
+                                 [](uint32_t, uint32_t) {});
+  };
+  auto run = [&](auto& queue) {
+    for (uint32_t s : seeds) queue.Push(s, dist[s]);
+    result.relaxed = use_fans ? search.template operator()<true>(queue)
+                              : search.template operator()<false>(queue);
+  };
+  if (targets_left) {
+    // Stopping at targets needs nodes settled in order of distance.
+    HeapQueue heap{sc.heap};
+    heap.heap.Reset(nodes);
+    run(heap);
+  } else {
+    double max_seed = 0;
+    for (uint32_t s : seeds) max_seed = std::max(max_seed, dist[s]);
+    sc.buckets.Reset(nodes, bucket_shape.width, std::max(bucket_shape.max_step, max_seed));
+    run(sc.buckets);
+  }
+  if (cancelled) return absl::CancelledError("field cancelled");
+  CopyFieldToVertexOrder(mesh, g, sc, options, result);
+  return result;
+}
+
+}  // namespace geodesic::query_internal
+
+namespace geodesic {
+
+using query_internal::CheckPoint;
+using query_internal::Endpoint;
+using query_internal::FieldDistanceTo;
+using query_internal::JoinToGraph;
+using query_internal::SolveField;
+
+absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint> sources,
+                                                  const FieldOptions& options) const {
+  const Mesh& mesh = *mesh_;
+  if (sources.empty()) return absl::InvalidArgumentError("a field needs at least one source");
+  for (size_t i = 0; i < sources.size(); ++i) {
+    RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
+  }
+  ScratchPool::Lease sc = scratch_.Acquire();
+  std::vector<Endpoint> ends;
+  ends.reserve(sources.size());
+  for (const SurfacePoint& p : sources) {
+    ASSIGN_OR_RETURN(ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, p, false));
+  }
+  return SolveField(mesh, *graph_, buckets_, *sc, ends, options);
+}
+
+absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
+    absl::Span<const SurfacePoint> sources, absl::Span<const SurfacePoint> targets,
+    const std::function<bool()>& cancelled) const {
+  const Mesh& mesh = *mesh_;
+  for (size_t i = 0; i < sources.size(); ++i) {
+    RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
+  }
+  for (size_t j = 0; j < targets.size(); ++j) {
+    RETURN_IF_ERROR(CheckPoint(mesh, targets[j], absl::StrFormat("target %u", j)));
+  }
+  // Entry (i, j) is what Distance(sources[i], targets[j]) answers without a
+  // path: the graph distance on the augmented graph, or the direct geodesic
+  // from a source that is not a vertex, whichever is shorter. One field per
+  // source serves its whole row.
+  std::vector<Endpoint> target_ends;
+  target_ends.reserve(targets.size());
+  {
+    ScratchPool::Lease sc = scratch_.Acquire();
+    for (const SurfacePoint& t : targets) {
+      ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
+    }
+  }
+  std::vector<double> out(sources.size() * targets.size(), kInfinity);
+  FieldOptions options;
+  options.cancelled = cancelled;
+  auto solve_row = [&](size_t i) -> absl::Status {
+    ScratchPool::Lease row_sc = scratch_.Acquire();
+    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *row_sc, sources[i], true));
+    double* row = out.data() + i * target_ends.size();
+    for (size_t j = 0; j < target_ends.size(); ++j) {
+      if (!source.is_node) {
+        auto d = row_sc->Exact(mesh).DistanceTo(target_ends[j].point);
+        if (d.ok()) row[j] = *d;
+      }
+    }
+    ASSIGN_OR_RETURN(FieldResult field, SolveField(mesh, *graph_, buckets_, *row_sc,
+                                                   absl::MakeConstSpan(&source, 1), options));
+    for (size_t j = 0; j < target_ends.size(); ++j) {
+      row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
+    }
+    return absl::OkStatus();
+  };
+  RETURN_IF_ERROR(ForEachInParallel(sources.size(), solve_row));
+  return out;
+}
+
+}  // namespace geodesic

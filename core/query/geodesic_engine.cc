@@ -1,0 +1,49 @@
+// The engine's resident state: the mesh, the graph, the nodes' positions,
+// the scratch pool and the landmarks. Its queries live beside it:
+// field_solver.cc, point_to_point.cc, sampling.cc.
+#include "core/query/geodesic_engine.h"
+
+#include <algorithm>
+#include <thread>
+
+#include "absl/status/status.h"
+#include "core/base/status.h"
+
+namespace geodesic {
+
+GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
+                               std::shared_ptr<const DggGraph> graph)
+    : mesh_(std::move(mesh)),
+      graph_(std::move(graph)),
+      scratch_(std::max<int>(2, std::thread::hardware_concurrency())) {
+  buckets_ = BucketShapeOf(*graph_);
+  node_xyz_.resize(graph_->num_nodes());
+  for (uint32_t u = 0; u < node_xyz_.size(); ++u) {
+    node_xyz_[u] = PositionOf(*mesh_, graph_->point_of_node(u));
+  }
+}
+
+GeodesicEngine::~GeodesicEngine() = default;
+
+absl::Status GeodesicEngine::PrepareLandmarks(int count,
+                                              const std::function<bool()>& cancelled) const {
+  absl::MutexLock lock(&landmarks_mu_);
+  if (landmarks_storage_) return absl::OkStatus();
+  ASSIGN_OR_RETURN(landmarks_storage_, Landmarks::Compute(*graph_, count, cancelled));
+  landmarks_.store(landmarks_storage_.get(), std::memory_order_release);
+  return absl::OkStatus();
+}
+
+int GeodesicEngine::DefaultLandmarkCount() const {
+  constexpr uint64_t kMin = 16, kMax = 64;
+  const uint64_t nodes = std::max<uint64_t>(graph_->num_nodes(), 1);
+  return static_cast<int>(
+      std::clamp(graph_->byte_size() / 4 / (sizeof(float) * nodes), kMin, kMax));
+}
+
+uint64_t GeodesicEngine::landmark_bytes() const {
+  const Landmarks* l = landmarks_.load(std::memory_order_acquire);
+  return l ? l->byte_size() : 0;
+}
+
+}  // namespace geodesic

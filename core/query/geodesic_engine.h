@@ -1,0 +1,178 @@
+// Geodesic queries on a DGG: distance fields, point-to-point distances and
+// geodesic paths between arbitrary surface points.
+//
+// A GeodesicEngine is the resident "solver object": it holds a mesh and its
+// graph, both immutable and shared, and answers queries from any number of
+// threads at once. Each query in flight leases scratch memory from the
+// engine's pool (core/query/query_scratch.h), which later queries reuse and which
+// goes with the engine.
+#ifndef GEODESIC_CORE_QUERY_GEODESIC_ENGINE_H_
+#define GEODESIC_CORE_QUERY_GEODESIC_ENGINE_H_
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <limits>
+#include <memory>
+#include <optional>
+#include <vector>
+
+#include "absl/status/statusor.h"
+#include "absl/synchronization/mutex.h"
+#include "absl/types/span.h"
+#include "core/dgg/dgg_graph.h"
+#include "core/mesh/mesh.h"
+#include "core/mesh/surface_point.h"
+#include "core/query/graph_search.h"
+#include "core/query/landmarks.h"
+#include "core/query/query_scratch.h"
+
+namespace geodesic {
+
+inline constexpr double kInfinity = std::numeric_limits<double>::infinity();
+
+// Both give the graph's shortest distances; they differ in the work done.
+enum class FieldMethod {
+  // The DGG-tailored solver (section 5.1.2): each node relaxes only the fan
+  // of the edge it was reached by. The graph's fans hold every turn a
+  // shortest path can take, so this is exact on the graph.
+  kLabelCorrecting,
+  kDijkstra,  // plain Dijkstra over whole adjacency lists, for checking
+};
+
+struct FieldOptions {
+  FieldMethod method = FieldMethod::kLabelCorrecting;
+  // Only vertices within this distance are settled; the rest are +inf.
+  double max_distance = kInfinity;
+  // If non-empty, stop once these vertices are settled (others may be +inf or
+  // upper bounds).
+  std::vector<VertexId> targets;
+  bool nearest_source = false;  // fill FieldResult::nearest_source
+  // Polled during the solve; returning true aborts with CANCELLED.
+  std::function<bool()> cancelled;
+};
+
+struct FieldResult {
+  std::vector<double> distance;          // per mesh vertex; +inf if unreached
+  std::vector<uint32_t> nearest_source;  // index into sources; kNone if unreached
+  uint64_t queue_pops = 0;               // work measure: pops per vertex ~ 1-2
+  uint64_t relaxed = 0;                  // edges relaxed: what the fans save
+};
+
+struct PathPoint {
+  SurfacePoint point;
+  Vec3 xyz;
+};
+
+struct GeodesicPath {
+  double length = 0;
+  std::vector<PathPoint> points;  // from the first point to the second
+};
+
+struct PairOptions {
+  bool want_path = false;
+  // Bidirectional A* with the straight-line potential, tightened by the
+  // landmark bounds once GeodesicEngine::PrepareLandmarks has run; false:
+  // plain bidirectional Dijkstra.
+  bool use_astar = true;
+  std::function<bool()> cancelled;
+};
+
+struct PairResult {
+  double distance = kInfinity;  // +inf when the points are in different components
+  uint64_t settled = 0;         // nodes settled by the bidirectional search
+  uint64_t queued = 0;          // queue insertions and key decreases
+  uint64_t relaxed = 0;         // edges relaxed
+  std::optional<GeodesicPath> path;
+};
+
+struct SampleOptions {
+  // The first point is a vertex drawn with this seed; the rest follow from
+  // it, so one seed gives one sampling.
+  uint64_t seed = 0;
+  std::function<bool()> cancelled;
+};
+
+struct SampleResult {
+  std::vector<VertexId> vertices;  // in the order chosen
+  // Graph distance from the farthest surface vertex to its nearest sample:
+  // every vertex lies within it (+inf while a component has no sample).
+  double covering_radius = kInfinity;
+};
+
+class GeodesicEngine {
+ public:
+  GeodesicEngine(std::shared_ptr<const Mesh> mesh, std::shared_ptr<const DggGraph> graph);
+  ~GeodesicEngine();
+
+  const Mesh& mesh() const { return *mesh_; }
+  const DggGraph& graph() const { return *graph_; }
+
+  // Single- or multi-source distance field. Sources are validated
+  // (OUT_OF_RANGE / INVALID_ARGUMENT naming the source's index).
+  absl::StatusOr<FieldResult> Field(absl::Span<const SurfacePoint> sources,
+                                    const FieldOptions& options) const;
+
+  // Distance (and optionally path) between two arbitrary surface points
+  // (Algorithm 3: locally augmented graph, bidirectional search).
+  absl::StatusOr<PairResult> Distance(const SurfacePoint& a, const SurfacePoint& b,
+                                      const PairOptions& options) const;
+
+  // Distance(from[i], to[i], options) for every i, the pairs spread over
+  // the cores (TBB): each answer is the one Distance gives alone, bit for
+  // bit. The first failing pair's error (by index) is returned.
+  absl::StatusOr<std::vector<PairResult>> Distances(absl::Span<const SurfacePoint> from,
+                                                    absl::Span<const SurfacePoint> to,
+                                                    const PairOptions& options) const;
+  // Computes the landmark distances that tighten point-to-point A* bounds
+  // (core/query/landmarks.h): `count` + 1 graph searches. Until it has run, queries
+  // use straight-line bounds alone, which is correct, only slower on long
+  // queries. Safe while queries run; once it has succeeded, later calls
+  // return at once. CANCELLED (and no landmarks) if `cancelled` says so.
+  absl::Status PrepareLandmarks(int count, const std::function<bool()>& cancelled = {}) const;
+  absl::Status PrepareLandmarks() const { return PrepareLandmarks(DefaultLandmarkCount()); }
+  // As many landmarks as a quarter of the graph's bytes pays for (each holds
+  // 4 bytes per node), from 16 to 64: a denser graph (smaller epsilon)
+  // relaxes more edges per settled node, so tighter bounds save more there,
+  // and more landmarks settle fewer nodes (bench/notes.md, "Landmarks").
+  int DefaultLandmarkCount() const;
+  // Bytes held by the landmark distances (0 before PrepareLandmarks).
+  uint64_t landmark_bytes() const;
+  // Bytes of query scratch held for this engine (core/query/query_scratch.h).
+  uint64_t scratch_bytes() const { return scratch_.bytes(); }
+
+  // Geodesic farthest-point sampling: each point after the first is the
+  // vertex farthest from those chosen so far, so `count` points cover the
+  // surface about as evenly as any `count` points can (within a factor 2 of
+  // the best covering radius). Vertices that no face uses are not on the
+  // surface and never chosen; a component without a sample is farthest of
+  // all. INVALID_ARGUMENT for a count below 1 or above the usable vertices.
+  absl::StatusOr<SampleResult> SamplePoints(int count, const SampleOptions& options) const;
+
+  // sources x targets distances, row-major. Entry (i, j) is what
+  // Distance(sources[i], targets[j]) answers without a path (points join
+  // the graph the same way, and a source that is not a vertex also reaches
+  // targets by its direct geodesics), at one field per source; rows are
+  // spread over the cores.
+  absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
+                                             absl::Span<const SurfacePoint> targets,
+                                             const std::function<bool()>& cancelled = {}) const;
+
+ private:
+  std::shared_ptr<const Mesh> mesh_;
+  std::shared_ptr<const DggGraph> graph_;
+  // Where each graph node lies, in node order: point-to-point A* reads the
+  // position of every node it touches, and the mesh's own array is in
+  // vertex order, scattered across the search.
+  std::vector<Vec3> node_xyz_;
+  BucketShape buckets_;
+  mutable ScratchPool scratch_;
+  // Written once under the mutex, then read lock-free by every query.
+  mutable absl::Mutex landmarks_mu_;
+  mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);
+  mutable std::atomic<const Landmarks*> landmarks_{nullptr};
+};
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_QUERY_GEODESIC_ENGINE_H_

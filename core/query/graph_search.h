@@ -1,0 +1,123 @@
+// The search every whole-graph query runs (fields, landmarks): labels grow
+// outwards from seeded nodes, and a node taken out of the queue relaxes the
+// fan of the edge it was reached by.
+//
+// The graph's fans hold every turn a shortest path can take
+// (core/dgg/fans.cc), so the labels end as exactly the graph's shortest
+// distances, in any queue order that takes a node out again after it
+// improves. The induction, over nodes in order of distance: let v -> w be
+// the last edge of a shortest path to w, and v's final label set by u -> v,
+// so d(v) = d(u) + |uv|. Were w outside that edge's fan, some path from u to
+// w would be shorter than |uv| + |vw|, so d(w) < d(v) + |vw| = d(w).
+#ifndef GEODESIC_CORE_QUERY_GRAPH_SEARCH_H_
+#define GEODESIC_CORE_QUERY_GRAPH_SEARCH_H_
+
+#include <algorithm>
+#include <cstdint>
+
+#include "core/base/bucket_queue.h"
+#include "core/base/node_heap.h"
+#include "core/dgg/dgg_graph.h"
+
+namespace geodesic {
+
+// NodeHeap in the interface BucketQueue has: for searches that must take
+// nodes out in order of distance (stopping at targets).
+struct HeapQueue {
+  NodeHeap& heap;
+  bool empty() const { return heap.empty(); }
+  void Push(uint32_t node, double key) { heap.Push(node, key); }
+  uint32_t Pop() {
+    const uint32_t node = heap.top();
+    heap.Pop();
+    return node;
+  }
+  uint32_t Peek(uint32_t none, size_t /*ahead*/) const { return heap.empty() ? none : heap.top(); }
+};
+
+// How a bucket queue suits a graph: buckets one mean edge weight wide, and
+// keys at most the longest edge ahead. Wider buckets take a few nodes out
+// more than once but visit fewer empty buckets; one mean weight was the
+// fastest of the widths tried (bench/notes.md, "Bucket width").
+struct BucketShape {
+  double width = 1;
+  double max_step = 1;
+};
+inline BucketShape BucketShapeOf(const DggGraph& g) {
+  double sum = 0, longest = 0;
+  for (const DggEdge& e : g.edges()) {
+    sum += e.weight;
+    longest = std::max<double>(longest, e.weight);
+  }
+  if (g.edges().empty() || longest == 0) return {};
+  return {sum / g.edges().size(), longest};
+}
+
+// The edges a seed relaxes: all of them.
+inline FanRange AllEdges(const DggGraph& g, uint32_t u) {
+  return {0, static_cast<uint32_t>(g.offsets()[u + 1] - g.offsets()[u])};
+}
+
+enum class Visit { kRelax, kSkip, kStop };
+
+// Asks for the cache lines of edges [begin, end), begin < end.
+inline void PrefetchEdges(const DggEdge* edges, uint64_t begin, uint64_t end) {
+  constexpr uint64_t kPerLine = 64 / sizeof(DggEdge);
+  // Steps of a line from begin, the last one moved back to end - 1: that
+  // covers the last line when begin is not aligned.
+  for (uint64_t i = begin; i < end + kPerLine - 1; i += kPerLine) {
+    __builtin_prefetch(&edges[std::min(i, end - 1)]);
+  }
+}
+
+// Runs the search from what `queue` holds (the caller has set each seed's
+// dist and fan). `visit(u)` is asked about each node taken out; after
+// `dist[v]` improved through u, `improved(u, v)` is called. Without fans
+// every node relaxes all its edges (Dijkstra's rule, for checking). Returns
+// the number of edges relaxed. The choice is a template argument so that the
+// inner loop carries no test for it.
+template <bool kUseFans, typename Queue, typename VisitFn, typename ImprovedFn>
+uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fan, VisitFn visit,
+                     ImprovedFn improved) {
+  const auto offsets = g.offsets();
+  const DggEdge* edges = g.edges().data();
+  uint64_t relaxed = 0;
+  while (!queue.empty()) {
+    const uint32_t u = queue.Pop();
+    const Visit what = visit(u);
+    if (what == Visit::kSkip) continue;
+    if (what == Visit::kStop) break;
+    const uint64_t begin = offsets[u], end = offsets[u + 1];
+    const FanRange run = kUseFans ? fan[u] : AllEdges(g, u);
+    // The graph is too large for the cache and the search visits it in no
+    // order memory likes: start loading a coming node's fan now, every line
+    // of it (a fan may wrap past the end of the node's list). With buckets
+    // the next few nodes are known, and the very next is too close.
+    constexpr size_t kAhead = 4;
+    if (const uint32_t next = queue.Peek(kNone, kAhead); next != kNone) {
+      const uint64_t list = offsets[next], list_end = offsets[next + 1];
+      const FanRange r = kUseFans ? fan[next] : AllEdges(g, next);
+      const uint64_t first = list + r.begin, last = first + r.count;
+      if (r.count > 0) PrefetchEdges(edges, first, std::min(last, list_end));
+      if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
+    }
+    const double du = dist[u];
+    relaxed += run.count;
+    for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
+      const DggEdge& e = edges[i];
+      const double nd = du + e.weight;
+      if (nd < dist[e.target]) {
+        dist[e.target] = nd;
+        if constexpr (kUseFans) fan[e.target] = e.fan;
+        improved(u, e.target);
+        queue.Push(e.target, nd);
+      }
+      if (++i == end) i = begin;  // fans wrap past u's last edge
+    }
+  }
+  return relaxed;
+}
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_QUERY_GRAPH_SEARCH_H_
