@@ -11,6 +11,7 @@
 #include "absl/container/flat_hash_set.h"
 #include "absl/strings/str_format.h"
 #include "core/mesh/corner_fans.h"
+#include "nlohmann/json.hpp"
 
 namespace geodesic {
 namespace {
@@ -260,33 +261,40 @@ std::string MeshDiagnostics::ToText() const {
 }
 
 std::string MeshDiagnostics::ToJson() const {
-  auto str = [](const std::string& x) {
-    std::string out = "\"";
-    for (char c : x) {
-      if (c == '"' || c == '\\') out += '\\';
-      if (static_cast<unsigned char>(c) < 0x20) {
-        out += absl::StrFormat("\\u%04x", c);
-        continue;
-      }
-      out += c;
-    }
-    return out + "\"";
-  };
-  return absl::StrFormat(
-      "{\"path\": %s, \"format\": %s, \"vertices\": %u, \"faces\": %u, \"edges\": %u, "
-      "\"polygons_triangulated\": %u, \"components\": %u, \"boundary_loops\": %u, \"genus\": %d, "
-      "\"isolated_vertices\": %u, \"duplicate_vertices\": %u, \"zero_area_faces\": %u, "
-      "\"near_degenerate_faces\": %u, \"non_manifold_edges\": %u, \"non_manifold_vertices\": %u, "
-      "\"faces_refused\": %u, \"bbox_diagonal\": %.17g, \"mean_edge_length\": %.17g, "
-      "\"min_edge_length\": %.17g, \"anisotropy_mean\": %.17g, \"anisotropy_p95\": %.17g, "
-      "\"anisotropy_max\": %.17g, \"saddle_vertices\": %u, \"boundary_vertices\": %u, "
-      "\"manifold\": %s, \"usable\": %s, \"mesh_error\": %s, \"load_seconds\": %.6f}",
-      str(path), str(format), vertices, faces, edges, polygons_triangulated, components,
-      boundary_loops, genus, isolated_vertices, duplicate_vertices, zero_area_faces,
-      near_degenerate_faces, non_manifold_edges, non_manifold_vertices, faces_refused,
-      bbox_diagonal, mean_edge_length, min_edge_length, anisotropy_mean, anisotropy_p95,
-      anisotropy_max, saddle_vertices, boundary_vertices, manifold ? "true" : "false",
-      mesh_error.empty() ? "true" : "false", str(mesh_error), load_seconds);
+  // Ordered: the keys print in the order below, as they always have.
+  nlohmann::ordered_json j;
+  j["path"] = path;
+  j["format"] = format;
+  j["vertices"] = vertices;
+  j["faces"] = faces;
+  j["edges"] = edges;
+  j["polygons_triangulated"] = polygons_triangulated;
+  j["components"] = components;
+  j["boundary_loops"] = boundary_loops;
+  j["genus"] = genus;
+  j["isolated_vertices"] = isolated_vertices;
+  j["duplicate_vertices"] = duplicate_vertices;
+  j["zero_area_faces"] = zero_area_faces;
+  j["near_degenerate_faces"] = near_degenerate_faces;
+  j["non_manifold_edges"] = non_manifold_edges;
+  j["non_manifold_vertices"] = non_manifold_vertices;
+  j["faces_refused"] = faces_refused;
+  j["bbox_diagonal"] = bbox_diagonal;
+  j["mean_edge_length"] = mean_edge_length;
+  j["min_edge_length"] = min_edge_length;
+  j["anisotropy_mean"] = anisotropy_mean;
+  j["anisotropy_p95"] = anisotropy_p95;
+  j["anisotropy_max"] = anisotropy_max;
+  j["saddle_vertices"] = saddle_vertices;
+  j["boundary_vertices"] = boundary_vertices;
+  j["manifold"] = manifold;
+  j["usable"] = mesh_error.empty();
+  j["mesh_error"] = mesh_error;
+  // To the microsecond, as the report has always given it.
+  j["load_seconds"] = std::round(load_seconds * 1e6) / 1e6;
+  // A path or message that is not UTF-8 (file names are bytes) gets U+FFFD
+  // for the bytes that are not, rather than an exception.
+  return j.dump(-1, ' ', /*ensure_ascii=*/false, nlohmann::ordered_json::error_handler_t::replace);
 }
 
 }  // namespace geodesic

@@ -40,6 +40,10 @@ struct MeshDiagnostics {
   double load_seconds = 0;
   std::string mesh_error;  // why Mesh::Build refused it, empty if usable
 
+  // One JSON object: the fields above in their order, plus "usable" (no
+  // mesh_error) before mesh_error; the keys of `geodesicd info --json`.
+  // Counts are integers and measures floats (0.0, never 0); a non-finite
+  // measure is null, strings that are not UTF-8 get U+FFFD.
   std::string ToJson() const;
   std::string ToText() const;
 };

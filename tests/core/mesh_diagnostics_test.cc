@@ -4,6 +4,7 @@
 // the struct field it carries.
 #include "core/mesh/mesh_diagnostics.h"
 
+#include <cmath>
 #include <string>
 #include <vector>
 
@@ -17,7 +18,7 @@ namespace {
 using Json = nlohmann::ordered_json;
 using testing::SourcePath;
 
-enum class Type { kString, kUnsigned, kInteger, kNumber, kBool };
+enum class Type { kString, kUnsigned, kInteger, kFloat, kBool };
 
 struct Key {
   const char* name;
@@ -42,18 +43,18 @@ const std::vector<Key> kKeys = {
     {"non_manifold_edges", Type::kUnsigned},
     {"non_manifold_vertices", Type::kUnsigned},
     {"faces_refused", Type::kUnsigned},
-    {"bbox_diagonal", Type::kNumber},
-    {"mean_edge_length", Type::kNumber},
-    {"min_edge_length", Type::kNumber},
-    {"anisotropy_mean", Type::kNumber},
-    {"anisotropy_p95", Type::kNumber},
-    {"anisotropy_max", Type::kNumber},
+    {"bbox_diagonal", Type::kFloat},
+    {"mean_edge_length", Type::kFloat},
+    {"min_edge_length", Type::kFloat},
+    {"anisotropy_mean", Type::kFloat},
+    {"anisotropy_p95", Type::kFloat},
+    {"anisotropy_max", Type::kFloat},
     {"saddle_vertices", Type::kUnsigned},
     {"boundary_vertices", Type::kUnsigned},
     {"manifold", Type::kBool},
     {"usable", Type::kBool},
     {"mesh_error", Type::kString},
-    {"load_seconds", Type::kNumber},
+    {"load_seconds", Type::kFloat},
 };
 
 bool HasType(const Json& v, Type t) {
@@ -64,8 +65,10 @@ bool HasType(const Json& v, Type t) {
       return v.is_number_integer() && (v.is_number_unsigned() || v.get<int64_t>() >= 0);
     case Type::kInteger:
       return v.is_number_integer();
-    case Type::kNumber:
-      return v.is_number();
+    case Type::kFloat:
+      // A whole-number measure too: 0.0, not 0 (the format strings ToJson
+      // once used spelled such a double as an integer).
+      return v.is_number_float();
     case Type::kBool:
       return v.is_boolean();
   }
@@ -158,6 +161,28 @@ TEST(MeshDiagnosticsJsonTest, StringsAreEscapedAndAnErrorMakesTheMeshUnusable) {
   EXPECT_EQ(j["usable"], false);
   EXPECT_EQ(j["genus"], -3);
   EXPECT_EQ(j["load_seconds"].get<double>(), 1.25);
+}
+
+TEST(MeshDiagnosticsJsonTest, WholeNumberMeasuresAreStillFloats) {
+  MeshDiagnostics d;  // an empty file's: every measure 0
+  d.bbox_diagonal = 2;
+  const Json j = Parse(d);
+  ExpectKeysAndTypes(j);
+  ExpectValues(j, d);
+  EXPECT_THAT(d.ToJson(), ::testing::HasSubstr("\"bbox_diagonal\":2.0,"));
+}
+
+TEST(MeshDiagnosticsJsonTest, NonFiniteMeasuresAndBytesThatAreNotUtf8StillMakeJson) {
+  MeshDiagnostics d;
+  d.path = "caf\xe9.obj";  // Latin-1, not UTF-8
+  d.anisotropy_max = INFINITY;
+  d.anisotropy_mean = NAN;
+  const Json j = Parse(d);
+  ASSERT_TRUE(j.is_object());
+  EXPECT_EQ(j["path"], "caf\ufffd.obj");
+  EXPECT_TRUE(j["anisotropy_max"].is_null());
+  EXPECT_TRUE(j["anisotropy_mean"].is_null());
+  EXPECT_TRUE(j["anisotropy_p95"].is_number_float());
 }
 
 }  // namespace
