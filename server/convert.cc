@@ -115,6 +115,75 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
   out->set_estimated_seconds(s.estimated_seconds);
 }
 
+void ToProto(const MeshDiagnostics& d, v1::MeshDiagnostics* out) {
+  out->set_path(d.path);
+  out->set_format(d.format);
+  out->set_vertices(d.vertices);
+  out->set_faces(d.faces);
+  out->set_edges(d.edges);
+  out->set_polygons_triangulated(d.polygons_triangulated);
+  out->set_components(d.components);
+  out->set_boundary_loops(d.boundary_loops);
+  out->set_genus(d.genus);
+  out->set_isolated_vertices(d.isolated_vertices);
+  out->set_duplicate_vertices(d.duplicate_vertices);
+  out->set_zero_area_faces(d.zero_area_faces);
+  out->set_near_degenerate_faces(d.near_degenerate_faces);
+  out->set_non_manifold_edges(d.non_manifold_edges);
+  out->set_non_manifold_vertices(d.non_manifold_vertices);
+  out->set_faces_refused(d.faces_refused);
+  out->set_bbox_diagonal(d.bbox_diagonal);
+  out->set_mean_edge_length(d.mean_edge_length);
+  out->set_min_edge_length(d.min_edge_length);
+  out->set_anisotropy_mean(d.anisotropy_mean);
+  out->set_anisotropy_p95(d.anisotropy_p95);
+  out->set_anisotropy_max(d.anisotropy_max);
+  out->set_saddle_vertices(d.saddle_vertices);
+  out->set_boundary_vertices(d.boundary_vertices);
+  out->set_manifold(d.manifold);
+  out->set_load_seconds(d.load_seconds);
+  out->set_mesh_error(d.mesh_error);
+  out->set_json(d.ToJson());
+}
+
+MeshDiagnostics FromProto(const v1::MeshDiagnostics& m) {
+  MeshDiagnostics d;
+  d.path = m.path();
+  d.format = m.format();
+  d.vertices = m.vertices();
+  d.faces = m.faces();
+  d.edges = m.edges();
+  d.polygons_triangulated = m.polygons_triangulated();
+  d.components = m.components();
+  d.boundary_loops = m.boundary_loops();
+  d.genus = m.genus();
+  d.isolated_vertices = m.isolated_vertices();
+  d.duplicate_vertices = m.duplicate_vertices();
+  d.zero_area_faces = m.zero_area_faces();
+  d.near_degenerate_faces = m.near_degenerate_faces();
+  d.non_manifold_edges = m.non_manifold_edges();
+  d.non_manifold_vertices = m.non_manifold_vertices();
+  d.faces_refused = m.faces_refused();
+  d.bbox_diagonal = m.bbox_diagonal();
+  d.mean_edge_length = m.mean_edge_length();
+  d.min_edge_length = m.min_edge_length();
+  d.anisotropy_mean = m.anisotropy_mean();
+  d.anisotropy_p95 = m.anisotropy_p95();
+  d.anisotropy_max = m.anisotropy_max();
+  d.saddle_vertices = m.saddle_vertices();
+  d.boundary_vertices = m.boundary_vertices();
+  d.manifold = m.manifold();
+  d.load_seconds = m.load_seconds();
+  d.mesh_error = m.mesh_error();
+  return d;
+}
+
+std::string DiagnosticsJsonText(const v1::MeshDiagnostics& d) {
+  // Every server that fills the typed fields names the format.
+  if (d.format().empty() && !d.json().empty()) return d.json();
+  return FromProto(d).ToJson();
+}
+
 grpc::Status ToGrpc(const absl::Status& s) {
   if (s.ok()) return grpc::Status::OK;
   return grpc::Status(static_cast<grpc::StatusCode>(s.code()), std::string(s.message()));

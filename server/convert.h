@@ -1,7 +1,7 @@
 // Conversions between the API's messages and core types, shared by the
 // gRPC service, the HTTP gateway and the command-line client: surface
-// points (messages, spec strings such as "f:7:0.2,0.3,0.5"), graph states
-// and status codes.
+// points (messages, spec strings such as "f:7:0.2,0.3,0.5"), graph states,
+// mesh diagnostics and status codes.
 #ifndef GEODESIC_SERVER_CONVERT_H_
 #define GEODESIC_SERVER_CONVERT_H_
 
@@ -13,6 +13,7 @@
 #include <vector>
 
 #include "absl/status/statusor.h"
+#include "core/mesh/mesh_diagnostics.h"
 #include "core/mesh/surface_point.h"
 #include "geodesic/v1/geodesic.pb.h"
 #include "grpcpp/support/status.h"
@@ -57,6 +58,16 @@ class PointSpecs {
 };
 
 void ToProto(const GraphStatus& s, v1::Graph* out);
+
+// Every field of the diagnostics, typed, and the superseded `json` (their
+// ToJson) for clients that still read it.
+void ToProto(const MeshDiagnostics& d, v1::MeshDiagnostics* out);
+// The typed fields back as core's struct.
+MeshDiagnostics FromProto(const v1::MeshDiagnostics& d);
+// The report as `geodesicd info --json` has it (without mesh_bytes), as
+// JSON text: ToJson of the typed fields; the `json` field as sent by a
+// server older than the typed fields (one that sets no format).
+std::string DiagnosticsJsonText(const v1::MeshDiagnostics& d);
 
 grpc::Status ToGrpc(const absl::Status& s);
 // The canonical name of a code ("INVALID_ARGUMENT"): gRPC's codes are

@@ -356,18 +356,7 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
     copy->set_original(c.original);
     copy->set_copy(c.copy);
   }
-  auto* d = out->mutable_diagnostics();
-  d->set_vertices(m.diagnostics.vertices);
-  d->set_faces(m.diagnostics.faces);
-  d->set_edges(m.diagnostics.edges);
-  d->set_components(m.diagnostics.components);
-  d->set_boundary_loops(m.diagnostics.boundary_loops);
-  d->set_genus(m.diagnostics.genus);
-  d->set_isolated_vertices(m.diagnostics.isolated_vertices);
-  d->set_non_manifold_vertices(m.diagnostics.non_manifold_vertices);
-  d->set_bbox_diagonal(m.diagnostics.bbox_diagonal);
-  d->set_anisotropy_mean(m.diagnostics.anisotropy_mean);
-  d->set_json(m.diagnostics.ToJson());
+  ToProto(m.diagnostics, out->mutable_diagnostics());
 }
 
 }  // namespace

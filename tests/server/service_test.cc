@@ -102,6 +102,35 @@ v1::SurfacePoint Face(uint32_t f, double b0, double b1, double b2) {
   return ToProto(SurfacePoint::Face(f, b0, b1, b2));
 }
 
+TEST_F(ServiceTest, DiagnosticsAreTypedFieldsEqualToTheCoresReport) {
+  grpc::ClientContext ctx;
+  v1::RegisterMeshRequest req;
+  req.set_name("spot");
+  req.set_path("spot.obj");
+  v1::Mesh mesh;
+  ASSERT_TRUE(stub_->RegisterMesh(&ctx, req, &mesh).ok());
+  const v1::MeshDiagnostics& d = mesh.diagnostics();
+  MeshDiagnostics local;
+  ASSERT_TRUE(LoadMesh(std::string(GEODESIC_SOURCE_DIR) + "/data/spot.obj", {}, &local).ok());
+  // The typed fields carry the whole report: as core's struct again, it
+  // prints what the superseded json field holds, and what a local load
+  // prints but for the path and the time taken.
+  MeshDiagnostics typed = FromProto(d);
+  EXPECT_EQ(typed.ToJson(), d.json());
+  EXPECT_EQ(DiagnosticsJsonText(d), d.json());
+  EXPECT_THAT(typed.path, HasSubstr("spot.obj"));
+  EXPECT_EQ(typed.format, "obj");
+  EXPECT_GT(typed.load_seconds, 0);
+  typed.path = local.path;
+  typed.load_seconds = local.load_seconds;
+  EXPECT_EQ(typed.ToJson(), local.ToJson());
+  // A server older than the typed fields sent only the JSON (and no format).
+  v1::MeshDiagnostics old;
+  old.set_vertices(d.vertices());
+  old.set_json(d.json());
+  EXPECT_EQ(DiagnosticsJsonText(old), d.json());
+}
+
 TEST_F(ServiceTest, AFieldStreamsInChunksThatReassembleToTheCoresField) {
   ReadySpot(1e-2);
   grpc::ClientContext ctx;
