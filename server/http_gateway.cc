@@ -365,7 +365,7 @@ json MeshJson(const v1::Mesh& m) {
               {"fingerprint", m.fingerprint()},
               {"source", m.source()},
               {"restored", m.restored()}};
-  json diagnostics = json::parse(d.json(), nullptr, false);
+  json diagnostics = json::parse(DiagnosticsJsonText(d), nullptr, false);
   if (!diagnostics.is_discarded()) out["diagnostics"] = std::move(diagnostics);
   return out;
 }

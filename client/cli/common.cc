@@ -159,7 +159,7 @@ bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<
 void PrintJson(const Json& value) { std::printf("%s\n", value.dump().c_str()); }
 
 Json DiagnosticsJson(const v1::MeshDiagnostics& d) {
-  Json parsed = Json::parse(d.json(), nullptr, /*allow_exceptions=*/false);
+  Json parsed = Json::parse(server::DiagnosticsJsonText(d), nullptr, /*allow_exceptions=*/false);
   if (parsed.is_discarded()) {
     std::fprintf(stderr, "geodesic: the server's mesh diagnostics are not valid JSON\n");
     return nullptr;

@@ -117,6 +117,17 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200)
         [spot] = [m for m in body["meshes"] if m["name"] == "spot"]
         self.assertEqual((spot["vertices"], spot["faces"]), (2930, 5856))
+        # The mesh's diagnostics: `geodesicd info --json`'s report, keys and values (but
+        # where and how fast each read the file).
+        info = json.loads(subprocess.run(
+            [f"{BIN}/geodesicd", "info", f"{SRC}/data/spot.obj", "--json"], check=True,
+            capture_output=True, text=True).stdout)
+        del info["mesh_bytes"]
+        diagnostics = spot["diagnostics"]
+        self.assertEqual(sorted(diagnostics), sorted(info))
+        for key in set(info) - {"path", "load_seconds"}:
+            self.assertEqual(diagnostics[key], info[key], msg=key)
+            self.assertIs(type(diagnostics[key]), type(info[key]), msg=key)
         self.assertEqual(self.graph["progress"], 1.0)
         self.assertEqual(self.graph["nodes"], 2930)
         self.assertGreater(self.graph["edges"], 0)

@@ -296,6 +296,32 @@ class ClientTest(unittest.TestCase):
         self.assertEqual(registered, self.client.mesh("spot-repaired"))
         self.assertIs(VertexCopy, geodesic_client.VertexCopy)
 
+    def test_typed_diagnostics_equal_geodesicd_info_json(self):
+        """Every key of `geodesicd info --json` is a typed field of the message, with the
+        offline command's value for the bundled mesh; the client's details are built from
+        them, and the superseded json field still carries the same report."""
+        info = json.loads(subprocess.run(
+            [f"{BIN}/geodesicd", "info", f"{SRC}/data/spot.obj", "--json"], check=True,
+            capture_output=True, text=True).stdout)
+        raw = self.raw_mesh("spot").diagnostics
+        typed = {f.name for f in raw.DESCRIPTOR.fields} - {"json"}
+        self.assertEqual(typed, set(info) - {"mesh_bytes", "usable"})
+        # Where and how fast each read the file differ; everything else is equal.
+        for key in sorted(typed - {"path", "load_seconds"}):
+            self.assertEqual(getattr(raw, key), info[key], msg=key)
+            self.assertIs(type(getattr(raw, key)), type(info[key]), msg=key)
+        self.assertEqual(info["usable"], raw.mesh_error == "")
+        self.assertEqual(os.path.basename(raw.path), os.path.basename(info["path"]))
+        self.assertGreater(raw.load_seconds, 0)
+
+        details = self.client.mesh("spot").diagnostics.details
+        self.assertEqual(list(details), [k for k in info if k != "mesh_bytes"])
+        for key in details:
+            self.assertIs(type(details[key]), type(info[key]), msg=key)
+            if key not in ("path", "load_seconds"):
+                self.assertEqual(details[key], info[key], msg=key)
+        self.assertEqual(json.loads(raw.json), details)
+
     def test_mesh_solver_answers_equal_the_clients(self):
         c = self.client
         solver = c.mesh_solver("spot", epsilon=0.01)

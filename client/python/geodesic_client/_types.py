@@ -75,9 +75,21 @@ class Graph:
                    candidate_rule=g.candidate_rule)
 
 
-# The server prints the report's doubles with %.17g, which would spell a
-# non-finite one "inf" or "nan": not JSON, so such words are renamed to the
-# spellings Python's json module reads rather than losing the whole report.
+# The keys of the server's full report (`geodesicd info --json` but
+# mesh_bytes), in its order: each a field of the MeshDiagnostics message but
+# "usable", which is mesh_error being empty.
+_DETAIL_KEYS = (
+    "path", "format", "vertices", "faces", "edges", "polygons_triangulated", "components",
+    "boundary_loops", "genus", "isolated_vertices", "duplicate_vertices", "zero_area_faces",
+    "near_degenerate_faces", "non_manifold_edges", "non_manifold_vertices", "faces_refused",
+    "bbox_diagonal", "mean_edge_length", "min_edge_length", "anisotropy_mean", "anisotropy_p95",
+    "anisotropy_max", "saddle_vertices", "boundary_vertices", "manifold", "usable", "mesh_error",
+    "load_seconds")
+
+# A server older than the typed fields printed the report's doubles with
+# %.17g, which spells a non-finite one "inf" or "nan": not JSON, so such words
+# are renamed to the spellings Python's json module reads rather than losing
+# the whole report.
 _NON_FINITE = re.compile(r"(?<=[:,\[\s])(-?)(inf|nan)(?=[,}\]\s])")
 
 
@@ -92,6 +104,20 @@ def _parse_diagnostics_json(text: str) -> Dict[str, Any]:
         return json.loads(fixed)
 
 
+def _diagnostics_details(d) -> Dict[str, Any]:
+    """The full report from the message's typed fields (from its superseded json field when
+    the server is older than them: such a server sets no format)."""
+    if not d.format and d.json:
+        return _parse_diagnostics_json(d.json)
+    details = {}
+    for key in _DETAIL_KEYS:
+        details[key] = not d.mesh_error if key == "usable" else getattr(d, key)
+    # The report gives the load time to the microsecond, rounded as the
+    # server's ToJson rounds it.
+    details["load_seconds"] = round(d.load_seconds * 1e6) / 1e6
+    return details
+
+
 @dataclass(frozen=True)
 class MeshDiagnostics:
     """What the server found when it read a mesh (geodesicd info reports the same).
@@ -101,8 +127,9 @@ class MeshDiagnostics:
     anisotropy_mean is the mean over faces of longest edge / (2 sqrt(3) inradius), 1 for
     equilateral triangles.
     details: every key of the server's full report (`geodesicd info --json`), such as
-    "zero_area_faces", "non_manifold_edges", "anisotropy_max", "manifold", "mesh_error";
-    json: that report as the server sent it.
+    "zero_area_faces", "non_manifold_edges", "anisotropy_max", "manifold", "mesh_error",
+    from the message's typed fields;
+    json: that report as JSON text, as the server sent it (superseded by details).
     """
 
     vertices: int
@@ -127,7 +154,7 @@ class MeshDiagnostics:
                    isolated_vertices=d.isolated_vertices,
                    non_manifold_vertices=d.non_manifold_vertices, bbox_diagonal=d.bbox_diagonal,
                    anisotropy_mean=d.anisotropy_mean,
-                   details=_parse_diagnostics_json(d.json), json=d.json)
+                   details=_diagnostics_details(d), json=d.json)
 
 
 @dataclass(frozen=True)
