@@ -356,8 +356,18 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
     key = w.sigma - w.sy;
   }
   if (key > max_distance_) return false;
+  if (goal_ && key + GoalGap(w, edge) > max_distance_) return false;
   Push(key, Allocate(w));
   return true;
+}
+
+double ExactGeodesic::GoalGap(const Window& w, const EdgeEnds& edge) const {
+  const Vec3& p = mesh_.position(edge.tail);
+  const Vec3 along = (mesh_.position(edge.head) - p) * (1 / edge.length);
+  const Vec3 from_p = *goal_ - p;
+  // The goal's foot on the edge line, clamped to the window's interval.
+  const double t = std::clamp(Dot(from_p, along), w.b0, w.b1);
+  return Norm(from_p - along * t);
 }
 
 void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma,
@@ -735,8 +745,11 @@ uint64_t ExactGeodesic::memory_bytes() const {
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,
                                                              const ExactOptions& options) {
-  RETURN_IF_ERROR(Run(source, Mode::kFull, options.max_distance, &options.targets,
-                      options.keep_windows, &options.cancelled, 0));
+  goal_ = options.goal;
+  absl::Status run = Run(source, Mode::kFull, options.max_distance, &options.targets,
+                         options.keep_windows, &options.cancelled, 0);
+  goal_.reset();
+  RETURN_IF_ERROR(run);
   std::vector<double> out(mesh_.num_vertices(), kInf);
   for (VertexId v : touched_) {
     if (dist_[v] <= options.max_distance) out[v] = dist_[v];
