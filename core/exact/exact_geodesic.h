@@ -71,6 +71,9 @@ struct ExactOptions {
   // disc of radius max_distance is never swept; other vertices' distances
   // are then only upper bounds.
   std::optional<Vec3> goal;
+  // The most bytes of windows the run may hold (0: no limit); past it the
+  // run stops with RESOURCE_EXHAUSTED. A server bounds a query's memory so.
+  uint64_t max_window_bytes = 0;
 };
 
 struct DirectOptions {
@@ -164,6 +167,11 @@ class ExactGeodesic {
   };
   absl::StatusOr<std::vector<TracePoint>> Trace(const SurfacePoint& target) const;
 
+  // Frees the windows a run kept when they are many, as a run without
+  // keep_windows does: DistanceTo and Trace then need a new run. For
+  // engines that live in a pool after a large run.
+  void ReleaseLargeWindows();
+
   // What the engine holds between runs: its per-vertex state and the
   // window and queue buffers it keeps for the next run.
   uint64_t memory_bytes() const;
@@ -228,7 +236,8 @@ class ExactGeodesic {
   double epsilon_ = 0;
   bool relays_ = false;  // direct mode with epsilon: stop rays served by corners
   double max_distance_ = 0;
-  std::optional<Vec3> goal_;  // ExactOptions::goal of the run
+  std::optional<Vec3> goal_;       // ExactOptions::goal of the run
+  uint64_t max_window_bytes_ = 0;  // ExactOptions::max_window_bytes of the run
   SurfacePoint source_;
   bool have_source_ = false;
 

@@ -8,6 +8,7 @@
 #include <span>
 #include <vector>
 
+#include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/base/for_each_in_parallel.h"
@@ -145,9 +146,9 @@ namespace {
 // from the source, bounded by the row's largest finite entry (each entry is
 // the length of a real surface path, so it bounds the exact distance). With
 // one target the propagation sweeps only what can still reach it.
-absl::Status MakeRowExact(const Mesh& mesh, ExactGeodesic& exact, const SurfacePoint& source,
+absl::Status MakeRowExact(ExactGeodesic& exact, const SurfacePoint& source,
                           absl::Span<const query_internal::Endpoint> targets,
-                          const std::function<bool()>& cancelled, absl::Span<double> row) {
+                          const MatrixOptions& matrix, absl::Span<double> row) {
   double bound = -1;
   for (double d : row) {
     if (d < kInfinity) bound = std::max(bound, d);
@@ -156,8 +157,10 @@ absl::Status MakeRowExact(const Mesh& mesh, ExactGeodesic& exact, const SurfaceP
   ExactOptions options;
   options.max_distance = bound * (1 + 1e-9) + 1e-300;
   options.keep_windows = true;
-  options.cancelled = cancelled;
+  options.cancelled = matrix.cancelled;
+  options.max_window_bytes = matrix.exact_max_bytes;
   if (targets.size() == 1) options.goal = targets[0].xyz;
+  absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(source, options).status());
   for (size_t j = 0; j < targets.size(); ++j) {
     if (row[j] == kInfinity) continue;
@@ -232,8 +235,8 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
       row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
     }
     if (!matrix_options.exact) return absl::OkStatus();
-    return MakeRowExact(mesh, row_sc->Exact(mesh), source.point, target_ends,
-                        matrix_options.cancelled, absl::MakeSpan(row, target_ends.size()));
+    return MakeRowExact(row_sc->Exact(mesh), source.point, target_ends, matrix_options,
+                        absl::MakeSpan(row, target_ends.size()));
   };
   RETURN_IF_ERROR(ForEachInParallel(sources.size(), solve_row));
   return out;

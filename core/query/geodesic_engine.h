@@ -79,6 +79,9 @@ struct PairOptions {
   // instead of the graph's: a window propagation from the first point that
   // only sweeps what can still reach the second within the graph's answer.
   bool exact = false;
+  // The most bytes of windows an exact pair's propagation may hold (0: no
+  // limit): past it the pair fails with RESOURCE_EXHAUSTED.
+  uint64_t exact_max_bytes = 0;
   std::function<bool()> cancelled;
 };
 
@@ -96,6 +99,7 @@ struct MatrixOptions {
   std::function<bool()> cancelled;
   // Exact polyhedral distances instead of the graph's (PairOptions::exact).
   bool exact = false;
+  uint64_t exact_max_bytes = 0;  // per row, as PairOptions::exact_max_bytes
 };
 
 struct SampleOptions {

@@ -561,8 +561,10 @@ TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {
   ASSERT_OK(graph_only);
   ASSERT_EQ(exact->size(), points.size() * points.size());
   ExactGeodesic whole(*mesh);
+  ExactOptions keep;
+  keep.keep_windows = true;
   for (size_t i = 0; i < points.size(); ++i) {
-    ASSERT_OK(whole.Distances(points[i], {.keep_windows = true}));
+    ASSERT_OK(whole.Distances(points[i], keep));
     for (size_t j = 0; j < points.size(); ++j) {
       const double got = (*exact)[i * points.size() + j];
       auto want = whole.DistanceTo(points[j]);
@@ -577,6 +579,36 @@ TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {
       EXPECT_NEAR(p->distance, got, 1e-12 * std::max(got, 1.0)) << i << "," << j;
     }
   }
+}
+
+// An exact pair past its memory limit fails with RESOURCE_EXHAUSTED naming
+// the limit, and the engine answers the next pair as before.
+TEST(QueriesTest, ExactPairsKeepToTheirMemoryLimit) {
+  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  DggBuildOptions build;
+  build.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, build);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  const SurfacePoint a = SurfacePoint::Vertex(0), b = SurfacePoint::Vertex(1500);
+  PairOptions tight;
+  tight.exact = true;
+  tight.exact_max_bytes = 1;
+  auto refused = engine.Distance(a, b, tight);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(refused.status().message()), ::testing::HasSubstr("over its limit"));
+  PairOptions exact;
+  exact.exact = true;
+  auto answered = engine.Distance(a, b, exact);
+  ASSERT_OK(answered);
+  ExactGeodesic whole(*mesh);
+  auto field = whole.Distances(a);
+  ASSERT_OK(field);
+  ASSERT_TRUE(std::isfinite((*field)[1500]) && std::isfinite(answered->distance));
+  EXPECT_NEAR(answered->distance, (*field)[1500], 1e-12 * (*field)[1500]);
 }
 
 // Entries on the independent solver's exact pairs: within the accuracy
