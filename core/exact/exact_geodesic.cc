@@ -356,8 +356,18 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
     key = w.sigma - w.sy;
   }
   if (key > max_distance_) return false;
+  if (goal_ && key + GoalGap(w, edge) > max_distance_) return false;
   Push(key, Allocate(w));
   return true;
+}
+
+double ExactGeodesic::GoalGap(const Window& w, const EdgeEnds& edge) const {
+  const Vec3& p = mesh_.position(edge.tail);
+  const Vec3 along = (mesh_.position(edge.head) - p) * (1 / edge.length);
+  const Vec3 from_p = *goal_ - p;
+  // The goal's foot on the edge line, clamped to the window's interval.
+  const double t = std::clamp(Dot(from_p, along), w.b0, w.b1);
+  return Norm(from_p - along * t);
 }
 
 void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma,
@@ -708,6 +718,12 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
     if (cancelled && *cancelled && (++steps & 4095) == 0 && (*cancelled)()) {
       return absl::CancelledError("exact propagation cancelled");
     }
+    if (max_window_bytes_ && windows_.size() * sizeof(Window) > max_window_bytes_) {
+      heap_.Clear();
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "the exact propagation passed %u windows (%u MB), over its limit of %u MB",
+          windows_.size(), windows_.size() * sizeof(Window) >> 20, max_window_bytes_ >> 20));
+    }
     if (top.is_vertex) {
       const VertexId v = top.item;
       if (emitted_[v]) continue;  // an older, longer entry
@@ -725,6 +741,13 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   return absl::OkStatus();
 }
 
+void ExactGeodesic::ReleaseLargeWindows() {
+  if (windows_.capacity() * sizeof(Window) <= kScratchKeepBytes) return;
+  windows_ = {};
+  free_windows_ = {};
+  have_source_ = false;  // nothing left to trace
+}
+
 uint64_t ExactGeodesic::memory_bytes() const {
   auto bytes = [](const auto& v) { return uint64_t{v.capacity()} * sizeof(v[0]); };
   return sizeof(*this) + bytes(dist_) + bytes(via_window_) + bytes(via_vertex_) +
@@ -735,16 +758,18 @@ uint64_t ExactGeodesic::memory_bytes() const {
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,
                                                              const ExactOptions& options) {
-  RETURN_IF_ERROR(Run(source, Mode::kFull, options.max_distance, &options.targets,
-                      options.keep_windows, &options.cancelled, 0));
+  goal_ = options.goal;
+  max_window_bytes_ = options.max_window_bytes;
+  absl::Status run = Run(source, Mode::kFull, options.max_distance, &options.targets,
+                         options.keep_windows, &options.cancelled, 0);
+  goal_.reset();
+  max_window_bytes_ = 0;
+  RETURN_IF_ERROR(run);
   std::vector<double> out(mesh_.num_vertices(), kInf);
   for (VertexId v : touched_) {
     if (dist_[v] <= options.max_distance) out[v] = dist_[v];
   }
-  if (!keep_windows_ && windows_.capacity() * sizeof(Window) > kScratchKeepBytes) {
-    windows_ = {};
-    free_windows_ = {};
-  }
+  if (!keep_windows_) ReleaseLargeWindows();
   return out;
 }
 
@@ -764,10 +789,7 @@ absl::StatusOr<std::vector<DirectHit>> ExactGeodesic::DirectGeodesics(
   }
   std::sort(hits.begin(), hits.end(),
             [](const DirectHit& a, const DirectHit& b) { return a.vertex < b.vertex; });
-  if (!keep_windows_ && windows_.capacity() * sizeof(Window) > kScratchKeepBytes) {
-    windows_ = {};
-    free_windows_ = {};
-  }
+  if (!keep_windows_) ReleaseLargeWindows();
   return hits;
 }
 

@@ -42,6 +42,7 @@
 #include <cstdint>
 #include <functional>
 #include <limits>
+#include <optional>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -62,6 +63,17 @@ struct ExactOptions {
   bool keep_windows = false;
   // Polled now and then; returning true aborts with CANCELLED.
   std::function<bool()> cancelled;
+  // A point whose distance alone is wanted, with max_distance an upper bound
+  // on it (a graph answer): a window is dropped when its nearest distance
+  // plus the straight line from its segment to the goal passes that bound.
+  // Every window holding a point of a shortest path to the goal passes, so
+  // the goal's distance (DistanceTo, Trace) stays exact while most of the
+  // disc of radius max_distance is never swept; other vertices' distances
+  // are then only upper bounds.
+  std::optional<Vec3> goal;
+  // The most bytes of windows the run may hold (0: no limit); past it the
+  // run stops with RESOURCE_EXHAUSTED. A server bounds a query's memory so.
+  uint64_t max_window_bytes = 0;
 };
 
 struct DirectOptions {
@@ -155,6 +167,11 @@ class ExactGeodesic {
   };
   absl::StatusOr<std::vector<TracePoint>> Trace(const SurfacePoint& target) const;
 
+  // Frees the windows a run kept when they are many, as a run without
+  // keep_windows does: DistanceTo and Trace then need a new run. For
+  // engines that live in a pool after a large run.
+  void ReleaseLargeWindows();
+
   // What the engine holds between runs: its per-vertex state and the
   // window and queue buffers it keeps for the next run.
   uint64_t memory_bytes() const;
@@ -201,6 +218,9 @@ class ExactGeodesic {
   // Trims w in place (copying the window for each child showed in the DGG
   // candidates' time) and queues what is left.
   bool TrimAndPush(Window& w, const EdgeEnds& edge);
+  // The straight-line distance from the goal to the part of `edge` a window
+  // covers.
+  double GoalGap(const Window& w, const EdgeEnds& edge) const;
   uint32_t Allocate(const Window& w);
   void Push(double key, uint32_t item);
 
@@ -216,6 +236,8 @@ class ExactGeodesic {
   double epsilon_ = 0;
   bool relays_ = false;  // direct mode with epsilon: stop rays served by corners
   double max_distance_ = 0;
+  std::optional<Vec3> goal_;       // ExactOptions::goal of the run
+  uint64_t max_window_bytes_ = 0;  // ExactOptions::max_window_bytes of the run
   SurfacePoint source_;
   bool have_source_ = false;
 

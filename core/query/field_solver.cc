@@ -8,10 +8,12 @@
 #include <span>
 #include <vector>
 
+#include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/base/for_each_in_parallel.h"
 #include "core/base/status.h"
+#include "core/exact/exact_geodesic.h"
 
 namespace geodesic::query_internal {
 namespace {
@@ -138,6 +140,37 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
 }  // namespace geodesic::query_internal
 
 namespace geodesic {
+namespace {
+
+// Replaces a matrix row of graph distances by exact ones: one propagation
+// from the source, bounded by the row's largest finite entry (each entry is
+// the length of a real surface path, so it bounds the exact distance). With
+// one target the propagation sweeps only what can still reach it.
+absl::Status MakeRowExact(ExactGeodesic& exact, const SurfacePoint& source,
+                          absl::Span<const query_internal::Endpoint> targets,
+                          const MatrixOptions& matrix, absl::Span<double> row) {
+  double bound = -1;
+  for (double d : row) {
+    if (d < kInfinity) bound = std::max(bound, d);
+  }
+  if (bound < 0) return absl::OkStatus();  // nothing reachable
+  ExactOptions options;
+  options.max_distance = bound * (1 + 1e-9) + 1e-300;
+  options.keep_windows = true;
+  options.cancelled = matrix.cancelled;
+  options.max_window_bytes = matrix.exact_max_bytes;
+  if (targets.size() == 1) options.goal = targets[0].xyz;
+  absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
+  RETURN_IF_ERROR(exact.Distances(source, options).status());
+  for (size_t j = 0; j < targets.size(); ++j) {
+    if (row[j] == kInfinity) continue;
+    ASSIGN_OR_RETURN(const double d, exact.DistanceTo(targets[j].point));
+    if (d < kInfinity) row[j] = d;
+  }
+  return absl::OkStatus();
+}
+
+}  // namespace
 
 using query_internal::CheckPoint;
 using query_internal::Endpoint;
@@ -163,7 +196,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
 
 absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
     absl::Span<const SurfacePoint> sources, absl::Span<const SurfacePoint> targets,
-    const std::function<bool()>& cancelled) const {
+    const MatrixOptions& matrix_options) const {
   const Mesh& mesh = *mesh_;
   for (size_t i = 0; i < sources.size(); ++i) {
     RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
@@ -185,7 +218,7 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   }
   std::vector<double> out(sources.size() * targets.size(), kInfinity);
   FieldOptions options;
-  options.cancelled = cancelled;
+  options.cancelled = matrix_options.cancelled;
   auto solve_row = [&](size_t i) -> absl::Status {
     ScratchPool::Lease row_sc = scratch_.Acquire();
     ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *row_sc, sources[i], true));
@@ -201,7 +234,9 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
     for (size_t j = 0; j < target_ends.size(); ++j) {
       row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
     }
-    return absl::OkStatus();
+    if (!matrix_options.exact) return absl::OkStatus();
+    return MakeRowExact(row_sc->Exact(mesh), source.point, target_ends, matrix_options,
+                        absl::MakeSpan(row, target_ends.size()));
   };
   RETURN_IF_ERROR(ForEachInParallel(sources.size(), solve_row));
   return out;

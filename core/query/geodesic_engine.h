@@ -75,6 +75,13 @@ struct PairOptions {
   // landmark bounds once GeodesicEngine::PrepareLandmarks has run; false:
   // plain bidirectional Dijkstra.
   bool use_astar = true;
+  // The exact polyhedral distance (and, with want_path, the exact geodesic)
+  // instead of the graph's: a window propagation from the first point that
+  // only sweeps what can still reach the second within the graph's answer.
+  bool exact = false;
+  // The most bytes of windows an exact pair's propagation may hold (0: no
+  // limit): past it the pair fails with RESOURCE_EXHAUSTED.
+  uint64_t exact_max_bytes = 0;
   std::function<bool()> cancelled;
 };
 
@@ -83,7 +90,16 @@ struct PairResult {
   uint64_t settled = 0;         // nodes settled by the bidirectional search
   uint64_t queued = 0;          // queue insertions and key decreases
   uint64_t relaxed = 0;         // edges relaxed
+  bool exact = false;           // the distance and path are exact (PairOptions::exact)
+  uint64_t windows = 0;         // exact only: windows the propagation created
   std::optional<GeodesicPath> path;
+};
+
+struct MatrixOptions {
+  std::function<bool()> cancelled;
+  // Exact polyhedral distances instead of the graph's (PairOptions::exact).
+  bool exact = false;
+  uint64_t exact_max_bytes = 0;  // per row, as PairOptions::exact_max_bytes
 };
 
 struct SampleOptions {
@@ -156,7 +172,14 @@ class GeodesicEngine {
   // spread over the cores.
   absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
                                              absl::Span<const SurfacePoint> targets,
-                                             const std::function<bool()>& cancelled = {}) const;
+                                             const std::function<bool()>& cancelled = {}) const {
+    return Matrix(sources, targets, MatrixOptions{cancelled});
+  }
+  // With options.exact, every row exact: after the graph's row, one window
+  // propagation from the source bounded by the row's largest entry.
+  absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
+                                             absl::Span<const SurfacePoint> targets,
+                                             const MatrixOptions& options) const;
 
  private:
   std::shared_ptr<const Mesh> mesh_;

@@ -9,6 +9,7 @@
 #include <span>
 #include <vector>
 
+#include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/base/for_each_in_parallel.h"
@@ -372,6 +373,39 @@ absl::StatusOr<GeodesicPath> TraceRoute(const Mesh& mesh, const DggGraph& g, Que
   return path;
 }
 
+// Replaces the graph's answer in `result` by the exact distance from `a` to
+// `b` (and the exact geodesic with `want_path`). The graph's answer is the
+// length of a real surface path, so it bounds the exact one from above; the
+// slack covers rounding in the propagation's own sums.
+absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const SurfacePoint& a,
+                       const SurfacePoint& b, const PairOptions& pair, PairResult& result) {
+  result.exact = true;
+  if (result.distance == kInfinity) return absl::OkStatus();
+  ExactGeodesic& exact = sc.Exact(mesh);
+  ExactOptions options;
+  options.max_distance = result.distance * (1 + 1e-9) + 1e-300;
+  options.keep_windows = true;
+  options.cancelled = pair.cancelled;
+  options.goal = PositionOf(mesh, b);
+  options.max_window_bytes = pair.exact_max_bytes;
+  // The windows go once the answer is read: the engine stays in the pool.
+  absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
+  RETURN_IF_ERROR(exact.Distances(a, options).status());
+  result.windows = exact.stats().windows_created;
+  ASSIGN_OR_RETURN(const double d, exact.DistanceTo(b));
+  // Not reached only if rounding put the geodesic past the slack; the graph
+  // answer, which is then within it, stays.
+  if (d == kInfinity) return absl::OkStatus();
+  result.distance = d;
+  if (!pair.want_path) return absl::OkStatus();
+  ASSIGN_OR_RETURN(std::vector<ExactGeodesic::TracePoint> traced, exact.Trace(b));
+  GeodesicPath path;
+  for (const auto& tp : traced) path.points.push_back({tp.point, tp.xyz});
+  path.length = PolylineLength(path.points);
+  result.path = std::move(path);
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
@@ -412,6 +446,10 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   // The same number whether or not a path is asked for, and the number a
   // field from the first point gives (see SumAlongRoute).
   if (!route.empty()) result.distance = std::min(best, SumAlongRoute(g, ends, sc.pairs, route));
+  if (options.exact) {
+    RETURN_IF_ERROR(MakeExact(mesh, sc, ends[0].point, ends[1].point, options, result));
+    return result;
+  }
   if (!options.want_path || mu == kInfinity) return result;
   ASSIGN_OR_RETURN(result.path, TraceRoute(mesh, g, sc, ends, route, search.meet(), mu));
   return result;

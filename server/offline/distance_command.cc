@@ -26,7 +26,7 @@ Json PathJson(const GeodesicPath& path) {
 
 struct DistanceFlags {
   std::string mesh_path, graph_path, from, to, pairs_path, path_out;
-  bool json = false, want_path = false, no_astar = false, repair = false;
+  bool json = false, want_path = false, no_astar = false, exact = false, repair = false;
   std::optional<int> landmarks;
 };
 
@@ -43,6 +43,9 @@ void AddDistanceFlags(CLI::App& app, DistanceFlags& f) {
                  "write the path (implies --path; --from/--to only) as a polyline: .csv (x,y,z), "
                  ".ply (vertices and edges) or .obj (v and l lines)");
   app.add_flag("--no-astar", f.no_astar, "plain bidirectional Dijkstra instead of A*");
+  app.add_flag("--exact", f.exact,
+               "the exact polyhedral distance (and with --path the exact geodesic): a window "
+               "propagation bounded by the graph's answer");
   app.add_option("--landmarks", f.landmarks,
                  "landmarks whose graph distances tighten the A* bounds, computed once before "
                  "the queries (0: straight-line bounds only; default: 16 to 64 by the graph's "
@@ -93,8 +96,10 @@ Json PairJson(const SpecPair& pair, const PairResult& r, double seconds,
                  {"settled", r.settled},
                  {"queued", r.queued},
                  {"relaxed", r.relaxed},
+                 {"exact", r.exact},
                  {"from_snap_distance", SnapJson(a)},
                  {"to_snap_distance", SnapJson(b)}};
+  if (r.exact) result["windows"] = r.windows;
   if (r.path) {
     result["path"] = PathJson(*r.path);
     result["path_length"] = r.path->length;  // the polyline's own length
@@ -105,8 +110,9 @@ Json PairJson(const SpecPair& pair, const PairResult& r, double seconds,
 std::string PairText(const SpecPair& pair, const PairResult& r, double seconds) {
   std::string d =
       r.distance < kInfinity ? absl::StrFormat("%.12g", r.distance) : std::string("unreachable");
-  std::string out = absl::StrFormat("%s -> %s: %s (%.3f ms, %u nodes settled)\n", pair.first,
-                                    pair.second, d, 1e3 * seconds, r.settled);
+  std::string out =
+      absl::StrFormat("%s -> %s: %s%s (%.3f ms, %u nodes settled)\n", pair.first, pair.second, d,
+                      r.exact ? " exact" : "", 1e3 * seconds, r.settled);
   if (r.path) {
     for (const PathPoint& p : r.path->points) {
       out += absl::StrFormat("  %s  %.9g %.9g %.9g\n", FormatSurfacePoint(p.point), p.xyz.x,
@@ -140,6 +146,7 @@ int RunDistance(int argc, char** argv) {
   PairOptions options;
   options.want_path = f.want_path;
   options.use_astar = !f.no_astar;
+  options.exact = f.exact;
   std::string out;
   Json results = Json::array();
   PointResolver resolver(**mesh);

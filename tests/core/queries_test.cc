@@ -172,6 +172,68 @@ TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, PairsTest, ::testing::Values("camelhead", "fertility"));
 
+// Exact pairs: the independent solver's distances to 1e-12 relative, and
+// its paths' lengths, with far fewer windows than a whole propagation.
+class ExactPairsTest : public ::testing::TestWithParam<std::string> {};
+
+TEST_P(ExactPairsTest, EqualTheIndependentSolversPairsAndPaths) {
+  ASSERT_TRUE(SharedDataAvailable()) << "missing " << SharedPath("meshes/MANIFEST.md");
+  const std::string name = GetParam();
+  std::string mesh_path;
+  for (const char* ext : {".off", ".obj", ".ply"}) {
+    if (std::filesystem::exists(SharedPath("meshes/" + name + ext))) {
+      mesh_path = SharedPath("meshes/" + name + ext);
+    }
+  }
+  auto loaded = LoadMesh(mesh_path);
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  DggBuildOptions build;
+  build.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, build);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  auto pairs = ReadPairs(*mesh, name);
+  ASSERT_GE(pairs.size(), 100u);
+  ExactGeodesic whole(*mesh);
+  size_t compared = 0;
+  uint64_t pruned_windows = 0, whole_windows = 0;
+  for (size_t i = 0; i < pairs.size(); i += 3) {
+    const Pair& p = pairs[i];
+    PairOptions options;
+    options.exact = true;
+    options.want_path = i % 2 == 0;
+    auto r = engine.Distance(p.a, p.b, options);
+    ASSERT_OK(r);
+    EXPECT_TRUE(r->exact);
+    if (p.exact == kInfinity) {
+      EXPECT_EQ(r->distance, kInfinity) << "pair " << i;
+      continue;
+    }
+    ASSERT_TRUE(std::isfinite(r->distance)) << "pair " << i;
+    EXPECT_NEAR(r->distance, p.exact, 1e-12 * std::max(p.exact, 1e-300)) << "pair " << i;
+    ++compared;
+    if (r->path) {
+      ASSERT_FALSE(r->path->points.empty()) << "pair " << i;
+      EXPECT_NEAR(r->path->length, p.exact, 1e-9 * std::max(p.exact, 1e-300)) << "pair " << i;
+      ExpectOnSurface(*mesh, *r->path);
+    }
+    // The same propagation without the goal sweeps the whole disc.
+    if (i % 15 == 0 && p.exact > 0) {
+      ExactOptions disc;
+      disc.max_distance = p.exact * (1 + 1e-9);
+      ASSERT_OK(whole.Distances(p.a, disc));
+      pruned_windows += r->windows;
+      whole_windows += whole.stats().windows_created;
+    }
+  }
+  EXPECT_GE(compared, 30u);
+  ASSERT_GT(whole_windows, 0u);
+  EXPECT_LT(2 * pruned_windows, whole_windows) << "the goal pruned less than half the windows";
+}
+
+INSTANTIATE_TEST_SUITE_P(SharedMeshes, ExactPairsTest, ::testing::Values("camelhead", "fertility"));
+
 TEST(QueriesTest, SameFaceAndCornerCasesOnAGrid) {
   auto [mesh, graph] = GridAndGraph(20, 20, 0.1);
   ASSERT_NE(graph, nullptr);
@@ -476,6 +538,77 @@ TEST(QueriesTest, MatrixEqualsPairsOnSpot) {
   EXPECT_EQ((*m)[0], 0);
   const double straight = Distance(PositionOf(*mesh, sources[0]), PositionOf(*mesh, targets[1]));
   EXPECT_NEAR((*m)[1], straight, 1e-12 * straight);  // one face: a straight segment
+}
+
+// Exact rows equal exact pairs and our exact engine's whole field, and are
+// never above the graph's entries.
+TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {
+  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  DggBuildOptions build;
+  build.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, build);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  const std::vector<SurfacePoint> points = MixedPoints(*mesh, 7);
+  ASSERT_FALSE(points.empty());
+  MatrixOptions exact_rows;
+  exact_rows.exact = true;
+  auto exact = engine.Matrix(points, points, exact_rows);
+  auto graph_only = engine.Matrix(points, points);
+  ASSERT_OK(exact);
+  ASSERT_OK(graph_only);
+  ASSERT_EQ(exact->size(), points.size() * points.size());
+  ExactGeodesic whole(*mesh);
+  ExactOptions keep;
+  keep.keep_windows = true;
+  for (size_t i = 0; i < points.size(); ++i) {
+    ASSERT_OK(whole.Distances(points[i], keep));
+    for (size_t j = 0; j < points.size(); ++j) {
+      const double got = (*exact)[i * points.size() + j];
+      auto want = whole.DistanceTo(points[j]);
+      ASSERT_OK(want);
+      ASSERT_TRUE(std::isfinite(got) && std::isfinite(*want)) << i << "," << j;
+      EXPECT_NEAR(got, *want, 1e-12 * std::max(*want, 1.0)) << i << "," << j;
+      EXPECT_LE(got, (*graph_only)[i * points.size() + j] * (1 + 1e-12)) << i << "," << j;
+      PairOptions pair;
+      pair.exact = true;
+      auto p = engine.Distance(points[i], points[j], pair);
+      ASSERT_OK(p);
+      EXPECT_NEAR(p->distance, got, 1e-12 * std::max(got, 1.0)) << i << "," << j;
+    }
+  }
+}
+
+// An exact pair past its memory limit fails with RESOURCE_EXHAUSTED naming
+// the limit, and the engine answers the next pair as before.
+TEST(QueriesTest, ExactPairsKeepToTheirMemoryLimit) {
+  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(loaded);
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  DggBuildOptions build;
+  build.params.epsilon = 1e-2;
+  auto graph = BuildDgg(*mesh, build);
+  ASSERT_OK(graph);
+  GeodesicEngine engine(mesh, *graph);
+  const SurfacePoint a = SurfacePoint::Vertex(0), b = SurfacePoint::Vertex(1500);
+  PairOptions tight;
+  tight.exact = true;
+  tight.exact_max_bytes = 1;
+  auto refused = engine.Distance(a, b, tight);
+  ASSERT_FALSE(refused.ok());
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(refused.status().message()), ::testing::HasSubstr("over its limit"));
+  PairOptions exact;
+  exact.exact = true;
+  auto answered = engine.Distance(a, b, exact);
+  ASSERT_OK(answered);
+  ExactGeodesic whole(*mesh);
+  auto field = whole.Distances(a);
+  ASSERT_OK(field);
+  ASSERT_TRUE(std::isfinite((*field)[1500]) && std::isfinite(answered->distance));
+  EXPECT_NEAR(answered->distance, (*field)[1500], 1e-12 * (*field)[1500]);
 }
 
 // Entries on the independent solver's exact pairs: within the accuracy
