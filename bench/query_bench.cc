@@ -67,9 +67,7 @@ void Worker(Load& load, int worker) {
   std::vector<double> mine;
   while (Clock::now() < load.stop && load.issued.fetch_add(1) < load.options.count) {
     v1::DistanceRequest req;
-    req.set_mesh(load.c.mesh);
-    req.set_epsilon(load.c.epsilon);
-    req.set_pseudo_vertices(load.c.pseudo_vertices);
+    *req.mutable_graph() = cli::Selector(load.c);
     req.set_with_path(load.options.with_path);
     auto* p = req.add_pairs();
     points.Pick(p->mutable_from());

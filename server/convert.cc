@@ -7,6 +7,26 @@
 
 namespace geodesic::server {
 
+v1::GraphSelector MakeSelector(const std::string& mesh, double epsilon, bool pseudo_vertices) {
+  v1::GraphSelector out;
+  out.set_mesh(mesh);
+  out.set_epsilon(epsilon);
+  out.set_pseudo_vertices(pseudo_vertices);
+  return out;
+}
+
+v1::GraphSelector ToProto(const GraphKey& key) {
+  return MakeSelector(key.mesh, key.params.epsilon, key.params.pseudo_vertices);
+}
+
+void FillEcho(const GraphKey& key, const std::string& method, v1::QueryEcho* echo) {
+  *echo->mutable_graph() = ToProto(key);
+  echo->set_mesh(key.mesh);
+  echo->set_epsilon(key.params.epsilon);
+  echo->set_pseudo_vertices(key.params.pseudo_vertices);
+  echo->set_method(method);
+}
+
 std::optional<SurfacePoint> PointOf(const v1::SurfacePoint& p) {
   switch (p.point_case()) {
     case v1::SurfacePoint::kVertex:

@@ -1,7 +1,7 @@
 // Conversions between the API's messages and core types, shared by the
-// gRPC service, the HTTP gateway and the command-line client: surface
-// points (messages, spec strings such as "f:7:0.2,0.3,0.5"), graph states,
-// mesh diagnostics and status codes.
+// gRPC service, the HTTP gateway and the command-line client: the graph a
+// request names, surface points (messages, spec strings such as
+// "f:7:0.2,0.3,0.5"), graph states, mesh diagnostics and status codes.
 #ifndef GEODESIC_SERVER_CONVERT_H_
 #define GEODESIC_SERVER_CONVERT_H_
 
@@ -20,6 +20,30 @@
 #include "server/graph_cache.h"
 
 namespace geodesic::server {
+
+// The graph a request names (RequestGraph, GetGraph, WatchGraph, CancelGraph
+// and every query; also the graph a QueryEcho names): its `graph` when it is
+// set, else the fields that `graph` superseded (mesh, epsilon,
+// pseudo_vertices), which clients from before it send. This is the one place
+// that rule lives: the service reads a request's graph only through it.
+template <typename Request>
+v1::GraphSelector SelectorOf(const Request& req) {
+  if (req.has_graph()) return req.graph();
+  v1::GraphSelector out;
+  out.set_mesh(req.mesh());
+  out.set_epsilon(req.epsilon());
+  out.set_pseudo_vertices(req.pseudo_vertices());
+  return out;
+}
+
+// A selector as clients send it (epsilon 0: the server's --default-epsilon).
+v1::GraphSelector MakeSelector(const std::string& mesh, double epsilon, bool pseudo_vertices);
+// The graph a key is, its epsilon the one it is built with.
+v1::GraphSelector ToProto(const GraphKey& key);
+// What a query's answer says about the graph that gave it and the solver
+// that ran: `graph` and, for clients from before it, the fields it
+// superseded.
+void FillEcho(const GraphKey& key, const std::string& method, v1::QueryEcho* echo);
 
 // The API's point as a core point, not checked against a mesh; nothing when
 // the message sets no point.

@@ -184,12 +184,11 @@ absl::StatusOr<double> GeodesicService::Epsilon(double requested) const {
   return eps;
 }
 
-absl::StatusOr<GraphKey> GeodesicService::Key(const std::string& mesh, double epsilon,
-                                              bool pseudo) const {
-  ASSIGN_OR_RETURN(const double eps, Epsilon(epsilon));
-  GraphKey key{mesh, DggParams{}};
+absl::StatusOr<GraphKey> GeodesicService::Key(const v1::GraphSelector& graph) const {
+  ASSIGN_OR_RETURN(const double eps, Epsilon(graph.epsilon()));
+  GraphKey key{graph.mesh(), DggParams{}};
   key.params.epsilon = eps;
-  key.params.pseudo_vertices = pseudo;
+  key.params.pseudo_vertices = graph.pseudo_vertices();
   key.params.exact_fans = limits_.exact_fans;
   return key;
 }
@@ -447,11 +446,12 @@ grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::Unl
 
 grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
                                            const v1::RequestGraphRequest* req, v1::Graph* resp) {
-  return Handle("RequestGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    NameLocks::Hold hold(names_, req->mesh(), absl::FromChrono(ctx->deadline()));
-    if (!hold.held()) return NameBusy(req->mesh());
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    auto m = FindMesh(req->mesh());
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("RequestGraph", ctx, graph.mesh(), false, [&]() -> absl::Status {
+    NameLocks::Hold hold(names_, graph.mesh(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(graph.mesh());
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
+    auto m = FindMesh(key.mesh);
     if (!m.ok()) return m.status();
     ASSIGN_OR_RETURN(const GraphStatus started, StartGraph(key, *m));
     ToProto(started, resp);
@@ -461,8 +461,9 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
 
 grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                        v1::Graph* resp) {
-  return Handle("GetGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("GetGraph", ctx, graph.mesh(), false, [&]() -> absl::Status {
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto g = graphs_->Get(key);
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
@@ -472,8 +473,9 @@ grpc::Status GeodesicService::GetGraph(grpc::ServerContext* ctx, const v1::GetGr
 
 grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::GetGraphRequest* req,
                                          grpc::ServerWriter<v1::Graph>* writer) {
-  return Handle("WatchGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("WatchGraph", ctx, graph.mesh(), false, [&]() -> absl::Status {
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto g = graphs_->Get(key);
     while (g.ok()) {
       v1::Graph out;
@@ -492,10 +494,11 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
 
 grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
                                           const v1::CancelGraphRequest* req, v1::Graph* resp) {
-  return Handle("CancelGraph", ctx, req->mesh(), false, [&]() -> absl::Status {
-    NameLocks::Hold hold(names_, req->mesh(), absl::FromChrono(ctx->deadline()));
-    if (!hold.held()) return NameBusy(req->mesh());
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("CancelGraph", ctx, graph.mesh(), false, [&]() -> absl::Status {
+    NameLocks::Hold hold(names_, graph.mesh(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(graph.mesh());
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto g = graphs_->Cancel(key);
     // A ready graph has no operation to cancel: it stays catalogued and
     // served. Anything else is forgotten, also when only another replica
@@ -520,14 +523,14 @@ grpc::Status GeodesicService::ListGraphs(grpc::ServerContext* ctx, const v1::Lis
 grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
                                             const v1::DistanceFieldRequest* req,
                                             grpc::ServerWriter<v1::DistanceFieldChunk>* writer) {
-  return Handle("DistanceField", ctx, req->mesh(), true, [&]() -> absl::Status {
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("DistanceField", ctx, graph.mesh(), true, [&]() -> absl::Status {
     if (req->sources_size() == 0) return absl::InvalidArgumentError("a field needs a source");
     if (req->sources_size() > limits_.max_sources) {
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d sources exceed the limit of %d per field", req->sources_size(), limits_.max_sources));
     }
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
-    const double eps = key.params.epsilon;
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
@@ -563,11 +566,8 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     for (size_t offset = 0; offset < total || offset == 0; offset += limits_.field_chunk) {
       v1::DistanceFieldChunk chunk;
       if (offset == 0) {
-        chunk.mutable_echo()->set_mesh(req->mesh());
-        chunk.mutable_echo()->set_epsilon(eps);
-        chunk.mutable_echo()->set_method(options.method == FieldMethod::kDijkstra ? "dijkstra"
-                                                                                  : "lc");
-        chunk.mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
+        FillEcho(key, options.method == FieldMethod::kDijkstra ? "dijkstra" : "lc",
+                 chunk.mutable_echo());
       }
       chunk.set_offset(offset);
       chunk.set_total(total);
@@ -605,7 +605,8 @@ void FillPath(const GeodesicPath& path, v1::Path* out) {
 
 grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::DistanceRequest* req,
                                        v1::DistanceResponse* resp) {
-  return Handle("Distance", ctx, req->mesh(), true, [&]() -> absl::Status {
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("Distance", ctx, graph.mesh(), true, [&]() -> absl::Status {
     if (req->pairs_size() > limits_.max_pairs) {
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
@@ -613,7 +614,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     const uint64_t pairs = req->pairs_size();
     RETURN_IF_ERROR(CheckAnswerSize(absl::StrFormat("%u pairs", pairs),
                                     pairs * kPairResultBytes + kAnswerOverhead));
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
     const Mesh& mesh = (*engine)->mesh();
@@ -634,10 +635,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     ASSIGN_OR_RETURN(Admission::Ticket run,
                      StartQuery(ctx, 2 * answer, lanes * PairScratchBytes(**engine)));
     uint64_t answer_bytes = kAnswerOverhead;
-    resp->mutable_echo()->set_mesh(req->mesh());
-    resp->mutable_echo()->set_epsilon(key.params.epsilon);
-    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
-    resp->mutable_echo()->set_method("bidirectional-astar");
+    FillEcho(key, "bidirectional-astar", resp->mutable_echo());
     PairOptions options;
     options.want_path = req->with_path();
     options.cancelled = Cancelled(ctx);
@@ -673,7 +671,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
 absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
     const v1::MatrixRequest& req, grpc::ServerContext* ctx) {
   MatrixQuery q;
-  ASSIGN_OR_RETURN(q.key, Key(req.mesh(), req.epsilon(), req.pseudo_vertices()));
+  ASSIGN_OR_RETURN(q.key, Key(SelectorOf(req)));
   ASSIGN_OR_RETURN(q.engine, AcquireEngine(q.key, ctx));
   const Mesh& mesh = q.engine->mesh();
   ASSIGN_OR_RETURN(q.sources, PointsFromProto(req.sources(), mesh, "source"));
@@ -683,7 +681,8 @@ absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
 
 grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                      v1::MatrixResponse* resp) {
-  return Handle("Matrix", ctx, req->mesh(), true, [&]() -> absl::Status {
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("Matrix", ctx, graph.mesh(), true, [&]() -> absl::Status {
     RETURN_IF_ERROR(CheckMatrixLimits(*req));
     const uint64_t entries = uint64_t(req->sources_size()) * uint64_t(req->targets_size());
     const uint64_t answer = entries * 9 + kAnswerOverhead;
@@ -700,12 +699,9 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
                                 FieldScratchBytes(*q.engine) + targets.size() * sizeof(double)));
     auto m = q.engine->Matrix(sources, targets, Cancelled(ctx));
     if (!m.ok()) return m.status();
-    resp->mutable_echo()->set_mesh(req->mesh());
-    resp->mutable_echo()->set_epsilon(key.params.epsilon);
-    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
     // One fan-restricted field per row (the "lc" solver), joined at the
     // targets as Distance joins its points.
-    resp->mutable_echo()->set_method("lc");
+    FillEcho(key, "lc", resp->mutable_echo());
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
     for (double d : *m) resp->add_distances(d);
@@ -715,7 +711,8 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
 
 grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                          grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
-  return Handle("MatrixRows", ctx, req->mesh(), true, [&]() -> absl::Status {
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("MatrixRows", ctx, graph.mesh(), true, [&]() -> absl::Status {
     RETURN_IF_ERROR(CheckMatrixLimits(*req));
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
     const GraphKey& key = q.key;
@@ -739,10 +736,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
       if (!m.ok()) return m.status();
       v1::MatrixRowsChunk chunk;
       if (first == 0) {
-        chunk.mutable_echo()->set_mesh(req->mesh());
-        chunk.mutable_echo()->set_epsilon(key.params.epsilon);
-        chunk.mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
-        chunk.mutable_echo()->set_method("lc");
+        FillEcho(key, "lc", chunk.mutable_echo());
       }
       chunk.set_first_row(first);
       chunk.set_rows(n);
@@ -784,13 +778,14 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
 grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
                                            const v1::SamplePointsRequest* req,
                                            v1::SamplePointsResponse* resp) {
-  return Handle("SamplePoints", ctx, req->mesh(), true, [&]() -> absl::Status {
+  const v1::GraphSelector graph = SelectorOf(*req);
+  return Handle("SamplePoints", ctx, graph.mesh(), true, [&]() -> absl::Status {
     // Each point costs a field: a count is bounded like a field's sources.
     if (req->count() > static_cast<uint32_t>(limits_.max_pairs)) {
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%u points exceed the limit of %d per call", req->count(), limits_.max_pairs));
     }
-    ASSIGN_OR_RETURN(const GraphKey key, Key(req->mesh(), req->epsilon(), req->pseudo_vertices()));
+    ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key, ctx));
     // A field's arrays and each vertex's distance to the samples so far.
     ASSIGN_OR_RETURN(Admission::Ticket run,
@@ -801,10 +796,7 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
     options.seed = req->seed();
     options.cancelled = Cancelled(ctx);
     ASSIGN_OR_RETURN(SampleResult sample, engine->SamplePoints(req->count(), options));
-    resp->mutable_echo()->set_mesh(req->mesh());
-    resp->mutable_echo()->set_epsilon(key.params.epsilon);
-    resp->mutable_echo()->set_pseudo_vertices(key.params.pseudo_vertices);
-    resp->mutable_echo()->set_method("farthest-point");
+    FillEcho(key, "farthest-point", resp->mutable_echo());
     for (VertexId v : sample.vertices) resp->add_vertices(v);
     resp->set_covering_radius(sample.covering_radius);
     return absl::OkStatus();

@@ -118,9 +118,9 @@ class GeodesicService final : public v1::Geodesic::Service {
   // [1e-6, 0.5] (INVALID_ARGUMENT otherwise). Every RPC that takes one checks
   // it here, before it reaches the cache, whose ordered lookup a NaN breaks.
   absl::StatusOr<double> Epsilon(double requested) const;
-  // The graph a request names: its mesh, and the build record this daemon
-  // makes for that epsilon and pseudo vertices.
-  absl::StatusOr<GraphKey> Key(const std::string& mesh, double epsilon, bool pseudo) const;
+  // The graph a request names (SelectorOf, in convert.h): its mesh, and the
+  // build record this daemon makes for that epsilon and pseudo vertices.
+  absl::StatusOr<GraphKey> Key(const v1::GraphSelector& graph) const;
   // Records a registered mesh in the catalog (if any); on failure a mesh
   // that did not exist before is unregistered again.
   absl::Status Record(const RegisteredMesh& m, bool existed);

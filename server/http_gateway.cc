@@ -21,6 +21,7 @@
 #include "absl/strings/str_join.h"
 #include "core/mesh/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
+#include "google/protobuf/util/json_util.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
 #include "server/constant_time.h"
@@ -262,62 +263,57 @@ grpc::Status BoolField(const json& body, const char* key, bool* out) {
   return grpc::Status::OK;
 }
 
-// Which graph a query asks: "eps" (0: the server's default) and
-// "pseudo_vertices" (the graph with pseudo vertices, a separate graph).
-struct GraphChoice {
-  double epsilon = 0;
-  bool pseudo_vertices = false;
-};
-
-grpc::Status BodyGraph(const json& body, GraphChoice* out) {
-  if (grpc::Status s = BodyEpsilon(body, &out->epsilon); !s.ok()) return s;
-  return BoolField(body, "pseudo_vertices", &out->pseudo_vertices);
-}
-
-template <typename Request>
-void SetGraph(const std::string& mesh, const GraphChoice& graph, Request* req) {
-  req->set_mesh(mesh);
-  req->set_epsilon(graph.epsilon);
-  req->set_pseudo_vertices(graph.pseudo_vertices);
-}
-
-// A request for `mesh` on the graph the body chooses.
+// A request for the graph of `mesh` (the path's) that the body chooses:
+// "eps" (or "epsilon"; absent: the server's default) and "pseudo_vertices"
+// (the graph with pseudo vertices, a separate graph). It goes in the
+// request's `graph`, made by the conversion the CLI uses too.
 template <typename Request>
 grpc::Status ForGraphOf(const std::string& mesh, const json& body, Request* req) {
-  GraphChoice graph;
-  if (grpc::Status s = BodyGraph(body, &graph); !s.ok()) return s;
-  SetGraph(mesh, graph, req);
+  double epsilon;
+  bool pseudo_vertices;
+  if (grpc::Status s = BodyEpsilon(body, &epsilon); !s.ok()) return s;
+  if (grpc::Status s = BoolField(body, "pseudo_vertices", &pseudo_vertices); !s.ok()) return s;
+  *req->mutable_graph() = MakeSelector(mesh, epsilon, pseudo_vertices);
   return grpc::Status::OK;
 }
 
 // The same from the query string: ?eps=E&pseudo_vertices=true.
-grpc::Status QueryGraph(const HttpRequest& req, GraphChoice* out) {
-  if (grpc::Status s = QueryEpsilon(req, &out->epsilon); !s.ok()) return s;
-  out->pseudo_vertices = false;
-  if (!req.has_param("pseudo_vertices")) return grpc::Status::OK;
-  const std::string text = req.param("pseudo_vertices");
-  if (text == "true" || text == "1") {
-    out->pseudo_vertices = true;
-  } else if (text != "false" && text != "0") {
-    return Invalid(
-        absl::StrFormat("query parameter pseudo_vertices=%s: expected true or false", text));
+template <typename Request>
+grpc::Status ForGraphOfQuery(const std::string& mesh, const HttpRequest& http, Request* req) {
+  double epsilon;
+  if (grpc::Status s = QueryEpsilon(http, &epsilon); !s.ok()) return s;
+  bool pseudo_vertices = false;
+  if (http.has_param("pseudo_vertices")) {
+    const std::string text = http.param("pseudo_vertices");
+    if (text == "true" || text == "1") {
+      pseudo_vertices = true;
+    } else if (text != "false" && text != "0") {
+      return Invalid(
+          absl::StrFormat("query parameter pseudo_vertices=%s: expected true or false", text));
+    }
   }
+  *req->mutable_graph() = MakeSelector(mesh, epsilon, pseudo_vertices);
   return grpc::Status::OK;
 }
 
-template <typename Request>
-grpc::Status ForGraphOfQuery(const std::string& mesh, const HttpRequest& http, Request* req) {
-  GraphChoice graph;
-  if (grpc::Status s = QueryGraph(http, &graph); !s.ok()) return s;
-  SetGraph(mesh, graph, req);
-  return grpc::Status::OK;
+// A body whose keys are a request message's fields, under the fields' names
+// and with their JSON types, read by protobuf's JSON mapping. Keys the route
+// does not take were refused before (OnlyKeys); those of the route's other
+// form are left to it.
+grpc::Status MessageOf(const json& body, google::protobuf::Message* out) {
+  google::protobuf::util::JsonParseOptions options;
+  options.ignore_unknown_fields = true;
+  const auto s = google::protobuf::util::JsonStringToMessage(Dump(body), out, options);
+  if (s.ok()) return grpc::Status::OK;
+  return Invalid("request body: " + std::string(s.message().data(), s.message().size()));
 }
 
 // What every query's answer says about the graph that gave it.
 void AddEcho(const v1::QueryEcho& echo, json* out) {
-  (*out)["eps"] = echo.epsilon();
+  const v1::GraphSelector graph = SelectorOf(echo);
+  (*out)["eps"] = graph.epsilon();
   (*out)["method"] = echo.method();
-  (*out)["pseudo_vertices"] = echo.pseudo_vertices();
+  (*out)["pseudo_vertices"] = graph.pseudo_vertices();
 }
 
 grpc::Status ArrayField(const json& body, const char* key, const json** out) {
@@ -485,16 +481,15 @@ struct HttpGateway::Impl {
       }
       auto name = body.find("name");
       if (name == body.end() || !name->is_string()) return Invalid("\"name\" must be a string");
-      bool repair = false;
-      if (s = BoolField(body, "repair_non_manifold", &repair); !s.ok()) return s;
-      if (auto path = body.find("path"); path != body.end()) {
-        if (!path->is_string()) return Invalid("\"path\" must be a string");
+      if (body.contains("path")) {
+        // {"name", "path", "repair_non_manifold"} is RegisterMeshRequest in
+        // protobuf's JSON mapping (see http_gateway.h).
         v1::RegisterMeshRequest req;
-        req.set_name(name->get<std::string>());
-        req.set_path(path->get<std::string>());
-        req.set_repair_non_manifold(repair);
+        if (s = MessageOf(body, &req); !s.ok()) return s;
         s = stub->RegisterMesh(call.Context().get(), req, &mesh);
       } else {
+        bool repair = false;
+        if (s = BoolField(body, "repair_non_manifold", &repair); !s.ok()) return s;
         v1::UploadMeshRequest first;
         first.set_name(name->get<std::string>());
         first.set_repair_non_manifold(repair);

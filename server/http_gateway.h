@@ -1,6 +1,28 @@
 // The HTTP/JSON gateway and the web viewer: every /v1 call is translated to
 // the gRPC service, called in-process, so that authentication, limits,
 // validation and error codes are the gRPC API's own.
+//
+// JSON to proto, route by route. Protobuf's JSON mapping (JsonStringToMessage)
+// reads a body only where the documented contract (README.md's HTTP section,
+// server/web/openapi.json) is the request message's own JSON: POST
+// /v1/meshes naming a file, {"name", "path", "repair_non_manifold"}, is
+// RegisterMeshRequest key for key. Every other route is mapped by hand,
+// because its contract is not the proto's: the graph is chosen by "eps"
+// (the proto's epsilon; "epsilon" is an alias that must agree) on the mesh
+// the URL names, or by the query string on GET and DELETE .../graph, and
+// goes into the request's `graph` through MakeSelector (server/convert.h),
+// as the CLI's does; points are SPEC strings ("v:12", "f:7:0.2,0.3,0.5",
+// "xyz:" positions snapped by Snap) or bare ids, not SurfacePoint objects;
+// distance pairs are [SPEC, SPEC] and "path" is with_path; snap positions
+// are [x, y, z] triples and uploaded arrays [[x, y, z], ...] rows, not
+// objects and flat arrays, and an upload's size and SHA-256 are computed
+// here; sample's "count" is required, which proto3 cannot say. Answers are
+// hand-built too: the contract writes +inf as null (protobuf: "Infinity"),
+// 64-bit counts as numbers (protobuf: strings), states as "READY", epsilon
+// as "eps", matrices as rows. Protobuf's parser is also laxer than the
+// contract (numbers and booleans as strings, "NaN"): on the one route it
+// reads it may accept such spellings, where hand-mapped keys refuse them
+// with a 400 naming the key.
 #ifndef GEODESIC_SERVER_HTTP_GATEWAY_H_
 #define GEODESIC_SERVER_HTTP_GATEWAY_H_
 

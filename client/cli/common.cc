@@ -35,6 +35,10 @@ CLI::Option* AddCommonFlags(CLI::App& app, Common& c) {
   return mesh_option;
 }
 
+v1::GraphSelector Selector(const Common& c) {
+  return server::MakeSelector(c.mesh, c.epsilon, c.pseudo_vertices);
+}
+
 namespace {
 
 bool ReadWholeFile(const std::string& flag, const std::string& path, std::string* out) {

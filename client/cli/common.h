@@ -50,6 +50,9 @@ std::shared_ptr<grpc::Channel> OpenChannel(const Common& c, bool connected);
 std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = false);
 // Every call carries the mesh name so that a proxy can route by it.
 void Prepare(grpc::ClientContext* ctx, const Common& c);
+// The graph the flags name (--mesh, --eps, --pseudo-vertices), as every
+// request that names a graph carries it in its `graph`.
+v1::GraphSelector Selector(const Common& c);
 
 // A number in [low, high] (NaN is not), as a CLI11 check.
 CLI::Validator NumberIn(double low, double high, const std::string& what);

@@ -62,8 +62,9 @@ void PrintResults(const Common& c, const std::vector<std::string>& specs,
   if (c.json) {
     PrintJson(results);
   } else {
+    const v1::GraphSelector graph = server::SelectorOf(resp.echo());
     std::printf("(%d pairs in %.2f ms, eps %g%s)\n", resp.results_size(), 1e3 * seconds,
-                resp.echo().epsilon(), resp.echo().pseudo_vertices() ? ", pseudo vertices" : "");
+                graph.epsilon(), graph.pseudo_vertices() ? ", pseudo vertices" : "");
   }
 }
 
@@ -88,9 +89,7 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   std::vector<Json> snap_distances;
   if (!ResolvePoints(stub.get(), c, specs, &points, &rc, &snap_distances)) return rc;
   v1::DistanceRequest req;
-  req.set_mesh(c.mesh);
-  req.set_epsilon(c.epsilon);
-  req.set_pseudo_vertices(c.pseudo_vertices);
+  *req.mutable_graph() = Selector(c);
   req.set_with_path(with_path);
   for (size_t i = 0; i + 1 < points.size(); i += 2) {
     auto* p = req.add_pairs();

@@ -40,9 +40,7 @@ int CmdField(const Common& c, const std::vector<std::string>& sources, const std
   }
   auto stub = Connect(c, /*connected=*/true);
   v1::DistanceFieldRequest req;
-  req.set_mesh(c.mesh);
-  req.set_epsilon(c.epsilon);
-  req.set_pseudo_vertices(c.pseudo_vertices);
+  *req.mutable_graph() = Selector(c);
   req.set_max_distance(radius);
   req.set_method(method);
   req.set_float32(f32);

@@ -6,6 +6,7 @@
 #include <string>
 
 #include "client/cli/commands.h"
+#include "server/convert.h"
 
 namespace geodesic::cli {
 namespace {
@@ -19,15 +20,11 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
     grpc::Status s;
     if (cancel) {
       v1::CancelGraphRequest req;
-      req.set_mesh(c.mesh);
-      req.set_epsilon(c.epsilon);
-      req.set_pseudo_vertices(c.pseudo_vertices);
+      *req.mutable_graph() = Selector(c);
       s = stub->CancelGraph(&ctx, req, &g);
     } else {
       v1::RequestGraphRequest req;
-      req.set_mesh(c.mesh);
-      req.set_epsilon(c.epsilon);
-      req.set_pseudo_vertices(c.pseudo_vertices);
+      *req.mutable_graph() = Selector(c);
       s = stub->RequestGraph(&ctx, req, &g);
     }
     if (!s.ok()) return Fail(s);
@@ -39,9 +36,8 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
     // The stream ends when the graph is ready, failed or cancelled.
     ctx.set_deadline(std::chrono::system_clock::time_point::max());
     v1::GetGraphRequest req;
-    req.set_mesh(c.mesh);
-    req.set_epsilon(g.epsilon());
-    req.set_pseudo_vertices(g.pseudo_vertices());
+    // The graph the answer named: its epsilon is the one it is built with.
+    *req.mutable_graph() = server::MakeSelector(c.mesh, g.epsilon(), g.pseudo_vertices());
     auto reader = stub->WatchGraph(&ctx, req);
     const bool bar = !c.json && isatty(STDERR_FILENO);
     while (reader->Read(&g)) {

@@ -14,9 +14,7 @@ int CmdMatrix(const Common& c, const std::vector<std::string>& sources,
   if (!ResolvePoints(stub.get(), c, sources, &s_points, &rc)) return rc;
   if (!ResolvePoints(stub.get(), c, targets, &t_points, &rc)) return rc;
   v1::MatrixRequest req;
-  req.set_mesh(c.mesh);
-  req.set_epsilon(c.epsilon);
-  req.set_pseudo_vertices(c.pseudo_vertices);
+  *req.mutable_graph() = Selector(c);
   for (auto& p : s_points) *req.add_sources() = p;
   for (auto& p : t_points) *req.add_targets() = p;
   grpc::ClientContext ctx;

@@ -12,9 +12,7 @@ int CmdSample(const Common& c, uint32_t count, uint64_t seed) {
   grpc::ClientContext ctx;
   Prepare(&ctx, c);
   v1::SamplePointsRequest req;
-  req.set_mesh(c.mesh);
-  req.set_epsilon(c.epsilon);
-  req.set_pseudo_vertices(c.pseudo_vertices);
+  *req.mutable_graph() = Selector(c);
   req.set_count(count);
   req.set_seed(seed);
   v1::SamplePointsResponse resp;

@@ -375,6 +375,9 @@ class GatewayTest(unittest.TestCase):
         status, body = curl(f"{self.base}/v1/meshes", "POST", {"name": "x", "pth": "spot.obj"})
         self.assert_error(status, body, 400, "INVALID_ARGUMENT")
         self.assertIn('"pth"', body["error"]["message"])
+        status, body = curl(f"{self.base}/v1/meshes", "POST", {"name": "x", "path": 5})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        self.assertIn("path", body["error"]["message"])
         status, body = curl(f"{self.base}/v1/meshes", "POST",
                             {"name": "x", "vertices": [[0, 0]], "faces": [[0, 1, 2]]})
         self.assert_error(status, body, 400, "INVALID_ARGUMENT")

@@ -3,6 +3,7 @@
 
 Usage: python_client_test.py BUILD_BIN_DIR SOURCE_DIR
 """
+import concurrent.futures
 import dataclasses
 import json
 import os
@@ -27,6 +28,73 @@ from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 from comparisons import assert_close, assert_same  # noqa: E402
+
+
+# The requests that name a graph, and the answers that echo the graph that
+# answered (None: the answer is a Graph, which names it in its own fields).
+GRAPH_CALLS = {
+    "RequestGraph": (pb.RequestGraphRequest, None),
+    "GetGraph": (pb.GetGraphRequest, None),
+    "WatchGraph": (pb.GetGraphRequest, None),
+    "CancelGraph": (pb.CancelGraphRequest, None),
+    "DistanceField": (pb.DistanceFieldRequest, pb.DistanceFieldChunk),
+    "Distance": (pb.DistanceRequest, pb.DistanceResponse),
+    "Matrix": (pb.MatrixRequest, pb.MatrixResponse),
+    "MatrixRows": (pb.MatrixRequest, pb.MatrixRowsChunk),
+    "SamplePoints": (pb.SamplePointsRequest, pb.SamplePointsResponse),
+}
+
+
+class RecordingProxy(grpc.GenericRpcHandler):
+    """A gRPC server on 127.0.0.1 that passes every geodesic.v1 call on to a daemon as raw
+    bytes and keeps each call's request and answers: what a client sent, as the daemon got
+    it, and what the daemon said."""
+    SERVER_STREAMS = {"WatchGraph", "DistanceField", "MatrixRows", "GetGeometry"}
+
+    def __init__(self, target):
+        self.calls = []  # (method name, request bytes, [answer bytes])
+        self._channel = grpc.insecure_channel(target)
+        self._server = grpc.server(concurrent.futures.ThreadPoolExecutor(max_workers=4))
+        self._server.add_generic_rpc_handlers([self])
+        self.port = self._server.add_insecure_port("127.0.0.1:0")
+        self._server.start()
+
+    def stop(self):
+        self._server.stop(grace=None)
+        self._channel.close()
+
+    def take(self):
+        calls, self.calls = self.calls, []
+        return calls
+
+    def service(self, details):
+        if not details.method.startswith("/geodesic.v1.Geodesic/"):
+            return None
+        name = details.method.rsplit("/", 1)[1]
+        if name in self.SERVER_STREAMS:
+            forward = self._channel.unary_stream(details.method)
+
+            def stream(request, context):
+                answers = []
+                self.calls.append((name, request, answers))
+                try:
+                    for answer in forward(request, timeout=120):
+                        answers.append(answer)
+                        yield answer
+                except grpc.RpcError as e:
+                    context.abort(e.code(), e.details())
+            return grpc.unary_stream_rpc_method_handler(stream)
+        forward = self._channel.unary_unary(details.method)
+
+        def unary(request, context):
+            answers = []
+            self.calls.append((name, request, answers))
+            try:
+                answers.append(forward(request, timeout=120))
+            except grpc.RpcError as e:
+                context.abort(e.code(), e.details())
+            return answers[0]
+        return grpc.unary_unary_rpc_method_handler(unary)
 
 
 class ClientTest(unittest.TestCase):
@@ -366,6 +434,53 @@ class ClientTest(unittest.TestCase):
                                       c.field("spot", [3], pseudo_vertices=True, **kw))
         with Client(f"127.0.0.1:{self.port}", epsilon=0.01) as other:
             self.assertEqual(other.mesh_solver("spot").epsilon, 0.01)  # the client's default
+
+    def test_clients_name_the_graph_in_its_selector(self):
+        # The Python client and the CLI send `graph` (a GraphSelector) and leave the fields it
+        # superseded unset; the daemon's answers echo the graph that answered in theirs.
+        proxy = RecordingProxy(f"127.0.0.1:{self.port}")
+        try:
+            with Client(f"127.0.0.1:{proxy.port}", timeout=120) as c:
+                c.request_graph("spot", epsilon=0.01)  # and WatchGraph
+                c.graph("spot", epsilon=0.01)
+                c.cancel_graph("spot", epsilon=0.01)  # ready: nothing to cancel
+                c.field("spot", [3], epsilon=0.01)
+                c.distances("spot", [0], [1500], epsilon=0.01)
+                c.matrix("spot", [0], [1500], epsilon=0.01)
+                c.sample_points("spot", 3, epsilon=0.01)
+            by_client = {"python": proxy.take()}
+            cli = [f"{BIN}/geodesic", "--server", f"127.0.0.1:{proxy.port}", "--mesh", "spot",
+                   "--eps", "0.01"]
+            for args in (["graph", "--wait"], ["graph", "--cancel"], ["field", "--source", "v:3"],
+                         ["distance", "--from", "v:0", "--to", "v:1500"],
+                         ["matrix", "--source", "v:0", "--target", "v:1500"],
+                         ["sample", "--count", "3"]):
+                run = subprocess.run(cli + args, capture_output=True, text=True)
+                self.assertEqual(run.returncode, 0, f"{args}: {run.stderr}")
+            by_client["cli"] = proxy.take()
+        finally:
+            proxy.stop()
+        expected = {"python": set(GRAPH_CALLS) - {"MatrixRows"},
+                    "cli": set(GRAPH_CALLS) - {"MatrixRows", "GetGraph"}}
+        for client, calls in by_client.items():
+            self.assertEqual({name for name, _, _ in calls} & set(GRAPH_CALLS), expected[client],
+                             msg=client)
+            for name, request, answers in calls:
+                if name not in GRAPH_CALLS:
+                    continue
+                what = f"{client} {name}"
+                request_type, answer_type = GRAPH_CALLS[name]
+                req = request_type.FromString(request)
+                self.assertTrue(req.HasField("graph"), msg=what)
+                self.assertEqual((req.graph.mesh, req.graph.epsilon, req.graph.pseudo_vertices),
+                                 ("spot", 0.01, False), msg=what)
+                self.assertEqual((req.mesh, req.epsilon, req.pseudo_vertices), ("", 0, False),
+                                 msg=what)
+                if answer_type is None:
+                    continue
+                echo = answer_type.FromString(answers[0]).echo
+                self.assertEqual((echo.graph.mesh, echo.graph.epsilon,
+                                  echo.graph.pseudo_vertices), ("spot", 0.01, False), msg=what)
 
     def test_progress_is_called_with_every_status_until_ready(self):
         # A fresh epsilon: this graph is built while the client waits.

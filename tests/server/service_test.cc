@@ -7,6 +7,7 @@
 #include <chrono>
 #include <filesystem>
 #include <thread>
+#include <tuple>
 
 #include "absl/strings/str_cat.h"
 #include "core/mesh/mesh_io.h"
@@ -291,6 +292,158 @@ TEST_F(ServiceTest, ThePseudoVertexGraphIsItsOwnGraph) {
   v1::DistanceResponse resp;
   ASSERT_TRUE(stub_->Distance(&pair_ctx, req, &resp).ok());
   EXPECT_TRUE(resp.echo().pseudo_vertices());
+}
+
+// How a request names spot's graph at 2e-2 with pseudo vertices: in the
+// fields that `graph` superseded, in `graph` alone, or in `graph` while
+// those fields name another graph (of no mesh, at another epsilon, plain).
+enum class Naming { kOldFields, kGraph, kBoth };
+
+template <typename Request>
+void NameGraph(Naming naming, Request* req) {
+  if (naming != Naming::kGraph) {
+    const bool other = naming == Naming::kBoth;
+    req->set_mesh(other ? "nosuch" : "spot");
+    req->set_epsilon(other ? 0.3 : 2e-2);
+    req->set_pseudo_vertices(!other);
+  }
+  if (naming != Naming::kOldFields) *req->mutable_graph() = MakeSelector("spot", 2e-2, true);
+}
+
+// The echo names the graph in `graph` and, for clients from before it, in
+// the fields it superseded.
+void ExpectEchoOfPseudoGraph(const v1::QueryEcho& echo, const std::string& what) {
+  EXPECT_EQ(echo.graph().mesh(), "spot") << what;
+  EXPECT_EQ(echo.graph().epsilon(), 2e-2) << what;
+  EXPECT_TRUE(echo.graph().pseudo_vertices()) << what;
+  EXPECT_EQ(echo.mesh(), "spot") << what;
+  EXPECT_EQ(echo.epsilon(), 2e-2) << what;
+  EXPECT_TRUE(echo.pseudo_vertices()) << what;
+}
+
+void ExpectPseudoGraph(const v1::Graph& g, const std::string& what) {
+  EXPECT_EQ(g.mesh(), "spot") << what;
+  EXPECT_EQ(g.epsilon(), 2e-2) << what;
+  EXPECT_TRUE(g.pseudo_vertices()) << what;
+  EXPECT_EQ(g.state(), v1::GRAPH_STATE_READY) << what;
+}
+
+// Every request that names a graph: `graph` alone selects the graph the old
+// fields alone select, and with both set, `graph` wins.
+TEST_F(ServiceTest, GraphSelectorSelectsAsTheOldFieldsDoAndWinsOverThem) {
+  ReadySpot(2e-2);
+  ReadySpot(2e-2, /*pseudo=*/true);
+  std::vector<double> distances;
+  std::vector<std::vector<uint32_t>> samples;
+  for (Naming naming : {Naming::kOldFields, Naming::kGraph, Naming::kBoth}) {
+    const std::string what = absl::StrCat("naming ", static_cast<int>(naming));
+    v1::Graph g;
+    {
+      grpc::ClientContext ctx;
+      v1::RequestGraphRequest req;
+      NameGraph(naming, &req);
+      ASSERT_TRUE(stub_->RequestGraph(&ctx, req, &g).ok()) << what;
+      ExpectPseudoGraph(g, "RequestGraph, " + what);
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::GetGraphRequest req;
+      NameGraph(naming, &req);
+      ASSERT_TRUE(stub_->GetGraph(&ctx, req, &g).ok()) << what;
+      ExpectPseudoGraph(g, "GetGraph, " + what);
+      grpc::ClientContext watch_ctx;
+      auto watch = stub_->WatchGraph(&watch_ctx, req);
+      ASSERT_TRUE(watch->Read(&g)) << what;
+      ExpectPseudoGraph(g, "WatchGraph, " + what);
+      while (watch->Read(&g)) {
+      }
+      ASSERT_TRUE(watch->Finish().ok()) << what;
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::CancelGraphRequest req;  // a ready graph has nothing to cancel
+      NameGraph(naming, &req);
+      ASSERT_TRUE(stub_->CancelGraph(&ctx, req, &g).ok()) << what;
+      ExpectPseudoGraph(g, "CancelGraph, " + what);
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::DistanceRequest req;
+      NameGraph(naming, &req);
+      *req.add_pairs()->mutable_from() = Vertex(0);
+      *req.mutable_pairs(0)->mutable_to() = Vertex(2000);
+      v1::DistanceResponse resp;
+      grpc::Status s = stub_->Distance(&ctx, req, &resp);
+      ASSERT_TRUE(s.ok()) << what << ": " << s.error_message();
+      ExpectEchoOfPseudoGraph(resp.echo(), "Distance, " + what);
+      distances.push_back(resp.results(0).distance());
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::MatrixRequest req;
+      NameGraph(naming, &req);
+      *req.add_sources() = Vertex(0);
+      *req.add_targets() = Vertex(2000);
+      v1::MatrixResponse resp;
+      ASSERT_TRUE(stub_->Matrix(&ctx, req, &resp).ok()) << what;
+      ExpectEchoOfPseudoGraph(resp.echo(), "Matrix, " + what);
+      grpc::ClientContext rows_ctx;
+      auto rows = stub_->MatrixRows(&rows_ctx, req);
+      v1::MatrixRowsChunk chunk;
+      ASSERT_TRUE(rows->Read(&chunk)) << what;
+      ExpectEchoOfPseudoGraph(chunk.echo(), "MatrixRows, " + what);
+      while (rows->Read(&chunk)) {
+      }
+      ASSERT_TRUE(rows->Finish().ok()) << what;
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::DistanceFieldRequest req;
+      NameGraph(naming, &req);
+      *req.add_sources() = Vertex(0);
+      req.add_targets(2000);
+      auto field = stub_->DistanceField(&ctx, req);
+      v1::DistanceFieldChunk chunk;
+      ASSERT_TRUE(field->Read(&chunk)) << what;
+      ExpectEchoOfPseudoGraph(chunk.echo(), "DistanceField, " + what);
+      ASSERT_EQ(chunk.values_size(), 1) << what;
+      EXPECT_EQ(chunk.values(0), distances.back()) << what;
+      while (field->Read(&chunk)) {
+      }
+      ASSERT_TRUE(field->Finish().ok()) << what;
+    }
+    {
+      grpc::ClientContext ctx;
+      v1::SamplePointsRequest req;
+      NameGraph(naming, &req);
+      req.set_count(4);
+      v1::SamplePointsResponse resp;
+      ASSERT_TRUE(stub_->SamplePoints(&ctx, req, &resp).ok()) << what;
+      ExpectEchoOfPseudoGraph(resp.echo(), "SamplePoints, " + what);
+      samples.emplace_back(resp.vertices().begin(), resp.vertices().end());
+    }
+  }
+  // One graph answered all three namings alike.
+  EXPECT_EQ(distances[1], distances[0]);
+  EXPECT_EQ(distances[2], distances[0]);
+  EXPECT_EQ(samples[1], samples[0]);
+  EXPECT_EQ(samples[2], samples[0]);
+}
+
+// The rule itself: `graph` counts once it is set, even to its defaults (the
+// server's default epsilon, the plain graph); until then the old fields do.
+TEST(SelectorOfTest, GraphCountsOnceSetEvenToItsDefaults) {
+  v1::SamplePointsRequest req;
+  req.set_mesh("old");
+  req.set_epsilon(0.1);
+  req.set_pseudo_vertices(true);
+  v1::GraphSelector graph = SelectorOf(req);
+  EXPECT_EQ((std::tuple(graph.mesh(), graph.epsilon(), graph.pseudo_vertices())),
+            (std::tuple("old", 0.1, true)));
+  req.mutable_graph()->set_mesh("new");
+  graph = SelectorOf(req);
+  EXPECT_EQ((std::tuple(graph.mesh(), graph.epsilon(), graph.pseudo_vertices())),
+            (std::tuple("new", 0.0, false)));
 }
 
 TEST_F(ServiceTest, UnloadDropsTheMeshAndItsGraphs) {

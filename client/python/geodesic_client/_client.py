@@ -108,6 +108,12 @@ class Client:
     def _eps(self, epsilon: Optional[float]) -> float:
         return self.epsilon if epsilon is None else epsilon
 
+    def _graph(self, mesh: str, epsilon: Optional[float], pseudo_vertices: bool) -> Any:
+        """The GraphSelector every request that names a graph carries in its `graph` (the
+        requests' own mesh, epsilon and pseudo_vertices fields are what it superseded)."""
+        return pb.GraphSelector(mesh=mesh, epsilon=self._eps(epsilon),
+                                pseudo_vertices=pseudo_vertices)
+
     def _call(self, name: str, run: Callable[[], Any]) -> Any:
         """run() with retries of transient codes; failures become GeodesicError."""
         delays = self.retry.delays()
@@ -306,8 +312,7 @@ class Client:
         gives one call. An exception it raises ends the wait and propagates.
         Raises RuntimeError if the graph failed or was cancelled while waiting.
         """
-        request = pb.RequestGraphRequest(mesh=mesh, epsilon=self._eps(epsilon),
-                                         pseudo_vertices=pseudo_vertices)
+        request = pb.RequestGraphRequest(graph=self._graph(mesh, epsilon, pseudo_vertices))
         g = self._unary("RequestGraph", request, mesh)
         # Under memory pressure a graph can be evicted again before this
         # client sees it ready; asking again brings it back from its file.
@@ -315,7 +320,7 @@ class Client:
         # and the stream ends when the graph is ready, failed or cancelled.
         for _ in range(10 if wait else 0):
             g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
-                pb.GetGraphRequest(mesh=mesh, epsilon=g.epsilon, pseudo_vertices=pseudo_vertices),
+                pb.GetGraphRequest(graph=self._graph(mesh, g.epsilon, pseudo_vertices)),
                 timeout=None, metadata=self._meta(mesh)), g, progress))
             if g.state != pb.GRAPH_STATE_EVICTED:
                 break
@@ -346,7 +351,7 @@ class Client:
               pseudo_vertices: bool = False) -> Graph:
         """The state of the graph of mesh at epsilon."""
         return Graph._from_proto(self._unary("GetGraph", pb.GetGraphRequest(
-            mesh=mesh, epsilon=self._eps(epsilon), pseudo_vertices=pseudo_vertices), mesh))
+            graph=self._graph(mesh, epsilon, pseudo_vertices)), mesh))
 
     def graphs(self) -> List[Graph]:
         """Every graph the server knows of."""
@@ -357,7 +362,7 @@ class Client:
                      pseudo_vertices: bool = False) -> Graph:
         """Cancels the build of a graph."""
         return Graph._from_proto(self._unary("CancelGraph", pb.CancelGraphRequest(
-            mesh=mesh, epsilon=self._eps(epsilon), pseudo_vertices=pseudo_vertices), mesh))
+            graph=self._graph(mesh, epsilon, pseudo_vertices)), mesh))
 
     # -- queries --------------------------------------------------------------
     # Every query takes pseudo_vertices: True asks the graph with pseudo
@@ -417,9 +422,8 @@ class Client:
         while start < len(points):
             batch = points[start:start + self.max_sources]
             req = pb.DistanceFieldRequest(
-                mesh=mesh, epsilon=self._eps(epsilon), max_distance=max_distance,
-                sources=batch, targets=target_ids,
-                method=method, nearest_source=nearest_source, pseudo_vertices=pseudo_vertices)
+                graph=self._graph(mesh, epsilon, pseudo_vertices), max_distance=max_distance,
+                sources=batch, targets=target_ids, method=method, nearest_source=nearest_source)
             try:
                 part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
             except GeodesicError as e:
@@ -490,8 +494,8 @@ class Client:
         batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
         while i < len(pa):
             j = min(len(pa), i + batch)
-            req = pb.DistanceRequest(mesh=mesh, epsilon=self._eps(epsilon), with_path=with_path,
-                                     pseudo_vertices=pseudo_vertices,
+            req = pb.DistanceRequest(graph=self._graph(mesh, epsilon, pseudo_vertices),
+                                     with_path=with_path,
                                      pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
                                             for k in range(i, j)])
             try:
@@ -545,8 +549,8 @@ class Client:
                 for r in range(0, len(ps), rows):
                     for c in range(0, len(pt), cols):
                         resp = self._unary("Matrix", pb.MatrixRequest(
-                            mesh=mesh, epsilon=self._eps(epsilon), sources=ps[r:r + rows],
-                            targets=pt[c:c + cols], pseudo_vertices=pseudo_vertices), mesh)
+                            graph=self._graph(mesh, epsilon, pseudo_vertices),
+                            sources=ps[r:r + rows], targets=pt[c:c + cols]), mesh)
                         out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
                 return out
@@ -575,9 +579,8 @@ class Client:
         try:
             for r in range(0, len(ps), rows):
                 for c in range(0, len(pt), cols):
-                    req = pb.MatrixRequest(mesh=mesh, epsilon=self._eps(epsilon),
-                                           sources=ps[r:r + rows], targets=pt[c:c + cols],
-                                           pseudo_vertices=pseudo_vertices)
+                    req = pb.MatrixRequest(graph=self._graph(mesh, epsilon, pseudo_vertices),
+                                           sources=ps[r:r + rows], targets=pt[c:c + cols])
 
                     def blocks(req: Any = req, r: int = r, c: int = c) -> None:
                         for b in self._stub.MatrixRows(req, timeout=self.timeout,
@@ -607,8 +610,7 @@ class Client:
         covering radius), every vertex lying within the covering radius (graph distance) of a
         sample (+inf while a component has none). The seed picks the first vertex."""
         resp = self._unary("SamplePoints", pb.SamplePointsRequest(
-            mesh=mesh, epsilon=self._eps(epsilon), count=count, seed=seed,
-            pseudo_vertices=pseudo_vertices), mesh)
+            graph=self._graph(mesh, epsilon, pseudo_vertices), count=count, seed=seed), mesh)
         return np.asarray(resp.vertices, dtype=np.uint32), float(resp.covering_radius)
 
 
