@@ -632,12 +632,17 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     }
     // A request's pairs are spread over the cores, each on its own scratch.
     const uint64_t lanes = std::clamp<uint64_t>(pairs, 1, std::thread::hardware_concurrency());
-    ASSIGN_OR_RETURN(Admission::Ticket run,
-                     StartQuery(ctx, 2 * answer, lanes * PairScratchBytes(**engine)));
+    // An exact pair may hold up to max_exact_bytes of windows on each lane.
+    const uint64_t exact_bytes = req->exact() ? limits_.max_exact_bytes : 0;
+    ASSIGN_OR_RETURN(
+        Admission::Ticket run,
+        StartQuery(ctx, 2 * answer, lanes * (PairScratchBytes(**engine) + exact_bytes)));
     uint64_t answer_bytes = kAnswerOverhead;
-    FillEcho(key, "bidirectional-astar", resp->mutable_echo());
+    FillEcho(key, req->exact() ? "exact" : "bidirectional-astar", resp->mutable_echo());
     PairOptions options;
     options.want_path = req->with_path();
+    options.exact = req->exact();
+    options.exact_max_bytes = limits_.max_exact_bytes;
     options.cancelled = Cancelled(ctx);
     // Paths are as long as they are: with them the pairs go in blocks, and
     // the answer is refused as soon as it cannot be sent, not after them all.
@@ -653,6 +658,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
         auto* out = resp->add_results();
         out->set_distance(r.distance);
         out->set_reachable(r.distance < kInfinity);
+        out->set_exact(r.exact);
         if (!r.path) continue;
         FillPath(*r.path, out->mutable_path());
         answer_bytes += out->ByteSizeLong() + 4;
@@ -679,6 +685,23 @@ absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
   return q;
 }
 
+uint64_t GeodesicService::MatrixScratchBytes(const MatrixQuery& q,
+                                             const v1::MatrixRequest& req) const {
+  const uint64_t lanes =
+      std::clamp<uint64_t>(q.sources.size(), 1, std::thread::hardware_concurrency());
+  return FieldScratchBytes(*q.engine) + q.targets.size() * sizeof(double) +
+         (req.exact() ? lanes * limits_.max_exact_bytes : 0);
+}
+
+MatrixOptions GeodesicService::MatrixOptionsOf(const v1::MatrixRequest& req,
+                                               grpc::ServerContext* ctx) const {
+  MatrixOptions options;
+  options.cancelled = Cancelled(ctx);
+  options.exact = req.exact();
+  options.exact_max_bytes = limits_.max_exact_bytes;
+  return options;
+}
+
 grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                      v1::MatrixResponse* resp) {
   const v1::GraphSelector graph = SelectorOf(*req);
@@ -695,13 +718,12 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     // The solver's distances, then the reply beside them and, once the
     // handler returns, the reply's serialized copy.
     ASSIGN_OR_RETURN(Admission::Ticket run,
-                     StartQuery(ctx, 2 * answer,
-                                FieldScratchBytes(*q.engine) + targets.size() * sizeof(double)));
-    auto m = q.engine->Matrix(sources, targets, Cancelled(ctx));
+                     StartQuery(ctx, 2 * answer, MatrixScratchBytes(q, *req)));
+    auto m = q.engine->Matrix(sources, targets, MatrixOptionsOf(*req, ctx));
     if (!m.ok()) return m.status();
     // One fan-restricted field per row (the "lc" solver), joined at the
-    // targets as Distance joins its points.
-    FillEcho(key, "lc", resp->mutable_echo());
+    // targets as Distance joins its points; "exact" when rows are made exact.
+    FillEcho(key, req->exact() ? "exact" : "lc", resp->mutable_echo());
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
     for (double d : *m) resp->add_distances(d);
@@ -727,16 +749,15 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
     RETURN_IF_ERROR(
         CheckAnswerSize(absl::StrFormat("a block of %u rows", block_rows), block_answer));
     ASSIGN_OR_RETURN(Admission::Ticket run,
-                     StartQuery(ctx, 2 * block_answer,
-                                FieldScratchBytes(*q.engine) + targets.size() * sizeof(double)));
+                     StartQuery(ctx, 2 * block_answer, MatrixScratchBytes(q, *req)));
     for (size_t first = 0; first < sources.size() || first == 0; first += block_rows) {
       const size_t n = std::min(block_rows, sources.size() - first);
-      auto m =
-          q.engine->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets, Cancelled(ctx));
+      auto m = q.engine->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets,
+                                MatrixOptionsOf(*req, ctx));
       if (!m.ok()) return m.status();
       v1::MatrixRowsChunk chunk;
       if (first == 0) {
-        FillEcho(key, "lc", chunk.mutable_echo());
+        FillEcho(key, req->exact() ? "exact" : "lc", chunk.mutable_echo());
       }
       chunk.set_first_row(first);
       chunk.set_rows(n);

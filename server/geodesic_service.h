@@ -24,7 +24,11 @@ struct ServiceLimits {
   // The largest message either way: an answer that cannot fit is refused
   // before it is computed.
   uint64_t max_message_bytes = uint64_t{64} << 20;
-  int max_pairs = 10000;   // pairs per Distance call
+  int max_pairs = 10000;  // pairs per Distance call
+  // The windows one exact pair or matrix row may hold (a propagation keeps
+  // them for its trace): past it the call fails with RESOURCE_EXHAUSTED, and
+  // admission reserves it for each lane of an exact call.
+  uint64_t max_exact_bytes = uint64_t{256} << 20;
   int max_sources = 1024;  // sources per field, rows/cols per matrix
   uint64_t max_upload_bytes = uint64_t{256} << 20;
   int field_chunk = 65536;  // values per streamed chunk
@@ -109,6 +113,9 @@ class GeodesicService final : public v1::Geodesic::Service {
     std::vector<SurfacePoint> sources, targets;
   };
   absl::StatusOr<MatrixQuery> PrepareMatrix(const v1::MatrixRequest& req, grpc::ServerContext* ctx);
+  // The memory a matrix's rows may use at once, exact rows' windows included.
+  uint64_t MatrixScratchBytes(const MatrixQuery& q, const v1::MatrixRequest& req) const;
+  MatrixOptions MatrixOptionsOf(const v1::MatrixRequest& req, grpc::ServerContext* ctx) const;
 
   template <typename Body>
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,

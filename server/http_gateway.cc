@@ -625,6 +625,9 @@ struct HttpGateway::Impl {
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
     if (grpc::Status s = BoolField(body, "path", &with_path); !s.ok()) return s;
     req.set_with_path(with_path);
+    bool exact;
+    if (grpc::Status s = BoolField(body, "exact", &exact); !s.ok()) return s;
+    req.set_exact(exact);
     const json* pairs;
     if (grpc::Status s = ArrayField(body, "pairs", &pairs); !s.ok()) return s;
     std::vector<json> ends;
@@ -658,7 +661,7 @@ struct HttpGateway::Impl {
       paths.push_back(std::move(path));
       path_lengths.push_back(r.reachable() ? json(r.path().length()) : json(nullptr));
     }
-    *out = {{"distances", std::move(distances)}};
+    *out = {{"distances", std::move(distances)}, {"exact", exact}};
     AddEcho(resp.echo(), out);
     if (with_path) {
       (*out)["paths"] = std::move(paths);
@@ -729,6 +732,9 @@ struct HttpGateway::Impl {
     const json& body = r.body;
     v1::MatrixRequest req;
     if (grpc::Status s = ForGraphOf(mesh, body, &req); !s.ok()) return s;
+    bool exact;
+    if (grpc::Status s = BoolField(body, "exact", &exact); !s.ok()) return s;
+    req.set_exact(exact);
     std::vector<v1::SurfacePoint> sources, targets;
     if (grpc::Status s = Specs(call, mesh, body, "sources", "source", &sources); !s.ok()) return s;
     if (grpc::Status s = Specs(call, mesh, body, "targets", "target", &targets); !s.ok()) return s;
@@ -749,7 +755,7 @@ struct HttpGateway::Impl {
       }
       rows.push_back(std::move(row));
     }
-    *out = {{"distances", std::move(rows)}};
+    *out = {{"distances", std::move(rows)}, {"exact", exact}};
     AddEcho(resp.echo(), out);
     return s;
   }
@@ -842,11 +848,11 @@ struct HttpGateway::Impl {
         {"GET",    "/v1/meshes/{}/graph",    &Impl::GetGraph},
         {"DELETE", "/v1/meshes/{}/graph",    &Impl::CancelGraph},
         {"POST",   "/v1/meshes/{}/graph",    &Impl::RequestGraph, WithGraph({})},
-        {"POST",   "/v1/meshes/{}/distance", &Impl::Distance,     WithGraph({"pairs", "path"})},
+        {"POST",   "/v1/meshes/{}/distance", &Impl::Distance,     WithGraph({"pairs", "path", "exact"})},
         {"POST",   "/v1/meshes/{}/field",    &Impl::Field,
          WithGraph({"sources", "targets", "max_distance", "method", "nearest_source"})},
         {"POST",   "/v1/meshes/{}/matrix",   &Impl::Matrix,
-         WithGraph({"sources", "targets"})},
+         WithGraph({"sources", "targets", "exact"})},
         {"POST",   "/v1/meshes/{}/snap",     &Impl::Snap,         {"positions"}},
         {"POST",   "/v1/meshes/{}/sample",   &Impl::Sample,       WithGraph({"count", "seed"})},
     };

@@ -95,6 +95,7 @@ std::shared_ptr<grpc::ServerCredentials> ServerCredentials(const ServeOptions& o
 // not keep.
 struct ServeFlags {
   std::string memory_limit = "0", disk_limit = "0", build_memory_limit = "0", max_graph_bytes = "0";
+  std::string max_exact_bytes = "256M";
   std::string config_path;
   std::string log_level = "info", log_format = "text";
   std::string sample;
@@ -180,6 +181,9 @@ void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {
                  "RESOURCE_EXHAUSTED at once (health, listing, get and cancel keep their own "
                  "threads)");
   app.add_option("--max-pairs", limits.max_pairs, "pairs per Distance call");
+  app.add_option("--max-exact-bytes", f.max_exact_bytes,
+                 "memory one exact pair or matrix row may hold, e.g. 256M; past it the call is "
+                 "answered RESOURCE_EXHAUSTED (0: no limit)");
   app.add_option("--max-sources", limits.max_sources, "sources per field");
   app.add_option("--max-upload-bytes", limits.max_upload_bytes, "largest mesh upload");
   app.add_option("--default-epsilon", limits.default_epsilon, "epsilon when a request gives none");
@@ -283,7 +287,8 @@ bool ResolveSizes(const ServeFlags& f, ServeOptions& o) {
   } sizes[] = {{"--memory-limit", f.memory_limit, &o.memory_limit},
                {"--disk-limit", f.disk_limit, &o.disk_limit},
                {"--build-memory-limit", f.build_memory_limit, &o.build_memory_limit},
-               {"--max-graph-bytes", f.max_graph_bytes, &o.max_graph_bytes}};
+               {"--max-graph-bytes", f.max_graph_bytes, &o.max_graph_bytes},
+               {"--max-exact-bytes", f.max_exact_bytes, &o.limits.max_exact_bytes}};
   for (const auto& size : sizes) {
     auto bytes = ParseByteSize(size.text, size.flag);
     if (!bytes.ok()) {

@@ -46,6 +46,7 @@ void PrintResults(const Common& c, const std::vector<std::string>& specs,
                      {"to", specs[2 * i + 1]},
                      {"distance", r.distance()},
                      {"reachable", r.reachable()},
+                     {"exact", r.exact()},
                      {"from_snap_distance", snap_distances[2 * i]},
                      {"to_snap_distance", snap_distances[2 * i + 1]}};
       if (with_path) result["path"] = PathJson(r.path());
@@ -68,8 +69,16 @@ void PrintResults(const Common& c, const std::vector<std::string>& specs,
   }
 }
 
-int CmdDistance(const Common& c, const std::string& from, const std::string& to,
-                const std::string& pairs_file, bool with_path, const std::string& path_out = {}) {
+struct DistanceArgs {
+  std::string from, to, pairs_file;
+  bool with_path = false;
+  bool exact = false;    // the exact distance and geodesic
+  std::string path_out;  // --path's polyline (a .csv, .ply or .obj)
+};
+
+int CmdDistance(const Common& c, const DistanceArgs& a) {
+  const std::string &from = a.from, &to = a.to, &pairs_file = a.pairs_file, &path_out = a.path_out;
+  const bool with_path = a.with_path;
   if (!path_out.empty()) {
     absl::Status s = CheckPolylinePath(path_out);
     if (!s.ok()) return FailText(std::string(s.message()));
@@ -91,6 +100,7 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
   v1::DistanceRequest req;
   *req.mutable_graph() = Selector(c);
   req.set_with_path(with_path);
+  req.set_exact(a.exact);
   for (size_t i = 0; i + 1 < points.size(); i += 2) {
     auto* p = req.add_pairs();
     *p->mutable_from() = points[i];
@@ -115,28 +125,25 @@ int CmdDistance(const Common& c, const std::string& from, const std::string& to,
 
 Command AddDistance(CLI::App& app, Common& c) {
   auto* sub = app.add_subcommand("distance", "point-to-point distance");
-  struct Args {
-    std::string from, to, pairs;
-    bool with_path = false;
-  };
-  auto a = std::make_shared<Args>();
+  auto a = std::make_shared<DistanceArgs>();
   sub->add_option("--from", a->from, "first point");
   sub->add_option("--to", a->to, "second point");
-  sub->add_option("--pairs", a->pairs, "file with one pair of points per line");
+  sub->add_option("--pairs", a->pairs_file, "file with one pair of points per line");
   sub->add_flag("--path", a->with_path, "also return the geodesic path");
-  return {sub, [&c, a] { return CmdDistance(c, a->from, a->to, a->pairs, a->with_path); }, true};
+  sub->add_flag("--exact", a->exact,
+                "the exact polyhedral distance (and with --path the exact geodesic)");
+  return {sub, [&c, a] { return CmdDistance(c, *a); }, true};
 }
 
 Command AddPath(CLI::App& app, Common& c) {
   auto* sub = app.add_subcommand("path", "geodesic path between two points");
-  struct Args {
-    std::string from, to, out;
-  };
-  auto a = std::make_shared<Args>();
+  auto a = std::make_shared<DistanceArgs>();
+  a->with_path = true;
   sub->add_option("--from", a->from, "first point")->required();
   sub->add_option("--to", a->to, "second point")->required();
-  sub->add_option("--out", a->out, "write the path as a .csv, .ply or .obj polyline");
-  return {sub, [&c, a] { return CmdDistance(c, a->from, a->to, "", true, a->out); }, true};
+  sub->add_option("--out", a->path_out, "write the path as a .csv, .ply or .obj polyline");
+  sub->add_flag("--exact", a->exact, "the exact geodesic");
+  return {sub, [&c, a] { return CmdDistance(c, *a); }, true};
 }
 
 }  // namespace geodesic::cli

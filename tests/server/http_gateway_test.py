@@ -26,6 +26,7 @@ from geodesic_client import Client  # noqa: E402
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import daemon_ports  # noqa: E402
+from comparisons import assert_same  # noqa: E402
 
 EPS = 0.01
 TOKEN = "s3cret-token"
@@ -265,6 +266,29 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200, body)
         self.assertEqual(body["distances"],
                          self.client.matrix("spot", sources, targets, epsilon=EPS).tolist())
+
+    def test_exact_distance_and_matrix_equal_grpc(self):
+        pairs = [["v:0", "v:1500"], ["f:0:0.2,0.3,0.5", "e:10:0.25"]]
+        status, body = self.post("distance", {"pairs": pairs, "eps": EPS, "exact": True})
+        self.assertEqual(status, 200, body)
+        self.assertIs(body["exact"], True)
+        self.assertEqual(body["method"], "exact")
+        expected = self.client.distances("spot", [a for a, _ in pairs], [b for _, b in pairs],
+                                         epsilon=EPS, exact=True)
+        assert_same(body["distances"], expected)
+        graph_only = self.client.distances("spot", [a for a, _ in pairs], [b for _, b in pairs],
+                                           epsilon=EPS)
+        self.assertTrue(all(e <= g * (1 + 1e-12) for e, g in zip(expected, graph_only)))
+        sources, targets = ["v:0"], ["v:100", "f:5:0.3,0.3,0.4"]
+        status, body = self.post("matrix", {"sources": sources, "targets": targets, "eps": EPS,
+                                            "exact": True})
+        self.assertEqual(status, 200, body)
+        self.assertIs(body["exact"], True)
+        assert_same(body["distances"],
+                    self.client.matrix("spot", sources, targets, epsilon=EPS, exact=True))
+        status, body = self.post("distance", {"pairs": pairs, "eps": EPS, "exact": "yes"})
+        self.assertEqual(status, 400, body)
+        self.assertIn('"exact"', body["error"]["message"])
 
     def test_errors_map_grpc_codes(self):
         status, body = curl(f"{self.base}/v1/meshes/nope/distance", "POST",

@@ -176,6 +176,26 @@ class ClientTest(unittest.TestCase):
                                              with_path=True)
         self.assertEqual(float(with_path[0]), d)
 
+    def test_exact_pairs_paths_and_rows_equal_the_exact_engine(self):
+        # exact=True: the exact engine's distance through the daemon, to rounding, for a face
+        # point and a vertex, with the exact geodesic as its path; exact matrix rows agree.
+        eps, source = 0.01, "f:0:0.2,0.3,0.5"
+        truth = self.exact_field(source)
+        targets = (1500, 700)
+        for target in targets:
+            got = self.client.distance("spot", source, f"v:{target}", epsilon=eps, exact=True)
+            self.assertTrue(np.isfinite(got) and np.isfinite(truth[target]))
+            self.assertAlmostEqual(got, truth[target], delta=1e-12 * truth[target])
+        path = self.client.path("spot", source, "v:1500", epsilon=eps, exact=True)
+        self.assertGreater(len(path.points), 1)
+        self.assertAlmostEqual(path.length, truth[1500], delta=1e-9 * truth[1500])
+        m = self.client.matrix("spot", [source], [f"v:{t}" for t in targets], epsilon=eps,
+                               exact=True)
+        assert_close(m[0], [truth[t] for t in targets], rtol=1e-12)
+        graph_only = self.client.matrix("spot", [source], [f"v:{t}" for t in targets],
+                                        epsilon=eps)
+        self.assertTrue(np.all(m[0] <= graph_only[0] * (1 + 1e-12)))
+
     def test_pseudo_vertex_graph_is_its_own_graph(self):
         # Requested with wait, the client watches the pseudo graph, not the plain one.
         g = self.client.request_graph("spot", epsilon=0.01, wait=True, pseudo_vertices=True)

@@ -10,6 +10,7 @@
 #include <tuple>
 
 #include "absl/strings/str_cat.h"
+#include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
@@ -206,6 +207,69 @@ TEST_F(ServiceTest, MatrixEqualsDistanceAndEchoesItsSolver) {
       EXPECT_EQ(matrix.distances(k), 0) << "a point's distance to itself";
     }
   }
+}
+
+// exact: the exact engine's distances for pairs and matrix rows, marked
+// exact; past --max-exact-bytes the call is refused and the server goes on.
+TEST_F(ServiceTest, ExactPairsAndRowsAreTheExactEnginesAndKeepToTheirLimit) {
+  ReadySpot(1e-2);
+  const SurfacePoint from = SurfacePoint::Face(0, 0.2, 0.3, 0.5);
+  const std::vector<uint32_t> targets = {1500, 700};
+  ExactGeodesic exact(Engine(1e-2)->mesh());
+  auto truth = exact.Distances(from);
+  ASSERT_TRUE(truth.ok()) << truth.status();
+  v1::DistanceRequest pairs;
+  *pairs.mutable_graph() = MakeSelector("spot", 1e-2, false);
+  pairs.set_exact(true);
+  v1::MatrixRequest rows;
+  *rows.mutable_graph() = MakeSelector("spot", 1e-2, false);
+  rows.set_exact(true);
+  *rows.add_sources() = ToProto(from);
+  for (uint32_t t : targets) {
+    auto* p = pairs.add_pairs();
+    *p->mutable_from() = ToProto(from);
+    *p->mutable_to() = Vertex(t);
+    *rows.add_targets() = Vertex(t);
+  }
+  grpc::ClientContext ctx;
+  v1::DistanceResponse answer;
+  ASSERT_TRUE(stub_->Distance(&ctx, pairs, &answer).ok());
+  EXPECT_EQ(answer.echo().method(), "exact");
+  grpc::ClientContext matrix_ctx;
+  v1::MatrixResponse matrix;
+  ASSERT_TRUE(stub_->Matrix(&matrix_ctx, rows, &matrix).ok());
+  ASSERT_EQ(answer.results_size(), 2);
+  ASSERT_EQ(matrix.distances_size(), 2);
+  for (int k = 0; k < 2; ++k) {
+    const double want = (*truth)[targets[k]];
+    ASSERT_TRUE(std::isfinite(want) && std::isfinite(answer.results(k).distance()));
+    EXPECT_TRUE(answer.results(k).exact());
+    EXPECT_NEAR(answer.results(k).distance(), want, 1e-12 * want) << "pair " << k;
+    EXPECT_NEAR(matrix.distances(k), want, 1e-12 * want) << "entry " << k;
+  }
+
+  ServiceLimits tight = limits_;
+  tight.max_exact_bytes = 1;
+  GeodesicService small(registry_.get(), cache_.get(), &metrics_, tight);
+  grpc::ServerBuilder builder;
+  int port = 0;
+  builder.AddListeningPort("127.0.0.1:0", grpc::InsecureServerCredentials(), &port);
+  builder.RegisterService(&small);
+  auto server = builder.BuildAndStart();
+  ASSERT_NE(server, nullptr);
+  auto stub = v1::Geodesic::NewStub(
+      grpc::CreateChannel(absl::StrCat("127.0.0.1:", port), grpc::InsecureChannelCredentials()));
+  grpc::ClientContext refused_ctx;
+  v1::DistanceResponse refused;
+  const grpc::Status status = stub->Distance(&refused_ctx, pairs, &refused);
+  EXPECT_EQ(status.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(status.error_message(), ::testing::HasSubstr("over its limit"));
+  grpc::ClientContext plain_ctx;
+  pairs.set_exact(false);
+  v1::DistanceResponse plain;
+  ASSERT_TRUE(stub->Distance(&plain_ctx, pairs, &plain).ok());
+  EXPECT_FALSE(plain.results(0).exact());
+  server->Shutdown();
 }
 
 TEST_F(ServiceTest, BadRequestsGetCodesThatNameTheProblem) {

@@ -457,31 +457,33 @@ class Client:
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
-                  with_path: Literal[False] = ..., pseudo_vertices: bool = ...
-                  ) -> np.ndarray: ...
+                  with_path: Literal[False] = ..., pseudo_vertices: bool = ...,
+                  exact: bool = ...) -> np.ndarray: ...
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
-                  *, with_path: Literal[True], pseudo_vertices: bool = ...
-                  ) -> Tuple[np.ndarray, List[Path]]: ...
+                  *, with_path: Literal[True], pseudo_vertices: bool = ...,
+                  exact: bool = ...) -> Tuple[np.ndarray, List[Path]]: ...
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float],
-                  with_path: Literal[True], pseudo_vertices: bool = ...
-                  ) -> Tuple[np.ndarray, List[Path]]: ...
+                  with_path: Literal[True], pseudo_vertices: bool = ...,
+                  exact: bool = ...) -> Tuple[np.ndarray, List[Path]]: ...
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
-                  with_path: bool = ..., pseudo_vertices: bool = ...
+                  with_path: bool = ..., pseudo_vertices: bool = ..., exact: bool = ...
                   ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
 
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = None,
-                  with_path: bool = False, pseudo_vertices: bool = False
+                  with_path: bool = False, pseudo_vertices: bool = False, exact: bool = False
                   ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
         """Geodesic distances between a[i] and b[i], as a float64 array (+inf: unreachable).
 
         a and b are point sets of the same length. With with_path, returns (distances, paths),
-        paths[i] a Path whose xyz is a (K, 3) array.
+        paths[i] a Path whose xyz is a (K, 3) array. With exact, the exact polyhedral
+        distances (and geodesics) instead of the graph's: one window propagation per pair,
+        bounded by the graph's answer.
         """
         pa, pb_ = self._resolve(mesh, a), self._resolve(mesh, b)
         if len(pa) != len(pb_):
@@ -495,7 +497,7 @@ class Client:
         while i < len(pa):
             j = min(len(pa), i + batch)
             req = pb.DistanceRequest(graph=self._graph(mesh, epsilon, pseudo_vertices),
-                                     with_path=with_path,
+                                     with_path=with_path, exact=exact,
                                      pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
                                             for k in range(i, j)])
             try:
@@ -517,28 +519,31 @@ class Client:
         return (out, paths) if with_path else out
 
     def distance(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None,
-                 pseudo_vertices: bool = False) -> float:
-        """Geodesic distance between two surface points (+inf if unreachable)."""
+                 pseudo_vertices: bool = False, exact: bool = False) -> float:
+        """Geodesic distance between two surface points (+inf if unreachable); exact: the
+        exact polyhedral distance."""
         return float(self.distances(mesh, [to_message(a)], [to_message(b)], epsilon,
-                                    pseudo_vertices=pseudo_vertices)[0])
+                                    pseudo_vertices=pseudo_vertices, exact=exact)[0])
 
     def path(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None,
-             pseudo_vertices: bool = False) -> Path:
-        """The geodesic path from a to b (unpacks as ``length, xyz = path``)."""
+             pseudo_vertices: bool = False, exact: bool = False) -> Path:
+        """The geodesic path from a to b (unpacks as ``length, xyz = path``); exact: the
+        exact geodesic."""
         _, (p,) = self.distances(mesh, [to_message(a)], [to_message(b)], epsilon, with_path=True,
-                                 pseudo_vertices=pseudo_vertices)
+                                 pseudo_vertices=pseudo_vertices, exact=exact)
         return p
 
     def matrix(self, mesh: str, sources: Points, targets: Points,
-               epsilon: Optional[float] = None, pseudo_vertices: bool = False) -> np.ndarray:
+               epsilon: Optional[float] = None, pseudo_vertices: bool = False,
+               exact: bool = False) -> np.ndarray:
         """(len(sources), len(targets)) float64 array of distances, computed in tiles that fit
-        the server's limits."""
+        the server's limits; exact: every row exact."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
         out = np.empty((len(ps), len(pt)), dtype=np.float64)
         # Beyond what one tile holds, MatrixRows streams blocks of rows, so neither side holds
         # a whole tile's message; a server without it answers tiles of Matrix.
         if len(ps) * len(pt) * 8 > self._max_message // 2 and \
-                self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, out):
+                self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, exact, out):
             return out
         row_cap = self.max_sources
         while True:
@@ -549,7 +554,7 @@ class Client:
                 for r in range(0, len(ps), rows):
                     for c in range(0, len(pt), cols):
                         resp = self._unary("Matrix", pb.MatrixRequest(
-                            graph=self._graph(mesh, epsilon, pseudo_vertices),
+                            graph=self._graph(mesh, epsilon, pseudo_vertices), exact=exact,
                             sources=ps[r:r + rows], targets=pt[c:c + cols]), mesh)
                         out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
@@ -570,7 +575,7 @@ class Client:
                 self.max_pairs = min(self.max_pairs, max(1, max_targets))
 
     def _matrix_rows(self, mesh: str, ps: List[Any], pt: List[Any], epsilon: Optional[float],
-                     pseudo_vertices: bool, out: np.ndarray) -> bool:
+                     pseudo_vertices: bool, exact: bool, out: np.ndarray) -> bool:
         """Fills `out` from MatrixRows streams, a request per max_sources x max_pairs tile.
         False (nothing to rely on in `out`) when the server lacks MatrixRows or names smaller
         limits, for the caller to tile with Matrix."""
@@ -580,7 +585,8 @@ class Client:
             for r in range(0, len(ps), rows):
                 for c in range(0, len(pt), cols):
                     req = pb.MatrixRequest(graph=self._graph(mesh, epsilon, pseudo_vertices),
-                                           sources=ps[r:r + rows], targets=pt[c:c + cols])
+                                           exact=exact, sources=ps[r:r + rows],
+                                           targets=pt[c:c + cols])
 
                     def blocks(req: Any = req, r: int = r, c: int = c) -> None:
                         for b in self._stub.MatrixRows(req, timeout=self.timeout,

@@ -89,36 +89,37 @@ class MeshSolver:
 
     @overload
     def distances(self, a: Points, b: Points, *,
-                  with_path: Literal[False] = ...) -> np.ndarray: ...
+                  with_path: Literal[False] = ..., exact: bool = ...) -> np.ndarray: ...
 
     @overload
     def distances(self, a: Points, b: Points, *,
-                  with_path: Literal[True]) -> Tuple[np.ndarray, List[Path]]: ...
+                  with_path: Literal[True], exact: bool = ...
+                  ) -> Tuple[np.ndarray, List[Path]]: ...
 
     @overload
-    def distances(self, a: Points, b: Points, *,
-                  with_path: bool = ...) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
+    def distances(self, a: Points, b: Points, *, with_path: bool = ..., exact: bool = ...
+                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
 
-    def distances(self, a: Points, b: Points, *,
-                  with_path: bool = False) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
+    def distances(self, a: Points, b: Points, *, with_path: bool = False, exact: bool = False
+                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
         """Distances between a[i] and b[i] (and their paths); see Client.distances."""
         return self.client.distances(self.name, a, b, self.epsilon, with_path=with_path,
-                                     pseudo_vertices=self.pseudo_vertices)
+                                     pseudo_vertices=self.pseudo_vertices, exact=exact)
 
-    def distance(self, a: Point, b: Point) -> float:
+    def distance(self, a: Point, b: Point, *, exact: bool = False) -> float:
         """The distance between two surface points (+inf if unreachable)."""
         return self.client.distance(self.name, a, b, self.epsilon,
-                                    pseudo_vertices=self.pseudo_vertices)
+                                    pseudo_vertices=self.pseudo_vertices, exact=exact)
 
-    def path(self, a: Point, b: Point) -> Path:
+    def path(self, a: Point, b: Point, *, exact: bool = False) -> Path:
         """The geodesic path from a to b (unpacks as ``length, xyz = path``)."""
         return self.client.path(self.name, a, b, self.epsilon,
-                                pseudo_vertices=self.pseudo_vertices)
+                                pseudo_vertices=self.pseudo_vertices, exact=exact)
 
-    def matrix(self, sources: Points, targets: Points) -> np.ndarray:
+    def matrix(self, sources: Points, targets: Points, *, exact: bool = False) -> np.ndarray:
         """(len(sources), len(targets)) array of distances."""
         return self.client.matrix(self.name, sources, targets, self.epsilon,
-                                  pseudo_vertices=self.pseudo_vertices)
+                                  pseudo_vertices=self.pseudo_vertices, exact=exact)
 
     def sample_points(self, count: int, seed: int = 0) -> Tuple[np.ndarray, float]:
         """Farthest-point sampling: (vertex ids, covering radius); see Client.sample_points."""
