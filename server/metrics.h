@@ -1,4 +1,11 @@
 // Prometheus text metrics for the daemon, served over HTTP.
+//
+// Written here rather than with prometheus-cpp: dependencies come from
+// Debian 12's packages, and Debian 12 packages no prometheus-cpp (nor any
+// other C++ Prometheus client). What is written is the text exposition
+// format's small core (HELP, TYPE, counters, gauges and one histogram per
+// method), checked by MetricsTest against the format's rules; moving to
+// prometheus-cpp is a swap of this file once a Debian release carries it.
 #ifndef GEODESIC_SERVER_METRICS_H_
 #define GEODESIC_SERVER_METRICS_H_
 
