@@ -166,7 +166,8 @@ TEST_P(CertifiedOnSharedMeshesTest, TruthFieldsWithinTheBound) {
 }
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, CertifiedOnSharedMeshesTest,
-                         ::testing::Values("camelhead", "fertility"));
+                         ::testing::Values("camelhead", "fertility"),
+                         [](const auto& info) { return std::string(info.param); });
 
 }  // namespace
 }  // namespace geodesic
