@@ -42,11 +42,10 @@ inline constexpr double kCertifyEpsilonFactor = 0.4;
 // higher bench/certify_margins.py measures, as the chance that a random
 // draw of the checked number of sources sees less than the largest over
 // many sources divided by a factor. With the default sources that chance
-// was negligible at this factor on every shared mesh, including those whose
-// worst errors come from few sources, so a graph measured within the bound
-// over this factor keeps the bound from the sources nobody measured. Fewer
-// sources than the default weaken this margin (bench/notes.md,
-// "Certified graphs").
+// was small at this factor on the mesh whose worst errors come from fewest
+// sources, and nil on most: a false certificate needs it and a mesh whose
+// errors pass the first build's margin at once. Fewer sources than the
+// default weaken this margin quickly (bench/notes.md, "Certified graphs").
 inline constexpr double kCertifySafetyFactor = 1.5;
 
 // A rebuild's epsilon is scaled by (bound / safety) / measured maximum
