@@ -86,7 +86,8 @@ struct CertifyOptions {
   // (the build's phases, then "check") and the fraction of that build's
   // build-and-check done, in [0, 1]. Returning false cancels (CANCELLED).
   std::function<bool(uint32_t build, std::string_view phase, double fraction)> progress;
-  // Polled during builds and checks; returning true cancels (CANCELLED).
+  // Polled from any thread during builds and checks; returning true
+  // cancels (CANCELLED).
   std::function<bool()> cancelled;
 };
 
