@@ -105,6 +105,7 @@ absl::StatusOr<std::vector<SourceCheck>> CheckAgainstExact(std::shared_ptr<const
       check.graph_seconds = SecondsSince(t);
       if (!field.ok()) return fail(field.status());
       check.comparison = CompareFields(*mesh, sources[i], *exact, field->distance);
+      if (options.source_done) options.source_done();
     });
   });
   if (options.cancelled && options.cancelled()) {

@@ -68,6 +68,9 @@ struct AccuracyCheckOptions {
   int threads = 0;
   // Polled between and during sources; returning true aborts with CANCELLED.
   std::function<bool()> cancelled;
+  // Called once for each source whose check is complete, from the thread
+  // that checked it (for progress reports).
+  std::function<void()> source_done;
 };
 
 struct SourceCheck {

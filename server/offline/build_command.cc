@@ -18,7 +18,9 @@
 #include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_part_file.h"
 #include "core/dgg/graph_file.h"
+#include "core/query/certified_graph.h"
 #include "server/byte_size.h"
+#include "server/offline/certificate_file.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
 
@@ -43,49 +45,65 @@ std::function<bool(std::string_view, double)> ProgressBar(bool enabled) {
   };
 }
 
-// Writes the graph and prints what `build` and `merge` report.
+// The certificate's line of `build --max-error`'s report.
+void PrintCertificate(const GraphCertificate& c) {
+  std::printf(
+      "certified max error %g: measured max %.6g, mean %.6g over every vertex from %u random "
+      "vertex sources (seed %llu), sound; eps %g after %u build%s\n",
+      c.max_error_bound, c.measured_max_error, c.measured_mean_error, c.sources,
+      static_cast<unsigned long long>(c.seed), c.epsilon, c.builds, c.builds == 1 ? "" : "s");
+}
+
+// Writes the graph, and its certificate beside it (or removes a stale one),
+// and prints what `build` and `merge` report.
 int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                    const DggBuildStats& stats, std::string out_path, const std::string& graph_dir,
-                   int threads, bool json) {
+                   int threads, bool json, const GraphCertificate* certificate = nullptr) {
   if (out_path.empty()) {
     std::error_code ignored;  // a failure shows up as the write's error
     std::filesystem::create_directories(graph_dir, ignored);
     out_path = graph_dir + "/" + GraphFileName(graph.mesh_fingerprint(), graph.params());
   }
   absl::Status written = GraphFile::Write(graph, out_path);
+  if (written.ok()) {
+    written =
+        certificate ? WriteCertificate(out_path, graph, *certificate) : RemoveCertificate(out_path);
+  }
   if (!written.ok()) return Fail(command, written);
   const uint64_t file_bytes = std::filesystem::file_size(out_path);
   const size_t n = mesh.num_vertices();
   const double epsilon = graph.params().epsilon;
   if (json) {
-    PrintJson({{"vertices", n},
-               {"nodes", graph.num_nodes()},
-               {"pseudo_vertices", stats.pseudo_vertices},
-               {"pseudo_shots", stats.pseudo_shots},
-               {"pseudo_propagations", stats.pseudo_propagations},
-               {"edges", stats.edges},
-               {"candidate_edges", stats.candidate_edges},
-               {"average_degree", stats.average_degree},
-               {"max_degree", stats.max_degree},
-               {"found_edges", stats.found_edges},
-               {"found_degree", double(stats.found_edges) / std::max<size_t>(n, 1)},
-               {"epsilon", epsilon},
-               {"prune_redundant", graph.params().prune_redundant},
-               {"exact_fans", graph.params().exact_fans},
-               {"candidate_rule", graph.params().candidate_rule},
-               {"graph_file", out_path},
-               {"threads", threads},
-               {"build_seconds", stats.total_seconds},
-               {"candidate_seconds", stats.candidate_seconds},
-               {"pruning_seconds", stats.pruning_seconds},
-               {"pseudo_seconds", stats.pseudo_seconds},
-               {"fan_seconds", stats.fan_seconds},
-               {"windows_per_source", double(stats.windows_created) / std::max<size_t>(n, 1)},
-               {"average_fan", stats.average_fan},
-               {"peak_memory_bytes", PeakMemoryBytes()},
-               {"mesh_bytes", mesh.memory_bytes()},
-               {"spilled_bytes", stats.spilled_bytes},
-               {"file_bytes", file_bytes}});
+    Json report = {{"vertices", n},
+                   {"nodes", graph.num_nodes()},
+                   {"pseudo_vertices", stats.pseudo_vertices},
+                   {"pseudo_shots", stats.pseudo_shots},
+                   {"pseudo_propagations", stats.pseudo_propagations},
+                   {"edges", stats.edges},
+                   {"candidate_edges", stats.candidate_edges},
+                   {"average_degree", stats.average_degree},
+                   {"max_degree", stats.max_degree},
+                   {"found_edges", stats.found_edges},
+                   {"found_degree", double(stats.found_edges) / std::max<size_t>(n, 1)},
+                   {"epsilon", epsilon},
+                   {"prune_redundant", graph.params().prune_redundant},
+                   {"exact_fans", graph.params().exact_fans},
+                   {"candidate_rule", graph.params().candidate_rule},
+                   {"graph_file", out_path},
+                   {"threads", threads},
+                   {"build_seconds", stats.total_seconds},
+                   {"candidate_seconds", stats.candidate_seconds},
+                   {"pruning_seconds", stats.pruning_seconds},
+                   {"pseudo_seconds", stats.pseudo_seconds},
+                   {"fan_seconds", stats.fan_seconds},
+                   {"windows_per_source", double(stats.windows_created) / std::max<size_t>(n, 1)},
+                   {"average_fan", stats.average_fan},
+                   {"peak_memory_bytes", PeakMemoryBytes()},
+                   {"mesh_bytes", mesh.memory_bytes()},
+                   {"spilled_bytes", stats.spilled_bytes},
+                   {"file_bytes", file_bytes}};
+    if (certificate) report["certificate"] = CertificateJson(*certificate);
+    PrintJson(report);
   } else {
     std::printf(
         "built %s: %zu vertices, %u pseudo vertices, %llu edges (average degree %.1f, max %u) "
@@ -95,6 +113,7 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
         stats.average_degree, stats.max_degree, epsilon, stats.total_seconds,
         stats.candidate_seconds, stats.pruning_seconds, stats.pseudo_seconds, stats.fan_seconds,
         static_cast<unsigned long long>(file_bytes));
+    if (certificate) PrintCertificate(*certificate);
   }
   return 0;
 }
@@ -145,7 +164,9 @@ namespace {
 
 struct BuildFlags {
   std::string mesh_path, out_path, part, graph_dir, memory_limit;
-  double epsilon = 1e-3, pseudo_limit = 1;
+  double epsilon = 1e-3, pseudo_limit = 1, max_error = 0;
+  uint32_t sources = CertifyOptions().sources;
+  uint64_t seed = CertifyOptions().seed;
   int threads = 0;
   bool json = false, pseudo = false, quiet = false, prune = false, exact_fans = false,
        plain = false, repair = false;
@@ -153,7 +174,25 @@ struct BuildFlags {
 
 void AddBuildFlags(CLI::App& app, BuildFlags& f) {
   app.add_option("mesh", f.mesh_path, "mesh file (obj, off, ply, stl)")->required();
-  app.add_option("--eps", f.epsilon, "accuracy: relative error of graph distances, in (0, 1)");
+  auto* eps =
+      app.add_option("--eps", f.epsilon, "accuracy: relative error of graph distances, in (0, 1)");
+  auto* max_error =
+      app.add_option("--max-error", f.max_error,
+                     "instead of --eps: a certified graph, whose largest relative error must stay "
+                     "within this bound. The build eps is chosen from it with a margin; the graph "
+                     "is checked against exact distances from --sources seeded random vertices "
+                     "(at every vertex), rebuilt tighter when it misses, and published with its "
+                     "certificate beside it (<graph>.certificate.json)")
+          ->excludes(eps);
+  app.add_option("--sources", f.sources,
+                 "with --max-error: random vertex sources of the check (each costs one exact "
+                 "solve)")
+      ->check(CLI::PositiveNumber)
+      ->needs(max_error);
+  app.add_option("--seed", f.seed,
+                 "with --max-error: seed of the first check's sources (a rebuild's check takes "
+                 "the next seed)")
+      ->needs(max_error);
   auto* out = app.add_option("--out", f.out_path,
                              "graph file (or part file with --part) to write, atomically");
   app.add_option("--graph-dir", f.graph_dir,
@@ -190,6 +229,27 @@ void AddBuildFlags(CLI::App& app, BuildFlags& f) {
   AddRepairFlag(app, &f.repair);
 }
 
+// `--max-error X`: build, check and rebuild until certified, then write the
+// graph and its certificate.
+int BuildCertified(std::shared_ptr<const Mesh> mesh, const DggBuildOptions& build,
+                   const BuildFlags& f) {
+  CertifyOptions options;
+  options.build = build;
+  options.build.progress = nullptr;
+  options.sources = f.sources;
+  options.seed = f.seed;
+  if (build.progress) {
+    options.progress = [bar = build.progress](uint32_t n, std::string_view phase, double fraction) {
+      return bar(absl::StrFormat("build %u: %s", n, std::string(phase)), fraction);
+    };
+  }
+  auto certified = BuildCertifiedGraph(mesh, f.max_error, options);
+  if (build.progress) std::fprintf(stderr, "\n");
+  if (!certified.ok()) return Fail("build", certified.status());
+  return WriteAndReport("build", *mesh, *certified->graph, certified->stats, f.out_path,
+                        f.graph_dir, f.threads, f.json, &certified->certificate);
+}
+
 }  // namespace
 
 int RunBuild(int argc, char** argv) {
@@ -222,7 +282,14 @@ int RunBuild(int argc, char** argv) {
   options.candidate_memory_limit = candidate_memory_limit;
   options.spill_dir =
       f.out_path.empty() ? f.graph_dir : std::filesystem::path(f.out_path).parent_path().string();
-  if (!f.part.empty()) return BuildPart(**mesh, options, f.part, f.out_path, f.json);
+  if (!f.part.empty()) {
+    if (app.count("--max-error")) {
+      return Fail("build", absl::InvalidArgumentError(
+                               "--max-error certifies a whole graph: it cannot build a --part"));
+    }
+    return BuildPart(**mesh, options, f.part, f.out_path, f.json);
+  }
+  if (app.count("--max-error")) return BuildCertified(*mesh, options, f);
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");

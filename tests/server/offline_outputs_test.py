@@ -177,5 +177,52 @@ with tempfile.TemporaryDirectory() as work:
     e = json.loads(run("exact", "--mesh", mesh, "--source", "xyz:0,0,0", "--json").stdout)
     check("exact reports the snap distance", e["snap_distance"] > 0)
 
+    # build --max-error: a certified graph, its certificate in --json and
+    # beside the graph, shown by info and repeated by check.
+    cert_graph = os.path.join(work, "c.dgg")
+    cb = json.loads(run("build", mesh, "--max-error", "1e-2", "--sources", "8", "--seed", "3",
+                        "--out", cert_graph, "--json").stdout)
+    cert = cb.get("certificate", {})
+    check("certified build keeps every plain build key", set(built) <= set(cb),
+          set(built) - set(cb))
+    check("certificate has its keys, in order",
+          list(cert) == ["max_error_bound", "epsilon", "measured_max_error",
+                         "measured_mean_error", "sources", "seed", "sound", "builds"], cert)
+    check("certificate holds what it says",
+          cert["max_error_bound"] == 1e-2 and cert["epsilon"] == cb["epsilon"] < 1e-2
+          and 0 < cert["measured_mean_error"] < cert["measured_max_error"] < 1e-2
+          and cert["sources"] == 8 and cert["seed"] == 3 + cert["builds"] - 1
+          and cert["sound"] is True and cert["builds"] >= 1, cert)
+    check("the sidecar is written beside the graph",
+          os.path.exists(cert_graph + ".certificate.json"))
+    ci = json.loads(run("info", cert_graph, "--json").stdout)
+    check("info --json shows the certificate", ci.get("certificate") == cert, ci)
+    check("info shows it as text", "certified max error 0.01" in run("info", cert_graph).stdout)
+    rc = json.loads(run("check", "--mesh", mesh, "--graph", cert_graph, "--sources", "8",
+                        "--seed", str(cert["seed"]), "--json").stdout)
+    check("check with the certificate's sources and seed repeats its max",
+          abs(rc["max_error_eps"] * rc["epsilon"] - cert["measured_max_error"])
+          <= 1e-12 * cert["measured_max_error"], (rc["max_error_eps"], cert))
+    # A sidecar is believed only beside the graph it measured.
+    with open(cert_graph + ".certificate.json") as f:
+        sidecar = f.read()
+    with open(graph + ".certificate.json", "w") as f:
+        f.write(sidecar)
+    r = run("info", graph, "--json")
+    check("a certificate of another graph is ignored, and said so",
+          "certificate" not in json.loads(r.stdout) and "certifies another graph" in r.stderr,
+          r.stdout + r.stderr)
+    run("build", mesh, "--eps", "1e-2", "--out", cert_graph)
+    check("a plain build over a certified graph removes its certificate",
+          not os.path.exists(cert_graph + ".certificate.json")
+          and "certificate" not in json.loads(run("info", cert_graph, "--json").stdout))
+    for args, says in ((["--eps", "1e-2", "--max-error", "1e-2"], "excludes"),
+                       (["--sources", "4"], "requires --max-error"),
+                       (["--max-error", "1e-2", "--part", "0/2"], "--part"),
+                       (["--max-error", "1.5"], "(0, 1)")):
+        r = run("build", mesh, *args, "--out", os.path.join(work, "x.dgg"), expect_ok=False)
+        check(f"build {' '.join(args)} is refused", r.returncode != 0 and says in r.stderr,
+              r.stderr)
+
 print(f"{passes} passed, {failures} failed")
 sys.exit(1 if failures else 0)
