@@ -33,7 +33,6 @@ another seed (--seed), none of which the certificate saw:
 Standard library only.
 """
 import argparse
-import array
 import glob
 import json
 import math
@@ -43,18 +42,9 @@ import subprocess
 import sys
 import tempfile
 
-from truth_meshes import mesh_path
+from truth_meshes import mesh_path, read_f64
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def read_f64(path):
-    values = array.array("d")
-    with open(path, "rb") as f:
-        values.frombytes(f.read())
-    if sys.byteorder != "little":
-        values.byteswap()
-    return values
 
 
 def run_json(cmd):

@@ -18,7 +18,6 @@ Prints one markdown row per (mesh, E, k) as it goes; --out keeps them as
 JSON lines. Standard library only.
 """
 import argparse
-import array
 import glob
 import json
 import math
@@ -28,18 +27,9 @@ import subprocess
 import sys
 import tempfile
 
-from truth_meshes import DEFAULT_MESHES, mesh_path
+from truth_meshes import DEFAULT_MESHES, mesh_path, read_f64
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-
-
-def read_f64(path):
-    values = array.array("d")
-    with open(path, "rb") as f:
-        values.frombytes(f.read())
-    if sys.byteorder != "little":
-        values.byteswap()
-    return values
 
 
 def run_json(cmd):

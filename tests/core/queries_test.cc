@@ -94,18 +94,21 @@ std::vector<Pair> ReadPairs(const Mesh& mesh, const std::string& name) {
   return out;
 }
 
+// A shared mesh by name, whatever its file's extension.
+absl::StatusOr<Mesh> LoadSharedMesh(const std::string& name) {
+  for (const char* ext : {".off", ".obj", ".ply"}) {
+    const std::string path = SharedPath("meshes/" + name + ext);
+    if (std::filesystem::exists(path)) return LoadMesh(path);
+  }
+  return absl::NotFoundError("no shared mesh named " + name);
+}
+
 class PairsTest : public ::testing::TestWithParam<std::string> {};
 
 TEST_P(PairsTest, WithinEpsilonOfExactPairsWithPathsOnTheSurface) {
   ASSERT_TRUE(SharedDataAvailable()) << "missing " << SharedPath("meshes/MANIFEST.md");
   const std::string name = GetParam();
-  std::string mesh_path;
-  for (const char* ext : {".off", ".obj", ".ply"}) {
-    if (std::filesystem::exists(SharedPath("meshes/" + name + ext))) {
-      mesh_path = SharedPath("meshes/" + name + ext);
-    }
-  }
-  auto loaded = LoadMesh(mesh_path);
+  auto loaded = LoadSharedMesh(name);
   ASSERT_OK(loaded);
   auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
   const double eps = 1e-2;
@@ -179,13 +182,7 @@ class ExactPairsTest : public ::testing::TestWithParam<std::string> {};
 TEST_P(ExactPairsTest, EqualTheIndependentSolversPairsAndPaths) {
   ASSERT_TRUE(SharedDataAvailable()) << "missing " << SharedPath("meshes/MANIFEST.md");
   const std::string name = GetParam();
-  std::string mesh_path;
-  for (const char* ext : {".off", ".obj", ".ply"}) {
-    if (std::filesystem::exists(SharedPath("meshes/" + name + ext))) {
-      mesh_path = SharedPath("meshes/" + name + ext);
-    }
-  }
-  auto loaded = LoadMesh(mesh_path);
+  auto loaded = LoadSharedMesh(name);
   ASSERT_OK(loaded);
   auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
   DggBuildOptions build;
