@@ -34,7 +34,7 @@ __all__ = [
     "AlreadyExistsError", "Client", "DeadlineExceededError", "EdgePoints", "FacePoints",
     "FailedPreconditionError", "GeodesicError", "Graph", "GraphCertificate", "GraphState",
     "InvalidArgumentError", "Mesh", "MeshDiagnostics", "MeshSolver", "NotFoundError",
-    "OutOfRangeError", "Path", "PermissionDeniedError", "Point", "Points", "ResourceExhaustedError", "RetryPolicy",
-    "UnauthenticatedError", "UnavailableError", "VertexCopy", "__version__", "format_point",
-    "parse_point",
+    "OutOfRangeError", "Path", "PermissionDeniedError", "Point", "Points",
+    "ResourceExhaustedError", "RetryPolicy", "UnauthenticatedError", "UnavailableError",
+    "VertexCopy", "__version__", "format_point", "parse_point",
 ]

@@ -200,10 +200,11 @@ class Client:
             name=name, path=path, repair_non_manifold=repair_non_manifold), name))
 
     def mesh_solver(self, name: str, epsilon: Optional[float] = None,
-                    pseudo_vertices: bool = False) -> MeshSolver:
-        """A handle on one mesh's graph: this client's queries without the mesh, epsilon and
-        pseudo_vertices arguments (see MeshSolver). epsilon: None takes this client's."""
-        return MeshSolver(self, name, self._eps(epsilon), pseudo_vertices)
+                    pseudo_vertices: bool = False, max_error: float = 0.0) -> MeshSolver:
+        """A handle on one mesh's graph: this client's queries without the mesh, epsilon,
+        pseudo_vertices and max_error arguments (see MeshSolver). epsilon: None takes this
+        client's; max_error: the certified graph of that bound."""
+        return MeshSolver(self, name, self._eps(epsilon), pseudo_vertices, max_error)
 
     def unload_mesh(self, name: str) -> None:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
@@ -321,7 +322,8 @@ class Client:
         gives one call. An exception it raises ends the wait and propagates.
         Raises RuntimeError if the graph failed or was cancelled while waiting.
         """
-        request = pb.RequestGraphRequest(graph=self._graph(mesh, epsilon, pseudo_vertices, max_error))
+        request = pb.RequestGraphRequest(
+            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error))
         g = self._unary("RequestGraph", request, mesh)
         # Under memory pressure a graph can be evicted again before this
         # client sees it ready; asking again brings it back from its file.
@@ -433,7 +435,8 @@ class Client:
         while start < len(points):
             batch = points[start:start + self.max_sources]
             req = pb.DistanceFieldRequest(
-                graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), max_distance=max_distance,
+                graph=self._graph(mesh, epsilon, pseudo_vertices, max_error),
+                max_distance=max_distance,
                 sources=batch, targets=target_ids, method=method, nearest_source=nearest_source)
             try:
                 part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
@@ -569,7 +572,8 @@ class Client:
                 for r in range(0, len(ps), rows):
                     for c in range(0, len(pt), cols):
                         resp = self._unary("Matrix", pb.MatrixRequest(
-                            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), exact=exact,
+                            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error),
+                            exact=exact,
                             sources=ps[r:r + rows], targets=pt[c:c + cols]), mesh)
                         out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
@@ -600,7 +604,8 @@ class Client:
         try:
             for r in range(0, len(ps), rows):
                 for c in range(0, len(pt), cols):
-                    req = pb.MatrixRequest(graph=self._graph(mesh, epsilon, pseudo_vertices, max_error),
+                    req = pb.MatrixRequest(graph=self._graph(mesh, epsilon, pseudo_vertices,
+                                                             max_error),
                                            exact=exact, sources=ps[r:r + rows],
                                            targets=pt[c:c + cols])
 
@@ -632,7 +637,8 @@ class Client:
         covering radius), every vertex lying within the covering radius (graph distance) of a
         sample (+inf while a component has none). The seed picks the first vertex."""
         resp = self._unary("SamplePoints", pb.SamplePointsRequest(
-            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), count=count, seed=seed), mesh)
+            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), count=count,
+            seed=seed), mesh)
         return np.asarray(resp.vertices, dtype=np.uint32), float(resp.covering_radius)
 
 
