@@ -16,7 +16,20 @@ v1::GraphSelector MakeSelector(const std::string& mesh, double epsilon, bool pse
 }
 
 v1::GraphSelector ToProto(const GraphKey& key) {
-  return MakeSelector(key.mesh, key.params.epsilon, key.params.pseudo_vertices);
+  v1::GraphSelector out = MakeSelector(key.mesh, key.params.epsilon, key.params.pseudo_vertices);
+  out.set_max_error(key.max_error);
+  return out;
+}
+
+void ToProto(const GraphCertificate& c, v1::GraphCertificate* out) {
+  out->set_max_error_bound(c.max_error_bound);
+  out->set_epsilon(c.epsilon);
+  out->set_measured_max_error(c.measured_max_error);
+  out->set_measured_mean_error(c.measured_mean_error);
+  out->set_sources(c.sources);
+  out->set_seed(c.seed);
+  out->set_sound(c.sound);
+  out->set_builds(c.builds);
 }
 
 void FillEcho(const GraphKey& key, const std::string& method, v1::QueryEcho* echo) {
@@ -133,6 +146,8 @@ void ToProto(const GraphStatus& s, v1::Graph* out) {
   out->set_candidate_rule(s.params.candidate_rule);
   out->set_estimated_bytes(s.estimated_bytes);
   out->set_estimated_seconds(s.estimated_seconds);
+  out->set_max_error(s.max_error);
+  if (s.certificate) ToProto(*s.certificate, out->mutable_certificate());
 }
 
 void ToProto(const MeshDiagnostics& d, v1::MeshDiagnostics* out) {

@@ -82,6 +82,7 @@ class PointSpecs {
 };
 
 void ToProto(const GraphStatus& s, v1::Graph* out);
+void ToProto(const GraphCertificate& c, v1::GraphCertificate* out);
 
 // Every field of the diagnostics, typed, and the superseded `json` (their
 // ToJson) for clients that still read it.

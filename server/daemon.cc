@@ -3,6 +3,7 @@
 #include <malloc.h>
 #include <signal.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <filesystem>
@@ -28,8 +29,13 @@ std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
 // The health-check name of a graph: "geodesic.v1.Geodesic/<mesh>@<eps>",
-// with "+pseudo" for the graph with pseudo vertices.
+// with "+pseudo" for the graph with pseudo vertices; a certified graph's is
+// "<mesh>@cert<max_error>", its epsilon being the build's choice.
 std::string ServiceName(const GraphKey& key) {
+  if (key.max_error > 0) {
+    return absl::StrFormat("geodesic.v1.Geodesic/%s@cert%g%s", key.mesh, key.max_error,
+                           key.params.pseudo_vertices ? "+pseudo" : "");
+  }
   return absl::StrFormat("geodesic.v1.Geodesic/%s@%g%s", key.mesh, key.params.epsilon,
                          key.params.pseudo_vertices ? "+pseudo" : "");
 }
@@ -237,6 +243,39 @@ void Daemon::AddMetrics() {
   metrics_.AddCounter("geodesicd_graph_evictions_total",
                       "Ready graphs evicted to stay within --memory-limit.",
                       [&graphs] { return double(graphs.evictions()); });
+  // Per-graph series would need labels the exposition does not carry
+  // (metrics.h): the count, and the worst certificate, which an alert on a
+  // bound compares against.
+  metrics_.AddGauge(
+      "geodesicd_certified_graphs",
+      "Certified graphs (RequestGraph max_error) with a certificate: ready, or evicted.",
+      [&graphs] {
+        double n = 0;
+        for (const GraphStatus& g : graphs.List()) n += g.certificate.has_value();
+        return n;
+      });
+  metrics_.AddGauge("geodesicd_certified_graph_max_error",
+                    "The largest measured max relative error of a certified graph (0: none).",
+                    [&graphs] {
+                      double worst = 0;
+                      for (const GraphStatus& g : graphs.List()) {
+                        if (g.certificate)
+                          worst = std::max(worst, g.certificate->measured_max_error);
+                      }
+                      return worst;
+                    });
+  metrics_.AddGauge(
+      "geodesicd_certified_graph_max_error_ratio",
+      "The largest measured max error of a certified graph over its bound (below 1).", [&graphs] {
+        double worst = 0;
+        for (const GraphStatus& g : graphs.List()) {
+          if (g.certificate && g.certificate->max_error_bound > 0) {
+            worst =
+                std::max(worst, g.certificate->measured_max_error / g.certificate->max_error_bound);
+          }
+        }
+        return worst;
+      });
 }
 
 void Daemon::AddQueryMetrics() {

@@ -35,6 +35,13 @@ bool Removable(const std::string& name) {
   return absl::EndsWith(name, ".dgg") || absl::EndsWith(name, ".mesh");
 }
 
+// A certified graph's certificate (server/offline/certificate_file.h) goes
+// with its graph: kept alone it would certify nothing, and left behind it
+// would be refused beside a graph rebuilt under the name.
+std::string SidecarOf(const std::string& name) {
+  return absl::EndsWith(name, ".dgg") ? name + ".certificate.json" : "";
+}
+
 }  // namespace
 
 CatalogFiles FilesOf(const CatalogState& state) {
@@ -119,6 +126,15 @@ absl::StatusOr<DiskReport> EnforceDiskLimit(
     if (fs::remove(fs::path(dir) / c.name, remove_ec)) {
       report.removed.push_back(c.name);
       report.bytes_after -= c.bytes;
+      if (const std::string sidecar = SidecarOf(c.name); !sidecar.empty()) {
+        std::error_code sidecar_ec;
+        const fs::path sidecar_path = fs::path(dir) / sidecar;
+        const uint64_t sidecar_bytes = fs::file_size(sidecar_path, sidecar_ec);
+        if (!sidecar_ec && fs::remove(sidecar_path, sidecar_ec)) {
+          report.removed.push_back(sidecar);
+          report.bytes_after -= std::min(sidecar_bytes, report.bytes_after);
+        }
+      }
     } else if (remove_ec) {
       return absl::InternalError(
           absl::StrFormat("cannot remove %s/%s: %s", dir, c.name, remove_ec.message()));

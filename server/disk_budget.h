@@ -39,7 +39,9 @@ struct DiskReport {
   bool over_limit = false;           // still over: what is left is in use
 };
 
-// `role` is asked about each *.dgg and *.mesh file by name. Other files
+// `role` is asked about each *.dgg and *.mesh file by name; a graph's
+// certificate sidecar ("<graph>.certificate.json") is removed with its
+// graph (and listed after it in `removed`). Other files
 // (the catalog, temporary files) count towards the total but are never
 // removed; the catalog's reserve file is not counted. A limit of 0 means no limit (nothing is
 // removed).

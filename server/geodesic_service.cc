@@ -127,6 +127,13 @@ constexpr uint64_t kPairResultBytes = 16;
 constexpr uint64_t kPathPointsReserved = 128;
 constexpr uint64_t kPathPointBytes = 72;
 
+// The graph that answered, as echoes name it: with the epsilon it was built
+// with, which for a certified graph the build chose.
+GraphKey Built(GraphKey key, const GeodesicEngine& engine) {
+  key.params.epsilon = engine.graph().params().epsilon;
+  return key;
+}
+
 }  // namespace
 
 GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics,
@@ -185,9 +192,20 @@ absl::StatusOr<double> GeodesicService::Epsilon(double requested) const {
 }
 
 absl::StatusOr<GraphKey> GeodesicService::Key(const v1::GraphSelector& graph) const {
-  ASSIGN_OR_RETURN(const double eps, Epsilon(graph.epsilon()));
   GraphKey key{graph.mesh(), DggParams{}};
-  key.params.epsilon = eps;
+  if (graph.max_error() != 0) {
+    // A certified graph: the bound chooses the epsilon, whatever the
+    // selector says (a query's echo names the one it was built with).
+    const double bound = graph.max_error();
+    if (!(bound >= 1e-5 && bound <= 0.5)) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("max_error %g is outside [1e-5, 0.5]", bound));
+    }
+    key.max_error = bound;
+    key.params.epsilon = CertifiedKeyEpsilon(bound);
+  } else {
+    ASSIGN_OR_RETURN(key.params.epsilon, Epsilon(graph.epsilon()));
+  }
   key.params.pseudo_vertices = graph.pseudo_vertices();
   key.params.exact_fans = limits_.exact_fans;
   return key;
@@ -224,9 +242,14 @@ absl::StatusOr<GraphStatus> GeodesicService::StartGraph(
     const GraphKey& key, const std::shared_ptr<const RegisteredMesh>& mesh) {
   // Refused at once, before the catalog records it: a graph that cannot fit
   // the limits would otherwise hold a build worker for nothing.
-  RETURN_IF_ERROR(graphs_->Admit(*mesh, key.params).status());
-  if (catalog_) RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
-  return graphs_->Request(mesh, key.params);
+  RETURN_IF_ERROR(graphs_->Admit(*mesh, key.params, key.max_error).status());
+  // The catalog records plain graphs only: a certified one is requested
+  // again by its clients after a restart, and mapped from its file and
+  // certificate then.
+  if (catalog_ && key.max_error == 0) {
+    RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
+  }
+  return graphs_->Request(mesh, key.params, key.max_error);
 }
 
 absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEngine(
@@ -265,11 +288,14 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
   }
   engine = graphs_->Acquire(key);
   if (engine.ok() || !absl::IsUnavailable(engine.status()) || !status.ok()) return engine;
-  return absl::UnavailableError(absl::StrFormat(
-      "the graph of mesh '%s' at epsilon %g%s is still %s (%s, %.0f%%) after waiting what the "
-      "call allows: retry, or follow it with WatchGraph",
-      key.mesh, key.params.epsilon, key.params.pseudo_vertices ? " with pseudo vertices" : "",
-      GraphStateName(status->state), status->phase, 100 * status->progress));
+  const std::string which = key.max_error > 0
+                                ? absl::StrFormat("certified to max error %g", key.max_error)
+                                : absl::StrFormat("at epsilon %g", key.params.epsilon);
+  return absl::UnavailableError(
+      absl::StrFormat("the graph of mesh '%s' %s%s is still %s (%s, %.0f%%) after waiting what the "
+                      "call allows: retry, or follow it with WatchGraph",
+                      key.mesh, which, key.params.pseudo_vertices ? " with pseudo vertices" : "",
+                      GraphStateName(status->state), status->phase, 100 * status->progress));
 }
 
 template <typename Body>
@@ -505,7 +531,9 @@ grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
     // requested it.
     const bool ready =
         g.ok() && (g->state == GraphState::kReady || g->state == GraphState::kEvicted);
-    if (catalog_ && !ready) RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params).status());
+    if (catalog_ && !ready && key.max_error == 0) {
+      RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params).status());
+    }
     if (!g.ok()) return g.status();
     ToProto(*g, resp);
     return absl::OkStatus();
@@ -566,7 +594,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     for (size_t offset = 0; offset < total || offset == 0; offset += limits_.field_chunk) {
       v1::DistanceFieldChunk chunk;
       if (offset == 0) {
-        FillEcho(key, options.method == FieldMethod::kDijkstra ? "dijkstra" : "lc",
+        FillEcho(Built(key, **engine), options.method == FieldMethod::kDijkstra ? "dijkstra" : "lc",
                  chunk.mutable_echo());
       }
       chunk.set_offset(offset);
@@ -638,7 +666,8 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
         Admission::Ticket run,
         StartQuery(ctx, 2 * answer, lanes * (PairScratchBytes(**engine) + exact_bytes)));
     uint64_t answer_bytes = kAnswerOverhead;
-    FillEcho(key, req->exact() ? "exact" : "bidirectional-astar", resp->mutable_echo());
+    FillEcho(Built(key, **engine), req->exact() ? "exact" : "bidirectional-astar",
+             resp->mutable_echo());
     PairOptions options;
     options.want_path = req->with_path();
     options.exact = req->exact();
@@ -723,7 +752,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     if (!m.ok()) return m.status();
     // One fan-restricted field per row (the "lc" solver), joined at the
     // targets as Distance joins its points; "exact" when rows are made exact.
-    FillEcho(key, req->exact() ? "exact" : "lc", resp->mutable_echo());
+    FillEcho(Built(key, *q.engine), req->exact() ? "exact" : "lc", resp->mutable_echo());
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
     for (double d : *m) resp->add_distances(d);
@@ -757,7 +786,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
       if (!m.ok()) return m.status();
       v1::MatrixRowsChunk chunk;
       if (first == 0) {
-        FillEcho(key, req->exact() ? "exact" : "lc", chunk.mutable_echo());
+        FillEcho(Built(key, *q.engine), req->exact() ? "exact" : "lc", chunk.mutable_echo());
       }
       chunk.set_first_row(first);
       chunk.set_rows(n);
@@ -817,7 +846,7 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
     options.seed = req->seed();
     options.cancelled = Cancelled(ctx);
     ASSIGN_OR_RETURN(SampleResult sample, engine->SamplePoints(req->count(), options));
-    FillEcho(key, "farthest-point", resp->mutable_echo());
+    FillEcho(Built(key, *engine), "farthest-point", resp->mutable_echo());
     for (VertexId v : sample.vertices) resp->add_vertices(v);
     resp->set_covering_radius(sample.covering_radius);
     return absl::OkStatus();

@@ -5,6 +5,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <charconv>
 #include <chrono>
 #include <filesystem>
 #include <set>
@@ -14,6 +15,7 @@
 #include "core/base/atomic_file.h"
 #include "core/query/landmarks.h"
 #include "server/log.h"
+#include "server/offline/certificate_file.h"
 
 namespace geodesic::server {
 
@@ -86,6 +88,67 @@ absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {
   return GraphFile::Write(graph, path);
 }
 
+absl::StatusOr<CertifiedGraph> GraphMaker::BuildCertified(std::shared_ptr<const Mesh> mesh,
+                                                          double max_error,
+                                                          const CertifyOptions& options) {
+  return BuildCertifiedGraph(std::move(mesh), max_error, options);
+}
+
+absl::StatusOr<GraphMaker::Certified> GraphMaker::OpenCertified(const std::string& path,
+                                                                const Mesh& mesh,
+                                                                const DggParams& params,
+                                                                double max_error,
+                                                                GraphFile::Check check) {
+  std::error_code ec;
+  if (!std::filesystem::exists(path, ec)) {
+    return absl::NotFoundError(absl::StrFormat("no graph file %s", path));
+  }
+  // The epsilon is the build's choice: the certificate says which, and the
+  // file must agree with it; every other field is the key's.
+  auto graph = GraphFile::Open(path, mesh, check);
+  if (!graph.ok()) return graph.status();
+  GraphFile::Info info;
+  info.mesh_fingerprint = (*graph)->mesh_fingerprint();
+  info.params = (*graph)->params();
+  info.file_bytes = std::filesystem::file_size(path, ec);
+  if (ec) return absl::NotFoundError(absl::StrFormat("%s: %s", path, ec.message()));
+  auto certificate = offline::ReadCertificate(path, info);
+  if (!certificate.ok()) return certificate.status();
+  if (!certificate->has_value()) {
+    return absl::FailedPreconditionError(absl::StrFormat("%s has no certificate beside it (%s)",
+                                                         path, offline::CertificatePath(path)));
+  }
+  const GraphCertificate& c = **certificate;
+  if (c.max_error_bound != max_error || !c.sound || c.measured_max_error > max_error) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "%s certifies bound %g (measured max %g, %s), not %g", offline::CertificatePath(path),
+        c.max_error_bound, c.measured_max_error, c.sound ? "sound" : "unsound", max_error));
+  }
+  DggParams want = params;
+  want.epsilon = c.epsilon;
+  if (absl::Status same = CheckSameParams(want, info.params, path); !same.ok()) return same;
+  return Certified{*std::move(graph), c};
+}
+
+absl::Status GraphMaker::WriteCertificate(const DggGraph& graph, const std::string& path,
+                                          const GraphCertificate& certificate) {
+  return offline::WriteCertificate(path, graph, certificate);
+}
+
+double CertifiedKeyEpsilon(double max_error) { return NextCertifyEpsilon(max_error, 0, 0); }
+
+std::string CachedGraphFileName(uint64_t mesh_fingerprint, const DggParams& params,
+                                double max_error) {
+  if (max_error <= 0) return GraphFileName(mesh_fingerprint, params);
+  // As GraphFileName writes epsilon: the shortest text that reads back.
+  char bound[32];
+  const auto [end, ec] = std::to_chars(bound, bound + sizeof(bound), max_error);
+  return absl::StrFormat(
+      "%016x-cert%s%s%s%s-r%u.dgg", mesh_fingerprint, std::string_view(bound, end - bound),
+      params.pseudo_vertices ? "-pseudo" : "", params.prune_redundant ? "-prune" : "",
+      params.exact_fans ? "-xfans" : "", params.candidate_rule);
+}
+
 namespace {
 
 // An exclusive flock on a graph's ".<file>.lock", so that of the replicas
@@ -150,6 +213,10 @@ std::string BuildLockPath(const std::string& graph_path) {
 }
 
 std::string Describe(const GraphKey& key) {
+  if (key.max_error > 0) {
+    return absl::StrFormat("the graph of '%s' certified to max error %g (first build: %s)",
+                           key.mesh, key.max_error, DescribeParams(key.params));
+  }
   return absl::StrFormat("the graph of '%s' (%s)", key.mesh, DescribeParams(key.params));
 }
 
@@ -193,9 +260,10 @@ GraphCache::~GraphCache() {
   for (auto& t : workers_) t.join();
 }
 
-std::string GraphCache::GraphPath(uint64_t mesh_fingerprint, const DggParams& params) const {
+std::string GraphCache::GraphPath(uint64_t mesh_fingerprint, const DggParams& params,
+                                  double max_error) const {
   if (options_.graph_dir.empty()) return "";
-  return options_.graph_dir + "/" + GraphFileName(mesh_fingerprint, params);
+  return options_.graph_dir + "/" + CachedGraphFileName(mesh_fingerprint, params, max_error);
 }
 
 bool GraphCache::Transition(Entry& e, GraphState to) {
@@ -241,25 +309,31 @@ DggBuildEstimate GraphCache::Estimate(const RegisteredMesh& mesh, const DggParam
 }
 
 absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
-                                                   const DggParams& params) const {
+                                                   const DggParams& params,
+                                                   double max_error) const {
   DggBuildEstimate estimate = Estimate(mesh, params);
   uint64_t least = EstimateDggBytesLowerBound(mesh.mesh->num_vertices(), params.epsilon);
   {
     absl::MutexLock lock(&mu_);
-    if (auto it = built_bytes_.find({mesh.fingerprint, params}); it != built_bytes_.end()) {
+    if (auto it = built_bytes_.find({mesh.fingerprint, params, max_error});
+        it != built_bytes_.end()) {
       estimate.bytes = least = it->second;
     }
   }
   const std::string what =
-      absl::StrFormat("the graph of '%s' at epsilon %g%s", mesh.name, params.epsilon,
-                      params.pseudo_vertices ? " with pseudo vertices" : "");
+      max_error > 0
+          ? absl::StrFormat("the graph of '%s' certified to max error %g (epsilon %g)%s", mesh.name,
+                            max_error, params.epsilon,
+                            params.pseudo_vertices ? " with pseudo vertices" : "")
+          : absl::StrFormat("the graph of '%s' at epsilon %g%s", mesh.name, params.epsilon,
+                            params.pseudo_vertices ? " with pseudo vertices" : "");
   if (options_.memory_limit > 0 && least > options_.memory_limit) {
     return absl::ResourceExhaustedError(
         absl::StrFormat("%s needs at least %u bytes, over the server's memory limit of %u bytes "
                         "(--memory-limit): use a larger epsilon",
                         what, least, options_.memory_limit));
   }
-  const std::string path = GraphPath(mesh.fingerprint, params);
+  const std::string path = GraphPath(mesh.fingerprint, params, max_error);
   std::error_code ec;
   if (!path.empty() && std::filesystem::exists(path, ec)) return estimate;
   if (options_.max_graph_bytes > 0 && estimate.bytes > options_.max_graph_bytes) {
@@ -287,10 +361,10 @@ void GraphCache::Announce(const Notices& notices) const {
   for (const Notice& n : notices) options_.on_readiness(n.key, n.ready);
 }
 
-GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
-                                const DggParams& params) {
+GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh, const DggParams& params,
+                                double max_error) {
   absl::MutexLock lock(&mu_);
-  GraphKey key{mesh->name, params};
+  GraphKey key{mesh->name, params, max_error};
   auto& slot = entries_[key];
   // An entry whose cancel a worker has not acted on yet would end cancelled
   // although this request was answered as building: it is replaced below.
@@ -316,10 +390,11 @@ GraphStatus GraphCache::Request(std::shared_ptr<const RegisteredMesh> mesh,
   // one publishes nothing.
   auto e = std::make_shared<Entry>();
   e->mesh = std::move(mesh);
-  e->path = GraphPath(e->mesh->fingerprint, params);
+  e->path = GraphPath(e->mesh->fingerprint, params, max_error);
   e->status.mesh = key.mesh;
   e->status.params = params;
   e->status.epsilon = params.epsilon;
+  e->status.max_error = max_error;
   e->status.state = GraphState::kQueued;
   e->status.estimated_bytes = estimate.bytes;
   e->status.estimated_seconds = estimate.seconds;
@@ -411,6 +486,7 @@ void GraphCache::Run(const GraphKey& key) {
   const auto start = std::chrono::steady_clock::now();
   std::string note;
   std::shared_ptr<const DggGraph> graph;
+  std::optional<GraphCertificate> certificate;
   ReplicaLock building;
   if (!e->path.empty()) {
     std::error_code ec;
@@ -427,12 +503,12 @@ void GraphCache::Run(const GraphKey& key) {
     if (!SetPhase(key, e, GraphState::kLoading, "mapping", 0)) return;
     // Also when the lock was just taken: the holder before may have
     // written the file between the look and the lock.
-    graph = Load(*e, &note);
+    graph = Load(key, *e, &note, &certificate);
   }
   const bool from_file = graph != nullptr;
   if (!graph) {
     if (!SetPhase(key, e, GraphState::kBuilding, "candidates", 0)) return;
-    auto built = Build(key, *e);
+    auto built = Build(key, *e, &certificate);
     if (!built.ok()) {
       Abandon(key, e, built.status());
       return;
@@ -440,7 +516,7 @@ void GraphCache::Run(const GraphKey& key) {
     graph = *std::move(built);
     if (!e->path.empty()) {
       if (!SetPhase(key, e, GraphState::kPersisting, "writing", 1)) return;
-      auto persisted = Persist(key, *e, std::move(graph), &note);
+      auto persisted = Persist(key, *e, std::move(graph), certificate, &note);
       if (!persisted.ok()) {
         Abandon(key, e, persisted.status());
         return;
@@ -451,8 +527,8 @@ void GraphCache::Run(const GraphKey& key) {
   building.Release();
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  std::shared_ptr<const GeodesicEngine> engine =
-      Publish(key, e, std::move(graph), from_file, std::move(note), seconds);
+  std::shared_ptr<const GeodesicEngine> engine = Publish(
+      key, e, std::move(graph), std::move(certificate), from_file, std::move(note), seconds);
   if (engine) AddLandmarks(key, e, engine);
 }
 
@@ -499,9 +575,21 @@ void GraphCache::AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>&
   Announce(notices);
 }
 
-std::shared_ptr<const DggGraph> GraphCache::Load(Entry& e, std::string* note) {
-  auto opened =
-      options_.maker->Open(e.path, *e.mesh->mesh, e.status.params, GraphFile::Check::kFull);
+std::shared_ptr<const DggGraph> GraphCache::Load(const GraphKey& key, Entry& e, std::string* note,
+                                                 std::optional<GraphCertificate>* certificate) {
+  absl::StatusOr<std::shared_ptr<const DggGraph>> opened;
+  if (key.max_error > 0) {
+    auto certified = options_.maker->OpenCertified(e.path, *e.mesh->mesh, key.params, key.max_error,
+                                                   GraphFile::Check::kFull);
+    if (certified.ok()) {
+      *certificate = certified->certificate;
+      opened = std::move(certified->graph);
+    } else {
+      opened = certified.status();
+    }
+  } else {
+    opened = options_.maker->Open(e.path, *e.mesh->mesh, key.params, GraphFile::Check::kFull);
+  }
   if (opened.ok()) {
     if (options_.on_file_used) options_.on_file_used(e.path);
     Log(LogLevel::kInfo, "graph_loaded", {{"mesh", e.status.mesh}, {"path", e.path}});
@@ -514,15 +602,19 @@ std::shared_ptr<const DggGraph> GraphCache::Load(Entry& e, std::string* note) {
       absl::StrFormat("%s.rejected-%d", e.path, absl::ToUnixSeconds(absl::Now()));
   std::error_code ec;
   std::filesystem::rename(e.path, aside, ec);
+  // Nor a certificate that was not the file's (or that a rebuild would
+  // not replace, were its write to fail).
+  if (key.max_error > 0) offline::RemoveCertificate(e.path).IgnoreError();
   *note = absl::StrFormat("rejected %s (%s), rebuilt", e.path, opened.status().message());
   Log(LogLevel::kWarning, "graph_file_rejected",
       {{"mesh", e.status.mesh}, {"path", e.path}, {"error", opened.status().ToString()}});
   return nullptr;
 }
 
-absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey& key, Entry& e) {
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
+    const GraphKey& key, Entry& e, std::optional<GraphCertificate>* certificate) {
   Log(LogLevel::kInfo, "graph_build_started",
-      {{"mesh", key.mesh}, {"params", DescribeParams(key.params)}});
+      {{"mesh", key.mesh}, {"params", DescribeParams(key.params)}, {"max_error", key.max_error}});
   ++builds_started_;
   ++builds_running_;
   DggBuildOptions options;
@@ -551,7 +643,38 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey
     return !e.cancel.load();
   };
   const auto start = std::chrono::steady_clock::now();
-  auto built = options_.maker->Build(*e.mesh->mesh, options);
+  absl::StatusOr<std::shared_ptr<const DggGraph>> built;
+  if (key.max_error > 0) {
+    // Build, check against the exact engine, rebuild tighter if it missed:
+    // the phases of each build and then "check", the fraction of each
+    // build-and-check; later builds say which they are.
+    CertifyOptions certify;
+    certify.build = options;
+    certify.build.progress = nullptr;
+    certify.progress = [&](uint32_t build, std::string_view phase, double fraction) {
+      const std::string name =
+          build <= 1 ? std::string(phase) : absl::StrFormat("%s (build %u)", phase, build);
+      return options.progress(name, fraction);
+    };
+    certify.cancelled = [&e] { return e.cancel.load(); };
+    auto certified = options_.maker->BuildCertified(e.mesh->mesh, key.max_error, certify);
+    if (certified.ok()) {
+      *certificate = certified->certificate;
+      built = std::move(certified->graph);
+      Log(LogLevel::kInfo, "graph_certified",
+          {{"mesh", key.mesh},
+           {"max_error", key.max_error},
+           {"eps", certified->certificate.epsilon},
+           {"measured_max_error", certified->certificate.measured_max_error},
+           {"measured_mean_error", certified->certificate.measured_mean_error},
+           {"sources", certified->certificate.sources},
+           {"builds", certified->certificate.builds}});
+    } else {
+      built = certified.status();
+    }
+  } else {
+    built = options_.maker->Build(*e.mesh->mesh, options);
+  }
   --builds_running_;
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -567,12 +690,13 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(const GraphKey
 }
 
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
-    const GraphKey& key, Entry& e, std::shared_ptr<const DggGraph> graph, std::string* note) {
+    const GraphKey& key, Entry& e, std::shared_ptr<const DggGraph> graph,
+    const std::optional<GraphCertificate>& certificate, std::string* note) {
   // The arrays are the file but for its header and alignment.
   const uint64_t bytes = graph->byte_size();
   {
     absl::MutexLock lock(&mu_);
-    built_bytes_[{e.mesh->fingerprint, key.params}] = bytes;
+    built_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = bytes;
   }
   if (options_.disk) {
     if (absl::Status room = options_.disk->Reserve(bytes); !room.ok()) {
@@ -596,17 +720,26 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
         {{"mesh", key.mesh}, {"path", e.path}, {"error", written.ToString()}});
     return graph;
   }
+  if (certificate) {
+    // Without its sidecar the file would be rebuilt after a restart, not
+    // believed: the graph is still served, from memory or its file.
+    if (absl::Status c = options_.maker->WriteCertificate(*graph, e.path, *certificate); !c.ok()) {
+      *note = absl::StrFormat("certificate not written beside the file: %s", c.message());
+      Log(LogLevel::kWarning, "graph_certificate_write_failed",
+          {{"mesh", key.mesh}, {"path", e.path}, {"error", c.ToString()}});
+    }
+  }
   if (options_.on_file_used) options_.on_file_used(e.path);
-  // Serve the mapped copy: resident memory stays with the page cache.
-  auto mapped = options_.maker->Open(e.path, *e.mesh->mesh, key.params, GraphFile::Check::kHeader);
+  // Serve the mapped copy: resident memory stays with the page cache. A
+  // certified graph's epsilon is its build's, not its key's.
+  auto mapped =
+      options_.maker->Open(e.path, *e.mesh->mesh, graph->params(), GraphFile::Check::kHeader);
   return mapped.ok() ? *std::move(mapped) : graph;
 }
 
-std::shared_ptr<const GeodesicEngine> GraphCache::Publish(const GraphKey& key,
-                                                          const std::shared_ptr<Entry>& e,
-                                                          std::shared_ptr<const DggGraph> graph,
-                                                          bool from_file, std::string note,
-                                                          double seconds) {
+std::shared_ptr<const GeodesicEngine> GraphCache::Publish(
+    const GraphKey& key, const std::shared_ptr<Entry>& e, std::shared_ptr<const DggGraph> graph,
+    std::optional<GraphCertificate> certificate, bool from_file, std::string note, double seconds) {
   // The engine is made outside the lock: it reads every node's position.
   auto engine = std::make_shared<const GeodesicEngine>(e->mesh->mesh, graph);
   Notices notices;
@@ -629,6 +762,12 @@ std::shared_ptr<const GeodesicEngine> GraphCache::Publish(const GraphKey& key,
     e->status.nodes = graph->num_nodes();
     e->status.edges = graph->num_directed_edges() / 2;
     e->status.build_seconds = seconds;
+    // A certified graph's build record is its build's, epsilon included.
+    if (key.max_error > 0) {
+      e->status.params = graph->params();
+      e->status.epsilon = graph->params().epsilon;
+    }
+    e->status.certificate = std::move(certificate);
     Touch(*e);
     notices.push_back({key, true});
     EvictOverBudget(key, notices);

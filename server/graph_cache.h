@@ -52,8 +52,10 @@
 #include <functional>
 #include <map>
 #include <memory>
+#include <optional>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "absl/base/thread_annotations.h"
@@ -62,6 +64,7 @@
 #include "absl/time/time.h"
 #include "core/dgg/dgg_build.h"
 #include "core/dgg/graph_file.h"
+#include "core/query/certified_graph.h"
 #include "core/query/geodesic_engine.h"
 #include "server/disk_budget.h"
 #include "server/mesh_registry.h"
@@ -86,17 +89,40 @@ bool LegalTransition(GraphState from, GraphState to);
 // The phase of a queued graph whose file another replica is building.
 inline constexpr char kWaitingForReplicaPhase[] = "waiting for another replica's build";
 
-// A graph's name in the cache: its mesh and its whole build record.
+// A graph's name in the cache: its mesh and its whole build record. A
+// certified graph (max_error > 0) is a graph of its own: its params carry
+// the first build's epsilon (CertifiedKeyEpsilon), which the bound
+// decides, and the epsilon it is built with shows in its status once
+// ready.
 struct GraphKey {
   std::string mesh;
   DggParams params;
+  double max_error = 0;  // 0: a plain graph
   friend auto operator<=>(const GraphKey&, const GraphKey&) = default;
 };
 
+// The epsilon of a certified graph's key (and of its first build, whose
+// estimate admission uses).
+double CertifiedKeyEpsilon(double max_error);
+
+// The graph's file name in --graph-dir: GraphFileName for a plain graph;
+// for a certified one the bound takes the epsilon's place
+// ("<fingerprint>-cert0.01-r2.dgg"), since the epsilon is chosen by the
+// build. Its certificate is the sidecar beside it
+// (server/offline/certificate_file.h).
+std::string CachedGraphFileName(uint64_t mesh_fingerprint, const DggParams& params,
+                                double max_error);
+
 struct GraphStatus {
   std::string mesh;
+  // A certified graph's: its key's until it is ready, then the ones it was
+  // built with.
   DggParams params;
-  double epsilon = 0;  // params.epsilon, for callers that name graphs by it
+  double epsilon = 0;    // params.epsilon, for callers that name graphs by it
+  double max_error = 0;  // the key's: a certified graph's bound, or 0
+  // A ready certified graph's certificate (built here or read back from
+  // the sidecar beside its file).
+  std::optional<GraphCertificate> certificate;
   GraphState state = GraphState::kQueued;
   std::string phase;
   double progress = 0;
@@ -132,6 +158,25 @@ class GraphMaker {
   virtual absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const Mesh& mesh,
                                                                 const DggBuildOptions& options);
   virtual absl::Status Write(const DggGraph& graph, const std::string& path);
+
+  // A certified graph: BuildCertifiedGraph.
+  virtual absl::StatusOr<CertifiedGraph> BuildCertified(std::shared_ptr<const Mesh> mesh,
+                                                        double max_error,
+                                                        const CertifyOptions& options);
+  // The certified graph in `path` and the certificate of its sidecar, which
+  // must certify that file for `max_error`; the graph's build record must
+  // be `params` but for its epsilon, the certificate's. NOT_FOUND when there
+  // is no file; any other error rejects the file (it is rebuilt).
+  struct Certified {
+    std::shared_ptr<const DggGraph> graph;
+    GraphCertificate certificate;
+  };
+  virtual absl::StatusOr<Certified> OpenCertified(const std::string& path, const Mesh& mesh,
+                                                  const DggParams& params, double max_error,
+                                                  GraphFile::Check check);
+  // Writes the certificate sidecar of `graph`, already written to `path`.
+  virtual absl::Status WriteCertificate(const DggGraph& graph, const std::string& path,
+                                        const GraphCertificate& certificate);
 };
 
 class GraphCache {
@@ -170,19 +215,23 @@ class GraphCache {
   explicit GraphCache(Options options);
   ~GraphCache();
 
-  // Whether the graph of `mesh` with `params` may be requested, and its
-  // estimate: RESOURCE_EXHAUSTED, naming the estimate and the limit, when
-  // its estimated bytes pass max_graph_bytes, or its least possible bytes
-  // the memory limit or the disk limit (its real bytes, for both, once this
-  // cache has built it). A graph whose file is in
+  // Whether the graph of `mesh` with `params` (certified for `max_error`
+  // when it is not 0) may be requested, and its estimate: RESOURCE_EXHAUSTED, naming the estimate
+  // and the limit, when its estimated bytes pass max_graph_bytes, or its least possible bytes the
+  // memory limit or the disk limit (its real bytes, for both, once this cache has built it). A
+  // graph whose file is in
   // --graph-dir needs no build: only the memory limit applies.
-  absl::StatusOr<DggBuildEstimate> Admit(const RegisteredMesh& mesh, const DggParams& params) const;
+  absl::StatusOr<DggBuildEstimate> Admit(const RegisteredMesh& mesh, const DggParams& params,
+                                         double max_error = 0) const;
   // EstimateDggBuild, seconds on this cache's build threads.
   DggBuildEstimate Estimate(const RegisteredMesh& mesh, const DggParams& params) const;
 
   // Starts (or joins) the operation that makes the graph of `mesh` with
-  // `params`. A failed, cancelled or evicted graph starts again.
-  GraphStatus Request(std::shared_ptr<const RegisteredMesh> mesh, const DggParams& params);
+  // `params`, certified for `max_error` unless it is 0 (its params'
+  // epsilon must then be CertifiedKeyEpsilon(max_error)). A failed,
+  // cancelled or evicted graph starts again.
+  GraphStatus Request(std::shared_ptr<const RegisteredMesh> mesh, const DggParams& params,
+                      double max_error = 0);
   // NOT_FOUND if the graph was never requested.
   absl::StatusOr<GraphStatus> Get(const GraphKey& key) const;
   // Waits until the status differs from `version` or the deadline passes.
@@ -208,7 +257,8 @@ class GraphCache {
                                                         std::chrono::seconds min_age);
 
   // The file a graph has (or would have) in --graph-dir; empty without one.
-  std::string GraphPath(uint64_t mesh_fingerprint, const DggParams& params) const;
+  std::string GraphPath(uint64_t mesh_fingerprint, const DggParams& params,
+                        double max_error = 0) const;
   // Whether a ready graph is mapped from `file_name` (a name in --graph-dir):
   // such a file is in use and must stay.
   bool FileInUse(const std::string& file_name) const;
@@ -260,18 +310,23 @@ class GraphCache {
   void Worker(bool large_lane);
   void Run(const GraphKey& key);
   // The steps of Run, each outside the lock except where it changes state.
-  std::shared_ptr<const DggGraph> Load(Entry& e, std::string* note);
-  absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const GraphKey& key, Entry& e);
+  // A certified graph's certificate comes with it through `certificate`.
+  std::shared_ptr<const DggGraph> Load(const GraphKey& key, Entry& e, std::string* note,
+                                       std::optional<GraphCertificate>* certificate);
+  absl::StatusOr<std::shared_ptr<const DggGraph>> Build(
+      const GraphKey& key, Entry& e, std::optional<GraphCertificate>* certificate);
   // The written file's mapping (or `graph`, kept in memory, if the write
-  // failed); RESOURCE_EXHAUSTED if the disk budget refused the write.
-  absl::StatusOr<std::shared_ptr<const DggGraph>> Persist(const GraphKey& key, Entry& e,
-                                                          std::shared_ptr<const DggGraph> graph,
-                                                          std::string* note);
+  // failed); RESOURCE_EXHAUSTED if the disk budget refused the write. A
+  // certificate is written beside the file.
+  absl::StatusOr<std::shared_ptr<const DggGraph>> Persist(
+      const GraphKey& key, Entry& e, std::shared_ptr<const DggGraph> graph,
+      const std::optional<GraphCertificate>& certificate, std::string* note);
   // Makes `graph` the entry's, if the entry is still current and not
   // cancelled; returns the engine published, or null.
   std::shared_ptr<const GeodesicEngine> Publish(const GraphKey& key,
                                                 const std::shared_ptr<Entry>& e,
                                                 std::shared_ptr<const DggGraph> graph,
+                                                std::optional<GraphCertificate> certificate,
                                                 bool from_file, std::string note, double seconds);
   // Another replica holds the graph's build lock: the entry waits, queued,
   // to look again after Options::replica_poll (or ends if cancelled).
@@ -300,7 +355,7 @@ class GraphCache {
   // The bytes of graphs this cache built, by mesh fingerprint and build
   // record: once a graph was refused for its real size, asking again is
   // refused at once rather than built again to the same end.
-  std::map<std::pair<uint64_t, DggParams>, uint64_t> built_bytes_ ABSL_GUARDED_BY(mu_);
+  std::map<std::tuple<uint64_t, DggParams, double>, uint64_t> built_bytes_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> builds_running_{0};
   std::atomic<uint64_t> builds_started_{0};
 };

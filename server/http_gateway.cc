@@ -254,6 +254,28 @@ grpc::Status QueryEpsilon(const HttpRequest& req, double* eps) {
   return grpc::Status::OK;
 }
 
+// The body's "max_error" (absent or 0: not a certified graph).
+grpc::Status BodyMaxError(const json& body, double* max_error) {
+  *max_error = 0;
+  auto it = body.find("max_error");
+  if (it == body.end() || it->is_null()) return grpc::Status::OK;
+  if (!it->is_number()) return Invalid("\"max_error\" must be a number");
+  *max_error = it->get<double>();
+  return grpc::Status::OK;
+}
+
+grpc::Status QueryMaxError(const HttpRequest& req, double* max_error) {
+  *max_error = 0;
+  if (!req.has_param("max_error")) return grpc::Status::OK;
+  const std::string text = req.param("max_error");
+  char* end = nullptr;
+  *max_error = std::strtod(text.c_str(), &end);
+  if (text.empty() || end != text.c_str() + text.size()) {
+    return Invalid(absl::StrFormat("query parameter max_error=%s is not a number", text));
+  }
+  return grpc::Status::OK;
+}
+
 grpc::Status BoolField(const json& body, const char* key, bool* out) {
   *out = false;
   auto it = body.find(key);
@@ -264,24 +286,28 @@ grpc::Status BoolField(const json& body, const char* key, bool* out) {
 }
 
 // A request for the graph of `mesh` (the path's) that the body chooses:
-// "eps" (or "epsilon"; absent: the server's default) and "pseudo_vertices"
-// (the graph with pseudo vertices, a separate graph). It goes in the
+// "eps" (or "epsilon"; absent: the server's default), "pseudo_vertices"
+// (the graph with pseudo vertices, a separate graph) and "max_error" (a
+// certified graph, whose epsilon the server chooses). It goes in the
 // request's `graph`, made by the conversion the CLI uses too.
 template <typename Request>
 grpc::Status ForGraphOf(const std::string& mesh, const json& body, Request* req) {
-  double epsilon;
+  double epsilon, max_error;
   bool pseudo_vertices;
   if (grpc::Status s = BodyEpsilon(body, &epsilon); !s.ok()) return s;
   if (grpc::Status s = BoolField(body, "pseudo_vertices", &pseudo_vertices); !s.ok()) return s;
+  if (grpc::Status s = BodyMaxError(body, &max_error); !s.ok()) return s;
   *req->mutable_graph() = MakeSelector(mesh, epsilon, pseudo_vertices);
+  req->mutable_graph()->set_max_error(max_error);
   return grpc::Status::OK;
 }
 
-// The same from the query string: ?eps=E&pseudo_vertices=true.
+// The same from the query string: ?eps=E&pseudo_vertices=true&max_error=M.
 template <typename Request>
 grpc::Status ForGraphOfQuery(const std::string& mesh, const HttpRequest& http, Request* req) {
-  double epsilon;
+  double epsilon, max_error;
   if (grpc::Status s = QueryEpsilon(http, &epsilon); !s.ok()) return s;
+  if (grpc::Status s = QueryMaxError(http, &max_error); !s.ok()) return s;
   bool pseudo_vertices = false;
   if (http.has_param("pseudo_vertices")) {
     const std::string text = http.param("pseudo_vertices");
@@ -293,6 +319,7 @@ grpc::Status ForGraphOfQuery(const std::string& mesh, const HttpRequest& http, R
     }
   }
   *req->mutable_graph() = MakeSelector(mesh, epsilon, pseudo_vertices);
+  req->mutable_graph()->set_max_error(max_error);
   return grpc::Status::OK;
 }
 
@@ -314,6 +341,7 @@ void AddEcho(const v1::QueryEcho& echo, json* out) {
   (*out)["eps"] = graph.epsilon();
   (*out)["method"] = echo.method();
   (*out)["pseudo_vertices"] = graph.pseudo_vertices();
+  if (graph.max_error() > 0) (*out)["max_error"] = graph.max_error();
 }
 
 grpc::Status ArrayField(const json& body, const char* key, const json** out) {
@@ -325,27 +353,43 @@ grpc::Status ArrayField(const json& body, const char* key, const json** out) {
   return grpc::Status::OK;
 }
 
+// A certified graph's certificate, with the keys of `geodesicd build --json`.
+json CertificateJson(const v1::GraphCertificate& c) {
+  return {{"max_error_bound", c.max_error_bound()},
+          {"epsilon", c.epsilon()},
+          {"measured_max_error", c.measured_max_error()},
+          {"measured_mean_error", c.measured_mean_error()},
+          {"sources", c.sources()},
+          {"seed", c.seed()},
+          {"sound", c.sound()},
+          {"builds", c.builds()}};
+}
+
 json GraphJson(const v1::Graph& g) {
   std::string state = v1::GraphState_Name(g.state());
   constexpr std::string_view kPrefix = "GRAPH_STATE_";
   if (state.starts_with(kPrefix)) state = state.substr(kPrefix.size());
-  return {{"mesh", g.mesh()},
-          {"eps", g.epsilon()},
-          {"state", state},
-          {"phase", g.phase()},
-          {"progress", g.progress()},
-          {"error", g.error()},
-          {"bytes", g.bytes()},
-          {"landmark_bytes", g.landmark_bytes()},
-          {"mapped", g.mapped()},
-          {"from_file", g.from_file()},
-          {"nodes", g.nodes()},
-          {"edges", g.edges()},
-          {"build_seconds", g.build_seconds()},
-          {"estimated_bytes", g.estimated_bytes()},
-          {"estimated_seconds", g.estimated_seconds()},
-          {"last_used_unix_ms", g.last_used_unix_ms()},
-          {"pseudo_vertices", g.pseudo_vertices()}};
+  json out = {{"mesh", g.mesh()},
+              {"eps", g.epsilon()},
+              {"state", state},
+              {"phase", g.phase()},
+              {"progress", g.progress()},
+              {"error", g.error()},
+              {"bytes", g.bytes()},
+              {"landmark_bytes", g.landmark_bytes()},
+              {"mapped", g.mapped()},
+              {"from_file", g.from_file()},
+              {"nodes", g.nodes()},
+              {"edges", g.edges()},
+              {"build_seconds", g.build_seconds()},
+              {"estimated_bytes", g.estimated_bytes()},
+              {"estimated_seconds", g.estimated_seconds()},
+              {"last_used_unix_ms", g.last_used_unix_ms()},
+              {"pseudo_vertices", g.pseudo_vertices()},
+              {"max_error", g.max_error()},
+              // null for a plain graph, and while a certified one is made.
+              {"certificate", g.has_certificate() ? CertificateJson(g.certificate()) : json()}};
+  return out;
 }
 
 json MeshJson(const v1::Mesh& m) {
@@ -831,7 +875,7 @@ struct HttpGateway::Impl {
 
   // A query's body keys: its own, then those that choose the graph.
   static std::vector<std::string> WithGraph(std::vector<std::string> keys) {
-    for (const char* key : {"eps", "epsilon", "pseudo_vertices"}) keys.push_back(key);
+    for (const char* key : {"eps", "epsilon", "pseudo_vertices", "max_error"}) keys.push_back(key);
     return keys;
   }
 

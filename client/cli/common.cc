@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "absl/status/status.h"
+#include "absl/strings/str_format.h"
 #include "server/convert.h"
 
 namespace geodesic::cli {
@@ -21,6 +22,10 @@ CLI::Option* AddCommonFlags(CLI::App& app, Common& c) {
           ->capture_default_str();
   app.add_option("--eps", c.epsilon, "graph accuracy (0: the server's default)");
   app.add_flag("--pseudo-vertices", c.pseudo_vertices, kPseudoHelp);
+  app.add_option("--max-error", c.max_error,
+                 "a certified graph: relative errors measured at most this, in [1e-5, 0.5]; the "
+                 "server chooses the epsilon (--eps is ignored), builds, measures and rebuilds "
+                 "tighter until the bound holds (0: not certified)");
   app.add_flag("--json", c.json, "machine-readable output");
   app.add_option("--timeout", c.timeout, "deadline per call, seconds")
       ->check(NumberIn(1e-3, 1e6, "seconds in [0.001, 1e6]"));
@@ -36,7 +41,9 @@ CLI::Option* AddCommonFlags(CLI::App& app, Common& c) {
 }
 
 v1::GraphSelector Selector(const Common& c) {
-  return server::MakeSelector(c.mesh, c.epsilon, c.pseudo_vertices);
+  v1::GraphSelector out = server::MakeSelector(c.mesh, c.epsilon, c.pseudo_vertices);
+  out.set_max_error(c.max_error);
+  return out;
 }
 
 namespace {
@@ -208,7 +215,30 @@ Json GraphJson(const v1::Graph& g) {
           {"estimated_bytes", g.estimated_bytes()},
           {"estimated_seconds", g.estimated_seconds()},
           {"landmark_bytes", g.landmark_bytes()},
-          {"pseudo_vertices", g.pseudo_vertices()}};
+          {"pseudo_vertices", g.pseudo_vertices()},
+          {"max_error", g.max_error()},
+          {"certificate", g.has_certificate() ? CertificateJson(g.certificate()) : Json()}};
+}
+
+Json CertificateJson(const v1::GraphCertificate& c) {
+  return {{"max_error_bound", c.max_error_bound()},
+          {"epsilon", c.epsilon()},
+          {"measured_max_error", c.measured_max_error()},
+          {"measured_mean_error", c.measured_mean_error()},
+          {"sources", c.sources()},
+          {"seed", c.seed()},
+          {"sound", c.sound()},
+          {"builds", c.builds()}};
+}
+
+std::string CertificateText(const v1::Graph& g) {
+  if (!g.has_certificate()) return "";
+  const v1::GraphCertificate& c = g.certificate();
+  return absl::StrFormat(
+      "certified: max error %.3g (mean %.3g) measured from %u sources (seed %u), bound %g, "
+      "%s, %u build%s",
+      c.measured_max_error(), c.measured_mean_error(), c.sources(), c.seed(), c.max_error_bound(),
+      c.sound() ? "sound" : "UNSOUND", c.builds(), c.builds() == 1 ? "" : "s");
 }
 
 }  // namespace geodesic::cli

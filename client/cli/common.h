@@ -22,6 +22,9 @@ struct Common {
   // The graph with pseudo vertices rather than the plain one of --eps: a
   // separate graph, for graph requests and queries alike.
   bool pseudo_vertices = false;
+  // A certified graph (--max-error): the server chooses its epsilon, and
+  // --eps is ignored. 0: not certified.
+  double max_error = 0;
   bool json = false;
   double timeout = 600;
   // Security: TLS when a CA is given; a client certificate for mutual TLS;
@@ -50,7 +53,7 @@ std::shared_ptr<grpc::Channel> OpenChannel(const Common& c, bool connected);
 std::unique_ptr<v1::Geodesic::Stub> Connect(const Common& c, bool connected = false);
 // Every call carries the mesh name so that a proxy can route by it.
 void Prepare(grpc::ClientContext* ctx, const Common& c);
-// The graph the flags name (--mesh, --eps, --pseudo-vertices), as every
+// The graph the flags name (--mesh, --eps, --pseudo-vertices, --max-error), as every
 // request that names a graph carries it in its `graph`.
 v1::GraphSelector Selector(const Common& c);
 
@@ -79,6 +82,11 @@ void PrintJson(const Json& value);
 Json DiagnosticsJson(const v1::MeshDiagnostics& d);
 const char* StateName(v1::GraphState s);
 Json GraphJson(const v1::Graph& g);
+// A certified graph's certificate, with the keys of `geodesicd build --json`.
+Json CertificateJson(const v1::GraphCertificate& c);
+// "certified: max error ... from N sources ..." for a graph with a
+// certificate; empty otherwise.
+std::string CertificateText(const v1::Graph& g);
 
 // A subcommand and what runs it once the command line is parsed. Graph
 // commands also take --pseudo-vertices after their name.

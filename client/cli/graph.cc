@@ -5,6 +5,7 @@
 #include <cstdio>
 #include <string>
 
+#include "absl/strings/str_format.h"
 #include "client/cli/commands.h"
 #include "server/convert.h"
 
@@ -38,6 +39,7 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
     v1::GetGraphRequest req;
     // The graph the answer named: its epsilon is the one it is built with.
     *req.mutable_graph() = server::MakeSelector(c.mesh, g.epsilon(), g.pseudo_vertices());
+    req.mutable_graph()->set_max_error(g.max_error());
     auto reader = stub->WatchGraph(&ctx, req);
     const bool bar = !c.json && isatty(STDERR_FILENO);
     while (reader->Read(&g)) {
@@ -55,10 +57,14 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
   if (c.json) {
     PrintJson(GraphJson(g));
   } else {
-    std::printf("graph %s at eps %g%s: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
-                g.mesh().c_str(), g.epsilon(), g.pseudo_vertices() ? " with pseudo vertices" : "",
-                StateName(g.state()), g.error().empty() ? "" : ": ", g.error().c_str(), g.nodes(),
-                g.edges(), g.bytes(), g.from_file() ? ", mapped from the graph directory" : "");
+    const std::string bound =
+        g.max_error() > 0 ? absl::StrFormat(" (max error %g)", g.max_error()) : "";
+    std::printf("graph %s at eps %g%s%s: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
+                g.mesh().c_str(), g.epsilon(), bound.c_str(),
+                g.pseudo_vertices() ? " with pseudo vertices" : "", StateName(g.state()),
+                g.error().empty() ? "" : ": ", g.error().c_str(), g.nodes(), g.edges(), g.bytes(),
+                g.from_file() ? ", mapped from the graph directory" : "");
+    if (g.has_certificate()) std::printf("  %s\n", CertificateText(g).c_str());
   }
   return g.state() == v1::GRAPH_STATE_FAILED ? 1 : 0;
 }
@@ -66,7 +72,8 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
 }  // namespace
 
 Command AddGraph(CLI::App& app, Common& c) {
-  auto* sub = app.add_subcommand("graph", "request the graph of --mesh at --eps");
+  auto* sub = app.add_subcommand(
+      "graph", "request the graph of --mesh at --eps (or certified to --max-error)");
   struct Args {
     bool wait = false, cancel = false;
   };

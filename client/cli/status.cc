@@ -2,6 +2,7 @@
 #include <cstdio>
 #include <string>
 
+#include "absl/strings/str_format.h"
 #include "client/cli/commands.h"
 
 namespace geodesic::cli {
@@ -24,6 +25,14 @@ int CmdStatus(const Common& c) {
                   g.epsilon(), g.pseudo_vertices() ? "pseudo" : "", StateName(g.state()),
                   100 * g.progress(), g.bytes(), g.mapped() ? "mapped" : "resident",
                   g.error().empty() ? "" : (" " + g.error()).c_str());
+      if (g.max_error() > 0) {
+        std::printf(
+            "%-16s   %s\n", "",
+            g.has_certificate()
+                ? CertificateText(g).c_str()
+                : absl::StrFormat("certified to max error %g: not yet measured", g.max_error())
+                      .c_str());
+      }
     }
   }
   if (c.json) PrintJson(list);

@@ -70,6 +70,20 @@ TEST_F(DiskBudgetTest, SpareFilesGoFirstLeastRecentlyUsedFirst) {
   EXPECT_TRUE(Exists("in-use.dgg"));
 }
 
+TEST_F(DiskBudgetTest, AGraphsCertificateGoesWithItAndCountsInTheTotal) {
+  Add("cert.dgg", 100, 300, FileRole::kSpare);
+  std::ofstream(dir_ / "cert.dgg.certificate.json") << std::string(20, 'j');
+  Add("kept.dgg", 100, 10, FileRole::kSpare);
+  std::ofstream(dir_ / "kept.dgg.certificate.json") << std::string(20, 'j');
+  auto report = Enforce(150);  // 240 bytes: the older graph goes, and its certificate
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_EQ(report->bytes_before, 240u);
+  EXPECT_THAT(report->removed, ElementsAre("cert.dgg", "cert.dgg.certificate.json"));
+  EXPECT_EQ(report->bytes_after, 120u);
+  EXPECT_FALSE(Exists("cert.dgg.certificate.json"));
+  EXPECT_TRUE(Exists("kept.dgg.certificate.json"));
+}
+
 TEST_F(DiskBudgetTest, CatalogedFilesGoOnlyWhenSpareOnesAreNotEnough) {
   Add("spare.dgg", 100, 10, FileRole::kSpare);
   Add("cataloged-old.dgg", 100, 500, FileRole::kCataloged);

@@ -106,6 +106,21 @@ class HeldMaker : public GraphMaker {
     Pass(kWrite);
     return GraphMaker::Write(graph, path);
   }
+  // A certified graph's build and file take the same steps.
+  absl::StatusOr<CertifiedGraph> BuildCertified(std::shared_ptr<const Mesh> mesh, double max_error,
+                                                const CertifyOptions& options) override {
+    Pass(kBuild);
+    if (fail_build_) {
+      return absl::FailedPreconditionError("no graph kept the bound, on purpose");
+    }
+    return GraphMaker::BuildCertified(std::move(mesh), max_error, options);
+  }
+  absl::StatusOr<Certified> OpenCertified(const std::string& path, const Mesh& mesh,
+                                          const DggParams& params, double max_error,
+                                          GraphFile::Check check) override {
+    if (check == GraphFile::Check::kFull) Pass(kOpen);
+    return GraphMaker::OpenCertified(path, mesh, params, max_error, check);
+  }
 
  private:
   struct Gate {
@@ -295,6 +310,84 @@ TEST_F(GraphCacheTest, PseudoAndPlainGraphsAreDifferentEntries) {
   EXPECT_FALSE((*plain)->graph().params().pseudo_vertices);
   EXPECT_TRUE((*with_pseudo)->graph().params().pseudo_vertices);
   EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 2);
+}
+
+TEST_F(GraphCacheTest, ACertifiedGraphIsItsOwnWithACertificateThatARestartReadsBack) {
+  auto mesh = GridMesh("grid", 6, 0.1);
+  const double bound = 0.05;
+  const DggParams params = Eps(CertifiedKeyEpsilon(bound));
+  const GraphKey certified{"grid", params, bound};
+  const GraphKey plain{"grid", params};  // the plain graph of the first build's epsilon
+  GraphCache& cache = Cache();
+  cache.Request(mesh, plain.params);
+  EXPECT_EQ(cache.Request(mesh, params, bound).max_error, bound);
+  const GraphStatus plain_ready = WaitFor(plain, GraphState::kReady);
+  const GraphStatus ready = WaitFor(certified, GraphState::kReady);
+  EXPECT_FALSE(plain_ready.certificate.has_value());
+  EXPECT_EQ(plain_ready.max_error, 0);
+  ASSERT_TRUE(ready.certificate.has_value());
+  const GraphCertificate& c = *ready.certificate;
+  EXPECT_TRUE(c.sound);
+  EXPECT_EQ(c.max_error_bound, bound);
+  EXPECT_LE(c.measured_max_error, bound);
+  EXPECT_LT(c.epsilon, bound);
+  EXPECT_GT(c.sources, 0u);
+  EXPECT_GE(c.builds, 1u);
+  EXPECT_EQ(ready.epsilon, c.epsilon);
+  EXPECT_EQ(ready.params.epsilon, c.epsilon);
+  EXPECT_EQ(ready.max_error, bound);
+  EXPECT_EQ(cache.List().size(), 2u);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 2);
+  auto engine = cache.Acquire(certified);
+  ASSERT_TRUE(engine.ok()) << engine.status();
+  EXPECT_EQ((*engine)->graph().params().epsilon, c.epsilon);
+
+  // Its file is named by the bound, beside its certificate.
+  const std::string path = cache.GraphPath(mesh->fingerprint, params, bound);
+  EXPECT_THAT(path, HasSubstr("-cert0.05-"));
+  EXPECT_NE(path, cache.GraphPath(mesh->fingerprint, params));
+  EXPECT_TRUE(fs::exists(path));
+  EXPECT_TRUE(fs::exists(path + ".certificate.json"));
+
+  // A restart maps it with the same certificate, without building.
+  GraphCache& again = Cache();
+  again.Request(mesh, params, bound);
+  const GraphStatus mapped = WaitFor(certified, GraphState::kReady);
+  EXPECT_TRUE(mapped.from_file);
+  ASSERT_TRUE(mapped.certificate.has_value());
+  EXPECT_EQ(mapped.certificate->measured_max_error, c.measured_max_error);
+  EXPECT_EQ(mapped.certificate->measured_mean_error, c.measured_mean_error);
+  EXPECT_EQ(mapped.certificate->epsilon, c.epsilon);
+  EXPECT_EQ(mapped.certificate->sources, c.sources);
+  EXPECT_EQ(mapped.certificate->seed, c.seed);
+  EXPECT_EQ(mapped.epsilon, c.epsilon);
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 2);
+
+  // Without its certificate the file is not believed: it is rebuilt.
+  fs::remove(path + ".certificate.json");
+  GraphCache& third = Cache();
+  third.Request(mesh, params, bound);
+  const GraphStatus rebuilt = WaitFor(certified, GraphState::kReady);
+  EXPECT_FALSE(rebuilt.from_file);
+  EXPECT_THAT(rebuilt.error, HasSubstr("no certificate"));
+  ASSERT_TRUE(rebuilt.certificate.has_value());
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 3);
+  EXPECT_TRUE(fs::exists(path + ".certificate.json"));
+}
+
+TEST_F(GraphCacheTest, AFailedCertificationFailsTheGraphWithItsMessage) {
+  auto mesh = GridMesh("grid", 4, 0.1);
+  const double bound = 0.05;
+  const GraphKey key{"grid", Eps(CertifiedKeyEpsilon(bound)), bound};
+  GraphCache& cache = Cache();
+  maker_->FailBuild(true);
+  cache.Request(mesh, key.params, bound);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  EXPECT_THAT(failed.error, HasSubstr("no graph kept the bound"));
+  EXPECT_FALSE(failed.certificate.has_value());
+  auto engine = cache.Acquire(key);
+  EXPECT_TRUE(absl::IsFailedPrecondition(engine.status())) << engine.status();
+  EXPECT_THAT(engine.status().message(), HasSubstr("certified to max error 0.05"));
 }
 
 // Unloading a mesh while its graph is in each state of its making: nothing

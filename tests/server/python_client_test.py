@@ -22,8 +22,8 @@ BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
 import geodesic_client  # noqa: E402
-from geodesic_client import (Client, Graph, GraphState, Mesh, MeshDiagnostics,  # noqa: E402
-                             MeshSolver, Path, VertexCopy)
+from geodesic_client import (Client, Graph, GraphCertificate, GraphState,  # noqa: E402
+                             Mesh, MeshDiagnostics, MeshSolver, Path, VertexCopy)
 from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
@@ -501,6 +501,30 @@ class ClientTest(unittest.TestCase):
                 echo = answer_type.FromString(answers[0]).echo
                 self.assertEqual((echo.graph.mesh, echo.graph.epsilon,
                                   echo.graph.pseudo_vertices), ("spot", 0.01, False), msg=what)
+
+    def test_a_certified_graph_carries_its_certificate(self):
+        g = self.client.request_graph("spot", max_error=1e-2)
+        self.assertEqual(g.state, GraphState.READY)
+        self.assertEqual(g.max_error, 1e-2)
+        c = g.certificate
+        self.assertIsInstance(c, GraphCertificate)
+        self.assertTrue(c.sound)
+        self.assertEqual(c.max_error_bound, 1e-2)
+        self.assertLessEqual(c.measured_max_error, 1e-2)
+        self.assertLessEqual(c.measured_mean_error, c.measured_max_error)
+        self.assertLess(c.epsilon, 1e-2)
+        self.assertEqual(g.epsilon, c.epsilon)
+        self.assertGreater(c.sources, 0)
+        # The same certificate from graph() and graphs(); the plain graph of
+        # that epsilon is another graph, without one.
+        self.assertEqual(self.client.graph("spot", max_error=1e-2).certificate, c)
+        self.assertIn(c, [x.certificate for x in self.client.graphs()])
+        plain = self.client.request_graph("spot", epsilon=c.epsilon)
+        self.assertIsNone(plain.certificate)
+        self.assertEqual(plain.max_error, 0)
+        # Queries name it by its bound.
+        d = self.client.distance("spot", 0, 1500, max_error=1e-2)
+        self.assertTrue(np.isfinite(d) and d > 0)
 
     def test_progress_is_called_with_every_status_until_ready(self):
         # A fresh epsilon: this graph is built while the client waits.

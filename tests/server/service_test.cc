@@ -6,6 +6,7 @@
 
 #include <chrono>
 #include <filesystem>
+#include <set>
 #include <thread>
 #include <tuple>
 
@@ -356,6 +357,91 @@ TEST_F(ServiceTest, ThePseudoVertexGraphIsItsOwnGraph) {
   v1::DistanceResponse resp;
   ASSERT_TRUE(stub_->Distance(&pair_ctx, req, &resp).ok());
   EXPECT_TRUE(resp.echo().pseudo_vertices());
+}
+
+TEST_F(ServiceTest, ACertifiedGraphIsItsOwnGraphWithASoundCertificate) {
+  ReadySpot(CertifiedKeyEpsilon(1e-2));  // the plain graph of the first build's epsilon
+  v1::GraphSelector certified = MakeSelector("spot", 0, false);
+  certified.set_max_error(1e-2);
+  {
+    grpc::ClientContext ctx;
+    v1::RequestGraphRequest req;
+    *req.mutable_graph() = certified;
+    v1::Graph started;
+    ASSERT_TRUE(stub_->RequestGraph(&ctx, req, &started).ok());
+    EXPECT_EQ(started.max_error(), 1e-2);
+    EXPECT_FALSE(started.has_certificate());
+  }
+  grpc::ClientContext ctx;
+  v1::GetGraphRequest get;
+  *get.mutable_graph() = certified;
+  auto watch = stub_->WatchGraph(&ctx, get);
+  v1::Graph last;
+  std::set<std::string> phases;
+  while (watch->Read(&last)) phases.insert(last.phase());
+  ASSERT_TRUE(watch->Finish().ok());
+  ASSERT_EQ(last.state(), v1::GRAPH_STATE_READY) << last.error();
+  ASSERT_TRUE(last.has_certificate());
+  const v1::GraphCertificate& c = last.certificate();
+  EXPECT_TRUE(c.sound());
+  EXPECT_EQ(c.max_error_bound(), 1e-2);
+  EXPECT_LE(c.measured_max_error(), 1e-2);
+  EXPECT_GT(c.measured_max_error(), 0);
+  EXPECT_LE(c.measured_mean_error(), c.measured_max_error());
+  EXPECT_LT(c.epsilon(), 1e-2);
+  EXPECT_GT(c.sources(), 0u);
+  EXPECT_GE(c.builds(), 1u);
+  EXPECT_EQ(last.epsilon(), c.epsilon());
+  EXPECT_EQ(last.max_error(), 1e-2);
+
+  // Beside the plain graph, never it: a plain request at the certified
+  // graph's epsilon names the plain graph (or none), with no certificate.
+  grpc::ClientContext list_ctx;
+  v1::ListGraphsResponse list;
+  ASSERT_TRUE(stub_->ListGraphs(&list_ctx, {}, &list).ok());
+  ASSERT_EQ(list.graphs_size(), 2);
+  EXPECT_NE(list.graphs(0).has_certificate(), list.graphs(1).has_certificate());
+  grpc::ClientContext plain_ctx;
+  v1::GetGraphRequest plain;
+  *plain.mutable_graph() = MakeSelector("spot", CertifiedKeyEpsilon(1e-2), false);
+  v1::Graph plain_graph;
+  ASSERT_TRUE(stub_->GetGraph(&plain_ctx, plain, &plain_graph).ok());
+  EXPECT_FALSE(plain_graph.has_certificate());
+  EXPECT_EQ(plain_graph.max_error(), 0);
+
+  // A query that names the bound is answered by the certified graph, and
+  // its echo says so, with the epsilon it was built with.
+  grpc::ClientContext pair_ctx;
+  v1::DistanceRequest req;
+  *req.mutable_graph() = certified;
+  *req.add_pairs()->mutable_from() = Vertex(0);
+  *req.mutable_pairs(0)->mutable_to() = Vertex(2000);
+  v1::DistanceResponse resp;
+  ASSERT_TRUE(stub_->Distance(&pair_ctx, req, &resp).ok());
+  EXPECT_EQ(resp.echo().graph().max_error(), 1e-2);
+  EXPECT_EQ(resp.echo().graph().epsilon(), c.epsilon());
+  auto engine = cache_->Acquire({"spot",
+                                 [] {
+                                   DggParams p;
+                                   p.epsilon = CertifiedKeyEpsilon(1e-2);
+                                   return p;
+                                 }(),
+                                 1e-2});
+  ASSERT_TRUE(engine.ok()) << engine.status();
+  auto want = (*engine)->Distances(std::vector{SurfacePoint::Vertex(0)},
+                                   std::vector{SurfacePoint::Vertex(2000)}, {});
+  ASSERT_TRUE(want.ok());
+  EXPECT_NEAR(resp.results(0).distance(), (*want)[0].distance, 1e-9 * (*want)[0].distance);
+
+  // A bound outside what the server certifies is refused.
+  grpc::ClientContext bad_ctx;
+  v1::RequestGraphRequest bad;
+  *bad.mutable_graph() = certified;
+  bad.mutable_graph()->set_max_error(2);
+  v1::Graph unused;
+  grpc::Status refused = stub_->RequestGraph(&bad_ctx, bad, &unused);
+  EXPECT_EQ(refused.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_THAT(refused.error_message(), HasSubstr("max_error"));
 }
 
 // How a request names spot's graph at 2e-2 with pseudo vertices: in the

@@ -26,15 +26,15 @@ from ._errors import (AlreadyExistsError, DeadlineExceededError, FailedPrecondit
 from ._client import Client
 from ._points import EdgePoints, FacePoints, Point, Points, format_point, parse_point
 from ._solver import MeshSolver
-from ._types import (Graph, GraphState, Mesh, MeshDiagnostics, Path, RetryPolicy,
-                     VertexCopy)
+from ._types import (Graph, GraphCertificate, GraphState, Mesh, MeshDiagnostics, Path,
+                     RetryPolicy, VertexCopy)
 from ._version import __version__
 
 __all__ = [
     "AlreadyExistsError", "Client", "DeadlineExceededError", "EdgePoints", "FacePoints",
-    "FailedPreconditionError", "GeodesicError", "Graph", "GraphState", "InvalidArgumentError",
-    "Mesh", "MeshDiagnostics", "MeshSolver", "NotFoundError", "OutOfRangeError", "Path",
-    "PermissionDeniedError", "Point", "Points", "ResourceExhaustedError", "RetryPolicy",
-    "UnauthenticatedError", "UnavailableError", "VertexCopy", "__version__", "format_point",
-    "parse_point",
+    "FailedPreconditionError", "GeodesicError", "Graph", "GraphCertificate", "GraphState",
+    "InvalidArgumentError", "Mesh", "MeshDiagnostics", "MeshSolver", "NotFoundError",
+    "OutOfRangeError", "Path", "PermissionDeniedError", "Point", "Points",
+    "ResourceExhaustedError", "RetryPolicy", "UnauthenticatedError", "UnavailableError",
+    "VertexCopy", "__version__", "format_point", "parse_point",
 ]

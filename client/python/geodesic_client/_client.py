@@ -108,11 +108,13 @@ class Client:
     def _eps(self, epsilon: Optional[float]) -> float:
         return self.epsilon if epsilon is None else epsilon
 
-    def _graph(self, mesh: str, epsilon: Optional[float], pseudo_vertices: bool) -> Any:
+    def _graph(self, mesh: str, epsilon: Optional[float], pseudo_vertices: bool,
+               max_error: float = 0.0) -> Any:
         """The GraphSelector every request that names a graph carries in its `graph` (the
-        requests' own mesh, epsilon and pseudo_vertices fields are what it superseded)."""
+        requests' own mesh, epsilon and pseudo_vertices fields are what it superseded).
+        max_error: a certified graph (its epsilon the server's choice), 0 for a plain one."""
         return pb.GraphSelector(mesh=mesh, epsilon=self._eps(epsilon),
-                                pseudo_vertices=pseudo_vertices)
+                                pseudo_vertices=pseudo_vertices, max_error=max_error)
 
     def _call(self, name: str, run: Callable[[], Any]) -> Any:
         """run() with retries of transient codes; failures become GeodesicError."""
@@ -198,10 +200,11 @@ class Client:
             name=name, path=path, repair_non_manifold=repair_non_manifold), name))
 
     def mesh_solver(self, name: str, epsilon: Optional[float] = None,
-                    pseudo_vertices: bool = False) -> MeshSolver:
-        """A handle on one mesh's graph: this client's queries without the mesh, epsilon and
-        pseudo_vertices arguments (see MeshSolver). epsilon: None takes this client's."""
-        return MeshSolver(self, name, self._eps(epsilon), pseudo_vertices)
+                    pseudo_vertices: bool = False, max_error: float = 0.0) -> MeshSolver:
+        """A handle on one mesh's graph: this client's queries without the mesh, epsilon,
+        pseudo_vertices and max_error arguments (see MeshSolver). epsilon: None takes this
+        client's; max_error: the certified graph of that bound."""
+        return MeshSolver(self, name, self._eps(epsilon), pseudo_vertices, max_error)
 
     def unload_mesh(self, name: str) -> None:
         """Forgets a mesh and drops its graphs from memory (their files stay)."""
@@ -303,8 +306,15 @@ class Client:
 
     def request_graph(self, mesh: str, epsilon: Optional[float] = None, wait: bool = True,
                       pseudo_vertices: bool = False,
-                      progress: Optional[Callable[[Graph], None]] = None) -> Graph:
+                      progress: Optional[Callable[[Graph], None]] = None,
+                      max_error: float = 0.0) -> Graph:
         """Requests the graph of mesh at epsilon; with wait, blocks until it is ready.
+
+        max_error: a certified graph instead, its relative errors measured at most this
+        (in [1e-5, 0.5]): the server chooses the epsilon (epsilon is ignored), builds,
+        measures the graph against exact distances and rebuilds it tighter until the bound
+        holds; the Graph's certificate says what was measured. A graph of its own: pass the
+        same max_error to queries to use it.
 
         progress: with wait, called with a Graph for every status the server reports while
         waiting (state, phase, progress in [0, 1]), the last one READY when the call returns;
@@ -312,7 +322,8 @@ class Client:
         gives one call. An exception it raises ends the wait and propagates.
         Raises RuntimeError if the graph failed or was cancelled while waiting.
         """
-        request = pb.RequestGraphRequest(graph=self._graph(mesh, epsilon, pseudo_vertices))
+        request = pb.RequestGraphRequest(
+            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error))
         g = self._unary("RequestGraph", request, mesh)
         # Under memory pressure a graph can be evicted again before this
         # client sees it ready; asking again brings it back from its file.
@@ -320,7 +331,7 @@ class Client:
         # and the stream ends when the graph is ready, failed or cancelled.
         for _ in range(10 if wait else 0):
             g = self._call("WatchGraph", lambda: self._last(self._stub.WatchGraph(
-                pb.GetGraphRequest(graph=self._graph(mesh, g.epsilon, pseudo_vertices)),
+                pb.GetGraphRequest(graph=self._graph(mesh, g.epsilon, pseudo_vertices, max_error)),
                 timeout=None, metadata=self._meta(mesh)), g, progress))
             if g.state != pb.GRAPH_STATE_EVICTED:
                 break
@@ -348,10 +359,10 @@ class Client:
             stream.cancel()
 
     def graph(self, mesh: str, epsilon: Optional[float] = None,
-              pseudo_vertices: bool = False) -> Graph:
+              pseudo_vertices: bool = False, max_error: float = 0.0) -> Graph:
         """The state of the graph of mesh at epsilon."""
         return Graph._from_proto(self._unary("GetGraph", pb.GetGraphRequest(
-            graph=self._graph(mesh, epsilon, pseudo_vertices)), mesh))
+            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error)), mesh))
 
     def graphs(self) -> List[Graph]:
         """Every graph the server knows of."""
@@ -359,15 +370,17 @@ class Client:
                 for g in self._unary("ListGraphs", pb.ListGraphsRequest(), None).graphs]
 
     def cancel_graph(self, mesh: str, epsilon: Optional[float] = None,
-                     pseudo_vertices: bool = False) -> Graph:
+                     pseudo_vertices: bool = False, max_error: float = 0.0) -> Graph:
         """Cancels the build of a graph."""
         return Graph._from_proto(self._unary("CancelGraph", pb.CancelGraphRequest(
-            graph=self._graph(mesh, epsilon, pseudo_vertices)), mesh))
+            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error)), mesh))
 
     # -- queries --------------------------------------------------------------
     # Every query takes pseudo_vertices: True asks the graph with pseudo
     # vertices (request_graph(..., pseudo_vertices=True)) instead of the
-    # plain one of the same epsilon.
+    # plain one of the same epsilon; and max_error: the certified graph of
+    # that bound (request_graph(..., max_error=...)), whose epsilon the
+    # server chose.
     #
     # field and distances return a pair when nearest_source / with_path is
     # True: their overloads tell type checkers which shape a call gets (the
@@ -376,31 +389,31 @@ class Client:
     @overload
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
               max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
-              nearest_source: Literal[False] = ..., pseudo_vertices: bool = ...
-              ) -> np.ndarray: ...
+              nearest_source: Literal[False] = ..., pseudo_vertices: bool = ...,
+              max_error: float = ...) -> np.ndarray: ...
 
     @overload
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
               max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
-              *, nearest_source: Literal[True], pseudo_vertices: bool = ...
-              ) -> Tuple[np.ndarray, np.ndarray]: ...
+              *, nearest_source: Literal[True], pseudo_vertices: bool = ...,
+              max_error: float = ...) -> Tuple[np.ndarray, np.ndarray]: ...
 
     @overload
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float],
               max_distance: float, targets: Optional[Any], method: str,
-              nearest_source: Literal[True], pseudo_vertices: bool = ...
-              ) -> Tuple[np.ndarray, np.ndarray]: ...
+              nearest_source: Literal[True], pseudo_vertices: bool = ...,
+              max_error: float = ...) -> Tuple[np.ndarray, np.ndarray]: ...
 
     @overload
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
               max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
-              nearest_source: bool = ..., pseudo_vertices: bool = ...
-              ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
+              nearest_source: bool = ..., pseudo_vertices: bool = ...,
+              max_error: float = ...) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
 
     def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = None,
               max_distance: float = 0.0, targets: Optional[Any] = None, method: str = "lc",
-              nearest_source: bool = False, pseudo_vertices: bool = False
-              ) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
+              nearest_source: bool = False, pseudo_vertices: bool = False,
+              max_error: float = 0.0) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]:
         """Distances from the nearest of the sources, as a float64 array (+inf: unreachable).
 
         One value per vertex, or per target if targets (vertex ids) are given. With
@@ -422,7 +435,8 @@ class Client:
         while start < len(points):
             batch = points[start:start + self.max_sources]
             req = pb.DistanceFieldRequest(
-                graph=self._graph(mesh, epsilon, pseudo_vertices), max_distance=max_distance,
+                graph=self._graph(mesh, epsilon, pseudo_vertices, max_error),
+                max_distance=max_distance,
                 sources=batch, targets=target_ids, method=method, nearest_source=nearest_source)
             try:
                 part, part_labels = self._call("DistanceField", lambda: self._field_stream(req))
@@ -458,26 +472,26 @@ class Client:
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
                   with_path: Literal[False] = ..., pseudo_vertices: bool = ...,
-                  exact: bool = ...) -> np.ndarray: ...
+                  exact: bool = ..., max_error: float = ...) -> np.ndarray: ...
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
                   *, with_path: Literal[True], pseudo_vertices: bool = ...,
-                  exact: bool = ...) -> Tuple[np.ndarray, List[Path]]: ...
+                  exact: bool = ..., max_error: float = ...) -> Tuple[np.ndarray, List[Path]]: ...
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float],
                   with_path: Literal[True], pseudo_vertices: bool = ...,
-                  exact: bool = ...) -> Tuple[np.ndarray, List[Path]]: ...
+                  exact: bool = ..., max_error: float = ...) -> Tuple[np.ndarray, List[Path]]: ...
 
     @overload
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
-                  with_path: bool = ..., pseudo_vertices: bool = ..., exact: bool = ...
-                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
+                  with_path: bool = ..., pseudo_vertices: bool = ..., exact: bool = ...,
+                  max_error: float = ...) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
 
     def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = None,
-                  with_path: bool = False, pseudo_vertices: bool = False, exact: bool = False
-                  ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
+                  with_path: bool = False, pseudo_vertices: bool = False, exact: bool = False,
+                  max_error: float = 0.0) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
         """Geodesic distances between a[i] and b[i], as a float64 array (+inf: unreachable).
 
         a and b are point sets of the same length. With with_path, returns (distances, paths),
@@ -496,7 +510,7 @@ class Client:
         batch = min(self.max_pairs, self.path_batch) if with_path else self.max_pairs
         while i < len(pa):
             j = min(len(pa), i + batch)
-            req = pb.DistanceRequest(graph=self._graph(mesh, epsilon, pseudo_vertices),
+            req = pb.DistanceRequest(graph=self._graph(mesh, epsilon, pseudo_vertices, max_error),
                                      with_path=with_path, exact=exact,
                                      pairs=[pb.PointPair(**{"from": pa[k], "to": pb_[k]})
                                             for k in range(i, j)])
@@ -519,23 +533,26 @@ class Client:
         return (out, paths) if with_path else out
 
     def distance(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None,
-                 pseudo_vertices: bool = False, exact: bool = False) -> float:
+                 pseudo_vertices: bool = False, exact: bool = False,
+                 max_error: float = 0.0) -> float:
         """Geodesic distance between two surface points (+inf if unreachable); exact: the
         exact polyhedral distance."""
         return float(self.distances(mesh, [to_message(a)], [to_message(b)], epsilon,
-                                    pseudo_vertices=pseudo_vertices, exact=exact)[0])
+                                    pseudo_vertices=pseudo_vertices, exact=exact,
+                                    max_error=max_error)[0])
 
     def path(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = None,
-             pseudo_vertices: bool = False, exact: bool = False) -> Path:
+             pseudo_vertices: bool = False, exact: bool = False, max_error: float = 0.0) -> Path:
         """The geodesic path from a to b (unpacks as ``length, xyz = path``); exact: the
         exact geodesic."""
         _, (p,) = self.distances(mesh, [to_message(a)], [to_message(b)], epsilon, with_path=True,
-                                 pseudo_vertices=pseudo_vertices, exact=exact)
+                                 pseudo_vertices=pseudo_vertices, exact=exact,
+                                 max_error=max_error)
         return p
 
     def matrix(self, mesh: str, sources: Points, targets: Points,
                epsilon: Optional[float] = None, pseudo_vertices: bool = False,
-               exact: bool = False) -> np.ndarray:
+               exact: bool = False, max_error: float = 0.0) -> np.ndarray:
         """(len(sources), len(targets)) float64 array of distances, computed in tiles that fit
         the server's limits; exact: every row exact."""
         ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
@@ -543,7 +560,8 @@ class Client:
         # Beyond what one tile holds, MatrixRows streams blocks of rows, so neither side holds
         # a whole tile's message; a server without it answers tiles of Matrix.
         if len(ps) * len(pt) * 8 > self._max_message // 2 and \
-                self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, exact, out):
+                self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, exact, out,
+                                  max_error):
             return out
         row_cap = self.max_sources
         while True:
@@ -554,7 +572,8 @@ class Client:
                 for r in range(0, len(ps), rows):
                     for c in range(0, len(pt), cols):
                         resp = self._unary("Matrix", pb.MatrixRequest(
-                            graph=self._graph(mesh, epsilon, pseudo_vertices), exact=exact,
+                            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error),
+                            exact=exact,
                             sources=ps[r:r + rows], targets=pt[c:c + cols]), mesh)
                         out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
@@ -575,7 +594,8 @@ class Client:
                 self.max_pairs = min(self.max_pairs, max(1, max_targets))
 
     def _matrix_rows(self, mesh: str, ps: List[Any], pt: List[Any], epsilon: Optional[float],
-                     pseudo_vertices: bool, exact: bool, out: np.ndarray) -> bool:
+                     pseudo_vertices: bool, exact: bool, out: np.ndarray,
+                     max_error: float = 0.0) -> bool:
         """Fills `out` from MatrixRows streams, a request per max_sources x max_pairs tile.
         False (nothing to rely on in `out`) when the server lacks MatrixRows or names smaller
         limits, for the caller to tile with Matrix."""
@@ -584,7 +604,8 @@ class Client:
         try:
             for r in range(0, len(ps), rows):
                 for c in range(0, len(pt), cols):
-                    req = pb.MatrixRequest(graph=self._graph(mesh, epsilon, pseudo_vertices),
+                    req = pb.MatrixRequest(graph=self._graph(mesh, epsilon, pseudo_vertices,
+                                                             max_error),
                                            exact=exact, sources=ps[r:r + rows],
                                            targets=pt[c:c + cols])
 
@@ -610,13 +631,14 @@ class Client:
         return [format_point(p) for p in self._resolve(mesh, positions)]
 
     def sample_points(self, mesh: str, count: int, seed: int = 0,
-                      epsilon: Optional[float] = None,
-                      pseudo_vertices: bool = False) -> Tuple[np.ndarray, float]:
+                      epsilon: Optional[float] = None, pseudo_vertices: bool = False,
+                      max_error: float = 0.0) -> Tuple[np.ndarray, float]:
         """Geodesic farthest-point sampling: (vertex ids as a uint32 array, in the order chosen,
         covering radius), every vertex lying within the covering radius (graph distance) of a
         sample (+inf while a component has none). The seed picks the first vertex."""
         resp = self._unary("SamplePoints", pb.SamplePointsRequest(
-            graph=self._graph(mesh, epsilon, pseudo_vertices), count=count, seed=seed), mesh)
+            graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), count=count,
+            seed=seed), mesh)
         return np.asarray(resp.vertices, dtype=np.uint32), float(resp.covering_radius)
 
 

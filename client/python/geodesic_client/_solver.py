@@ -24,17 +24,20 @@ class MeshSolver:
     """
 
     def __init__(self, client: "Client", name: str, epsilon: float,
-                 pseudo_vertices: bool = False):
-        """Prefer Client.mesh_solver. epsilon: 0 means the server's --default-epsilon."""
+                 pseudo_vertices: bool = False, max_error: float = 0.0):
+        """Prefer Client.mesh_solver. epsilon: 0 means the server's --default-epsilon.
+        max_error: the certified graph of that bound instead (its epsilon the server's)."""
         self.client = client
         self.name = name
         self.epsilon = epsilon
         self.pseudo_vertices = pseudo_vertices
+        self.max_error = max_error
         self._mesh: Optional[Mesh] = None
 
     def __repr__(self) -> str:
         return (f"MeshSolver({self.name!r}, epsilon={self.epsilon!r}, "
-                f"pseudo_vertices={self.pseudo_vertices!r})")
+                f"pseudo_vertices={self.pseudo_vertices!r}"
+                + (f", max_error={self.max_error!r})" if self.max_error else ")"))
 
     @property
     def mesh(self) -> Mesh:
@@ -49,16 +52,19 @@ class MeshSolver:
                       progress: Optional[Callable[[Graph], None]] = None) -> Graph:
         """Makes the graph available; see Client.request_graph for wait and progress."""
         return self.client.request_graph(self.name, self.epsilon, wait=wait,
-                                         pseudo_vertices=self.pseudo_vertices, progress=progress)
+                                         pseudo_vertices=self.pseudo_vertices, progress=progress,
+                                         max_error=self.max_error)
 
     def graph(self) -> Graph:
         """The graph's current state."""
-        return self.client.graph(self.name, self.epsilon, pseudo_vertices=self.pseudo_vertices)
+        return self.client.graph(self.name, self.epsilon, pseudo_vertices=self.pseudo_vertices,
+                                 max_error=self.max_error)
 
     def cancel_graph(self) -> Graph:
         """Cancels the graph's build."""
         return self.client.cancel_graph(self.name, self.epsilon,
-                                        pseudo_vertices=self.pseudo_vertices)
+                                        pseudo_vertices=self.pseudo_vertices,
+                                        max_error=self.max_error)
 
     # -- queries --------------------------------------------------------------
     # Options after the points are keyword-only, so that the overloads can
@@ -85,7 +91,8 @@ class MeshSolver:
         """Distances from the nearest source, per vertex or per target; see Client.field."""
         return self.client.field(self.name, sources, self.epsilon, max_distance=max_distance,
                                  targets=targets, method=method, nearest_source=nearest_source,
-                                 pseudo_vertices=self.pseudo_vertices)
+                                 pseudo_vertices=self.pseudo_vertices,
+                                 max_error=self.max_error)
 
     @overload
     def distances(self, a: Points, b: Points, *,
@@ -104,27 +111,32 @@ class MeshSolver:
                   ) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]:
         """Distances between a[i] and b[i] (and their paths); see Client.distances."""
         return self.client.distances(self.name, a, b, self.epsilon, with_path=with_path,
-                                     pseudo_vertices=self.pseudo_vertices, exact=exact)
+                                     pseudo_vertices=self.pseudo_vertices, exact=exact,
+                                     max_error=self.max_error)
 
     def distance(self, a: Point, b: Point, *, exact: bool = False) -> float:
         """The distance between two surface points (+inf if unreachable)."""
         return self.client.distance(self.name, a, b, self.epsilon,
-                                    pseudo_vertices=self.pseudo_vertices, exact=exact)
+                                    pseudo_vertices=self.pseudo_vertices, exact=exact,
+                                    max_error=self.max_error)
 
     def path(self, a: Point, b: Point, *, exact: bool = False) -> Path:
         """The geodesic path from a to b (unpacks as ``length, xyz = path``)."""
         return self.client.path(self.name, a, b, self.epsilon,
-                                pseudo_vertices=self.pseudo_vertices, exact=exact)
+                                pseudo_vertices=self.pseudo_vertices, exact=exact,
+                                max_error=self.max_error)
 
     def matrix(self, sources: Points, targets: Points, *, exact: bool = False) -> np.ndarray:
         """(len(sources), len(targets)) array of distances."""
         return self.client.matrix(self.name, sources, targets, self.epsilon,
-                                  pseudo_vertices=self.pseudo_vertices, exact=exact)
+                                  pseudo_vertices=self.pseudo_vertices, exact=exact,
+                                  max_error=self.max_error)
 
     def sample_points(self, count: int, seed: int = 0) -> Tuple[np.ndarray, float]:
         """Farthest-point sampling: (vertex ids, covering radius); see Client.sample_points."""
         return self.client.sample_points(self.name, count, seed=seed, epsilon=self.epsilon,
-                                         pseudo_vertices=self.pseudo_vertices)
+                                         pseudo_vertices=self.pseudo_vertices,
+                                         max_error=self.max_error)
 
     def snap(self, positions: Any) -> List[str]:
         """Nearest surface points to (N, 3) positions, as spec strings (no graph needed)."""

@@ -3,7 +3,7 @@ import enum
 import json
 import re
 from dataclasses import dataclass, field
-from typing import Any, Dict, Iterator, List, Tuple
+from typing import Any, Dict, Iterator, List, Optional, Tuple
 
 import numpy as np
 
@@ -37,6 +37,30 @@ class GraphState(enum.Enum):
 
 
 @dataclass(frozen=True)
+class GraphCertificate:
+    """What the server measured of a certified graph (geodesic.v1.GraphCertificate): relative
+    errors, (graph - exact) / exact, at every vertex from `sources` random vertex sources
+    (seeded by `seed`). A certified graph is published only when its measured maximum keeps
+    its bound with a margin; `builds` counts the builds it took."""
+
+    max_error_bound: float
+    epsilon: float
+    measured_max_error: float
+    measured_mean_error: float
+    sources: int
+    seed: int
+    sound: bool
+    builds: int
+
+    @classmethod
+    def _from_proto(cls, c) -> "GraphCertificate":
+        return cls(max_error_bound=c.max_error_bound, epsilon=c.epsilon,
+                   measured_max_error=c.measured_max_error,
+                   measured_mean_error=c.measured_mean_error, sources=c.sources, seed=c.seed,
+                   sound=c.sound, builds=c.builds)
+
+
+@dataclass(frozen=True)
 class Graph:
     """A graph for (mesh, epsilon) and the state of the operation that makes it."""
 
@@ -63,6 +87,12 @@ class Graph:
     prune_redundant: bool = False
     exact_fans: bool = False
     candidate_rule: int = 0
+    # A certified graph's bound (request_graph(..., max_error=...)); 0 for a
+    # plain graph. Its epsilon is the one the server chose.
+    max_error: float = 0.0
+    # What the server measured of a certified graph once it is ready; None
+    # for a plain graph and while a certified one is made.
+    certificate: Optional[GraphCertificate] = None
 
     @classmethod
     def _from_proto(cls, g) -> "Graph":
@@ -72,7 +102,9 @@ class Graph:
                    from_file=g.from_file, pseudo_vertices=g.pseudo_vertices,
                    landmark_bytes=g.landmark_bytes, last_used_unix_ms=g.last_used_unix_ms,
                    prune_redundant=g.prune_redundant, exact_fans=g.exact_fans,
-                   candidate_rule=g.candidate_rule)
+                   candidate_rule=g.candidate_rule, max_error=g.max_error,
+                   certificate=(GraphCertificate._from_proto(g.certificate)
+                                if g.HasField("certificate") else None))
 
 
 # The keys of the server's full report (`geodesicd info --json` but
