@@ -106,6 +106,21 @@ inline constexpr size_t kMaxEcho = 80;
 // an answer (and its log line) must not grow with what a client sends.
 std::string Echo(std::string_view input);
 
+// A certified graph's certificate as a JSON object (nlohmann's json or
+// ordered_json), with the keys of `geodesicd build --json`: one mapping for
+// the CLI and the HTTP gateway.
+template <typename Json>
+Json CertificateJson(const v1::GraphCertificate& c) {
+  return Json{{"max_error_bound", c.max_error_bound()},
+              {"epsilon", c.epsilon()},
+              {"measured_max_error", c.measured_max_error()},
+              {"measured_mean_error", c.measured_mean_error()},
+              {"sources", c.sources()},
+              {"seed", c.seed()},
+              {"sound", c.sound()},
+              {"builds", c.builds()}};
+}
+
 }  // namespace geodesic::server
 
 #endif  // GEODESIC_SERVER_CONVERT_H_

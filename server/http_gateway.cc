@@ -353,42 +353,31 @@ grpc::Status ArrayField(const json& body, const char* key, const json** out) {
   return grpc::Status::OK;
 }
 
-// A certified graph's certificate, with the keys of `geodesicd build --json`.
-json CertificateJson(const v1::GraphCertificate& c) {
-  return {{"max_error_bound", c.max_error_bound()},
-          {"epsilon", c.epsilon()},
-          {"measured_max_error", c.measured_max_error()},
-          {"measured_mean_error", c.measured_mean_error()},
-          {"sources", c.sources()},
-          {"seed", c.seed()},
-          {"sound", c.sound()},
-          {"builds", c.builds()}};
-}
-
 json GraphJson(const v1::Graph& g) {
   std::string state = v1::GraphState_Name(g.state());
   constexpr std::string_view kPrefix = "GRAPH_STATE_";
   if (state.starts_with(kPrefix)) state = state.substr(kPrefix.size());
-  json out = {{"mesh", g.mesh()},
-              {"eps", g.epsilon()},
-              {"state", state},
-              {"phase", g.phase()},
-              {"progress", g.progress()},
-              {"error", g.error()},
-              {"bytes", g.bytes()},
-              {"landmark_bytes", g.landmark_bytes()},
-              {"mapped", g.mapped()},
-              {"from_file", g.from_file()},
-              {"nodes", g.nodes()},
-              {"edges", g.edges()},
-              {"build_seconds", g.build_seconds()},
-              {"estimated_bytes", g.estimated_bytes()},
-              {"estimated_seconds", g.estimated_seconds()},
-              {"last_used_unix_ms", g.last_used_unix_ms()},
-              {"pseudo_vertices", g.pseudo_vertices()},
-              {"max_error", g.max_error()},
-              // null for a plain graph, and while a certified one is made.
-              {"certificate", g.has_certificate() ? CertificateJson(g.certificate()) : json()}};
+  json out = {
+      {"mesh", g.mesh()},
+      {"eps", g.epsilon()},
+      {"state", state},
+      {"phase", g.phase()},
+      {"progress", g.progress()},
+      {"error", g.error()},
+      {"bytes", g.bytes()},
+      {"landmark_bytes", g.landmark_bytes()},
+      {"mapped", g.mapped()},
+      {"from_file", g.from_file()},
+      {"nodes", g.nodes()},
+      {"edges", g.edges()},
+      {"build_seconds", g.build_seconds()},
+      {"estimated_bytes", g.estimated_bytes()},
+      {"estimated_seconds", g.estimated_seconds()},
+      {"last_used_unix_ms", g.last_used_unix_ms()},
+      {"pseudo_vertices", g.pseudo_vertices()},
+      {"max_error", g.max_error()},
+      // null for a plain graph, and while a certified one is made.
+      {"certificate", g.has_certificate() ? CertificateJson<json>(g.certificate()) : json()}};
   return out;
 }
 

@@ -217,18 +217,8 @@ Json GraphJson(const v1::Graph& g) {
           {"landmark_bytes", g.landmark_bytes()},
           {"pseudo_vertices", g.pseudo_vertices()},
           {"max_error", g.max_error()},
-          {"certificate", g.has_certificate() ? CertificateJson(g.certificate()) : Json()}};
-}
-
-Json CertificateJson(const v1::GraphCertificate& c) {
-  return {{"max_error_bound", c.max_error_bound()},
-          {"epsilon", c.epsilon()},
-          {"measured_max_error", c.measured_max_error()},
-          {"measured_mean_error", c.measured_mean_error()},
-          {"sources", c.sources()},
-          {"seed", c.seed()},
-          {"sound", c.sound()},
-          {"builds", c.builds()}};
+          {"certificate",
+           g.has_certificate() ? server::CertificateJson<Json>(g.certificate()) : Json()}};
 }
 
 std::string CertificateText(const v1::Graph& g) {

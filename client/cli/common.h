@@ -82,8 +82,6 @@ void PrintJson(const Json& value);
 Json DiagnosticsJson(const v1::MeshDiagnostics& d);
 const char* StateName(v1::GraphState s);
 Json GraphJson(const v1::Graph& g);
-// A certified graph's certificate, with the keys of `geodesicd build --json`.
-Json CertificateJson(const v1::GraphCertificate& c);
 // "certified: max error ... from N sources ..." for a graph with a
 // certificate; empty otherwise.
 std::string CertificateText(const v1::Graph& g);
