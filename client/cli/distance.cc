@@ -77,21 +77,19 @@ struct DistanceArgs {
 };
 
 int CmdDistance(const Common& c, const DistanceArgs& a) {
-  const std::string &from = a.from, &to = a.to, &pairs_file = a.pairs_file, &path_out = a.path_out;
-  const bool with_path = a.with_path;
-  if (!path_out.empty()) {
-    absl::Status s = CheckPolylinePath(path_out);
+  if (!a.path_out.empty()) {
+    absl::Status s = CheckPolylinePath(a.path_out);
     if (!s.ok()) return FailText(std::string(s.message()));
   }
   auto stub = Connect(c);
   std::vector<std::string> specs;
-  if (!pairs_file.empty()) {
-    auto pairs = ReadSpecPairs(pairs_file);
+  if (!a.pairs_file.empty()) {
+    auto pairs = ReadSpecPairs(a.pairs_file);
     if (!pairs.ok()) return FailText(std::string(pairs.status().message()));
-    for (auto& [a, b] : *pairs) specs.push_back(a), specs.push_back(b);
+    for (auto& [first, second] : *pairs) specs.push_back(first), specs.push_back(second);
   } else {
-    if (from.empty() || to.empty()) return FailText("give --from and --to, or --pairs FILE");
-    specs = {from, to};
+    if (a.from.empty() || a.to.empty()) return FailText("give --from and --to, or --pairs FILE");
+    specs = {a.from, a.to};
   }
   std::vector<v1::SurfacePoint> points;
   int rc = 0;
@@ -99,7 +97,7 @@ int CmdDistance(const Common& c, const DistanceArgs& a) {
   if (!ResolvePoints(stub.get(), c, specs, &points, &rc, &snap_distances)) return rc;
   v1::DistanceRequest req;
   *req.mutable_graph() = Selector(c);
-  req.set_with_path(with_path);
+  req.set_with_path(a.with_path);
   req.set_exact(a.exact);
   for (size_t i = 0; i + 1 < points.size(); i += 2) {
     auto* p = req.add_pairs();
@@ -114,10 +112,10 @@ int CmdDistance(const Common& c, const DistanceArgs& a) {
   if (!s.ok()) return Fail(s);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  if (!path_out.empty() && resp.results_size() == 1) {
-    if (int failed = WritePath(path_out, resp); failed != 0) return failed;
+  if (!a.path_out.empty() && resp.results_size() == 1) {
+    if (int failed = WritePath(a.path_out, resp); failed != 0) return failed;
   }
-  PrintResults(c, specs, snap_distances, resp, with_path, seconds);
+  PrintResults(c, specs, snap_distances, resp, a.with_path, seconds);
   return 0;
 }
 

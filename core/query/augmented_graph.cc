@@ -52,4 +52,14 @@ double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field) {
   return d;
 }
 
+ExactOptions ExactWithinGraphAnswer(double graph_distance, const std::function<bool()>& cancelled,
+                                    uint64_t max_window_bytes) {
+  ExactOptions options;
+  options.max_distance = graph_distance * (1 + 1e-9) + 1e-300;
+  options.keep_windows = true;
+  options.cancelled = cancelled;
+  options.max_window_bytes = max_window_bytes;
+  return options;
+}
+
 }  // namespace geodesic::query_internal

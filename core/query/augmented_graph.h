@@ -6,6 +6,8 @@
 #ifndef GEODESIC_CORE_QUERY_AUGMENTED_GRAPH_H_
 #define GEODESIC_CORE_QUERY_AUGMENTED_GRAPH_H_
 
+#include <cstdint>
+#include <functional>
 #include <string_view>
 #include <vector>
 
@@ -14,6 +16,7 @@
 #include "absl/types/span.h"
 #include "core/base/vec.h"
 #include "core/dgg/dgg_graph.h"
+#include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/surface_point.h"
 #include "core/query/geodesic_engine.h"
@@ -58,6 +61,14 @@ absl::StatusOr<Endpoint> JoinToGraph(const Mesh& mesh, const DggGraph& graph, Qu
 // its node, or the best of its temporary edges (the last hop of a path that
 // enters it through them).
 double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field);
+
+// The options of an exact propagation bounded by a graph answer
+// `graph_distance`: a graph answer is the length of a real surface path, so
+// it bounds the exact distance from above; the slack covers rounding in the
+// propagation's own sums. Windows are kept for DistanceTo and Trace, up to
+// `max_window_bytes` (0: no limit).
+ExactOptions ExactWithinGraphAnswer(double graph_distance, const std::function<bool()>& cancelled,
+                                    uint64_t max_window_bytes);
 
 }  // namespace geodesic::query_internal
 

@@ -154,11 +154,8 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const SurfacePoint& source,
     if (d < kInfinity) bound = std::max(bound, d);
   }
   if (bound < 0) return absl::OkStatus();  // nothing reachable
-  ExactOptions options;
-  options.max_distance = bound * (1 + 1e-9) + 1e-300;
-  options.keep_windows = true;
-  options.cancelled = matrix.cancelled;
-  options.max_window_bytes = matrix.exact_max_bytes;
+  ExactOptions options =
+      query_internal::ExactWithinGraphAnswer(bound, matrix.cancelled, matrix.exact_max_bytes);
   if (targets.size() == 1) options.goal = targets[0].xyz;
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(source, options).status());

@@ -374,20 +374,16 @@ absl::StatusOr<GeodesicPath> TraceRoute(const Mesh& mesh, const DggGraph& g, Que
 }
 
 // Replaces the graph's answer in `result` by the exact distance from `a` to
-// `b` (and the exact geodesic with `want_path`). The graph's answer is the
-// length of a real surface path, so it bounds the exact one from above; the
-// slack covers rounding in the propagation's own sums.
+// `b` (and the exact geodesic with `want_path`), by a propagation bounded by
+// that answer and aimed at `b`.
 absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const SurfacePoint& a,
                        const SurfacePoint& b, const PairOptions& pair, PairResult& result) {
   result.exact = true;
   if (result.distance == kInfinity) return absl::OkStatus();
   ExactGeodesic& exact = sc.Exact(mesh);
-  ExactOptions options;
-  options.max_distance = result.distance * (1 + 1e-9) + 1e-300;
-  options.keep_windows = true;
-  options.cancelled = pair.cancelled;
+  ExactOptions options =
+      query_internal::ExactWithinGraphAnswer(result.distance, pair.cancelled, pair.exact_max_bytes);
   options.goal = PositionOf(mesh, b);
-  options.max_window_bytes = pair.exact_max_bytes;
   // The windows go once the answer is read: the engine stays in the pool.
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(a, options).status());

@@ -73,6 +73,20 @@ std::pair<std::shared_ptr<const Mesh>, std::shared_ptr<const DggGraph>> GridAndG
   return {mesh, graph.ok() ? *graph : nullptr};
 }
 
+// The bundled sample mesh and its graph at `eps` (null, with a test failure,
+// if loading or the build fails).
+std::pair<std::shared_ptr<const Mesh>, std::shared_ptr<const DggGraph>> SpotAndGraph(double eps) {
+  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
+  EXPECT_OK(loaded);
+  if (!loaded.ok()) return {nullptr, nullptr};
+  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
+  DggBuildOptions options;
+  options.params.epsilon = eps;
+  auto graph = BuildDgg(*mesh, options);
+  EXPECT_OK(graph);
+  return {mesh, graph.ok() ? *graph : nullptr};
+}
+
 struct Pair {
   SurfacePoint a, b;
   double exact;
@@ -516,14 +530,9 @@ TEST(QueriesTest, MatrixEqualsPairsOnAGrid) {
 // The bundled sample mesh at the epsilon the daemon serves by default:
 // where a user found face points of one face joined only through vertices.
 TEST(QueriesTest, MatrixEqualsPairsOnSpot) {
-  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
-  ASSERT_OK(loaded);
-  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
-  DggBuildOptions options;
-  options.params.epsilon = 1e-3;
-  auto graph = BuildDgg(*mesh, options);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   ASSERT_OK(engine.PrepareLandmarks());
   ExpectMatrixEqualsPairs(engine, MixedPoints(*mesh, 11));
   // The user's report: the same face point twice, and a neighbour in its face.
@@ -540,14 +549,9 @@ TEST(QueriesTest, MatrixEqualsPairsOnSpot) {
 // Exact rows equal exact pairs and our exact engine's whole field, and are
 // never above the graph's entries.
 TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {
-  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
-  ASSERT_OK(loaded);
-  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
-  DggBuildOptions build;
-  build.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, build);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = SpotAndGraph(1e-2);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   const std::vector<SurfacePoint> points = MixedPoints(*mesh, 7);
   ASSERT_FALSE(points.empty());
   MatrixOptions exact_rows;
@@ -581,14 +585,9 @@ TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {
 // An exact pair past its memory limit fails with RESOURCE_EXHAUSTED naming
 // the limit, and the engine answers the next pair as before.
 TEST(QueriesTest, ExactPairsKeepToTheirMemoryLimit) {
-  auto loaded = LoadMesh(testing::SourcePath("data/spot.obj"));
-  ASSERT_OK(loaded);
-  auto mesh = std::make_shared<const Mesh>(std::move(loaded).value());
-  DggBuildOptions build;
-  build.params.epsilon = 1e-2;
-  auto graph = BuildDgg(*mesh, build);
-  ASSERT_OK(graph);
-  GeodesicEngine engine(mesh, *graph);
+  auto [mesh, graph] = SpotAndGraph(1e-2);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
   const SurfacePoint a = SurfacePoint::Vertex(0), b = SurfacePoint::Vertex(1500);
   PairOptions tight;
   tight.exact = true;
