@@ -2,8 +2,8 @@
 # The test suite under sanitizers:
 #   ASan+UBSan (build-asan): core and server unit tests, and the daemon end-to-end,
 #     fault and security tests against an instrumented daemon and CLI;
-#   TSan (build-tsan): the core and server unit tests (concurrent queries
-#     and landmark preparation on one graph, concurrent catalog updates). The
+#   TSan (build-tsan): the core unit tests only, so only they are built
+#     (concurrent queries and landmark preparation on one graph). The
 #     accuracy suites (*SharedMeshes*, CgalTruth) are left out:
 #     single-threaded numerics under TSan's slowdown, already run plain
 #     and under ASan. So is the 1-against-4-threads build
@@ -20,12 +20,14 @@ for kind in $kinds; do
   dir=${dir/thread/tsan}
   cmake -S . -B "$dir" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo -DGEODESIC_SANITIZE="$kind" \
     -DGEODESIC_BUILD_BENCH=OFF >/dev/null
-  cmake --build "$dir" -j"$(nproc)"
   if [ "$kind" = address ]; then
+    cmake --build "$dir" -j"$(nproc)"
     export ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1
     ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L "core|server-unit"
     ctest --test-dir "$dir" --output-on-failure --timeout 1800 -R "server_e2e|server_faults|server_security|distributed_build"
   else
+    # Only the core tests run under TSan: build just those, not the server.
+    cmake --build "$dir" -j"$(nproc)" --target core_tests
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
     ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
       -E "SharedMeshes|CgalTruth|BuildIsIdenticalWhateverTheThreadCount"
