@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <fstream>
 #include <sstream>
 
@@ -128,23 +129,20 @@ bool CatalogState::RemoveMesh(const std::string& name) {
   return std::erase_if(meshes, [&](const CatalogMesh& m) { return m.name == name; }) > 0;
 }
 
-bool CatalogState::HasGraph(const std::string& mesh, const DggParams& params) const {
-  return std::any_of(graphs.begin(), graphs.end(),
-                     [&](const CatalogGraph& g) { return g.mesh == mesh && g.params == params; });
+bool CatalogState::HasGraph(const std::string& mesh, const DggParams& params,
+                            double max_error) const {
+  return std::find(graphs.begin(), graphs.end(), CatalogGraph{mesh, params, max_error}) !=
+         graphs.end();
 }
 
 void CatalogState::PutGraph(CatalogGraph graph) {
-  if (HasGraph(graph.mesh, graph.params)) return;
+  if (HasGraph(graph.mesh, graph.params, graph.max_error)) return;
   graphs.push_back(std::move(graph));
-  std::sort(graphs.begin(), graphs.end(), [](const CatalogGraph& a, const CatalogGraph& b) {
-    return std::tie(a.mesh, a.params) < std::tie(b.mesh, b.params);
-  });
+  std::sort(graphs.begin(), graphs.end());
 }
 
-bool CatalogState::RemoveGraph(const std::string& mesh, const DggParams& params) {
-  return std::erase_if(graphs, [&](const CatalogGraph& g) {
-           return g.mesh == mesh && g.params == params;
-         }) > 0;
+bool CatalogState::RemoveGraph(const std::string& mesh, const DggParams& params, double max_error) {
+  return std::erase(graphs, CatalogGraph{mesh, params, max_error}) > 0;
 }
 
 std::string CatalogToJson(const CatalogState& state) {
@@ -157,13 +155,19 @@ std::string CatalogToJson(const CatalogState& state) {
                       {"fingerprint", Hex(m.fingerprint)},
                       {"repair_non_manifold", m.repair_non_manifold}});
   }
+  bool certified = false;
   for (const CatalogGraph& g : state.graphs) {
     json entry = ParamsToJson(g.params);
     entry["mesh"] = g.mesh;
+    // Only for a certified graph: a catalog without one stays version 1.
+    if (g.max_error > 0) {
+      entry["max_error"] = g.max_error;
+      certified = true;
+    }
     graphs.push_back(std::move(entry));
   }
   const json j = {{"format", kFormatName},
-                  {"version", Catalog::kFormatVersion},
+                  {"version", certified ? Catalog::kFormatVersion : Catalog::kOldestFormatVersion},
                   {"generation", state.generation},
                   {"meshes", std::move(meshes)},
                   {"graphs", std::move(graphs)}};
@@ -181,10 +185,10 @@ absl::StatusOr<CatalogState> CatalogFromJson(const std::string& text, const std:
   CatalogState state;
   try {
     const uint32_t version = Get<uint32_t>(j, "version", "");
-    if (version != Catalog::kFormatVersion) {
+    if (version < Catalog::kOldestFormatVersion || version > Catalog::kFormatVersion) {
       return absl::FailedPreconditionError(
-          absl::StrFormat("%s has catalog format version %u; this build reads version %u", path,
-                          version, Catalog::kFormatVersion));
+          absl::StrFormat("%s has catalog format version %u; this build reads versions %u to %u",
+                          path, version, Catalog::kOldestFormatVersion, Catalog::kFormatVersion));
     }
     state.generation = Get<uint64_t>(j, "generation", "");
     const json& meshes = GetArray(j, "meshes");
@@ -199,8 +203,15 @@ absl::StatusOr<CatalogState> CatalogFromJson(const std::string& text, const std:
     const json& graphs = GetArray(j, "graphs");
     for (size_t i = 0; i < graphs.size(); ++i) {
       const std::string where = absl::StrFormat("graphs[%u]", i);
-      state.graphs.push_back(
-          {Get<std::string>(graphs[i], "mesh", where), ParamsFromJson(graphs[i], where)});
+      CatalogGraph g{Get<std::string>(graphs[i], "mesh", where), ParamsFromJson(graphs[i], where)};
+      if (graphs[i].contains("max_error")) {
+        g.max_error = Get<double>(graphs[i], "max_error", where);
+        if (!(g.max_error > 0) || !std::isfinite(g.max_error)) {
+          throw Malformed{
+              absl::StrFormat("%s.max_error: %g is not a positive bound", where, g.max_error)};
+        }
+      }
+      state.graphs.push_back(std::move(g));
     }
   } catch (const Malformed& e) {
     return absl::DataLossError(absl::StrFormat("%s: %s", path, e.what));

@@ -35,9 +35,15 @@ struct CatalogMesh {
   bool repair_non_manifold = false;
 };
 
+// A graph requested plain, or certified (max_error > 0): then `params` are
+// its key's in the graph cache (server/graph_cache.h, GraphKey), the
+// epsilon CertifiedKeyEpsilon chose, and the bound is part of its identity,
+// since a plain graph of that epsilon is another graph.
 struct CatalogGraph {
   std::string mesh;
   DggParams params;
+  double max_error = 0;  // 0: a plain graph
+  friend auto operator<=>(const CatalogGraph&, const CatalogGraph&) = default;
 };
 
 struct CatalogState {
@@ -50,14 +56,20 @@ struct CatalogState {
   void PutMesh(CatalogMesh mesh);
   // Removes the mesh and every graph of it; false if there was none.
   bool RemoveMesh(const std::string& name);
-  bool HasGraph(const std::string& mesh, const DggParams& params) const;
+  bool HasGraph(const std::string& mesh, const DggParams& params, double max_error = 0) const;
   void PutGraph(CatalogGraph graph);  // no-op if present
-  bool RemoveGraph(const std::string& mesh, const DggParams& params);
+  bool RemoveGraph(const std::string& mesh, const DggParams& params, double max_error = 0);
 };
 
 class Catalog {
  public:
-  static constexpr uint32_t kFormatVersion = 1;
+  // Version 2 added certified graphs (a graph's "max_error"). A catalog
+  // without one is still written as version 1, which builds before it
+  // read; one with a certified graph is version 2, which they refuse
+  // rather than take it for a plain graph (and drop its bound when they
+  // write the catalog back). Both versions are read.
+  static constexpr uint32_t kFormatVersion = 2;
+  static constexpr uint32_t kOldestFormatVersion = 1;
   // A file of real blocks kept beside the catalog: on a full disk, a change
   // that cannot be written deletes it and tries again, so that unloads and
   // cancels, which free space, never fail for want of it.
@@ -74,7 +86,8 @@ class Catalog {
 
   // The current state; a missing file is the empty state (generation 0).
   // DATA_LOSS naming the file and the problem when it cannot be parsed,
-  // FAILED_PRECONDITION when it has another format version.
+  // FAILED_PRECONDITION when it has a format version this build does not
+  // read.
   absl::StatusOr<CatalogState> Read() const;
 
   // Applies `change` to the current state under the lock and, if it

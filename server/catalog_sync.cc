@@ -35,7 +35,7 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
     }
     Log(LogLevel::kInfo, "catalog_mesh_dropped", {{"mesh", it->first}});
     hooks_.drop_mesh(it->first);
-    std::erase_if(graphs_, [&](const auto& g) { return g.first == it->first; });
+    std::erase_if(graphs_, [&](const CatalogGraph& g) { return g.mesh == it->first; });
     it = meshes_.erase(it);
   }
   // A failure to restore what the catalog no longer lists is no news.
@@ -57,17 +57,17 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
     Log(LogLevel::kInfo, "catalog_mesh_restored", {{"mesh", m.name}, {"source", m.source}});
   }
   for (auto it = graphs_.begin(); it != graphs_.end();) {
-    if (state.HasGraph(it->first, it->second)) {
+    if (state.HasGraph(it->mesh, it->params, it->max_error)) {
       ++it;
       continue;
     }
-    hooks_.cancel_graph(it->first, it->second);
+    hooks_.cancel_graph(it->mesh, it->params, it->max_error);
     it = graphs_.erase(it);
   }
   for (const CatalogGraph& g : state.graphs) {
     // Its mesh failed to restore, or is a start-up mesh this daemon lacks.
     if (!meshes_.contains(g.mesh) && !startup_.contains(g.mesh)) continue;
-    if (graphs_.emplace(g.mesh, g.params).second) hooks_.request_graph(g.mesh, g.params);
+    if (graphs_.insert(g).second) hooks_.request_graph(g.mesh, g.params, g.max_error);
   }
   return absl::OkStatus();
 }
@@ -101,7 +101,7 @@ absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
                                            Catalog::Reserve::kFreesSpace));
   // The caller unloads the mesh itself.
   meshes_.erase(name);
-  std::erase_if(graphs_, [&](const auto& g) { return g.first == name; });
+  std::erase_if(graphs_, [&](const CatalogGraph& g) { return g.mesh == name; });
   RETURN_IF_ERROR(ApplyLocked(state));
   return listed;
 }
@@ -111,7 +111,8 @@ void CatalogSync::AddStartupMesh(const std::string& name) {
   startup_.insert(name);
 }
 
-absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const DggParams& params) {
+absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const DggParams& params,
+                                              double max_error) {
   absl::MutexLock lock(&mu_);
   const bool startup = startup_.contains(mesh) && !meshes_.contains(mesh);
   if (!meshes_.contains(mesh) && !startup) return false;
@@ -120,26 +121,27 @@ absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const Dgg
       return absl::NotFoundError(
           absl::StrFormat("mesh '%s' was unloaded meanwhile (by another replica)", mesh));
     }
-    s.PutGraph({mesh, params});
+    s.PutGraph({mesh, params, max_error});
     return absl::OkStatus();
   }));
   // The caller requests the graph itself; remember it as applied.
-  graphs_.emplace(mesh, params);
+  graphs_.insert({mesh, params, max_error});
   RETURN_IF_ERROR(ApplyLocked(state));
   return true;
 }
 
-absl::StatusOr<bool> CatalogSync::ForgetGraph(const std::string& mesh, const DggParams& params) {
+absl::StatusOr<bool> CatalogSync::ForgetGraph(const std::string& mesh, const DggParams& params,
+                                              double max_error) {
   absl::MutexLock lock(&mu_);
   bool listed = false;
   ASSIGN_OR_RETURN(CatalogState state, catalog_->Update(
                                            [&](CatalogState& s) {
-                                             listed = s.RemoveGraph(mesh, params);
+                                             listed = s.RemoveGraph(mesh, params, max_error);
                                              return absl::OkStatus();
                                            },
                                            Catalog::Reserve::kFreesSpace));
   // The caller cancels the graph itself.
-  graphs_.erase({mesh, params});
+  graphs_.erase({mesh, params, max_error});
   RETURN_IF_ERROR(ApplyLocked(state));
   return listed;
 }

@@ -38,9 +38,10 @@ class CatalogSync {
     std::function<absl::Status(const CatalogMesh&)> restore_mesh;
     // Removes a mesh and its graphs from this daemon.
     std::function<void(const std::string& name)> drop_mesh;
-    // Requests a graph (maps its file, or builds it in the background).
-    std::function<void(const std::string& mesh, const DggParams&)> request_graph;
-    std::function<void(const std::string& mesh, const DggParams&)> cancel_graph;
+    // Requests a graph (maps its file, or builds it in the background),
+    // certified for `max_error` unless it is 0 (CatalogGraph).
+    std::function<void(const std::string& mesh, const DggParams&, double max_error)> request_graph;
+    std::function<void(const std::string& mesh, const DggParams&, double max_error)> cancel_graph;
   };
 
   CatalogSync(Catalog* catalog, Hooks hooks) : catalog_(catalog), hooks_(std::move(hooks)) {}
@@ -71,8 +72,11 @@ class CatalogSync {
   // A client requested or cancelled a graph of a catalogued (or start-up)
   // mesh; the caller requests or cancels it here. Graphs of other
   // local-only meshes are not recorded (false).
-  absl::StatusOr<bool> RecordGraph(const std::string& mesh, const DggParams& params);
-  absl::StatusOr<bool> ForgetGraph(const std::string& mesh, const DggParams& params);
+  // `max_error`: a certified graph's bound, or 0.
+  absl::StatusOr<bool> RecordGraph(const std::string& mesh, const DggParams& params,
+                                   double max_error = 0);
+  absl::StatusOr<bool> ForgetGraph(const std::string& mesh, const DggParams& params,
+                                   double max_error = 0);
 
   // Whether the catalog lists the mesh (as last read).
   bool Catalogued(const std::string& mesh) const;
@@ -92,7 +96,7 @@ class CatalogSync {
   std::set<std::string> listed_ ABSL_GUARDED_BY(mu_);  // meshes in the catalog
   // What this daemon applied from the catalog: mesh name -> fingerprint.
   std::map<std::string, uint64_t> meshes_ ABSL_GUARDED_BY(mu_);
-  std::set<std::pair<std::string, DggParams>> graphs_ ABSL_GUARDED_BY(mu_);
+  std::set<CatalogGraph> graphs_ ABSL_GUARDED_BY(mu_);
   std::map<std::string, std::string> failures_ ABSL_GUARDED_BY(mu_);
   std::set<std::string> startup_ ABSL_GUARDED_BY(mu_);  // AddStartupMesh
 };

@@ -170,12 +170,12 @@ void Daemon::OpenCatalog() {
             graphs_->DropMesh(name);
           },
       .request_graph =
-          [this](const std::string& mesh, const DggParams& params) {
-            if (auto m = meshes_->Get(mesh); m.ok()) graphs_->Request(*m, params);
+          [this](const std::string& mesh, const DggParams& params, double max_error) {
+            if (auto m = meshes_->Get(mesh); m.ok()) graphs_->Request(*m, params, max_error);
           },
       .cancel_graph =
-          [this](const std::string& mesh, const DggParams& params) {
-            graphs_->Cancel({mesh, params}).IgnoreError();
+          [this](const std::string& mesh, const DggParams& params, double max_error) {
+            graphs_->Cancel({mesh, params, max_error}).IgnoreError();
           },
   };
   sync_ = std::make_unique<CatalogSync>(catalog_.get(), std::move(hooks));
@@ -434,7 +434,9 @@ int Daemon::RestoreCatalog() {
     return 1;
   }
   if (auto state = catalog_->Read(); state.ok()) {
-    for (const CatalogGraph& g : state->graphs) restoring_.push_back({g.mesh, g.params});
+    for (const CatalogGraph& g : state->graphs) {
+      restoring_.push_back({g.mesh, g.params, g.max_error});
+    }
   }
   service_->UseCatalog(sync_.get());
   return 0;

@@ -12,6 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "core/dgg/graph_file.h"
 #include "core/mesh/mesh_snapshot.h"
+#include "server/graph_cache.h"
 
 namespace geodesic::server {
 namespace {
@@ -54,7 +55,7 @@ CatalogFiles FilesOf(const CatalogState& state) {
   }
   for (const CatalogGraph& g : state.graphs) {
     if (auto it = fingerprints.find(g.mesh); it != fingerprints.end()) {
-      files.catalogued.insert(GraphFileName(it->second, g.params));
+      files.catalogued.insert(CachedGraphFileName(it->second, g.params, g.max_error));
     }
   }
   return files;

@@ -243,11 +243,8 @@ absl::StatusOr<GraphStatus> GeodesicService::StartGraph(
   // Refused at once, before the catalog records it: a graph that cannot fit
   // the limits would otherwise hold a build worker for nothing.
   RETURN_IF_ERROR(graphs_->Admit(*mesh, key.params, key.max_error).status());
-  // The catalog records plain graphs only: a certified one is requested
-  // again by its clients after a restart, and mapped from its file and
-  // certificate then.
-  if (catalog_ && key.max_error == 0) {
-    RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params).status());
+  if (catalog_) {
+    RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params, key.max_error).status());
   }
   return graphs_->Request(mesh, key.params, key.max_error);
 }
@@ -531,8 +528,8 @@ grpc::Status GeodesicService::CancelGraph(grpc::ServerContext* ctx,
     // requested it.
     const bool ready =
         g.ok() && (g->state == GraphState::kReady || g->state == GraphState::kEvicted);
-    if (catalog_ && !ready && key.max_error == 0) {
-      RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params).status());
+    if (catalog_ && !ready) {
+      RETURN_IF_ERROR(catalog_->ForgetGraph(key.mesh, key.params, key.max_error).status());
     }
     if (!g.ok()) return g.status();
     ToProto(*g, resp);

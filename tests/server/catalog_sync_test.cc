@@ -24,8 +24,9 @@ using ::testing::Pair;
 
 // What one daemon holds, as the hooks change it.
 struct FakeDaemon {
-  std::map<std::string, uint64_t> meshes;  // name -> fingerprint
-  std::set<std::pair<std::string, double>> graphs;
+  std::map<std::string, uint64_t> meshes;              // name -> fingerprint
+  std::set<std::pair<std::string, double>> graphs;     // mesh, epsilon
+  std::set<std::pair<std::string, double>> certified;  // mesh, max_error
   std::set<std::string> unrestorable;
   int restores = 0;
 
@@ -44,12 +45,20 @@ struct FakeDaemon {
               std::erase_if(graphs, [&](const auto& g) { return g.first == name; });
             },
         .request_graph =
-            [this](const std::string& mesh, const DggParams& p) {
-              graphs.insert({mesh, p.epsilon});
+            [this](const std::string& mesh, const DggParams& p, double max_error) {
+              if (max_error > 0) {
+                certified.insert({mesh, max_error});
+              } else {
+                graphs.insert({mesh, p.epsilon});
+              }
             },
         .cancel_graph =
-            [this](const std::string& mesh, const DggParams& p) {
-              graphs.erase({mesh, p.epsilon});
+            [this](const std::string& mesh, const DggParams& p, double max_error) {
+              if (max_error > 0) {
+                certified.erase({mesh, max_error});
+              } else {
+                graphs.erase({mesh, p.epsilon});
+              }
             },
     };
   }
@@ -140,6 +149,34 @@ TEST_F(CatalogSyncTest, ARestartRestoresMeshesAndThenTheirGraphs) {
   EXPECT_THAT(sync.failures(), IsEmpty());
 }
 
+// A certified graph is restored certified, with its bound, and is a graph
+// apart from the plain graph of its key's epsilon: forgetting one leaves
+// the other.
+TEST_F(CatalogSyncTest, ACertifiedGraphIsRestoredWithItsBound) {
+  Catalog catalog_a(dir_);
+  FakeDaemon a;
+  CatalogSync sync_a(&catalog_a, a.Hooks());
+  a.meshes["kitten"] = 7;
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten")).ok());
+  ASSERT_TRUE(sync_a.RecordGraph("kitten", Eps(4e-3)).ok());
+  auto recorded = sync_a.RecordGraph("kitten", Eps(4e-3), 1e-2);
+  ASSERT_TRUE(recorded.ok() && *recorded) << recorded.status();
+
+  // A restart: a new daemon on the directory.
+  Catalog catalog_b(dir_);
+  FakeDaemon b;
+  CatalogSync sync_b(&catalog_b, b.Hooks());
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_THAT(b.graphs, ElementsAre(Pair("kitten", 4e-3)));
+  EXPECT_THAT(b.certified, ElementsAre(Pair("kitten", 1e-2)));
+
+  auto forgot = sync_a.ForgetGraph("kitten", Eps(4e-3), 1e-2);
+  ASSERT_TRUE(forgot.ok() && *forgot);
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_THAT(b.certified, IsEmpty());
+  EXPECT_THAT(b.graphs, ElementsAre(Pair("kitten", 4e-3)));
+}
+
 // Queries naming what a daemon lacks reconcile only when the catalog
 // changed: a mesh that failed to restore is not loaded again per query.
 TEST_F(CatalogSyncTest, ReconcileIfChangedRetriesNothingUntilTheCatalogChanges) {
@@ -215,7 +252,7 @@ TEST_F(CatalogSyncTest, ReconcileNeverUndoesAConcurrentRecord) {
   hooks.drop_mesh = locked(hooks.drop_mesh);
   hooks.request_graph = locked(hooks.request_graph);
   int cancels = 0;
-  hooks.cancel_graph = [&](const std::string&, const DggParams&) {
+  hooks.cancel_graph = [&](const std::string&, const DggParams&, double) {
     std::lock_guard<std::mutex> lock(hooks_mu);
     ++cancels;
   };

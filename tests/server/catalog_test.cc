@@ -83,6 +83,90 @@ TEST_F(CatalogTest, UpdatesRoundTripEveryField) {
   EXPECT_EQ(CatalogToJson(*read), CatalogToJson(*written));
 }
 
+// A certified graph keeps its bound, and is not the plain graph of its
+// key's epsilon. A catalog holding one is format version 2; one without is
+// still written as version 1, which earlier builds read.
+TEST_F(CatalogTest, CertifiedGraphsRoundTripAsVersion2) {
+  Catalog catalog(dir_);
+  DggParams key;
+  key.epsilon = 4e-3;
+  key.pseudo_vertices = true;
+  auto plain = catalog.Update([&](CatalogState& s) {
+    s.PutMesh(Kitten());
+    s.PutGraph({"kitten", key});
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(plain.ok()) << plain.status();
+  EXPECT_THAT(CatalogToJson(*plain), ::testing::HasSubstr("\"version\": 1\n"));
+  EXPECT_THAT(CatalogToJson(*plain), ::testing::Not(::testing::HasSubstr("max_error")));
+
+  auto written = catalog.Update([&](CatalogState& s) {
+    s.PutGraph({"kitten", key, 1e-2});
+    s.PutGraph({"kitten", key, 1e-2});  // twice is once
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(written.ok()) << written.status();
+  EXPECT_THAT(CatalogToJson(*written), ::testing::HasSubstr("\"version\": 2\n"));
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  ASSERT_EQ(read->graphs.size(), 2u);
+  EXPECT_TRUE(read->HasGraph("kitten", key));
+  EXPECT_TRUE(read->HasGraph("kitten", key, 1e-2));
+  EXPECT_FALSE(read->HasGraph("kitten", key, 2e-2));
+  EXPECT_EQ(CatalogToJson(*read), CatalogToJson(*written));
+
+  // Cancelled: the plain graph stays, and the catalog is version 1 again.
+  auto after = catalog.Update([&](CatalogState& s) {
+    EXPECT_TRUE(s.RemoveGraph("kitten", key, 1e-2));
+    EXPECT_FALSE(s.RemoveGraph("kitten", key, 1e-2));
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(after.ok()) << after.status();
+  ASSERT_EQ(after->graphs.size(), 1u);
+  EXPECT_EQ(after->graphs[0].max_error, 0);
+  EXPECT_THAT(CatalogToJson(*after), ::testing::HasSubstr("\"version\": 1\n"));
+}
+
+// A catalog as builds before certified graphs wrote it still loads, its
+// graphs plain.
+TEST_F(CatalogTest, AVersion1CatalogStillLoads) {
+  WriteCatalogText(R"({
+  "format": "geodesicd-catalog",
+  "generation": 5,
+  "graphs": [
+    {
+      "candidate_rule": 0,
+      "epsilon": 0.001,
+      "exact_fans": false,
+      "mesh": "kitten",
+      "prune_redundant": false,
+      "pseudo_vertices": false
+    }
+  ],
+  "meshes": [
+    {
+      "fingerprint": "fedcba9876543210",
+      "format": "off",
+      "name": "kitten",
+      "repair_non_manifold": true,
+      "source": "scans/kitten.off",
+      "source_hash": "0123456789abcdef"
+    }
+  ],
+  "version": 1
+}
+)");
+  Catalog catalog(dir_);
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_EQ(read->generation, 5u);
+  ASSERT_EQ(read->graphs.size(), 1u);
+  EXPECT_EQ(read->graphs[0].mesh, "kitten");
+  EXPECT_EQ(read->graphs[0].params.epsilon, 1e-3);
+  EXPECT_EQ(read->graphs[0].max_error, 0);
+  ASSERT_NE(read->FindMesh("kitten"), nullptr);
+}
+
 TEST_F(CatalogTest, RemovingAMeshRemovesItsGraphs) {
   Catalog catalog(dir_);
   ASSERT_TRUE(catalog
@@ -140,6 +224,14 @@ TEST_F(CatalogTest, DamagedFilesAreRefusedByName) {
     s.PutMesh(Kitten());
     return s;
   }());
+  std::string bad_bound = CatalogToJson([] {
+    CatalogState s;
+    s.PutMesh(Kitten());
+    s.PutGraph({"kitten", DggParams{}, 1e-2});
+    return s;
+  }());
+  const std::string bound = "\"max_error\": 0.01";
+  bad_bound.replace(bad_bound.find(bound), bound.size(), "\"max_error\": -0.01");
   std::string bad_hex = valid;
   bad_hex.replace(bad_hex.find("0123456789abcdef"), 16, "0123456789abcdeg");
   std::string newer = valid;
@@ -151,6 +243,7 @@ TEST_F(CatalogTest, DamagedFilesAreRefusedByName) {
       {"{\"format\": \"something else\"}", absl::StatusCode::kDataLoss, "not a geodesicd catalog"},
       {bad_hex, absl::StatusCode::kDataLoss, "0123456789abcdeg"},
       {newer, absl::StatusCode::kFailedPrecondition, "format version 9"},
+      {bad_bound, absl::StatusCode::kDataLoss, "graphs[0].max_error: -0.01"},
       {wrong_type, absl::StatusCode::kDataLoss, "repair_non_manifold"},
   };
   for (const Case& c : cases) {

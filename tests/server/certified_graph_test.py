@@ -1,8 +1,9 @@
 #!/usr/bin/python3
 """Certified graphs through the daemon: RequestGraph with max_error from the
 Python client, the CLI and HTTP; the certificate in graph status, `status`,
-the graph JSON, metrics and the sidecar beside the graph file; a restart over
-the same --graph-dir maps the graph with its certificate instead of building.
+the graph JSON, metrics and the sidecar beside the graph file; the catalog
+records it, so a restart over the same --graph-dir maps it with its
+certificate, asked by no client, instead of building.
 
 Usage: certified_graph_test.py BUILD_BIN_DIR SOURCE_DIR
 """
@@ -11,6 +12,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 import urllib.request
 
 BIN, SRC = sys.argv[1], sys.argv[2]
@@ -136,10 +138,31 @@ with tempfile.TemporaryDirectory() as work:
     finally:
         daemon_ports.stop(daemon)
 
+    # The catalog records it with its bound (format version 2, which a
+    # build before certified graphs refuses rather than misread).
+    with open(os.path.join(graphs, "catalog.json")) as f:
+        catalog = json.load(f)
+    check("the catalog records the certified graph by its bound",
+          catalog.get("version") == 2 and
+          [g["mesh"] for g in catalog["graphs"] if g.get("max_error") == BOUND] == ["spot"],
+          catalog)
+
     # A restart over the same directory maps it, certificate and all.
     daemon, ports = serve(work, graphs)
     try:
         with Client(f"127.0.0.1:{ports['grpc']}") as client:
+            # Restored from the catalog: ready before any client asks.
+            restored, deadline = [], time.time() + 60
+            while time.time() < deadline:
+                restored = [x for x in client.graphs() if x.mesh == "spot" and x.max_error == BOUND]
+                if restored and restored[0].state == GraphState.READY:
+                    break
+                time.sleep(0.2)
+            check("after a restart it is listed READY, asked by no one",
+                  len(restored) == 1 and restored[0].state == GraphState.READY and
+                  restored[0].from_file, restored)
+            check("with its certificate", restored and restored[0].certificate == cert,
+                  (restored and restored[0].certificate, cert))
             again = client.request_graph("spot", max_error=BOUND)
             check("after a restart it is mapped, not rebuilt",
                   again.state == GraphState.READY and again.from_file, again)

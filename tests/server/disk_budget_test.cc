@@ -14,6 +14,7 @@
 #include "core/mesh/mesh_snapshot.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
+#include "server/graph_cache.h"
 
 namespace geodesic::server {
 namespace {
@@ -219,7 +220,8 @@ TEST(TemporaryFilesTest, OnlyOldTemporariesOfAtomicWritesAreRemoved) {
 }
 
 // The daemon's rule (serve --disk-limit) on a catalog with a mesh from a
-// path, an uploaded one and a graph, against the files actually there.
+// path, an uploaded one and graphs (one certified), against the files
+// actually there.
 class GraphDirRuleTest : public DiskBudgetTest {
  protected:
   void SetUp() override {
@@ -228,9 +230,10 @@ class GraphDirRuleTest : public DiskBudgetTest {
     params.epsilon = 1e-2;
     state_.meshes = {{"scan", "scan.obj", "obj", 1, 10, false},
                      {"sent", "upload", "ply", 2, 20, false}};
-    state_.graphs = {{"scan", params}, {"unloaded", params}};
+    state_.graphs = {{"scan", params}, {"scan", params, 1e-2}, {"unloaded", params}};
     files_ = FilesOf(state_);
     scan_graph_ = GraphFileName(10, params);
+    scan_certified_ = CachedGraphFileName(10, params, 1e-2);
   }
   FileRole Role(const std::string& name, bool in_use = false) {
     return GraphDirFileRole(dir_, name, files_, in_use, kGrace);
@@ -239,12 +242,12 @@ class GraphDirRuleTest : public DiskBudgetTest {
   static constexpr std::chrono::seconds kGrace{120};
   CatalogState state_;
   CatalogFiles files_;
-  std::string scan_graph_;
+  std::string scan_graph_, scan_certified_;
 };
 
 TEST_F(GraphDirRuleTest, TheCatalogNamesSnapshotsAndGraphsAndUploadsApart) {
-  EXPECT_THAT(files_.catalogued,
-              UnorderedElementsAre(MeshSnapshotName(1), MeshSnapshotName(2), scan_graph_));
+  EXPECT_THAT(files_.catalogued, UnorderedElementsAre(MeshSnapshotName(1), MeshSnapshotName(2),
+                                                      scan_graph_, scan_certified_));
   EXPECT_THAT(files_.uploads, ElementsAre(MeshSnapshotName(2)));
 }
 

@@ -627,8 +627,8 @@ TEST_F(ServiceTest, RaceOfRegisterAndUnloadLeavesRegistryAndCatalogAgreeing) {
       {.restore_mesh =
            [&](const CatalogMesh& m) { return registry_->RegisterPath(m.name, m.source).status(); },
        .drop_mesh = [&](const std::string& name) { registry_->Remove(name).IgnoreError(); },
-       .request_graph = [](const std::string&, const DggParams&) {},
-       .cancel_graph = [](const std::string&, const DggParams&) {}});
+       .request_graph = [](const std::string&, const DggParams&, double) {},
+       .cancel_graph = [](const std::string&, const DggParams&, double) {}});
   service_->UseCatalog(&sync);
   auto register_raced = [&] {
     grpc::ClientContext ctx;
