@@ -79,14 +79,29 @@ ServeConfig Parse(const YAML::Node& root) {
     Expect(graphs.IsSequence(), graphs, "graphs must be a list");
     for (size_t i = 0; i < graphs.size(); ++i) {
       const std::string where = absl::StrFormat("graphs[%u]", i);
-      OnlyKeys(graphs[i], {"mesh", "eps", "pseudo_vertices"}, where);
+      OnlyKeys(graphs[i], {"mesh", "eps", "max_error", "pseudo_vertices"}, where);
       DeclaredGraph g;
       g.mesh = Scalar<std::string>(graphs[i], "mesh", where, "a string");
       Expect(names.contains(g.mesh), graphs[i]["mesh"],
              absl::StrFormat("%s names mesh '%s', which the file does not declare", where, g.mesh));
-      g.epsilon = Scalar<double>(graphs[i], "eps", where, "a number");
-      Expect(g.epsilon > 0 && g.epsilon < 1, graphs[i]["eps"],
-             absl::StrFormat("%s.eps must be in (0, 1), not %g", where, g.epsilon));
+      if (graphs[i]["max_error"].IsDefined()) {
+        // A certified graph: its build chooses the epsilon, so an `eps`
+        // beside the bound would be ignored, and is refused instead.
+        Expect(!graphs[i]["eps"].IsDefined(), graphs[i]["eps"],
+               absl::StrFormat("%s gives both 'eps' and 'max_error': a certified graph's "
+                               "epsilon is chosen by its build, give one of them",
+                               where));
+        g.max_error = Scalar<double>(graphs[i], "max_error", where, "a number");
+        // RequestGraph's range (GeodesicService::Key); NaN fails it too.
+        Expect(g.max_error >= 1e-5 && g.max_error <= 0.5, graphs[i]["max_error"],
+               absl::StrFormat("%s.max_error must be in [1e-5, 0.5], not %g", where, g.max_error));
+      } else {
+        Expect(graphs[i]["eps"].IsDefined(), graphs[i],
+               absl::StrFormat("%s needs 'eps' (or 'max_error', for a certified graph)", where));
+        g.epsilon = Scalar<double>(graphs[i], "eps", where, "a number");
+        Expect(g.epsilon > 0 && g.epsilon < 1, graphs[i]["eps"],
+               absl::StrFormat("%s.eps must be in (0, 1), not %g", where, g.epsilon));
+      }
       g.pseudo_vertices =
           Optional<bool>(graphs[i], "pseudo_vertices", where, "true or false", false);
       config.graphs.push_back(std::move(g));

@@ -10,6 +10,13 @@
 //     - mesh: kitten
 //       eps: 1e-3
 //       pseudo_vertices: false      # optional
+//     - mesh: kitten
+//       max_error: 0.01             # instead of eps: a certified graph
+//
+// A graph with `max_error` (in [1e-5, 0.5], RequestGraph's range) is the
+// certified graph of that bound, as RequestGraph's max_error asks for: its
+// build chooses the epsilon, so an entry giving both `eps` and `max_error`
+// is refused rather than have its `eps` silently ignored.
 //
 // Unknown keys are refused (a misspelt "pseudo_vertice" must not silently
 // build the plain graph), and every error names the file, line and key.
@@ -31,7 +38,8 @@ struct DeclaredMesh {
 
 struct DeclaredGraph {
   std::string mesh;
-  double epsilon = 0;
+  double epsilon = 0;    // 0 for a certified graph
+  double max_error = 0;  // a certified graph's bound, or 0
   bool pseudo_vertices = false;
 };
 

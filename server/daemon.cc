@@ -445,9 +445,11 @@ int Daemon::RestoreCatalog() {
 void Daemon::RequestConfigGraphs() {
   for (const DeclaredGraph& g : options_.config.graphs) {
     if (auto m = meshes_->Get(g.mesh); m.ok()) {
-      const DggParams params = Params(g.epsilon, g.pseudo_vertices);
-      graphs_->Request(*m, params);
-      restoring_.push_back({g.mesh, params});
+      // A certified graph's key carries the epsilon its bound decides.
+      const DggParams params =
+          Params(g.max_error > 0 ? CertifiedKeyEpsilon(g.max_error) : g.epsilon, g.pseudo_vertices);
+      graphs_->Request(*m, params, g.max_error);
+      restoring_.push_back({g.mesh, params, g.max_error});
     }
   }
 }

@@ -3,7 +3,8 @@
 Python client, the CLI and HTTP; the certificate in graph status, `status`,
 the graph JSON, metrics and the sidecar beside the graph file; the catalog
 records it, so a restart over the same --graph-dir maps it with its
-certificate, asked by no client, instead of building.
+certificate, asked by no client, instead of building; --config declares one
+by `max_error`.
 
 Usage: certified_graph_test.py BUILD_BIN_DIR SOURCE_DIR
 """
@@ -32,10 +33,10 @@ def check(name, ok, detail=""):
     failures += not ok
 
 
-def serve(work, graphs):
+def serve(work, graphs, *args):
     log = open(os.path.join(work, "daemon.log"), "a")
     return daemon_ports.start_daemon(BIN, work, ["--graph-dir", graphs, "--log-level", "warning",
-                                                 "--pseudo-vertex-limit", "0"],
+                                                 "--pseudo-vertex-limit", "0", *args],
                                      stderr=log, metrics=True, http=True)
 
 
@@ -171,6 +172,40 @@ with tempfile.TemporaryDirectory() as work:
                   metric(ports["metrics"], "geodesicd_graph_builds_total"))
     finally:
         daemon_ports.stop(daemon)
+
+    # --config declares a certified graph by `max_error`: requested at
+    # start, certified, and here mapped from the file the runs above left
+    # (the declared mesh is spot's file, so its graphs are spot's).
+    config = os.path.join(work, "deploy.yaml")
+    spot = os.path.abspath(os.path.join(SRC, "data", "spot.obj"))
+    with open(config, "w") as f:
+        f.write(f"meshes:\n  - name: declared\n    path: {spot}\n"
+                f"graphs:\n  - mesh: declared\n    max_error: {BOUND}\n")
+    daemon, ports = serve(work, graphs, "--config", config)
+    try:
+        with Client(f"127.0.0.1:{ports['grpc']}") as client:
+            declared, deadline = [], time.time() + 120
+            while time.time() < deadline:
+                declared = [x for x in client.graphs() if x.mesh == "declared"]
+                if declared and declared[0].state == GraphState.READY:
+                    break
+                time.sleep(0.2)
+            check("a --config graph with max_error is the certified graph, ready",
+                  len(declared) == 1 and declared[0].state == GraphState.READY and
+                  declared[0].max_error == BOUND and good(declared[0].certificate), declared)
+            check("mapped with its certificate, not rebuilt",
+                  declared and declared[0].from_file and declared[0].certificate == cert and
+                  metric(ports["metrics"], "geodesicd_graph_builds_total") == 0,
+                  (declared, metric(ports["metrics"], "geodesicd_graph_builds_total")))
+    finally:
+        daemon_ports.stop(daemon)
+    with open(config, "a") as f:
+        f.write("    eps: 0.004\n")
+    r = subprocess.run([f"{BIN}/geodesicd", "serve", "--listen", "127.0.0.1:0", "--config", config],
+                       capture_output=True, text=True, timeout=60)
+    check("a --config graph with both eps and max_error is refused with file and line",
+          r.returncode != 0 and "deploy.yaml:7:" in r.stderr and
+          "gives both 'eps' and 'max_error'" in r.stderr, r.stderr)
     if failures:
         with open(os.path.join(work, "daemon.log")) as f:
             print(f.read()[-4000:])

@@ -40,6 +40,33 @@ graphs:
   EXPECT_TRUE(config->graphs[1].pseudo_vertices);
 }
 
+// max_error instead of eps declares the certified graph of that bound.
+TEST(ConfigFileTest, ParsesCertifiedGraphs) {
+  auto config = ParseServeConfig(R"(
+meshes:
+  - name: kitten
+    path: scans/kitten.off
+graphs:
+  - mesh: kitten
+    max_error: 0.01
+  - mesh: kitten
+    max_error: 1e-3
+    pseudo_vertices: true
+  - mesh: kitten
+    eps: 1e-3
+)",
+                                 "deploy.yaml");
+  ASSERT_TRUE(config.ok()) << config.status();
+  ASSERT_EQ(config->graphs.size(), 3u);
+  EXPECT_EQ(config->graphs[0].max_error, 0.01);
+  EXPECT_EQ(config->graphs[0].epsilon, 0);
+  EXPECT_FALSE(config->graphs[0].pseudo_vertices);
+  EXPECT_EQ(config->graphs[1].max_error, 1e-3);
+  EXPECT_TRUE(config->graphs[1].pseudo_vertices);
+  EXPECT_EQ(config->graphs[2].max_error, 0);  // a plain graph
+  EXPECT_EQ(config->graphs[2].epsilon, 1e-3);
+}
+
 TEST(ConfigFileTest, AnEmptyFileDeclaresNothing) {
   for (const char* text : {"", "# nothing yet\n", "meshes:\ngraphs:\n"}) {
     auto config = ParseServeConfig(text, "empty.yaml");
@@ -65,6 +92,22 @@ TEST(ConfigFileTest, ErrorsNameTheFileLineAndKey) {
        "graphs[0].eps must be in (0, 1), not 2"},
       {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, eps: small}\n",
        "graphs[0].eps must be a number, not 'small'"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, max_error: 0}\n",
+       "deploy.yaml:4:26: graphs[0].max_error must be in [1e-5, 0.5], not 0"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, max_error: -0.01}\n",
+       "graphs[0].max_error must be in [1e-5, 0.5], not -0.01"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, max_error: .inf}\n",
+       "graphs[0].max_error must be in [1e-5, 0.5], not inf"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, max_error: .nan}\n",
+       "graphs[0].max_error must be in [1e-5, 0.5], not nan"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, max_error: 0.9}\n",
+       "graphs[0].max_error must be in [1e-5, 0.5], not 0.9"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, max_error: tight}\n",
+       "graphs[0].max_error must be a number, not 'tight'"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, eps: 1e-3, max_error: 0.01}\n",
+       "deploy.yaml:4:20: graphs[0] gives both 'eps' and 'max_error'"},
+      {"meshes:\n  - {name: a, path: a.obj}\ngraphs:\n  - {mesh: a, pseudo_vertices: true}\n",
+       "deploy.yaml:4:5: graphs[0] needs 'eps' (or 'max_error', for a certified graph)"},
       {"meshes:\n  - {name: a, path: a.obj}\n  - {name: a, path: b.obj}\n",
        "deploy.yaml:3:12: mesh 'a' is declared twice"},
       {"meshes:\n  - {name: a, path: a.obj, repair_non_manifold: maybe}\n",
