@@ -210,6 +210,9 @@ void ExactGeodesic::Reset() {
     excluded_[v] = 0;
   }
   touched_.clear();
+  for (HalfedgeId h : seen_touched_) seen_slot_[h] = kNone;
+  seen_touched_.clear();
+  seen_slots_.clear();
   windows_.clear();
   free_windows_.clear();
   heap_.Clear();
@@ -305,9 +308,7 @@ void ExactGeodesic::KeepCornersOnBoundary(Window& w, double b0, double b1) const
 
 bool ExactGeodesic::TrimByFaceBehind(Window& w) const {
   // The third vertex R of the face the window came through: a point x of the
-  // window is also reached by d(R) + |R x| (a segment inside that face). Since
-  // |I x| - |R x| is not monotone along the edge this needs its own test:
-  // where it exceeds d(R) - sigma the window is useless.
+  // window is also reached by d(R) + |R x| (a segment inside that face).
   // In direct mode with corners R is a corner of the window's shadow, whose
   // cut (TrimByRelays) already covers this: the test would remove nothing.
   if (relays_) return true;
@@ -316,29 +317,77 @@ bool ExactGeodesic::TrimByFaceBehind(Window& w) const {
   const double dR = dist_[mesh_.opposite(back)];
   if (!(dR < kInf)) return true;
   const double L = mesh_.length(w.h);
-  const Vec2 R = PlaceFromDistances(L, mesh_.length(Mesh::next(back)),
-                                    mesh_.length(Mesh::prev(back)), /*above=*/false);
+  Vec2 R;
+  if (frames_) {
+    // The face behind is the face of twin(h), in whose frame R is the apex:
+    // turning that frame half a turn about the edge's middle gives h's.
+    const Vec2 apex = (*frames_)[back].apex;
+    R = {L - apex.x, -apex.y};
+  } else {
+    R = PlaceFromDistances(L, mesh_.length(Mesh::next(back)), mesh_.length(Mesh::prev(back)),
+                           /*above=*/false);
+  }
+  return CutWhereShorter(w, R, dR, w.b0, w.b1, L);
+}
+
+bool ExactGeodesic::CutWhereShorter(Window& w, const Vec2& R, double dR, double lo, double hi,
+                                    double L) const {
+  // Since |I x| - |R x| is not monotone along the edge, where it exceeds
+  // d(R) - sigma needs a root: there w is useless.
+  lo = std::max(lo, w.b0);
+  hi = std::min(hi, w.b1);
+  if (!(hi > lo)) return true;
   const Vec2 I{w.sx, w.sy};
   const double c = dR * (1 + kFilterSlack) + kFilterSlack * L - w.sigma;
   auto excess = [&](double x) {
     const Vec2 p{x, 0};
     return Norm(p - I) - Norm(p - R) - c;
   };
-  const double e0 = excess(w.b0), e1 = excess(w.b1);
+  const double e0 = excess(lo), e1 = excess(hi);
   if (e0 <= 0 && e1 <= 0) return true;
   if (e0 > 0 && e1 > 0) {
     // For c >= 0 the dominated points form the convex inside of a hyperbola
-    // branch around R, which holds the whole window once it holds both ends.
+    // branch around R, which holds all of [lo, hi] once it holds both ends.
     // For c < 0 the middle may escape it; keep the window (rare).
-    return c < 0;
-  }
-  // One end is dominated, so the hyperbola crosses the window once.
-  if (e0 > 0) {
-    w.b0 = BracketEndOnSideOf(excess, w.b0, e0, w.b1, e1, kFilterSteps);
-  } else {
-    w.b1 = BracketEndOnSideOf(excess, w.b1, e1, w.b0, e0, kFilterSteps);
+    if (c < 0) return true;
+    if (lo <= w.b0 && hi >= w.b1) return false;
+    if (lo <= w.b0) {
+      w.b0 = hi;
+    } else if (hi >= w.b1) {
+      w.b1 = lo;
+    }
+  } else if (e0 > 0) {
+    // One end is dominated, so the hyperbola crosses [lo, hi] once; only a
+    // part at an end of w can be cut from it.
+    if (lo <= w.b0) w.b0 = BracketEndOnSideOf(excess, lo, e0, hi, e1, kFilterSteps);
+  } else if (hi >= w.b1) {
+    w.b1 = BracketEndOnSideOf(excess, hi, e1, lo, e0, kFilterSteps);
   }
   return w.b1 - w.b0 > kMinWidth * L;
+}
+
+bool ExactGeodesic::TrimBySeenWindows(Window& w, const EdgeEnds& edge) const {
+  const uint32_t slot = seen_slot_[w.h];
+  if (slot == kNone) return true;
+  const SeenSlot& seen = seen_slots_[slot];
+  for (int k = 0; k < seen.count; ++k) {
+    const SeenWindow& s = seen.windows[k];
+    if (!CutWhereShorter(w, {s.sx, s.sy}, s.sigma, s.b0, s.b1, edge.length)) return false;
+  }
+  return true;
+}
+
+void ExactGeodesic::RememberSeen(const Window& w) {
+  uint32_t& slot = seen_slot_[w.h];
+  if (slot == kNone) {
+    slot = seen_slots_.size();
+    seen_slots_.emplace_back();
+    seen_touched_.push_back(w.h);
+  }
+  SeenSlot& seen = seen_slots_[slot];
+  seen.windows[seen.next] = {w.b0, w.b1, w.sx, w.sy, w.sigma};
+  seen.next = (seen.next + 1) % kSeenPerEdge;
+  seen.count = std::min<int>(seen.count + 1, kSeenPerEdge);
 }
 
 bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
@@ -347,6 +396,7 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   // while it waits).
   if (relays_ && !TrimByRelays(w)) return false;
   if (!Trim(w, edge)) return false;
+  if (mode_ == Mode::kFull && !TrimBySeenWindows(w, edge)) return false;
   double key;
   if (w.sx < w.b0) {
     key = w.sigma + Hypot(w.b0 - w.sx, w.sy);
@@ -357,6 +407,7 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   }
   if (key > max_distance_) return false;
   if (goal_ && key + GoalGap(w, edge) > max_distance_) return false;
+  if (mode_ == Mode::kFull) RememberSeen(w);
   Push(key, Allocate(w));
   return true;
 }
@@ -695,6 +746,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
     }
   }
   Reset();
+  if (mode == Mode::kFull && seen_slot_.empty()) seen_slot_.assign(mesh_.num_halfedges(), kNone);
   mode_ = mode;
   keep_windows_ = keep_windows;
   epsilon_ = epsilon;
@@ -718,11 +770,11 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
     if (cancelled && *cancelled && (++steps & 4095) == 0 && (*cancelled)()) {
       return absl::CancelledError("exact propagation cancelled");
     }
-    if (max_window_bytes_ && windows_.size() * sizeof(Window) > max_window_bytes_) {
+    if (max_window_bytes_ && WindowBytes() > max_window_bytes_) {
       heap_.Clear();
       return absl::ResourceExhaustedError(absl::StrFormat(
           "the exact propagation passed %u windows (%u MB), over its limit of %u MB",
-          windows_.size(), windows_.size() * sizeof(Window) >> 20, max_window_bytes_ >> 20));
+          windows_.size(), WindowBytes() >> 20, max_window_bytes_ >> 20));
     }
     if (top.is_vertex) {
       const VertexId v = top.item;
@@ -741,10 +793,18 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   return absl::OkStatus();
 }
 
+uint64_t ExactGeodesic::WindowBytes() const {
+  return windows_.size() * sizeof(Window) + seen_slots_.size() * sizeof(SeenSlot);
+}
+
 void ExactGeodesic::ReleaseLargeWindows() {
-  if (windows_.capacity() * sizeof(Window) <= kScratchKeepBytes) return;
+  if (windows_.capacity() * sizeof(Window) + seen_slots_.capacity() * sizeof(SeenSlot) <=
+      kScratchKeepBytes) {
+    return;
+  }
   windows_ = {};
   free_windows_ = {};
+  seen_slots_ = {};
   have_source_ = false;  // nothing left to trace
 }
 
@@ -752,8 +812,8 @@ uint64_t ExactGeodesic::memory_bytes() const {
   auto bytes = [](const auto& v) { return uint64_t{v.capacity()} * sizeof(v[0]); };
   return sizeof(*this) + bytes(dist_) + bytes(via_window_) + bytes(via_vertex_) +
          bytes(angle_src_) + bytes(angle_vtx_) + bytes(emitted_) + bytes(route_) +
-         bytes(excluded_) + bytes(touched_) + bytes(windows_) + bytes(free_windows_) +
-         heap_.memory_bytes();
+         bytes(excluded_) + bytes(touched_) + bytes(seen_slot_) + bytes(seen_slots_) +
+         bytes(seen_touched_) + bytes(windows_) + bytes(free_windows_) + heap_.memory_bytes();
 }
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,

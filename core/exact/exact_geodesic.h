@@ -12,9 +12,14 @@
 // instead. Because sigma + |I x| - |Px| is monotone along the edge, the useful
 // part is one interval, found in closed form. The third vertex R of the face
 // the window came through filters the same way (|Rx| is a segment in that
-// face); that test removes a large share of a full solve's windows. Windows
-// are trimmed once, when queued. Saddle and boundary vertices become
-// pseudo-sources once their distance is final.
+// face); that test removes a large share of a full solve's windows. In full
+// runs a window is also cut where one of the last windows queued on its
+// half-edge reaches the same points shorter: the cheap part of MMP's window
+// intersection, needing no list per edge, which removes another large share
+// (bench/notes.md, "Exact engine"; in direct mode it moved corners and left
+// more windows, so it is off there). Windows are trimmed once, when queued.
+// Saddle and boundary vertices become pseudo-sources once their distance is
+// final.
 //
 // Three uses of one propagation:
 //  1. Distances from a source (vertex, edge point or face point) to all
@@ -215,6 +220,11 @@ class ExactGeodesic {
   bool TrimByRelays(Window& w) const;
   void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
   bool TrimByFaceBehind(Window& w) const;
+  // Cuts from w's ends what a route from R (at distance dR, in w's frame)
+  // reaches shorter on [lo, hi] of the edge; false when nothing is left.
+  bool CutWhereShorter(Window& w, const Vec2& R, double dR, double lo, double hi, double L) const;
+  bool TrimBySeenWindows(Window& w, const EdgeEnds& edge) const;
+  void RememberSeen(const Window& w);
   // Trims w in place (copying the window for each child showed in the DGG
   // candidates' time) and queues what is left.
   bool TrimAndPush(Window& w, const EdgeEnds& edge);
@@ -222,6 +232,8 @@ class ExactGeodesic {
   // covers.
   double GoalGap(const Window& w, const EdgeEnds& edge) const;
   uint32_t Allocate(const Window& w);
+  // What the run's windows hold: the windows and the seen slots.
+  uint64_t WindowBytes() const;
   void Push(double key, uint32_t item);
 
   struct Candidate;
@@ -251,6 +263,21 @@ class ExactGeodesic {
   std::vector<double> route_;         // relay mode: length of a known graph route
   std::vector<uint8_t> excluded_;     // relay mode: best lighting is served by a relay
   std::vector<VertexId> touched_;
+  // Full mode: the last windows queued on each half-edge, which trim those
+  // queued after them where they reach the same points shorter (a cheap part
+  // of MMP's window intersection, as VTP's second rule is). Slots exist only
+  // for half-edges a window reached: a run bounded by a goal touches few.
+  struct SeenWindow {
+    double b0, b1, sx, sy, sigma;
+  };
+  static constexpr int kSeenPerEdge = 2;
+  struct SeenSlot {
+    SeenWindow windows[kSeenPerEdge];
+    uint8_t count = 0, next = 0;
+  };
+  std::vector<uint32_t> seen_slot_;  // per half-edge, kNone: no slot yet
+  std::vector<SeenSlot> seen_slots_;
+  std::vector<HalfedgeId> seen_touched_;
 
   std::vector<Window> windows_;
   std::vector<uint32_t> free_windows_;

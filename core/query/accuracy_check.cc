@@ -76,8 +76,11 @@ absl::StatusOr<std::vector<SourceCheck>> CheckAgainstExact(std::shared_ptr<const
   const GeodesicEngine engine(mesh, graph);
   std::vector<SourceCheck> checks(sources.size());
   // Each exact engine holds per-vertex scratch: one per thread, not per source.
+  // Whole fields from many sources read every face's frame many times: made
+  // once, shared.
+  const FaceFrames frames(*mesh);
   tbb::enumerable_thread_specific<std::unique_ptr<ExactGeodesic>> engines(
-      [&] { return std::make_unique<ExactGeodesic>(*mesh); });
+      [&] { return std::make_unique<ExactGeodesic>(*mesh, &frames); });
   std::mutex mu;
   absl::Status first_error;
   std::atomic<bool> failed{false};

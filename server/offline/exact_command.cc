@@ -43,7 +43,9 @@ int RunExact(int argc, char** argv) {
   auto resolved = resolver.Resolve(source_spec);
   if (!resolved.ok()) return Fail("exact", resolved.status());
   const SurfacePoint* source = &resolved->point;
-  ExactGeodesic engine(**mesh);
+  // A whole field reads each face's frame many times: made once.
+  const FaceFrames frames(**mesh);
+  ExactGeodesic engine(**mesh, &frames);
   ExactOptions options;
   options.max_distance = max_distance;
   auto t1 = std::chrono::steady_clock::now();
