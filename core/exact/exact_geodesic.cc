@@ -247,11 +247,18 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   if (mode_ == Mode::kDirect) {
     angle_src_[v] = angle_src;
     angle_vtx_[v] = angle_vertex;
-  } else if (!emitted_[v] && RadiatesFrom(mesh_, v)) {
+  } else if (!emitted_[v] && RadiatesFrom(mesh_, v) && !PastGoal(v, d)) {
     // A geodesic may bend here, or pass straight through: once this
     // distance is final, v radiates.
     heap_.Push(d, {v, true});
   }
+}
+
+bool ExactGeodesic::PastGoal(VertexId v, double d) const {
+  // Every window v would radiate starts at v, so none could reach the goal
+  // within the bound either: testing the vertex once spares making and
+  // trimming a window per face of its fan.
+  return goal_ && d + Distance(mesh_.position(v), *goal_) > max_distance_;
 }
 
 bool ExactGeodesic::Trim(Window& w, const EdgeEnds& edge) const {
@@ -390,6 +397,12 @@ void ExactGeodesic::RememberSeen(const Window& w) {
   seen.count = std::min<int>(seen.count + 1, kSeenPerEdge);
 }
 
+double ExactGeodesic::Nearest(const Window& w) {
+  if (w.sx < w.b0) return w.sigma + Hypot(w.b0 - w.sx, w.sy);
+  if (w.sx > w.b1) return w.sigma + Hypot(w.b1 - w.sx, w.sy);
+  return w.sigma - w.sy;
+}
+
 bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   // Rays the corners serve are cut before the window is queued, so windows
   // served whole are never stored (a window's own corners do not change
@@ -397,14 +410,7 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   if (relays_ && !TrimByRelays(w)) return false;
   if (!Trim(w, edge)) return false;
   if (mode_ == Mode::kFull && !TrimBySeenWindows(w, edge)) return false;
-  double key;
-  if (w.sx < w.b0) {
-    key = w.sigma + Hypot(w.b0 - w.sx, w.sy);
-  } else if (w.sx > w.b1) {
-    key = w.sigma + Hypot(w.b1 - w.sx, w.sy);
-  } else {
-    key = w.sigma - w.sy;
-  }
+  const double key = Nearest(w);
   if (key > max_distance_) return false;
   if (goal_ && key + GoalGap(w, edge) > max_distance_) return false;
   if (mode_ == Mode::kFull) RememberSeen(w);

@@ -216,6 +216,9 @@ class ExactGeodesic {
     own_frame_ = FaceFrame::Of(mesh_, h);
     return own_frame_;
   }
+  // Whether no route through v, reached at d, can reach the goal within the
+  // run's bound.
+  bool PastGoal(VertexId v, double d) const;
   bool Trim(Window& w, const EdgeEnds& edge) const;
   bool TrimByRelays(Window& w) const;
   void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
@@ -228,6 +231,8 @@ class ExactGeodesic {
   // Trims w in place (copying the window for each child showed in the DGG
   // candidates' time) and queues what is left.
   bool TrimAndPush(Window& w, const EdgeEnds& edge);
+  // The distance from the source to the window's nearest point: its key.
+  static double Nearest(const Window& w);
   // The straight-line distance from the goal to the part of `edge` a window
   // covers.
   double GoalGap(const Window& w, const EdgeEnds& edge) const;
