@@ -66,7 +66,7 @@ absl::StatusOr<AtomicFileWriter> AtomicFileWriter::Create(const std::string& pat
   // The temporary name carries pid and a random tag so that concurrent
   // writers of one destination never share a temporary file.
   std::string tmp = absl::StrFormat("%s.tmp.%d.%x", path, getpid(), std::random_device{}());
-  int fd = ::open(tmp.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
+  int fd = ::open(tmp.c_str(), O_RDWR | O_CREAT | O_EXCL | O_CLOEXEC, 0644);
   if (fd < 0) return ErrnoStatus("cannot create", tmp);
   return AtomicFileWriter(path, std::move(tmp), fd);
 }
@@ -115,8 +115,25 @@ absl::Status AtomicFileWriter::PadTo(size_t alignment) {
   return absl::OkStatus();
 }
 
+absl::Status AtomicFileWriter::SkipTo(uint64_t offset) {
+  if (fd_ < 0) return absl::FailedPreconditionError("write to a closed file " + path_);
+  if (::lseek(fd_, static_cast<off_t>(offset), SEEK_SET) < 0) {
+    absl::Status s = ErrnoStatus("cannot seek in", tmp_);
+    Abandon();
+    return s;
+  }
+  written_ = offset;
+  return absl::OkStatus();
+}
+
 absl::Status AtomicFileWriter::Commit() && {
   if (fd_ < 0) return absl::FailedPreconditionError("commit of a closed file " + path_);
+  // A region mapped and grown past what was finally kept ends the file early.
+  if (::ftruncate(fd_, static_cast<off_t>(written_)) != 0) {
+    absl::Status s = ErrnoStatus("cannot size", tmp_);
+    Abandon();
+    return s;
+  }
   if (::fsync(fd_) != 0) {
     absl::Status s = ErrnoStatus("cannot fsync", tmp_);
     Abandon();

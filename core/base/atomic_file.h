@@ -34,7 +34,13 @@ class AtomicFileWriter {
   absl::Status Append(const void* data, size_t bytes);
   // Pads with zero bytes up to a multiple of `alignment`.
   absl::Status PadTo(size_t alignment);
+  // Appends from `offset` on, leaving the bytes before it as they are: for a
+  // region already written through a mapping of fd().
+  absl::Status SkipTo(uint64_t offset);
   uint64_t bytes_written() const { return written_; }
+  // Open for reading and writing, so that a part of the file may be mapped
+  // shared and written in place. Commit() cuts the file at bytes_written().
+  int fd() const { return fd_; }
   absl::Status Commit() &&;
 
  private:

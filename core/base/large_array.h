@@ -6,9 +6,15 @@
 // first written, growing moves no bytes (mremap), and shrinking or dying
 // returns the pages to the system at once, where a std::vector would copy on
 // growth and leave freed memory to the allocator.
+//
+// BackWithFile keeps the array in a file instead (the graph file being
+// written): its pages are then the page cache's, which the kernel writes back
+// and drops under memory pressure, so an array larger than the memory left
+// beside the rest of a build still fits.
 #ifndef GEODESIC_CORE_BASE_LARGE_ARRAY_H_
 #define GEODESIC_CORE_BASE_LARGE_ARRAY_H_
 
+#include <fcntl.h>
 #include <sys/mman.h>
 #include <unistd.h>
 
@@ -35,13 +41,27 @@ class LargeArray {
       data_ = std::exchange(other.data_, nullptr);
       size_ = std::exchange(other.size_, 0);
       mapped_ = std::exchange(other.mapped_, 0);
+      fd_ = std::exchange(other.fd_, -1);
+      offset_ = std::exchange(other.offset_, 0);
     }
     return *this;
   }
   ~LargeArray() { Unmap(); }
 
+  // Keeps the array in file `fd` from byte `offset` (a multiple of the page
+  // size) on, growing the file with it; call while the array is empty. The
+  // file stays the caller's: it must outlive the array's growth, not its
+  // mapping (a mapping outlives its descriptor).
+  void BackWithFile(int fd, uint64_t offset) {
+    Unmap();
+    fd_ = fd;
+    offset_ = offset;
+  }
+  bool file_backed() const { return fd_ >= 0; }
+  int backing_fd() const { return fd_; }
+
   // New elements are zero. Throws std::bad_alloc when the system has no
-  // memory to map, as std::vector does.
+  // memory to map, as std::vector does (or, backed by a file, no disk).
   void resize(size_t n) {
     const size_t old = size_;
     Reserve(n * sizeof(T), /*exact=*/true);
@@ -72,6 +92,8 @@ class LargeArray {
     out.data_ = std::launder(reinterpret_cast<U*>(std::exchange(data_, nullptr)));
     out.size_ = std::exchange(size_, 0);
     out.mapped_ = std::exchange(mapped_, 0);
+    out.fd_ = std::exchange(fd_, -1);
+    out.offset_ = std::exchange(offset_, 0);
     return out;
   }
 
@@ -102,9 +124,18 @@ class LargeArray {
     const size_t want = PageRound(bytes);
     if (want == mapped_ || (!exact && want <= mapped_)) return;
     if (want == 0) return Unmap();
-    void* p = mapped_ == 0 ? ::mmap(nullptr, want, PROT_READ | PROT_WRITE,
-                                    MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0)
-                           : ::mremap(data_, mapped_, want, MREMAP_MAYMOVE);
+    // Blocks are allocated before they are mapped, so that a full disk is
+    // an error here rather than a SIGBUS at the first write to a page.
+    if (fd_ >= 0 && want > mapped_ &&
+        ::posix_fallocate(fd_, static_cast<off_t>(offset_ + mapped_),
+                          static_cast<off_t>(want - mapped_)) != 0) {
+      throw std::bad_alloc();
+    }
+    void* p = mapped_ != 0 ? ::mremap(data_, mapped_, want, MREMAP_MAYMOVE)
+              : fd_ >= 0   ? ::mmap(nullptr, want, PROT_READ | PROT_WRITE, MAP_SHARED, fd_,
+                                    static_cast<off_t>(offset_))
+                           : ::mmap(nullptr, want, PROT_READ | PROT_WRITE,
+                                    MAP_PRIVATE | MAP_ANONYMOUS | MAP_NORESERVE, -1, 0);
     if (p == MAP_FAILED) throw std::bad_alloc();
     data_ = static_cast<T*>(p);
     mapped_ = want;
@@ -119,6 +150,8 @@ class LargeArray {
   T* data_ = nullptr;
   size_t size_ = 0;
   size_t mapped_ = 0;  // bytes
+  int fd_ = -1;        // BackWithFile's file, or anonymous memory
+  uint64_t offset_ = 0;
 };
 
 }  // namespace geodesic

@@ -189,8 +189,9 @@ absl::Status ComputeCandidates(const Mesh& mesh, double candidate_epsilon, bool 
                                uint32_t begin, uint32_t end, Progress& progress,
                                double progress_end, uint64_t* windows_created, CandidateRuns& runs);
 // The candidates as an undirected graph (candidate_edges.cc).
+// Its edge array lives in `edge_file` when that names one.
 absl::StatusOr<Adjacency> Symmetrize(const NodeOrder& order, std::span<const uint32_t> counts,
-                                     const CandidateFeed& feed);
+                                     const CandidateFeed& feed, const DggEdgeFile& edge_file);
 
 // Phase 2 (redundant_edges.cc): marks the edges a path through smaller edges
 // replaces within the pruning budget, then drops them.
@@ -218,7 +219,8 @@ DggGraphArrays Finalize(Adjacency kept, NodeOrder order, const std::vector<Pseud
 absl::Status CheckBuildParams(const DggParams& params);
 absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(
     const Mesh& mesh, std::span<const uint32_t> counts, const CandidateFeed& feed,
-    const DggParams& params, double pseudo_vertex_limit, Progress& progress, DggBuildStats& st);
+    const DggParams& params, double pseudo_vertex_limit, const DggEdgeFile& edge_file,
+    Progress& progress, DggBuildStats& st);
 
 }  // namespace geodesic::dgg_build_internal
 

@@ -129,9 +129,10 @@ absl::Status ComputeCandidates(const Mesh& mesh, double candidate_epsilon, bool 
 // directions. Rows are first filled with what their own source found, then
 // edges found from the other end only are appended: each row grows in place.
 absl::StatusOr<Adjacency> Symmetrize(const NodeOrder& order, std::span<const uint32_t> counts,
-                                     const CandidateFeed& feed) {
+                                     const CandidateFeed& feed, const DggEdgeFile& edge_file) {
   const uint32_t n = counts.size();
   Adjacency adj;
+  if (edge_file.fd >= 0) adj.edges.BackWithFile(edge_file.fd, edge_file.offset);
   adj.offsets.assign(n + 1, 0);
   for (uint32_t u = 0; u < n; ++u) {
     adj.offsets[u + 1] = adj.offsets[u] + counts[order.vertex_of_node[u]];

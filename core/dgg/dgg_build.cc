@@ -50,13 +50,16 @@ absl::Status CheckBuildParams(const DggParams& params) {
 // caller's arena; null when cancelled.
 absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(
     const Mesh& mesh, std::span<const uint32_t> counts, const CandidateFeed& feed,
-    const DggParams& params, double pseudo_vertex_limit, Progress& progress, DggBuildStats& st) {
+    const DggParams& params, double pseudo_vertex_limit, const DggEdgeFile& edge_file,
+    Progress& progress, DggBuildStats& st) {
   const double epsilon = params.epsilon;
   const bool prune = params.prune_redundant, exact_fans = params.exact_fans;
   auto t = std::chrono::steady_clock::now();
   NodeOrder order(mesh);
   for (uint32_t c : counts) st.found_edges += c;
-  ASSIGN_OR_RETURN(Adjacency cand, Symmetrize(order, counts, feed));
+  // Pseudo vertices add nodes, and so move where the file's edges start.
+  ASSIGN_OR_RETURN(Adjacency cand, Symmetrize(order, counts, feed,
+                                              params.pseudo_vertices ? DggEdgeFile{} : edge_file));
   st.candidate_edges = cand.edges.size() / 2;
   st.candidate_seconds += Seconds(t);
 
@@ -161,7 +164,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
     if (progress.cancelled()) return;
     graph = FinishBuild(
         mesh, runs.counts(), [&](const auto& visit) { return runs.Drain(visit); }, options.params,
-        options.pseudo_vertex_limit, progress, st);
+        options.pseudo_vertex_limit, options.edge_file, progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);

@@ -16,6 +16,14 @@
 
 namespace geodesic {
 
+// Where a build keeps its graph's edge array: a file descriptor open for
+// reading and writing and a page-aligned offset into it (GraphFileDraft), or
+// fd -1 for anonymous memory.
+struct DggEdgeFile {
+  int fd = -1;
+  uint64_t offset = 0;
+};
+
 struct DggBuildOptions {
   // What to build. params.candidate_rule must be kCandidateRuleVersion:
   // this code makes graphs of no other rule.
@@ -36,6 +44,10 @@ struct DggBuildOptions {
   // at 1 the graph stays within about twice the plain one's size and time.
   double pseudo_vertex_limit = 0;
   std::string spill_dir;
+  // Keep the edge array in this file (GraphFileDraft::edge_file) instead of
+  // anonymous memory. Ignored with pseudo vertices, which change the node
+  // count the file's layout was made for.
+  DggEdgeFile edge_file;
   // Called now and then from any build thread with the current phase
   // ("candidates", "pruning", "pseudo", "fans") and the fraction of the whole
   // build done, in [0, 1]. Returning false cancels the build (CANCELLED).

@@ -156,6 +156,7 @@ class DggGraph {
  private:
   friend class DggGraphBuilder;
   friend class GraphFile;
+  friend class GraphFileDraft;
 
   uint32_t num_nodes_ = 0;
   uint32_t num_mesh_vertices_ = 0;

@@ -113,7 +113,8 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   ThreadArena arena(options.threads);
   absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
   arena.execute([&] {
-    graph = FinishBuild(mesh, counts, feed, params, options.pseudo_vertex_limit, progress, st);
+    graph = FinishBuild(mesh, counts, feed, params, options.pseudo_vertex_limit, options.edge_file,
+                        progress, st);
   });
   if (progress.cancelled()) return absl::CancelledError("graph build cancelled");
   st.total_seconds = Seconds(start);

@@ -120,7 +120,24 @@ std::string GraphFileName(uint64_t mesh_fingerprint, const DggParams& params) {
                          params.candidate_rule);
 }
 
-absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
+namespace {
+
+using SectionData = std::array<std::pair<const void*, uint64_t>, kSectionCount>;
+
+SectionData SectionsOf(const DggGraph& graph) {
+  return {{
+      {graph.offsets().data(), graph.offsets().size_bytes()},
+      {graph.edges().data(), graph.edges().size_bytes()},
+      {graph.angles().data(), graph.angles().size_bytes()},
+      {graph.pseudo_points().data(), graph.pseudo_points().size_bytes()},
+      {graph.node_of_vertex().data(), graph.node_of_vertex().size_bytes()},
+      {graph.vertex_of_node().data(), graph.vertex_of_node().size_bytes()},
+  }};
+}
+
+// The header of `graph`'s file: sections in order after the header, each
+// 64-byte aligned, the edges no earlier than `edges_at`.
+Header LayOut(const DggGraph& graph, const SectionData& data, uint64_t edges_at) {
   Header h{};
   std::memcpy(h.magic, kMagic, sizeof(kMagic));
   h.version = kGraphFormatVersion;
@@ -131,18 +148,11 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   h.num_mesh_vertices = graph.num_mesh_vertices();
   h.section_count = kSectionCount;
   h.num_directed_edges = graph.num_directed_edges();
-  const std::array<std::pair<const void*, uint64_t>, kSectionCount> data = {{
-      {graph.offsets().data(), graph.offsets().size_bytes()},
-      {graph.edges().data(), graph.edges().size_bytes()},
-      {graph.angles().data(), graph.angles().size_bytes()},
-      {graph.pseudo_points().data(), graph.pseudo_points().size_bytes()},
-      {graph.node_of_vertex().data(), graph.node_of_vertex().size_bytes()},
-      {graph.vertex_of_node().data(), graph.vertex_of_node().size_bytes()},
-  }};
   uint64_t offset = kHeaderBytes;
   for (uint32_t i = 0; i < kSectionCount; ++i) {
     SectionEntry& s = h.sections[i];
     std::strncpy(s.name, kSectionNames[i], sizeof(s.name) - 1);
+    if (i == kEdges) offset = std::max(offset, edges_at);
     s.offset = offset;
     s.bytes = data[i].second;
     s.element_size = kElementSize[i];
@@ -151,18 +161,73 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   }
   h.file_bytes = offset;
   h.header_checksum = HeaderChecksum(h);
+  return h;
+}
 
-  auto file = AtomicFileWriter::Create(path);
-  if (!file.ok()) return file.status();
+// Writes the header and the sections, each at its offset, and commits. With
+// `edges_in_place` the edges section is already there, written through a
+// mapping of the file, and is passed over.
+absl::Status WriteLaidOut(AtomicFileWriter file, const Header& h, const SectionData& data,
+                          bool edges_in_place) {
   std::vector<char> header_block(kHeaderBytes, 0);
   std::memcpy(header_block.data(), &h, sizeof(h));
-  absl::Status s = file->Append(header_block.data(), header_block.size());
+  absl::Status s = file.Append(header_block.data(), header_block.size());
+  static const char kZeros[4096] = {};
   for (uint32_t i = 0; i < kSectionCount && s.ok(); ++i) {
-    s = file->Append(data[i].first, data[i].second);
-    if (s.ok()) s = file->PadTo(kAlignment);
+    const SectionEntry& entry = h.sections[i];
+    while (s.ok() && file.bytes_written() < entry.offset) {
+      s = file.Append(kZeros,
+                      std::min<uint64_t>(sizeof(kZeros), entry.offset - file.bytes_written()));
+    }
+    if (!s.ok()) break;
+    s = i == kEdges && edges_in_place ? file.SkipTo(entry.offset + entry.bytes)
+                                      : file.Append(data[i].first, data[i].second);
   }
+  if (s.ok()) s = file.PadTo(kAlignment);
   if (!s.ok()) return s;
-  return std::move(*file).Commit();
+  return std::move(file).Commit();
+}
+
+uint64_t PageSize() { return static_cast<uint64_t>(sysconf(_SC_PAGESIZE)); }
+
+}  // namespace
+
+absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
+  const SectionData data = SectionsOf(graph);
+  const Header h = LayOut(graph, data, 0);
+  auto file = AtomicFileWriter::Create(path);
+  if (!file.ok()) return file.status();
+  return WriteLaidOut(std::move(*file), h, data, /*edges_in_place=*/false);
+}
+
+absl::StatusOr<GraphFileDraft> GraphFileDraft::Create(const std::string& path, uint32_t num_nodes) {
+  auto file = AtomicFileWriter::Create(path);
+  if (!file.ok()) return file.status();
+  // The edges follow the header and the offsets, from a page boundary on so
+  // that the build can map them.
+  const uint64_t page = PageSize();
+  const uint64_t edges_at = (kHeaderBytes + 8 * (uint64_t{num_nodes} + 1) + page - 1) / page * page;
+  return GraphFileDraft(std::move(*file), num_nodes, edges_at);
+}
+
+absl::Status GraphFileDraft::Finish(const DggGraph& graph) && {
+  const LargeArray<DggEdge>& edges = graph.storage_->arrays.edges;
+  const bool in_place = edges.file_backed() && edges.backing_fd() == file_.fd();
+  if (in_place && graph.num_nodes() != num_nodes_) {
+    return absl::InternalError(
+        absl::StrFormat("a graph of %u nodes was built into a file laid out for %u",
+                        graph.num_nodes(), num_nodes_));
+  }
+  const SectionData data = SectionsOf(graph);
+  // Where the build did not keep its edges here (a build that added pseudo
+  // vertices, or a merge), they are written like any other section.
+  const Header h = LayOut(graph, data, in_place ? edges_offset_ : 0);
+  if (in_place && h.sections[kEdges].offset != edges_offset_) {
+    return absl::InternalError("the edges section moved from where the build kept it");
+  }
+  // Pages written through the mapping are the file's; fsync at commit
+  // writes them with the rest.
+  return WriteLaidOut(std::move(file_), h, data, in_place);
 }
 
 namespace {

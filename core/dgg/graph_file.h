@@ -16,6 +16,8 @@
 #include <string>
 
 #include "absl/status/statusor.h"
+#include "core/base/atomic_file.h"
+#include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_graph.h"
 #include "core/mesh/mesh.h"
 
@@ -35,6 +37,8 @@ inline constexpr uint32_t kGraphFormatVersion = 3;
 // Offline builds and merges that write into a daemon's directory use the
 // same name.
 std::string GraphFileName(uint64_t mesh_fingerprint, const DggParams& params);
+
+class GraphFileDraft;
 
 class GraphFile {
  public:
@@ -65,6 +69,29 @@ class GraphFile {
   };
   // Reads the header and verifies every section checksum.
   static absl::StatusOr<Info> Inspect(const std::string& path);
+};
+
+// A graph file written around its build: the build keeps the graph's edge
+// array, its largest part by far, in this file at the place of the edges
+// section (DggBuildOptions::edge_file), so the edges take page cache, which
+// the kernel writes back and reclaims, instead of memory the build holds;
+// Finish adds the other sections around them and commits as Write does. For
+// builds whose node count is known before they run: without pseudo vertices,
+// one node per mesh vertex. A build that did not use the file is written
+// whole by Finish. Dropped without Finish, nothing is left.
+class GraphFileDraft {
+ public:
+  static absl::StatusOr<GraphFileDraft> Create(const std::string& path, uint32_t num_nodes);
+  DggEdgeFile edge_file() const { return {file_.fd(), edges_offset_}; }
+  absl::Status Finish(const DggGraph& graph) &&;
+
+ private:
+  GraphFileDraft(AtomicFileWriter file, uint32_t num_nodes, uint64_t edges_offset)
+      : file_(std::move(file)), num_nodes_(num_nodes), edges_offset_(edges_offset) {}
+
+  AtomicFileWriter file_;
+  uint32_t num_nodes_;
+  uint64_t edges_offset_;
 };
 
 }  // namespace geodesic

@@ -6,6 +6,7 @@
 #include <cstdio>
 #include <filesystem>
 #include <functional>
+#include <optional>
 #include <string_view>
 #include <vector>
 
@@ -56,15 +57,22 @@ void PrintCertificate(const GraphCertificate& c) {
 
 // Writes the graph, and its certificate beside it (or removes a stale one),
 // and prints what `build` and `merge` report.
+// Where the graph goes: --out, or its name under --graph-dir (made if need be).
+std::string GraphPath(const std::string& out_path, const std::string& graph_dir,
+                      uint64_t mesh_fingerprint, const DggParams& params) {
+  if (!out_path.empty()) return out_path;
+  std::error_code ignored;  // a failure shows up as the write's error
+  std::filesystem::create_directories(graph_dir, ignored);
+  return graph_dir + "/" + GraphFileName(mesh_fingerprint, params);
+}
+
 int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                    const DggBuildStats& stats, std::string out_path, const std::string& graph_dir,
-                   int threads, bool json, const GraphCertificate* certificate = nullptr) {
-  if (out_path.empty()) {
-    std::error_code ignored;  // a failure shows up as the write's error
-    std::filesystem::create_directories(graph_dir, ignored);
-    out_path = graph_dir + "/" + GraphFileName(graph.mesh_fingerprint(), graph.params());
-  }
-  absl::Status written = GraphFile::Write(graph, out_path);
+                   int threads, bool json, const GraphCertificate* certificate = nullptr,
+                   std::optional<GraphFileDraft> draft = std::nullopt) {
+  out_path = GraphPath(out_path, graph_dir, graph.mesh_fingerprint(), graph.params());
+  absl::Status written =
+      draft ? std::move(*draft).Finish(graph) : GraphFile::Write(graph, out_path);
   if (written.ok()) {
     written =
         certificate ? WriteCertificate(out_path, graph, *certificate) : RemoveCertificate(out_path);
@@ -290,12 +298,23 @@ int RunBuild(int argc, char** argv) {
     return BuildPart(**mesh, options, f.part, f.out_path, f.json);
   }
   if (app.count("--max-error")) return BuildCertified(*mesh, options, f);
+  // The edges go straight into the graph file as the build makes them, so
+  // that they never take the build's memory (GraphFileDraft).
+  std::optional<GraphFileDraft> draft;
+  if (!f.pseudo) {
+    auto created = GraphFileDraft::Create(
+        GraphPath(f.out_path, f.graph_dir, MeshFingerprint(**mesh), options.params),
+        (*mesh)->num_vertices());
+    if (!created.ok()) return Fail("build", created.status());
+    draft.emplace(std::move(*created));
+    options.edge_file = draft->edge_file();
+  }
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("build", graph.status());
-  return WriteAndReport("build", **mesh, **graph, stats, f.out_path, f.graph_dir, f.threads,
-                        f.json);
+  return WriteAndReport("build", **mesh, **graph, stats, f.out_path, f.graph_dir, f.threads, f.json,
+                        nullptr, std::move(draft));
 }
 
 int RunMerge(int argc, char** argv) {

@@ -6,13 +6,16 @@
 #include <sys/resource.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <set>
 
 #include "absl/strings/str_cat.h"
+#include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_graph_internal.h"
+#include "core/mesh/mesh_io.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"
 
@@ -224,4 +227,87 @@ TEST(GraphFileTest, DirectoryInsteadOfAFileIsAnError) {
 }
 
 }  // namespace
+
+// Every array of two graphs, element by element.
+void ExpectSameGraph(const DggGraph& a, const DggGraph& b) {
+  ASSERT_GT(a.num_directed_edges(), 0u);
+  ASSERT_EQ(a.num_nodes(), b.num_nodes());
+  EXPECT_TRUE(std::ranges::equal(a.offsets(), b.offsets()));
+  ASSERT_EQ(a.edges().size(), b.edges().size());
+  for (size_t i = 0; i < a.edges().size(); ++i) {
+    ASSERT_EQ(a.edges()[i].target, b.edges()[i].target) << "edge " << i;
+    ASSERT_EQ(a.edges()[i].weight, b.edges()[i].weight) << "edge " << i;
+    ASSERT_EQ(a.edges()[i].fan.begin, b.edges()[i].fan.begin) << "edge " << i;
+    ASSERT_EQ(a.edges()[i].fan.count, b.edges()[i].fan.count) << "edge " << i;
+  }
+  EXPECT_TRUE(std::ranges::equal(a.angles(), b.angles()));
+  EXPECT_TRUE(std::ranges::equal(a.node_of_vertex(), b.node_of_vertex()));
+  EXPECT_TRUE(std::ranges::equal(a.vertex_of_node(), b.vertex_of_node()));
+}
+
+// The build keeps its edges in the draft's file, at the edges section, and
+// the finished file is the graph the same build writes from memory.
+TEST(GraphFileDraftTest, ABuildIntoItsFileIsTheGraphWrittenAfterTheBuild) {
+  auto mesh = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(mesh);
+  TempDir dir;
+  DggBuildOptions options;
+  options.params.epsilon = 1e-2;
+  auto in_memory = BuildDgg(*mesh, options);
+  ASSERT_OK(in_memory);
+  ASSERT_OK(GraphFile::Write(**in_memory, dir.File("memory.dgg")));
+
+  auto draft = GraphFileDraft::Create(dir.File("draft.dgg"), mesh->num_vertices());
+  ASSERT_OK(draft);
+  options.edge_file = draft->edge_file();
+  auto in_file = BuildDgg(*mesh, options);
+  ASSERT_OK(in_file);
+  // Before Finish the edges are already in the file (a temporary beside it).
+  uint64_t largest = 0;
+  for (const auto& entry : std::filesystem::directory_iterator(dir.path())) {
+    if (entry.path().filename() != "memory.dgg")
+      largest = std::max<uint64_t>(largest, entry.file_size());
+  }
+  EXPECT_GE(largest, options.edge_file.offset + (*in_file)->edges().size_bytes());
+  ASSERT_OK(std::move(*draft).Finish(**in_file));
+
+  auto opened = GraphFile::Open(dir.File("draft.dgg"), *mesh, GraphFile::Check::kFull);
+  ASSERT_OK(opened);
+  auto written = GraphFile::Open(dir.File("memory.dgg"), *mesh, GraphFile::Check::kFull);
+  ASSERT_OK(written);
+  ExpectSameGraph(**written, **opened);
+  ExpectSameGraph(**in_memory, **in_file);
+}
+
+// Pseudo vertices change the node count the layout was made for: the build
+// keeps its edges in memory and Finish writes them like any section.
+TEST(GraphFileDraftTest, APseudoVertexBuildIsWrittenWhole) {
+  auto mesh = LoadMesh(testing::SourcePath("data/spot.obj"));
+  ASSERT_OK(mesh);
+  TempDir dir;
+  DggBuildOptions options;
+  options.params.epsilon = 5e-2;
+  options.params.pseudo_vertices = true;
+  auto draft = GraphFileDraft::Create(dir.File("pseudo.dgg"), mesh->num_vertices());
+  ASSERT_OK(draft);
+  options.edge_file = draft->edge_file();
+  auto graph = BuildDgg(*mesh, options);
+  ASSERT_OK(graph);
+  ASSERT_OK(std::move(*draft).Finish(**graph));
+  auto opened = GraphFile::Open(dir.File("pseudo.dgg"), *mesh, GraphFile::Check::kFull);
+  ASSERT_OK(opened);
+  ExpectSameGraph(**graph, **opened);
+}
+
+// A draft dropped without Finish (a failed or cancelled build) leaves
+// nothing behind.
+TEST(GraphFileDraftTest, ADraftDroppedLeavesNoFile) {
+  TempDir dir;
+  {
+    auto draft = GraphFileDraft::Create(dir.File("dropped.dgg"), 100);
+    ASSERT_OK(draft);
+  }
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+}
+
 }  // namespace geodesic
