@@ -135,9 +135,21 @@ SectionData SectionsOf(const DggGraph& graph) {
   }};
 }
 
+uint64_t PageSize() { return static_cast<uint64_t>(sysconf(_SC_PAGESIZE)); }
+
+// The edges follow the header and the offsets from a page boundary on, so
+// that a build can keep them mapped in the file it is writing
+// (GraphFileDraft); every writer lays them out there, so that a graph's file
+// is the same whichever wrote it.
+uint64_t EdgesOffset(uint32_t num_nodes) {
+  const uint64_t page = PageSize();
+  return (kHeaderBytes + 8 * (uint64_t{num_nodes} + 1) + page - 1) / page * page;
+}
+
 // The header of `graph`'s file: sections in order after the header, each
-// 64-byte aligned, the edges no earlier than `edges_at`.
-Header LayOut(const DggGraph& graph, const SectionData& data, uint64_t edges_at) {
+// 64-byte aligned, the edges at EdgesOffset.
+Header LayOut(const DggGraph& graph, const SectionData& data) {
+  const uint64_t edges_at = EdgesOffset(graph.num_nodes());
   Header h{};
   std::memcpy(h.magic, kMagic, sizeof(kMagic));
   h.version = kGraphFormatVersion;
@@ -188,13 +200,11 @@ absl::Status WriteLaidOut(AtomicFileWriter file, const Header& h, const SectionD
   return std::move(file).Commit();
 }
 
-uint64_t PageSize() { return static_cast<uint64_t>(sysconf(_SC_PAGESIZE)); }
-
 }  // namespace
 
 absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
   const SectionData data = SectionsOf(graph);
-  const Header h = LayOut(graph, data, 0);
+  const Header h = LayOut(graph, data);
   auto file = AtomicFileWriter::Create(path);
   if (!file.ok()) return file.status();
   return WriteLaidOut(std::move(*file), h, data, /*edges_in_place=*/false);
@@ -203,11 +213,7 @@ absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
 absl::StatusOr<GraphFileDraft> GraphFileDraft::Create(const std::string& path, uint32_t num_nodes) {
   auto file = AtomicFileWriter::Create(path);
   if (!file.ok()) return file.status();
-  // The edges follow the header and the offsets, from a page boundary on so
-  // that the build can map them.
-  const uint64_t page = PageSize();
-  const uint64_t edges_at = (kHeaderBytes + 8 * (uint64_t{num_nodes} + 1) + page - 1) / page * page;
-  return GraphFileDraft(std::move(*file), num_nodes, edges_at);
+  return GraphFileDraft(std::move(*file), num_nodes, EdgesOffset(num_nodes));
 }
 
 absl::Status GraphFileDraft::Finish(const DggGraph& graph) && {
@@ -221,7 +227,7 @@ absl::Status GraphFileDraft::Finish(const DggGraph& graph) && {
   const SectionData data = SectionsOf(graph);
   // Where the build did not keep its edges here (a build that added pseudo
   // vertices, or a merge), they are written like any other section.
-  const Header h = LayOut(graph, data, in_place ? edges_offset_ : 0);
+  const Header h = LayOut(graph, data);
   if (in_place && h.sections[kEdges].offset != edges_offset_) {
     return absl::InternalError("the edges section moved from where the build kept it");
   }
