@@ -7,7 +7,9 @@
 With --subdivide K the mesh is first subdivided 1-to-4 K times
 (bench/subdivide_mesh.py; 800K -> 3.2M vertices for K = 1), so no large file
 is stored. Reports, as JSON and as a Markdown line for BENCHMARKS.md: build
-time and phases, peak resident memory (the build's own getrusage), graph file
+time and phases, peak resident memory (the build's own getrusage, which counts
+the graph file's pages the build maps) and peak anonymous memory (sampled),
+graph file
 and mesh bytes and the peak's ratio to their sum, graph open time (header
 checks and map; and with every checksum and index checked), field solve time
 from a few vertices, and point-to-point latency between random face points.
@@ -20,6 +22,7 @@ import random
 import statistics
 import subprocess
 import sys
+import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -30,6 +33,27 @@ def run(args, env=None):
     if result.returncode != 0:
         sys.exit(f"{' '.join(args)} failed ({result.returncode}):\n{result.stderr[-2000:]}")
     return result.stdout
+
+
+def run_sampled(args):
+    """Runs a command, sampling its resident anonymous memory (RssAnon, which
+    getrusage's peak does not tell apart from mapped file pages) every 0.1 s;
+    returns its output and the largest sample in bytes."""
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    peak = 0
+    while proc.poll() is None:
+        try:
+            with open(f"/proc/{proc.pid}/status") as f:
+                for line in f:
+                    if line.startswith("RssAnon:"):
+                        peak = max(peak, int(line.split()[1]) * 1024)
+        except OSError:
+            pass
+        time.sleep(0.1)
+    out, err = proc.communicate()
+    if proc.returncode != 0:
+        sys.exit(f"{' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
+    return out, peak
 
 
 def main():
@@ -44,6 +68,7 @@ def main():
     parser.add_argument("--pairs", type=int, default=200, help="face-point pairs")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--rebuild", action="store_true")
+    parser.add_argument("--build-memory-limit", help="passed to geodesicd build")
     args = parser.parse_args()
     os.makedirs(args.work, exist_ok=True)
     geodesicd = os.path.join(args.bin, "geodesicd")
@@ -60,10 +85,14 @@ def main():
     graph = os.path.join(args.work, f"graph-{args.eps:g}.dgg")
     build_json = graph + ".build.json"
     if args.rebuild or not os.path.exists(build_json) or not os.path.exists(graph):
-        out = run([geodesicd, "build", mesh, "--eps", str(args.eps), "--threads",
-                   str(args.threads), "--json", "--quiet", "--out", graph])
+        limit = ["--build-memory-limit", args.build_memory_limit] if args.build_memory_limit else []
+        out, anonymous = run_sampled([geodesicd, "build", mesh, "--eps", str(args.eps),
+                                      "--threads", str(args.threads), "--json", "--quiet",
+                                      "--out", graph] + limit)
+        build = json.loads(out)
+        build["peak_anonymous_bytes"] = anonymous
         with open(build_json, "w") as f:
-            f.write(out)
+            json.dump(build, f)
     with open(build_json) as f:
         build = json.load(f)
 
@@ -107,6 +136,8 @@ def main():
         "fan_seconds": build["fan_seconds"], "edges": build["edges"],
         "average_degree": build["average_degree"],
         "peak_memory_bytes": build["peak_memory_bytes"], "file_bytes": build["file_bytes"],
+        "peak_anonymous_bytes": build.get("peak_anonymous_bytes"),
+        "spilled_bytes": build.get("spilled_bytes"),
         "mesh_bytes": build["mesh_bytes"],
         "peak_over_file_and_mesh": build["peak_memory_bytes"] /
                                    (build["file_bytes"] + build["mesh_bytes"]),
