@@ -375,11 +375,22 @@ int RunMerge(int argc, char** argv) {
   options.threads = threads;
   options.pseudo_vertex_limit = pseudo_limit;
   options.progress = ProgressBar(!json && !quiet);
+  // As a build does, the merge keeps its edges in the graph file it writes.
+  std::optional<GraphFileDraft> draft;
+  if (!parts.empty() && !parts.front().index.params.pseudo_vertices) {
+    auto created = GraphFileDraft::Create(
+        GraphPath(out_path, graph_dir, MeshFingerprint(**mesh), parts.front().index.params),
+        (*mesh)->num_vertices());
+    if (!created.ok()) return Fail("merge", created.status());
+    draft.emplace(std::move(*created));
+    options.edge_file = draft->edge_file();
+  }
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("merge", graph.status());
-  return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json);
+  return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json,
+                        nullptr, std::move(draft));
 }
 
 }  // namespace geodesic::offline
