@@ -210,9 +210,7 @@ void ExactGeodesic::Reset() {
     excluded_[v] = 0;
   }
   touched_.clear();
-  for (HalfedgeId h : seen_touched_) seen_slot_[h] = kNone;
-  seen_touched_.clear();
-  seen_slots_.clear();
+  ClearSeen();
   windows_.clear();
   free_windows_.clear();
   heap_.Clear();
@@ -388,13 +386,17 @@ void ExactGeodesic::RememberSeen(const Window& w) {
   uint32_t& slot = seen_slot_[w.h];
   if (slot == kNone) {
     slot = seen_slots_.size();
-    seen_slots_.emplace_back();
-    seen_touched_.push_back(w.h);
+    seen_slots_.push_back({.h = w.h});
   }
   SeenSlot& seen = seen_slots_[slot];
   seen.windows[seen.next] = {w.b0, w.b1, w.sx, w.sy, w.sigma};
   seen.next = (seen.next + 1) % kSeenPerEdge;
   seen.count = std::min<int>(seen.count + 1, kSeenPerEdge);
+}
+
+void ExactGeodesic::ClearSeen() {
+  for (const SeenSlot& s : seen_slots_) seen_slot_[s.h] = kNone;
+  seen_slots_.clear();
 }
 
 double ExactGeodesic::Nearest(const Window& w) {
@@ -810,7 +812,8 @@ void ExactGeodesic::ReleaseLargeWindows() {
   }
   windows_ = {};
   free_windows_ = {};
-  seen_slots_ = {};
+  ClearSeen();
+  seen_slots_.shrink_to_fit();
   have_source_ = false;  // nothing left to trace
 }
 
@@ -819,7 +822,7 @@ uint64_t ExactGeodesic::memory_bytes() const {
   return sizeof(*this) + bytes(dist_) + bytes(via_window_) + bytes(via_vertex_) +
          bytes(angle_src_) + bytes(angle_vtx_) + bytes(emitted_) + bytes(route_) +
          bytes(excluded_) + bytes(touched_) + bytes(seen_slot_) + bytes(seen_slots_) +
-         bytes(seen_touched_) + bytes(windows_) + bytes(free_windows_) + heap_.memory_bytes();
+         bytes(windows_) + bytes(free_windows_) + heap_.memory_bytes();
 }
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,

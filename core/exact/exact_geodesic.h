@@ -278,11 +278,12 @@ class ExactGeodesic {
   static constexpr int kSeenPerEdge = 2;
   struct SeenSlot {
     SeenWindow windows[kSeenPerEdge];
+    HalfedgeId h;  // whose slot, for clearing seen_slot_
     uint8_t count = 0, next = 0;
   };
   std::vector<uint32_t> seen_slot_;  // per half-edge, kNone: no slot yet
   std::vector<SeenSlot> seen_slots_;
-  std::vector<HalfedgeId> seen_touched_;
+  void ClearSeen();
 
   std::vector<Window> windows_;
   std::vector<uint32_t> free_windows_;
