@@ -57,7 +57,7 @@ class LargeArray {
     fd_ = fd;
     offset_ = offset;
   }
-  bool file_backed() const { return fd_ >= 0; }
+  // BackWithFile's file, or -1.
   int backing_fd() const { return fd_; }
 
   // New elements are zero. Throws std::bad_alloc when the system has no

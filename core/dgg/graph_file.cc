@@ -164,7 +164,7 @@ Header LayOut(const DggGraph& graph, const SectionData& data) {
   for (uint32_t i = 0; i < kSectionCount; ++i) {
     SectionEntry& s = h.sections[i];
     std::strncpy(s.name, kSectionNames[i], sizeof(s.name) - 1);
-    if (i == kEdges) offset = std::max(offset, edges_at);
+    if (i == kEdges) offset = edges_at;
     s.offset = offset;
     s.bytes = data[i].second;
     s.element_size = kElementSize[i];
@@ -217,20 +217,16 @@ absl::StatusOr<GraphFileDraft> GraphFileDraft::Create(const std::string& path, u
 }
 
 absl::Status GraphFileDraft::Finish(const DggGraph& graph) && {
-  const LargeArray<DggEdge>& edges = graph.storage_->arrays.edges;
-  const bool in_place = edges.file_backed() && edges.backing_fd() == file_.fd();
+  const bool in_place = graph.storage_->arrays.edges.backing_fd() == file_.fd();
   if (in_place && graph.num_nodes() != num_nodes_) {
     return absl::InternalError(
         absl::StrFormat("a graph of %u nodes was built into a file laid out for %u",
                         graph.num_nodes(), num_nodes_));
   }
   const SectionData data = SectionsOf(graph);
-  // Where the build did not keep its edges here (a build that added pseudo
-  // vertices, or a merge), they are written like any other section.
+  // Where the build did not keep its edges here (it added pseudo vertices),
+  // they are written like any other section.
   const Header h = LayOut(graph, data);
-  if (in_place && h.sections[kEdges].offset != edges_offset_) {
-    return absl::InternalError("the edges section moved from where the build kept it");
-  }
   // Pages written through the mapping are the file's; fsync at commit
   // writes them with the rest.
   return WriteLaidOut(std::move(file_), h, data, in_place);
