@@ -16,6 +16,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "absl/strings/str_split.h"
+#include "core/base/status.h"
 #include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_part_file.h"
 #include "core/dgg/graph_file.h"
@@ -55,8 +56,6 @@ void PrintCertificate(const GraphCertificate& c) {
       static_cast<unsigned long long>(c.seed), c.epsilon, c.builds, c.builds == 1 ? "" : "s");
 }
 
-// Writes the graph, and its certificate beside it (or removes a stale one),
-// and prints what `build` and `merge` report.
 // Where the graph goes: --out, or its name under --graph-dir (made if need be).
 std::string GraphPath(const std::string& out_path, const std::string& graph_dir,
                       uint64_t mesh_fingerprint, const DggParams& params) {
@@ -65,6 +64,25 @@ std::string GraphPath(const std::string& out_path, const std::string& graph_dir,
   std::filesystem::create_directories(graph_dir, ignored);
   return graph_dir + "/" + GraphFileName(mesh_fingerprint, params);
 }
+
+// The graph file a build or merge keeps its edges in as it makes them, so
+// that they never take its memory (GraphFileDraft); none with pseudo
+// vertices, whose node count the build decides.
+absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const Mesh& mesh, const DggParams& params,
+                                                       const std::string& out_path,
+                                                       const std::string& graph_dir,
+                                                       DggBuildOptions& options) {
+  if (params.pseudo_vertices) return std::nullopt;
+  ASSIGN_OR_RETURN(
+      GraphFileDraft draft,
+      GraphFileDraft::Create(GraphPath(out_path, graph_dir, MeshFingerprint(mesh), params),
+                             mesh.num_vertices()));
+  options.edge_file = draft.edge_file();
+  return std::optional<GraphFileDraft>(std::move(draft));
+}
+
+// Writes the graph, and its certificate beside it (or removes a stale one),
+// and prints what `build` and `merge` report.
 
 int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                    const DggBuildStats& stats, std::string out_path, const std::string& graph_dir,
@@ -298,23 +316,14 @@ int RunBuild(int argc, char** argv) {
     return BuildPart(**mesh, options, f.part, f.out_path, f.json);
   }
   if (app.count("--max-error")) return BuildCertified(*mesh, options, f);
-  // The edges go straight into the graph file as the build makes them, so
-  // that they never take the build's memory (GraphFileDraft).
-  std::optional<GraphFileDraft> draft;
-  if (!f.pseudo) {
-    auto created = GraphFileDraft::Create(
-        GraphPath(f.out_path, f.graph_dir, MeshFingerprint(**mesh), options.params),
-        (*mesh)->num_vertices());
-    if (!created.ok()) return Fail("build", created.status());
-    draft.emplace(std::move(*created));
-    options.edge_file = draft->edge_file();
-  }
+  auto draft = DraftFor(**mesh, options.params, f.out_path, f.graph_dir, options);
+  if (!draft.ok()) return Fail("build", draft.status());
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("build", graph.status());
   return WriteAndReport("build", **mesh, **graph, stats, f.out_path, f.graph_dir, f.threads, f.json,
-                        nullptr, std::move(draft));
+                        nullptr, std::move(*draft));
 }
 
 int RunMerge(int argc, char** argv) {
@@ -375,22 +384,17 @@ int RunMerge(int argc, char** argv) {
   options.threads = threads;
   options.pseudo_vertex_limit = pseudo_limit;
   options.progress = ProgressBar(!json && !quiet);
-  // As a build does, the merge keeps its edges in the graph file it writes.
-  std::optional<GraphFileDraft> draft;
-  if (!parts.empty() && !parts.front().index.params.pseudo_vertices) {
-    auto created = GraphFileDraft::Create(
-        GraphPath(out_path, graph_dir, MeshFingerprint(**mesh), parts.front().index.params),
-        (*mesh)->num_vertices());
-    if (!created.ok()) return Fail("merge", created.status());
-    draft.emplace(std::move(*created));
-    options.edge_file = draft->edge_file();
-  }
+  // The parts carry the graph's build record (checked alike by the merge).
+  auto draft = parts.empty()
+                   ? absl::StatusOr<std::optional<GraphFileDraft>>(std::nullopt)
+                   : DraftFor(**mesh, parts.front().index.params, out_path, graph_dir, options);
+  if (!draft.ok()) return Fail("merge", draft.status());
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);
   if (options.progress) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("merge", graph.status());
   return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json,
-                        nullptr, std::move(draft));
+                        nullptr, std::move(*draft));
 }
 
 }  // namespace geodesic::offline
