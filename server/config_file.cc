@@ -7,6 +7,7 @@
 
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "server/graph_cache.h"
 #include "yaml-cpp/yaml.h"
 
 namespace geodesic::server {
@@ -92,9 +93,9 @@ ServeConfig Parse(const YAML::Node& root) {
                                "epsilon is chosen by its build, give one of them",
                                where));
         g.max_error = Scalar<double>(graphs[i], "max_error", where, "a number");
-        // RequestGraph's range (GeodesicService::Key); NaN fails it too.
-        Expect(g.max_error >= 1e-5 && g.max_error <= 0.5, graphs[i]["max_error"],
-               absl::StrFormat("%s.max_error must be in [1e-5, 0.5], not %g", where, g.max_error));
+        Expect(IsCertifiableBound(g.max_error), graphs[i]["max_error"],
+               absl::StrFormat("%s.max_error must be in %s, not %g", where, kMaxErrorRange,
+                               g.max_error));
       } else {
         Expect(graphs[i]["eps"].IsDefined(), graphs[i],
                absl::StrFormat("%s needs 'eps' (or 'max_error', for a certified graph)", where));

@@ -197,9 +197,9 @@ absl::StatusOr<GraphKey> GeodesicService::Key(const v1::GraphSelector& graph) co
     // A certified graph: the bound chooses the epsilon, whatever the
     // selector says (a query's echo names the one it was built with).
     const double bound = graph.max_error();
-    if (!(bound >= 1e-5 && bound <= 0.5)) {
+    if (!IsCertifiableBound(bound)) {
       return absl::InvalidArgumentError(
-          absl::StrFormat("max_error %g is outside [1e-5, 0.5]", bound));
+          absl::StrFormat("max_error %g is outside %s", bound, kMaxErrorRange));
     }
     key.max_error = bound;
     key.params.epsilon = CertifiedKeyEpsilon(bound);

@@ -105,6 +105,14 @@ struct GraphKey {
 // estimate admission uses).
 double CertifiedKeyEpsilon(double max_error);
 
+// The bounds a certified graph may be asked for, by a request or a config
+// file: [1e-5, 0.5] (NaN is outside).
+inline constexpr double kMinMaxError = 1e-5, kMaxMaxError = 0.5;
+inline constexpr char kMaxErrorRange[] = "[1e-5, 0.5]";  // for messages
+inline bool IsCertifiableBound(double max_error) {
+  return max_error >= kMinMaxError && max_error <= kMaxMaxError;
+}
+
 // The graph's file name in --graph-dir: GraphFileName for a plain graph;
 // for a certified one the bound takes the epsilon's place
 // ("<fingerprint>-cert0.01-r2.dgg"), since the epsilon is chosen by the
