@@ -210,6 +210,8 @@ void ExactGeodesic::Reset() {
     excluded_[v] = 0;
   }
   touched_.clear();
+  for (VertexId v : floored_) floor_at_[v] = std::nan("");
+  floored_.clear();
   ClearSeen();
   windows_.clear();
   free_windows_.clear();
@@ -252,11 +254,14 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   }
 }
 
-bool ExactGeodesic::PastGoal(VertexId v, double d) const {
+bool ExactGeodesic::PastGoal(VertexId v, double d) {
   // Every window v would radiate starts at v, so none could reach the goal
   // within the bound either: testing the vertex once spares making and
   // trimming a window per face of its fan.
-  return goal_ && d + Distance(mesh_.position(v), *goal_) > max_distance_;
+  if (!goal_) return false;
+  double gap = Distance(mesh_.position(v), *goal_);
+  if (goal_floor_) gap = std::max(gap, FloorAt(v));
+  return d + gap > max_distance_;
 }
 
 bool ExactGeodesic::Trim(Window& w, const EdgeEnds& edge) const {
@@ -420,13 +425,32 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   return true;
 }
 
-double ExactGeodesic::GoalGap(const Window& w, const EdgeEnds& edge) const {
+double ExactGeodesic::GoalGap(const Window& w, const EdgeEnds& edge) {
   const Vec3& p = mesh_.position(edge.tail);
   const Vec3 along = (mesh_.position(edge.head) - p) * (1 / edge.length);
   const Vec3 from_p = *goal_ - p;
   // The goal's foot on the edge line, clamped to the window's interval.
   const double t = std::clamp(Dot(from_p, along), w.b0, w.b1);
-  return Norm(from_p - along * t);
+  const double straight = Norm(from_p - along * t);
+  if (!goal_floor_) return straight;
+  // A point x along the edge is at least floor(tail) - x and floor(head) -
+  // (L - x) from the goal (the edge is a path on the surface); the larger of
+  // the two is least where they cross, or at the window's nearer end.
+  const double f_tail = FloorAt(edge.tail), f_head = FloorAt(edge.head);
+  // An edge's ends share a component: a goal beyond it is beyond both.
+  if (f_tail == kInf || f_head == kInf) return kInf;
+  const double x = std::clamp((f_tail - f_head + edge.length) / 2, w.b0, w.b1);
+  return std::max(straight, std::max(f_tail - x, f_head - (edge.length - x)));
+}
+
+double ExactGeodesic::FloorAt(VertexId v) {
+  if (floor_at_.empty()) floor_at_.assign(mesh_.num_vertices(), std::nan(""));
+  double& f = floor_at_[v];
+  if (std::isnan(f)) {
+    f = goal_floor_->At(v);
+    floored_.push_back(v);
+  }
+  return f;
 }
 
 void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma,
@@ -821,17 +845,20 @@ uint64_t ExactGeodesic::memory_bytes() const {
   auto bytes = [](const auto& v) { return uint64_t{v.capacity()} * sizeof(v[0]); };
   return sizeof(*this) + bytes(dist_) + bytes(via_window_) + bytes(via_vertex_) +
          bytes(angle_src_) + bytes(angle_vtx_) + bytes(emitted_) + bytes(route_) +
-         bytes(excluded_) + bytes(touched_) + bytes(seen_slot_) + bytes(seen_slots_) +
-         bytes(windows_) + bytes(free_windows_) + heap_.memory_bytes();
+         bytes(excluded_) + bytes(touched_) + bytes(floor_at_) + bytes(floored_) +
+         bytes(seen_slot_) + bytes(seen_slots_) + bytes(windows_) + bytes(free_windows_) +
+         heap_.memory_bytes();
 }
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,
                                                              const ExactOptions& options) {
   goal_ = options.goal;
+  goal_floor_ = options.goal ? options.goal_floor : nullptr;
   max_window_bytes_ = options.max_window_bytes;
   absl::Status run = Run(source, Mode::kFull, options.max_distance, &options.targets,
                          options.keep_windows, &options.cancelled, 0);
   goal_.reset();
+  goal_floor_ = nullptr;
   max_window_bytes_ = 0;
   RETURN_IF_ERROR(run);
   std::vector<double> out(mesh_.num_vertices(), kInf);

@@ -59,6 +59,17 @@
 
 namespace geodesic {
 
+// Lower bounds on each vertex's distance to a run's goal, tighter than the
+// straight line on a curved surface (core/query/exact_landmarks.h makes them
+// from exact fields of a few landmarks). Any valid bounds keep the goal's
+// distance exact; tighter ones leave fewer windows.
+class GoalFloor {
+ public:
+  virtual ~GoalFloor() = default;
+  // At most the geodesic distance from v to the goal.
+  virtual double At(VertexId v) const = 0;
+};
+
 struct ExactOptions {
   // Stop once the wavefront passes this distance; vertices beyond are +inf.
   double max_distance = std::numeric_limits<double>::infinity();
@@ -76,6 +87,10 @@ struct ExactOptions {
   // disc of radius max_distance is never swept; other vertices' distances
   // are then only upper bounds.
   std::optional<Vec3> goal;
+  // With goal: bounds that tighten the straight line (a window's segment is
+  // no nearer the goal than its edge's ends' bounds less their distance
+  // along the edge). Must outlive the run.
+  const GoalFloor* goal_floor = nullptr;
   // The most bytes of windows the run may hold (0: no limit); past it the
   // run stops with RESOURCE_EXHAUSTED. A server bounds a query's memory so.
   uint64_t max_window_bytes = 0;
@@ -218,7 +233,7 @@ class ExactGeodesic {
   }
   // Whether no route through v, reached at d, can reach the goal within the
   // run's bound.
-  bool PastGoal(VertexId v, double d) const;
+  bool PastGoal(VertexId v, double d);
   bool Trim(Window& w, const EdgeEnds& edge) const;
   bool TrimByRelays(Window& w) const;
   void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
@@ -233,9 +248,12 @@ class ExactGeodesic {
   bool TrimAndPush(Window& w, const EdgeEnds& edge);
   // The distance from the source to the window's nearest point: its key.
   static double Nearest(const Window& w);
-  // The straight-line distance from the goal to the part of `edge` a window
-  // covers.
-  double GoalGap(const Window& w, const EdgeEnds& edge) const;
+  // A lower bound on the distance from the part of `edge` a window covers to
+  // the goal: the straight line, or the goal floor's, whichever is larger.
+  double GoalGap(const Window& w, const EdgeEnds& edge);
+  // The goal floor at v, asked of it once per run: every window on an edge
+  // of v reads it.
+  double FloorAt(VertexId v);
   uint32_t Allocate(const Window& w);
   // What the run's windows hold: the windows and the seen slots.
   uint64_t WindowBytes() const;
@@ -253,7 +271,10 @@ class ExactGeodesic {
   double epsilon_ = 0;
   bool relays_ = false;  // direct mode with epsilon: stop rays served by corners
   double max_distance_ = 0;
-  std::optional<Vec3> goal_;       // ExactOptions::goal of the run
+  std::optional<Vec3> goal_;  // ExactOptions::goal of the run
+  const GoalFloor* goal_floor_ = nullptr;
+  std::vector<double> floor_at_;   // FloorAt's answers, NaN: not asked yet
+  std::vector<VertexId> floored_;  // the vertices FloorAt answered this run
   uint64_t max_window_bytes_ = 0;  // ExactOptions::max_window_bytes of the run
   SurfacePoint source_;
   bool have_source_ = false;

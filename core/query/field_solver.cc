@@ -145,8 +145,10 @@ namespace {
 // Replaces a matrix row of graph distances by exact ones: one propagation
 // from the source, bounded by the row's largest finite entry (each entry is
 // the length of a real surface path, so it bounds the exact distance). With
-// one target the propagation sweeps only what can still reach it.
-absl::Status MakeRowExact(ExactGeodesic& exact, const SurfacePoint& source,
+// one target the propagation sweeps only what can still reach it, judged by
+// the exact landmarks too when they are ready.
+absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
+                          const SurfacePoint& source,
                           absl::Span<const query_internal::Endpoint> targets,
                           const MatrixOptions& matrix, absl::Span<double> row) {
   double bound = -1;
@@ -156,7 +158,12 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const SurfacePoint& source,
   if (bound < 0) return absl::OkStatus();  // nothing reachable
   ExactOptions options =
       query_internal::ExactWithinGraphAnswer(bound, matrix.cancelled, matrix.exact_max_bytes);
-  if (targets.size() == 1) options.goal = targets[0].xyz;
+  std::optional<ExactLandmarks::Floor> floor;
+  if (targets.size() == 1) {
+    options.goal = targets[0].xyz;
+    if (landmarks)
+      options.goal_floor = &floor.emplace(landmarks->FloorFor(exact.mesh(), targets[0].point));
+  }
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(source, options).status());
   for (size_t j = 0; j < targets.size(); ++j) {
@@ -232,8 +239,8 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
       row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
     }
     if (!matrix_options.exact) return absl::OkStatus();
-    return MakeRowExact(row_sc->Exact(mesh), source.point, target_ends, matrix_options,
-                        absl::MakeSpan(row, target_ends.size()));
+    return MakeRowExact(row_sc->Exact(mesh), exact_landmarks_.get(), source.point, target_ends,
+                        matrix_options, absl::MakeSpan(row, target_ends.size()));
   };
   RETURN_IF_ERROR(ForEachInParallel(sources.size(), solve_row));
   return out;

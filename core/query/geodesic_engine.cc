@@ -1,5 +1,5 @@
 // The engine's resident state: the mesh, the graph, the nodes' positions,
-// the scratch pool and the landmarks. Its queries live beside it:
+// the scratch pool and the landmarks (graph and exact). Its queries live beside it:
 // field_solver.cc, point_to_point.cc, sampling.cc.
 #include "core/query/geodesic_engine.h"
 
@@ -27,11 +27,17 @@ GeodesicEngine::~GeodesicEngine() = default;
 
 absl::Status GeodesicEngine::PrepareLandmarks(int count,
                                               const std::function<bool()>& cancelled) const {
-  absl::MutexLock lock(&landmarks_mu_);
-  if (landmarks_storage_) return absl::OkStatus();
-  ASSIGN_OR_RETURN(landmarks_storage_, Landmarks::Compute(*graph_, count, cancelled));
-  landmarks_.store(landmarks_storage_.get(), std::memory_order_release);
-  return absl::OkStatus();
+  return landmarks_.Make([&] { return Landmarks::Compute(*graph_, count, cancelled); });
+}
+
+absl::Status GeodesicEngine::PrepareExactLandmarks(int count,
+                                                   const std::function<bool()>& cancelled) const {
+  return exact_landmarks_.Make([&]() -> absl::StatusOr<std::unique_ptr<const ExactLandmarks>> {
+    SampleOptions sample;
+    sample.cancelled = cancelled;
+    ASSIGN_OR_RETURN(const SampleResult spread, SamplePoints(count, sample));
+    return ExactLandmarks::Compute(*mesh_, spread.vertices, cancelled);
+  });
 }
 
 int GeodesicEngine::DefaultLandmarkCount() const {
@@ -42,7 +48,12 @@ int GeodesicEngine::DefaultLandmarkCount() const {
 }
 
 uint64_t GeodesicEngine::landmark_bytes() const {
-  const Landmarks* l = landmarks_.load(std::memory_order_acquire);
+  const Landmarks* l = landmarks_.get();
+  return l ? l->byte_size() : 0;
+}
+
+uint64_t GeodesicEngine::exact_landmark_bytes() const {
+  const ExactLandmarks* l = exact_landmarks_.get();
   return l ? l->byte_size() : 0;
 }
 

@@ -23,6 +23,7 @@
 #include "core/dgg/dgg_graph.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/surface_point.h"
+#include "core/query/exact_landmarks.h"
 #include "core/query/graph_search.h"
 #include "core/query/landmarks.h"
 #include "core/query/query_scratch.h"
@@ -30,6 +31,29 @@
 namespace geodesic {
 
 inline constexpr double kInfinity = std::numeric_limits<double>::infinity();
+
+// A value made once, on request, while queries read it: written once under
+// the mutex, then read lock-free.
+template <typename T>
+class MadeOnce {
+ public:
+  const T* get() const { return ready_.load(std::memory_order_acquire); }
+  // Runs `make` unless a value exists; its error leaves none.
+  absl::Status Make(const std::function<absl::StatusOr<std::unique_ptr<const T>>()>& make) {
+    absl::MutexLock lock(&mu_);
+    if (storage_) return absl::OkStatus();
+    absl::StatusOr<std::unique_ptr<const T>> made = make();
+    if (!made.ok()) return made.status();
+    storage_ = *std::move(made);
+    ready_.store(storage_.get(), std::memory_order_release);
+    return absl::OkStatus();
+  }
+
+ private:
+  absl::Mutex mu_;
+  std::unique_ptr<const T> storage_ ABSL_GUARDED_BY(mu_);
+  std::atomic<const T*> ready_{nullptr};
+};
 
 // Both give the graph's shortest distances; they differ in the work done.
 enum class FieldMethod {
@@ -77,7 +101,9 @@ struct PairOptions {
   bool use_astar = true;
   // The exact polyhedral distance (and, with want_path, the exact geodesic)
   // instead of the graph's: a window propagation from the first point that
-  // only sweeps what can still reach the second within the graph's answer.
+  // only sweeps what can still reach the second within the graph's answer,
+  // judged by the straight line and, once GeodesicEngine::
+  // PrepareExactLandmarks has run, by the exact landmarks' bounds.
   bool exact = false;
   // The most bytes of windows an exact pair's propagation may hold (0: no
   // limit): past it the pair fails with RESOURCE_EXHAUSTED.
@@ -154,6 +180,23 @@ class GeodesicEngine {
   int DefaultLandmarkCount() const;
   // Bytes held by the landmark distances (0 before PrepareLandmarks).
   uint64_t landmark_bytes() const;
+
+  // Computes exact distance fields from `count` landmarks spread by
+  // SamplePoints (core/query/exact_landmarks.h): `count` exact single-source
+  // solves over the cores. Until it has run, exact pairs and one-target exact
+  // rows prune by the straight line alone, which is as exact, only slower.
+  // Safe while queries run; once it has succeeded, later calls return at
+  // once. CANCELLED (and no landmarks) if `cancelled` says so.
+  absl::Status PrepareExactLandmarks(int count, const std::function<bool()>& cancelled = {}) const;
+  // What PrepareExactLandmarks holds while it runs, and after.
+  uint64_t ExactLandmarkComputeBytes(int count) const {
+    return ExactLandmarks::ComputeBytes(*mesh_, count);
+  }
+  uint64_t ExactLandmarkBytes(int count) const {
+    return uint64_t{mesh_->num_vertices()} * count * sizeof(float);
+  }
+  // Bytes held by the exact landmark fields (0 before PrepareExactLandmarks).
+  uint64_t exact_landmark_bytes() const;
   // Bytes of query scratch held for this engine (core/query/query_scratch.h).
   uint64_t scratch_bytes() const { return scratch_.bytes(); }
 
@@ -190,10 +233,8 @@ class GeodesicEngine {
   std::vector<Vec3> node_xyz_;
   BucketShape buckets_;
   mutable ScratchPool scratch_;
-  // Written once under the mutex, then read lock-free by every query.
-  mutable absl::Mutex landmarks_mu_;
-  mutable std::unique_ptr<const Landmarks> landmarks_storage_ ABSL_GUARDED_BY(landmarks_mu_);
-  mutable std::atomic<const Landmarks*> landmarks_{nullptr};
+  mutable MadeOnce<Landmarks> landmarks_;
+  mutable MadeOnce<ExactLandmarks> exact_landmarks_;
 };
 
 }  // namespace geodesic

@@ -376,14 +376,17 @@ absl::StatusOr<GeodesicPath> TraceRoute(const Mesh& mesh, const DggGraph& g, Que
 // Replaces the graph's answer in `result` by the exact distance from `a` to
 // `b` (and the exact geodesic with `want_path`), by a propagation bounded by
 // that answer and aimed at `b`.
-absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const SurfacePoint& a,
-                       const SurfacePoint& b, const PairOptions& pair, PairResult& result) {
+absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const ExactLandmarks* landmarks,
+                       const SurfacePoint& a, const SurfacePoint& b, const PairOptions& pair,
+                       PairResult& result) {
   result.exact = true;
   if (result.distance == kInfinity) return absl::OkStatus();
   ExactGeodesic& exact = sc.Exact(mesh);
   ExactOptions options =
       query_internal::ExactWithinGraphAnswer(result.distance, pair.cancelled, pair.exact_max_bytes);
   options.goal = PositionOf(mesh, b);
+  std::optional<ExactLandmarks::Floor> floor;
+  if (landmarks) options.goal_floor = &floor.emplace(landmarks->FloorFor(mesh, b));
   // The windows go once the answer is read: the engine stays in the pool.
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(a, options).status());
@@ -430,8 +433,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   ASSIGN_OR_RETURN(ends[1], JoinToGraph(mesh, g, sc, raw_b, /*keep_windows=*/false));
 
   // Plain Dijkstra (no A*) needs no bounds, so no landmark work either.
-  const Landmarks* landmarks =
-      options.use_astar ? landmarks_.load(std::memory_order_acquire) : nullptr;
+  const Landmarks* landmarks = options.use_astar ? landmarks_.get() : nullptr;
   BidirectionalSearch search(g, sc, ends, node_xyz_, options.use_astar, landmarks, best, result);
   RETURN_IF_ERROR(search.Run(options.cancelled));
   const double mu = search.distance();
@@ -443,7 +445,8 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   // field from the first point gives (see SumAlongRoute).
   if (!route.empty()) result.distance = std::min(best, SumAlongRoute(g, ends, sc.pairs, route));
   if (options.exact) {
-    RETURN_IF_ERROR(MakeExact(mesh, sc, ends[0].point, ends[1].point, options, result));
+    RETURN_IF_ERROR(
+        MakeExact(mesh, sc, exact_landmarks_.get(), ends[0].point, ends[1].point, options, result));
     return result;
   }
   if (!options.want_path || mu == kInfinity) return result;

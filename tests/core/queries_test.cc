@@ -241,6 +241,36 @@ TEST_P(ExactPairsTest, EqualTheIndependentSolversPairsAndPaths) {
   EXPECT_GE(compared, 30u);
   ASSERT_GT(whole_windows, 0u);
   EXPECT_LT(2 * pruned_windows, whole_windows) << "the goal pruned less than half the windows";
+
+  // With exact landmarks: the same answers, from fewer windows.
+  uint64_t windows_straight = 0, windows_landmarks = 0;
+  std::vector<double> straight;
+  PairOptions exact_only;
+  exact_only.exact = true;
+  for (size_t i = 0; i < pairs.size(); i += 3) {
+    auto r = engine.Distance(pairs[i].a, pairs[i].b, exact_only);
+    ASSERT_OK(r);
+    straight.push_back(r->distance);
+    windows_straight += r->windows;
+  }
+  ASSERT_OK(engine.PrepareExactLandmarks(8));
+  EXPECT_EQ(engine.exact_landmark_bytes(), mesh->num_vertices() * 8 * sizeof(float));
+  for (size_t i = 0, k = 0; i < pairs.size(); i += 3, ++k) {
+    const Pair& p = pairs[i];
+    auto r = engine.Distance(p.a, p.b, exact_only);
+    ASSERT_OK(r);
+    windows_landmarks += r->windows;
+    if (p.exact == kInfinity) {
+      EXPECT_EQ(r->distance, kInfinity) << "pair " << i;
+      continue;
+    }
+    ASSERT_TRUE(std::isfinite(r->distance)) << "pair " << i;
+    EXPECT_NEAR(r->distance, p.exact, 1e-12 * std::max(p.exact, 1e-300)) << "pair " << i;
+    EXPECT_NEAR(r->distance, straight[k], 1e-13 * std::max(p.exact, 1e-300)) << "pair " << i;
+  }
+  ASSERT_GT(windows_landmarks, 0u);
+  EXPECT_LT(5 * windows_landmarks, 4 * windows_straight)
+      << "landmarks saved less than a fifth of the windows";
 }
 
 INSTANTIATE_TEST_SUITE_P(SharedMeshes, ExactPairsTest, ::testing::Values("camelhead", "fertility"));

@@ -88,6 +88,25 @@ with tempfile.TemporaryDirectory() as work:
     check("a pairs line with three points is refused by line",
           r.returncode != 0 and "bad.pairs line 3: expected two points, found 3" in r.stderr,
           r.stderr)
+    # Exact pairs with exact landmarks: the same distances, fewer windows,
+    # and the landmarks' one-time cost on stderr.
+    spread = os.path.join(work, "spread.pairs")
+    with open(spread, "w") as f:
+        f.write("".join(f"v:{a} v:{b}\n" for a, b in
+                        ((0, 1500), (10, 2900), (700, 2200), (2000, 40), (1234, 2345))))
+    plain = json.loads(run("distance", *common, "--pairs", spread, "--exact", "--json").stdout)
+    r = run("distance", *common, "--pairs", spread, "--exact", "--exact-landmarks", "8", "--json")
+    marked = json.loads(r.stdout)
+    check("pairs are answered exact with and without landmarks",
+          len(plain) == len(marked) == 5 and all(x["exact"] for x in plain + marked) and
+          all(0 < x["distance"] < float("inf") for x in plain + marked), (plain, marked))
+    check("exact landmarks give the same exact distances",
+          all(abs(a["distance"] - b["distance"]) <= 1e-12 * a["distance"]
+              for a, b in zip(plain, marked)), (plain, marked))
+    check("exact landmarks leave fewer windows",
+          sum(x["windows"] for x in marked) < sum(x["windows"] for x in plain),
+          ([x["windows"] for x in plain], [x["windows"] for x in marked]))
+    check("the landmarks' cost is reported", "exact landmarks: 8 fields in" in r.stderr, r.stderr)
     for value in ("-1", "0", "nan"):
         r = run("field", *common, "--source", "v:0", "--max-distance", value, "--out",
                 os.path.join(work, "m.f64"), expect_ok=False)

@@ -1,0 +1,114 @@
+#include "core/query/exact_landmarks.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <limits>
+#include <thread>
+
+#include "absl/status/status.h"
+#include "absl/strings/str_format.h"
+#include "core/base/for_each_in_parallel.h"
+#include "core/base/status.h"
+
+namespace geodesic {
+namespace {
+
+constexpr double kInf = std::numeric_limits<double>::infinity();
+
+// Four float steps (2^-24 each) of the largest distance cover the rounding
+// of a landmark's distance to each end of a bound; the engine's own error,
+// ~1e-14 of a distance, is far below.
+constexpr double kSlackPerDistance = 1e-6;
+
+// The vertices whose fields place `p`: itself, its edge's ends or its face's
+// corners (each joined to p by a straight segment on the surface).
+std::vector<VertexId> CornersOf(const Mesh& mesh, const SurfacePoint& p) {
+  switch (p.kind) {
+    case SurfacePoint::Kind::kVertex:
+      return {p.id};
+    case SurfacePoint::Kind::kEdge: {
+      const HalfedgeId h = mesh.edge_halfedge(p.id);
+      return {mesh.tail(h), mesh.head(h)};
+    }
+    case SurfacePoint::Kind::kFace:
+      return {mesh.face_vertex(p.id, 0), mesh.face_vertex(p.id, 1), mesh.face_vertex(p.id, 2)};
+  }
+  return {};
+}
+
+}  // namespace
+
+absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
+    const Mesh& mesh, std::span<const VertexId> vertices, const std::function<bool()>& cancelled) {
+  for (VertexId v : vertices) {
+    if (v >= mesh.num_vertices()) {
+      return absl::OutOfRangeError(
+          absl::StrFormat("landmark vertex %u: the mesh has %u vertices", v, mesh.num_vertices()));
+    }
+  }
+  auto out = std::make_unique<ExactLandmarks>();
+  out->count_ = static_cast<int>(vertices.size());
+  out->vertices_.assign(vertices.begin(), vertices.end());
+  out->distance_.assign(mesh.num_vertices() * vertices.size(), static_cast<float>(kInf));
+  const FaceFrames frames(mesh);
+  std::vector<double> largest(vertices.size(), 0);
+  RETURN_IF_ERROR(ForEachInParallel(vertices.size(), [&](size_t k) -> absl::Status {
+    if (cancelled && cancelled()) return absl::CancelledError("exact landmarks cancelled");
+    ExactGeodesic engine(mesh, &frames);
+    ExactOptions options;
+    options.cancelled = cancelled;
+    ASSIGN_OR_RETURN(const std::vector<double> field,
+                     engine.Distances(SurfacePoint::Vertex(vertices[k]), options));
+    for (size_t v = 0; v < field.size(); ++v) {
+      out->distance_[v * vertices.size() + k] = static_cast<float>(field[v]);
+      if (field[v] < kInf) largest[k] = std::max(largest[k], field[v]);
+    }
+    return absl::OkStatus();
+  }));
+  out->slack_ = kSlackPerDistance * *std::max_element(largest.begin(), largest.end());
+  return out;
+}
+
+uint64_t ExactLandmarks::ComputeBytes(const Mesh& mesh, int count) {
+  // Each engine holds about 64 bytes per vertex and its wavefront's windows;
+  // the frames are one cache line per half-edge.
+  const uint64_t engines = std::min<uint64_t>(std::max(1u, std::thread::hardware_concurrency()),
+                                              static_cast<uint64_t>(std::max(count, 1)));
+  const uint64_t vertices = mesh.num_vertices();
+  return vertices * count * sizeof(float) + mesh.num_halfedges() * sizeof(FaceFrame) +
+         engines * vertices * 64;
+}
+
+ExactLandmarks::Floor ExactLandmarks::FloorFor(const Mesh& mesh, const SurfacePoint& goal) const {
+  Floor floor;
+  floor.landmarks_ = this;
+  floor.low_.assign(count_, -kInf);
+  floor.high_.assign(count_, kInf);
+  const Vec3 at = PositionOf(mesh, goal);
+  for (VertexId c : CornersOf(mesh, goal)) {
+    const double gap = Distance(mesh.position(c), at);
+    const std::span<const float> d = of(c);
+    for (int k = 0; k < count_; ++k) {
+      floor.low_[k] = std::max(floor.low_[k], d[k] - gap);
+      floor.high_[k] = std::min(floor.high_[k], d[k] + gap);
+    }
+  }
+  return floor;
+}
+
+double ExactLandmarks::Floor::At(VertexId v) const {
+  const std::span<const float> d = landmarks_->of(v);
+  double best = 0;
+  for (size_t k = 0; k < d.size(); ++k) {
+    // A landmark that reaches one of v and the goal but not the other puts
+    // them in different components.
+    const bool v_reached = d[k] < kInf, goal_reached = high_[k] < kInf;
+    if (v_reached != goal_reached) return kInf;
+    if (!v_reached) continue;
+    best = std::max(best, std::max(low_[k] - d[k], d[k] - high_[k]));
+  }
+  return std::max(0.0, best - landmarks_->slack_);
+}
+
+}  // namespace geodesic

@@ -1,0 +1,91 @@
+#include "core/query/exact_landmarks.h"
+
+#include <cmath>
+
+#include "tests/core/test_util.h"
+
+namespace geodesic {
+namespace {
+
+using testing::MustBuild;
+using testing::NoisyTorus;
+using testing::PlanarGrid;
+
+std::vector<VertexId> SpreadVertices(const Mesh& mesh, int count) {
+  std::vector<VertexId> out;
+  for (int k = 0; k < count; ++k) out.push_back(mesh.num_vertices() * k / count);
+  return out;
+}
+
+// The floor is a lower bound on the exact distance to the goal at every
+// vertex, for a vertex, an edge and a face goal, and it is tighter than the
+// straight line on much of a curved surface (else it would buy nothing).
+TEST(ExactLandmarksTest, FloorNeverExceedsTheExactDistance) {
+  const Mesh mesh = NoisyTorus(48, 24, 2.0, 5);
+  auto landmarks = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 6));
+  ASSERT_OK(landmarks);
+  EXPECT_EQ((*landmarks)->count(), 6);
+  EXPECT_EQ((*landmarks)->byte_size(), mesh.num_vertices() * 6 * sizeof(float));
+  const SurfacePoint goals[] = {SurfacePoint::Vertex(17), SurfacePoint::Edge(101, 0.3),
+                                SurfacePoint::Face(257, 0.2, 0.5, 0.3)};
+  ExactGeodesic exact(mesh);
+  for (const SurfacePoint& goal : goals) {
+    SCOPED_TRACE(FormatSurfacePoint(goal));
+    auto field = exact.Distances(goal);
+    ASSERT_OK(field);
+    const ExactLandmarks::Floor floor = (*landmarks)->FloorFor(mesh, goal);
+    const Vec3 at = PositionOf(mesh, goal);
+    size_t tighter = 0;
+    for (VertexId v = 0; v < mesh.num_vertices(); ++v) {
+      const double d = (*field)[v];
+      ASSERT_TRUE(std::isfinite(d)) << "vertex " << v;
+      const double f = floor.At(v);
+      ASSERT_GE(f, 0) << "vertex " << v;
+      ASSERT_LE(f, d) << "vertex " << v;
+      if (f > Distance(mesh.position(v), at)) ++tighter;
+    }
+    EXPECT_GT(tighter, mesh.num_vertices() / 4);
+  }
+}
+
+// Two pieces: the floor is +inf on the piece without the goal (no route
+// exists) and finite on the goal's own.
+TEST(ExactLandmarksTest, FloorIsInfiniteAcrossComponents) {
+  const Mesh grid = PlanarGrid(6, 6, 0.1);
+  TriangleSoup soup;
+  for (int copy = 0; copy < 2; ++copy) {
+    const VertexId base = soup.positions.size();
+    for (const Vec3& p : grid.positions()) soup.positions.push_back(p + Vec3{3.0 * copy, 0, 0});
+    for (FaceId f = 0; f < grid.num_faces(); ++f) {
+      soup.triangles.push_back({base + grid.face_vertex(f, 0), base + grid.face_vertex(f, 1),
+                                base + grid.face_vertex(f, 2)});
+    }
+  }
+  const Mesh mesh = MustBuild(std::move(soup));
+  const VertexId per_piece = grid.num_vertices();
+  const std::vector<VertexId> marks = {0, per_piece + 5};
+  auto landmarks = ExactLandmarks::Compute(mesh, marks);
+  ASSERT_OK(landmarks);
+  const ExactLandmarks::Floor floor = (*landmarks)->FloorFor(mesh, SurfacePoint::Vertex(3));
+  for (VertexId v = 0; v < mesh.num_vertices(); ++v) {
+    if (v < per_piece) {
+      EXPECT_TRUE(std::isfinite(floor.At(v))) << "vertex " << v;
+    } else {
+      EXPECT_EQ(floor.At(v), std::numeric_limits<double>::infinity()) << "vertex " << v;
+    }
+  }
+}
+
+TEST(ExactLandmarksTest, RefusesAVertexPastTheMeshAndStopsWhenCancelled) {
+  const Mesh mesh = PlanarGrid(4, 4, 0.1);
+  const std::vector<VertexId> past = {0, static_cast<VertexId>(mesh.num_vertices())};
+  auto refused = ExactLandmarks::Compute(mesh, past);
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kOutOfRange);
+  EXPECT_NE(refused.status().message().find(std::to_string(mesh.num_vertices())), std::string::npos)
+      << refused.status();
+  auto cancelled = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 2), [] { return true; });
+  EXPECT_EQ(cancelled.status().code(), absl::StatusCode::kCancelled);
+}
+
+}  // namespace
+}  // namespace geodesic
