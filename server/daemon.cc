@@ -91,6 +91,7 @@ int Daemon::Start() {
   cache.build_memory_limit = options_.build_memory_limit;
   cache.large_build_seconds = options_.large_build_seconds;
   cache.max_graph_bytes = options_.max_graph_bytes;
+  cache.exact_landmarks = options_.exact_landmarks;
   if (options_.disk_limit > 0) cache.disk = disk_.get();
   cache.on_readiness = [this](const GraphKey& key, bool ready) {
     std::lock_guard<std::mutex> lock(health_mu_);

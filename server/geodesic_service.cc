@@ -642,6 +642,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto engine = AcquireEngine(key, ctx);
     if (!engine.ok()) return engine.status();
+    if (req->exact()) graphs_->WantExactLandmarks(key);
     const Mesh& mesh = (*engine)->mesh();
     // The reply and, once the handler returns, its serialized copy.
     const uint64_t per_pair =
@@ -705,6 +706,7 @@ absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
   MatrixQuery q;
   ASSIGN_OR_RETURN(q.key, Key(SelectorOf(req)));
   ASSIGN_OR_RETURN(q.engine, AcquireEngine(q.key, ctx));
+  if (req.exact()) graphs_->WantExactLandmarks(q.key);
   const Mesh& mesh = q.engine->mesh();
   ASSIGN_OR_RETURN(q.sources, PointsFromProto(req.sources(), mesh, "source"));
   ASSIGN_OR_RETURN(q.targets, PointsFromProto(req.targets(), mesh, "target"));

@@ -442,12 +442,20 @@ bool GraphCache::TakeNext(bool large_lane, GraphKey* key, absl::Time* wake) {
 void GraphCache::Worker(bool large_lane) {
   while (true) {
     GraphKey key;
+    bool exact_job = false;
     {
       absl::MutexLock lock(&mu_);
       while (true) {
         if (stopping_) return;
         absl::Time wake = absl::InfiniteFuture();
         if (TakeNext(large_lane, &key, &wake)) break;
+        // Builds first: a client waits for them, not for landmarks.
+        if (!exact_landmark_jobs_.empty()) {
+          key = exact_landmark_jobs_.front();
+          exact_landmark_jobs_.pop_front();
+          exact_job = true;
+          break;
+        }
         const uint64_t seen = queue_changes_;
         auto changed = [this, seen]() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_) {
           return stopping_ || queue_changes_ != seen;
@@ -455,7 +463,11 @@ void GraphCache::Worker(bool large_lane) {
         mu_.AwaitWithDeadline(absl::Condition(&changed), wake);
       }
     }
-    Run(key);
+    if (exact_job) {
+      AddExactLandmarks(key);
+    } else {
+      Run(key);
+    }
   }
 }
 
@@ -568,8 +580,63 @@ void GraphCache::AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>&
     absl::MutexLock lock(&mu_);
     e->landmarks_pending = 0;
     if (!landmarks.ok() || !Current(key, *e) || e->engine != engine) return;
-    e->status.landmark_bytes = engine->landmark_bytes();
+    e->status.landmark_bytes = engine->landmark_bytes() + engine->exact_landmark_bytes();
     ++e->status.version;
+    EvictOverBudget(key, notices);
+  }
+  Announce(notices);
+}
+
+void GraphCache::WantExactLandmarks(const GraphKey& key) {
+  if (options_.exact_landmarks <= 0) return;
+  absl::MutexLock lock(&mu_);
+  auto it = entries_.find(key);
+  if (it == entries_.end() || it->second->status.state != GraphState::kReady ||
+      it->second->exact_landmarks_asked) {
+    return;
+  }
+  it->second->exact_landmarks_asked = true;
+  exact_landmark_jobs_.push_back(key);
+  ++queue_changes_;
+}
+
+void GraphCache::AddExactLandmarks(const GraphKey& key) {
+  const int count = options_.exact_landmarks;
+  std::shared_ptr<Entry> e;
+  std::shared_ptr<const GeodesicEngine> engine;
+  Notices notices;
+  {
+    absl::MutexLock lock(&mu_);
+    auto it = entries_.find(key);
+    if (it == entries_.end() || it->second->status.state != GraphState::kReady) return;
+    e = it->second;
+    engine = e->engine;
+    e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count);
+    EvictOverBudget(key, notices);
+  }
+  Announce(notices);
+  notices.clear();
+  const auto start = std::chrono::steady_clock::now();
+  absl::Status made = engine->PrepareExactLandmarks(count, [e] { return e->cancel.load(); });
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+  {
+    absl::MutexLock lock(&mu_);
+    e->exact_landmarks_pending = 0;
+    if (!Current(key, *e) || e->engine != engine) return;
+    if (!made.ok()) {
+      Log(LogLevel::kWarning, "exact_landmarks_failed",
+          {{"mesh", key.mesh}, {"eps", key.params.epsilon}, {"error", made.ToString()}});
+      return;
+    }
+    e->status.landmark_bytes = engine->landmark_bytes() + engine->exact_landmark_bytes();
+    ++e->status.version;
+    Log(LogLevel::kInfo, "exact_landmarks_ready",
+        {{"mesh", key.mesh},
+         {"eps", key.params.epsilon},
+         {"landmarks", count},
+         {"seconds", seconds},
+         {"bytes", engine->exact_landmark_bytes()}});
     EvictOverBudget(key, notices);
   }
   Announce(notices);
@@ -805,7 +872,7 @@ void GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
     for (auto& [key, e] : entries_) {
       if (e->status.state != GraphState::kReady) continue;
       total += e->status.bytes + e->status.landmark_bytes + e->landmarks_pending +
-               e->engine->scratch_bytes();
+               e->exact_landmarks_pending + e->engine->scratch_bytes();
       // Only graphs no query holds; never the one just made ready.
       if (key == keep || e->engine.use_count() > 1) continue;
       if (!victim || e->last_used < victim->last_used) {
@@ -941,8 +1008,8 @@ uint64_t GraphCache::resident_bytes() const {
   uint64_t total = 0;
   for (const auto& [key, e] : entries_) {
     if (e->status.state != GraphState::kReady) continue;
-    total +=
-        e->status.landmark_bytes + e->landmarks_pending + (e->status.mapped ? 0 : e->status.bytes);
+    total += e->status.landmark_bytes + e->landmarks_pending + e->exact_landmarks_pending +
+             (e->status.mapped ? 0 : e->status.bytes);
   }
   return total;
 }

@@ -137,7 +137,8 @@ struct GraphStatus {
   std::string error;
   uint64_t bytes = 0;  // the graph's arrays, resident or mapped
   // Resident memory for point-to-point bounds (core/query/landmarks.h), computed in
-  // the background once the graph is ready.
+  // the background once the graph is ready, and for exact pairs' bounds
+  // (core/query/exact_landmarks.h), once exact answers are asked of it.
   uint64_t landmark_bytes = 0;
   bool mapped = false;
   bool from_file = false;
@@ -213,6 +214,9 @@ class GraphCache {
     // Candidate edges a build keeps in memory before spilling them to an
     // unlinked file in graph_dir (DggBuildOptions); 0: no limit.
     uint64_t build_memory_limit = 0;
+    // Exact landmarks a ready graph computes once it is asked for exact
+    // answers (GeodesicEngine::PrepareExactLandmarks); 0: none.
+    int exact_landmarks = 0;
     // Called whenever a graph becomes ready or stops being, outside the lock.
     std::function<void(const GraphKey&, bool ready)> on_readiness;
     // Called with a graph's file when it is mapped or written (for the
@@ -256,6 +260,11 @@ class GraphCache {
   // graph is mapped again), FAILED_PRECONDITION if never requested, and the
   // build's error if it failed.
   absl::StatusOr<std::shared_ptr<const GeodesicEngine>> Acquire(const GraphKey& key);
+  // Tells the cache that a graph answers exact queries: the first time, a
+  // ready graph gets its exact landmarks on a build worker (once no build
+  // waits), counted in its landmark bytes. Exact answers before then prune
+  // by the straight line alone, as exact, only slower.
+  void WantExactLandmarks(const GraphKey& key);
 
   // The lock a replica holds while it builds the graph of `graph_path`.
   static std::string BuildLockFile(const std::string& graph_path);
@@ -293,6 +302,9 @@ class GraphCache {
     // Landmarks being computed, counted from the start: on a large graph
     // they fill in for minutes, and other graphs make room for them first.
     uint64_t landmarks_pending = 0;
+    // Exact landmarks: asked for once, and their bytes while computed.
+    bool exact_landmarks_asked = false;
+    uint64_t exact_landmarks_pending = 0;
     // Scheduling: the large lane's, and not before (a replica's build
     // being waited for).
     bool large = false;
@@ -341,6 +353,8 @@ class GraphCache {
   void WaitForReplica(const GraphKey& key, const std::shared_ptr<Entry>& e);
   // Computes the landmarks of a published engine, counting their bytes
   // against the memory limit from the start.
+  // Runs on a worker: the exact landmarks WantExactLandmarks asked for.
+  void AddExactLandmarks(const GraphKey& key);
   void AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>& e,
                     const std::shared_ptr<const GeodesicEngine>& engine);
   // Ends the entry's operation in failed or cancelled.
@@ -356,6 +370,7 @@ class GraphCache {
   mutable absl::Mutex mu_;
   std::map<GraphKey, std::shared_ptr<Entry>> entries_ ABSL_GUARDED_BY(mu_);
   std::deque<GraphKey> queue_ ABSL_GUARDED_BY(mu_);
+  std::deque<GraphKey> exact_landmark_jobs_ ABSL_GUARDED_BY(mu_);
   uint64_t queue_changes_ ABSL_GUARDED_BY(mu_) = 0;
   bool stopping_ ABSL_GUARDED_BY(mu_) = false;
   std::vector<std::thread> workers_;

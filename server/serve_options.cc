@@ -164,6 +164,12 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "RequestGraph refuses graphs whose estimated file passes this, e.g. 4G, with "
                  "RESOURCE_EXHAUSTED naming the estimate (0: no limit; a graph already in "
                  "--graph-dir is always mapped)");
+  app.add_option("--exact-landmarks", o.exact_landmarks,
+                 "exact distance fields from this many landmarks a graph computes in the "
+                 "background once asked for exact answers (4 bytes per vertex each, one exact "
+                 "field's time each, on a build worker): each exact pair then sweeps a narrower "
+                 "region (0: none, exact pairs prune by the straight line only)")
+      ->check(CLI::Range(0, 64));
   app.add_flag("--exact-fans", f.exact_fans,
                "build graphs with fans from exact local distances: faster fields, longer "
                "builds (graphs found in --graph-dir are used as they are)");

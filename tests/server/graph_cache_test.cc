@@ -174,6 +174,7 @@ class GraphCacheTest : public ::testing::Test {
     options.disk = disk;
     options.resident_bytes_outside = [this] { return outside_bytes_.load(); };
     options.build_threads = 1;
+    options.exact_landmarks = exact_landmarks_;
     options.maker = maker_;
     // The callback asks the cache that calls it (not cache_, which the test
     // may be replacing meanwhile).
@@ -268,6 +269,7 @@ class GraphCacheTest : public ::testing::Test {
   std::shared_ptr<HeldMaker> maker_;
   std::unique_ptr<GraphCache> cache_;
   std::atomic<uint64_t> outside_bytes_{0};  // "meshes" the limit covers
+  int exact_landmarks_ = 0;                 // for the next Cache()
   absl::Mutex notices_mu_;
   std::vector<std::string> notices_;
 };
@@ -549,6 +551,37 @@ TEST_F(GraphCacheTest, EvictionSparesHeldGraphsAndEvictedOnesComeBackFromTheirFi
   EXPECT_TRUE(WaitFor(evicted, GraphState::kReady).from_file);
   EXPECT_THAT(Notices(),
               ::testing::Contains(absl::StrCat("grid@", evicted.params.epsilon, " gone")));
+}
+
+// A graph asked for exact answers gets its exact landmarks on a worker,
+// counted in its landmark bytes; a cache set to none computes none.
+TEST_F(GraphCacheTest, AGraphAskedForExactAnswersGetsItsExactLandmarks) {
+  auto mesh = GridMesh("grid", 8);
+  const GraphKey key{"grid", Eps(0.05)};
+  for (int count : {0, 4}) {
+    SCOPED_TRACE(absl::StrCat(count, " exact landmarks"));
+    exact_landmarks_ = count;
+    GraphCache& cache = Fresh(/*persist=*/false);
+    cache.Request(mesh, key.params);
+    WaitFor(key, GraphState::kReady);
+    auto engine = cache.Acquire(key);
+    ASSERT_TRUE(engine.ok()) << engine.status();
+    cache.WantExactLandmarks(key);
+    cache.WantExactLandmarks(key);  // asked twice, made once
+    const uint64_t want = mesh->mesh->num_vertices() * count * sizeof(float);
+    // The graph's own landmarks come in the background too: wait for both.
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    auto s = cache.Get(key);
+    auto settled = [&] {
+      return s.ok() && (*engine)->landmark_bytes() > 0 &&
+             s->landmark_bytes == (*engine)->landmark_bytes() + want;
+    };
+    while (!settled() && absl::Now() < deadline) {
+      s = cache.WaitForChange(key, s->version, std::min(deadline, absl::Now() + absl::Seconds(1)));
+    }
+    ASSERT_TRUE(settled()) << (s.ok() ? s->landmark_bytes : 0);
+    EXPECT_EQ((*engine)->exact_landmark_bytes(), want);
+  }
 }
 
 // Meshes count against --memory-limit: graphs that fit beside no meshes are

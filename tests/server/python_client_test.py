@@ -30,6 +30,18 @@ from daemon_ports import start_daemon  # noqa: E402
 from comparisons import assert_close, assert_same  # noqa: E402
 
 
+def wait_until(read, ok, timeout=60):
+    """read() until ok(value), for at most `timeout` seconds; the last value."""
+    deadline = time.monotonic() + timeout
+    value = read()
+    while not ok(value):
+        if time.monotonic() > deadline:
+            raise AssertionError(f"still {value!r} after {timeout} s")
+        time.sleep(0.05)
+        value = read()
+    return value
+
+
 # The requests that name a graph, and the answers that echo the graph that
 # answered (None: the answer is a Graph, which names it in its own fields).
 GRAPH_CALLS = {
@@ -179,12 +191,24 @@ class ClientTest(unittest.TestCase):
     def test_exact_pairs_paths_and_rows_equal_the_exact_engine(self):
         # exact=True: the exact engine's distance through the daemon, to rounding, for a face
         # point and a vertex, with the exact geodesic as its path; exact matrix rows agree.
+        # The first exact answer also starts the graph's exact landmarks (the daemon's default
+        # --exact-landmarks 32, 4 bytes per vertex each) in the background; answers after them
+        # are the same.
         eps, source = 0.01, "f:0:0.2,0.3,0.5"
         truth = self.exact_field(source)
         targets = (1500, 700)
+        self.client.request_graph("spot", epsilon=eps, wait=True)
+        before = wait_until(lambda: self.client.graph("spot", epsilon=eps).landmark_bytes,
+                            lambda b: b > 0)
         for target in targets:
             got = self.client.distance("spot", source, f"v:{target}", epsilon=eps, exact=True)
             self.assertTrue(np.isfinite(got) and np.isfinite(truth[target]))
+            self.assertAlmostEqual(got, truth[target], delta=1e-12 * truth[target])
+        exact_landmark_bytes = 2930 * 32 * 4
+        wait_until(lambda: self.client.graph("spot", epsilon=eps).landmark_bytes,
+                   lambda b: b == before + exact_landmark_bytes)
+        for target in targets:
+            got = self.client.distance("spot", source, f"v:{target}", epsilon=eps, exact=True)
             self.assertAlmostEqual(got, truth[target], delta=1e-12 * truth[target])
         path = self.client.path("spot", source, "v:1500", epsilon=eps, exact=True)
         self.assertGreater(len(path.points), 1)
