@@ -427,6 +427,27 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
   return absl::InvalidArgumentError(absl::StrFormat("%s: PLY header has no end_header line", name));
 }
 
+// An OFF file's text without its comments ('#' to the end of a line) and
+// blank lines, or nullopt when it has no comment. OpenMesh's OFF reader does not know comments: a
+// comment line after the header made it read made-up counts (a different
+// error on each run), and one among the vertices shifted every number after
+// it, so the faces came out wrong and the file loaded all the same.
+std::optional<std::string> OffWithoutComments(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  if (text.find('#') == std::string::npos) return std::nullopt;
+  // Lines left blank go too: the keyword must open the text OpenMesh reads.
+  std::string out;
+  out.reserve(text.size());
+  for (absl::string_view line : absl::StrSplit(text, '\n')) {
+    line = line.substr(0, line.find('#'));
+    if (line.find_first_not_of(" \t\r") == absl::string_view::npos) continue;
+    out.append(line.data(), line.size());
+    out.push_back('\n');
+  }
+  return out;
+}
+
 absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std::string& name,
                                               const std::string& format,
                                               MeshDiagnostics* diagnostics) {
@@ -454,7 +475,13 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
   OpenMesh::IO::Options options;
   bool ok = false;
   try {
-    ok = OpenMesh::IO::IOManager().read(path, importer, options);
+    if (std::optional<std::string> text =
+            format == "off" ? OffWithoutComments(path) : std::nullopt) {
+      std::istringstream stream(*std::move(text));
+      ok = OpenMesh::IO::IOManager().read(stream, ".off", importer, options);
+    } else {
+      ok = OpenMesh::IO::IOManager().read(path, importer, options);
+    }
   } catch (const std::exception& e) {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: unreadable %s file (%s)", name, format, e.what()));

@@ -401,6 +401,31 @@ TEST(MeshIoTest, MalformedObjFaceCornersAreRefused) {
   }
 }
 
+// OFF comments ('#' to the end of a line) anywhere: the same mesh as without
+// them. OpenMesh alone failed on a comment after the header, with a
+// different message on each run, and loaded a comment among the vertices as
+// wrong faces without a word.
+TEST(MeshIoTest, OffCommentsAnywhereReadAsWithoutThem) {
+  const std::string plain = "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n";
+  auto want = ReadTriangleSoupFromMemory(plain, "off", "plain.off");
+  ASSERT_OK(want);
+  for (const std::string& text :
+       {"OFF\n# a comment\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n",
+        "OFF # keyword\n4 2 0 # counts\n# vertices\n0 0 0\n1 0 0 # second\n0 1 0\n1 1 "
+        "0\n#faces\n3 0 1 2\n3 1 3 2 # last\n# end",
+        "# made by hand\nOFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n\n3 1 3 2\n"}) {
+    for (int run = 0; run < 3; ++run) {  // once failed differently on each run
+      auto got = ReadTriangleSoupFromMemory(text, "off", "commented.off");
+      ASSERT_TRUE(got.ok()) << text << ": " << got.status();
+      EXPECT_EQ(got->positions.size(), want->positions.size()) << text;
+      for (size_t v = 0; v < want->positions.size(); ++v) {
+        EXPECT_EQ(Distance(got->positions[v], want->positions[v]), 0) << text << " vertex " << v;
+      }
+      EXPECT_EQ(got->triangles, want->triangles) << text;
+    }
+  }
+}
+
 // The radix sort of edge uses gives exactly what std::sort gives the same
 // pairs, for small and for 32-bit vertex counts.
 TEST(MeshIoTest, SortEdgeUsesMatchesSortingThePairs) {
