@@ -605,6 +605,7 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
   std::shared_ptr<Entry> e;
   std::shared_ptr<const GeodesicEngine> engine;
   Notices notices;
+  bool fits = true;
   {
     absl::MutexLock lock(&mu_);
     auto it = entries_.find(key);
@@ -612,10 +613,19 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
     e = it->second;
     engine = e->engine;
     e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count);
-    EvictOverBudget(key, notices);
+    fits = EvictOverBudget(key, notices);
+    if (!fits) {
+      e->exact_landmarks_pending = 0;
+      Log(LogLevel::kWarning, "exact_landmarks_skipped",
+          {{"mesh", key.mesh},
+           {"eps", key.params.epsilon},
+           {"bytes", engine->ExactLandmarkComputeBytes(count)},
+           {"reason", "over --memory-limit even after evicting every graph no query holds"}});
+    }
   }
   Announce(notices);
   notices.clear();
+  if (!fits) return;
   const auto start = std::chrono::steady_clock::now();
   absl::Status made = engine->PrepareExactLandmarks(count, [e] { return e->cancel.load(); });
   const double seconds =
@@ -862,8 +872,8 @@ void GraphCache::Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e,
       {{"mesh", key.mesh}, {"eps", key.params.epsilon}, {"error", why.ToString()}});
 }
 
-void GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
-  if (options_.memory_limit == 0) return;
+bool GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
+  if (options_.memory_limit == 0) return true;
   const uint64_t outside = options_.resident_bytes_outside ? options_.resident_bytes_outside() : 0;
   while (true) {
     uint64_t total = outside;
@@ -880,8 +890,8 @@ void GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
         victim_key = &key;
       }
     }
-    if (total <= options_.memory_limit || !victim) return;
-    if (!Transition(*victim, GraphState::kEvicted)) return;
+    if (total <= options_.memory_limit || !victim) return total <= options_.memory_limit;
+    if (!Transition(*victim, GraphState::kEvicted)) return false;
     victim->engine.reset();
     ++evictions_;
     victim->status.landmark_bytes = 0;

@@ -363,7 +363,9 @@ class GraphCache {
   bool SetPhase(const GraphKey& key, const std::shared_ptr<Entry>& e, GraphState state,
                 std::string phase, double progress);
   void Touch(Entry& e) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  void EvictOverBudget(const GraphKey& keep, Notices& notices) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Evicts the least recently used graphs no query holds until what is
+  // resident fits the memory limit; false if it still does not.
+  bool EvictOverBudget(const GraphKey& keep, Notices& notices) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   void Announce(const Notices& notices) const ABSL_LOCKS_EXCLUDED(mu_);
 
   Options options_;

@@ -584,6 +584,24 @@ TEST_F(GraphCacheTest, AGraphAskedForExactAnswersGetsItsExactLandmarks) {
   }
 }
 
+// Exact landmarks that cannot fit the memory limit, even with every graph no
+// query holds evicted, are skipped: the graph keeps serving without them.
+TEST_F(GraphCacheTest, ExactLandmarksOverTheMemoryLimitAreSkipped) {
+  auto mesh = GridMesh("grid", 8);
+  const GraphKey key{"grid", Eps(0.05)};
+  exact_landmarks_ = 4;
+  GraphCache& cache = Cache(/*persist=*/false, /*memory_limit=*/1);
+  cache.Request(mesh, key.params);
+  WaitFor(key, GraphState::kReady);
+  auto engine = cache.Acquire(key);
+  ASSERT_TRUE(engine.ok()) << engine.status();
+  cache.WantExactLandmarks(key);
+  // On this grid they take milliseconds: two seconds would show them.
+  absl::SleepFor(absl::Seconds(2));
+  EXPECT_EQ((*engine)->exact_landmark_bytes(), 0u);
+  EXPECT_EQ(cache.Get(key)->state, GraphState::kReady);
+}
+
 // Meshes count against --memory-limit: graphs that fit beside no meshes are
 // evicted once the meshes take the room.
 TEST_F(GraphCacheTest, MeshBytesCountAgainstTheMemoryLimit) {
