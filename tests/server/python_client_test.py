@@ -319,6 +319,42 @@ class ClientTest(unittest.TestCase):
             daemon_ports.stop(daemon)
             shutil.rmtree(work)
 
+    def test_an_overloaded_server_is_waited_for_unless_retries_are_off(self):
+        # A daemon that admits one query at a time answers a second one RESOURCE_EXHAUSTED
+        # "server overloaded" with a retry-after-ms hint: a client on the default policy waits
+        # and gets its answer, one with retries off gets the error.
+        work = tempfile.mkdtemp()
+        daemon, ports = start_daemon(
+            BIN, work, ["--log-level", "error", "--max-inflight", "1", "--query-threads", "1"])
+        address = f"127.0.0.1:{ports['grpc']}"
+        try:
+            with Client(address, timeout=120) as busy, \
+                    Client(address, timeout=60) as patient, \
+                    Client(address, timeout=60,
+                           retry=geodesic_client.RetryPolicy(max_attempts=1)) as hasty:
+                busy.request_graph("spot", epsilon=0.01, wait=True)
+                want = patient.distance("spot", "v:0", "v:1500", epsilon=0.01)
+                sources = list(range(0, 2930, 30))  # exact rows: a second or two in one query
+                with concurrent.futures.ThreadPoolExecutor(1) as pool:
+                    slow = pool.submit(busy.matrix, "spot", sources, [1500, 700], epsilon=0.01,
+                                       exact=True)
+                    refused = None
+                    while refused is None and not slow.done():
+                        try:
+                            hasty.distance("spot", "v:0", "v:1500", epsilon=0.01)
+                        except geodesic_client.ResourceExhaustedError as e:
+                            refused = e
+                    self.assertIsNotNone(refused, "the slow query ended before any overload")
+                    self.assertTrue(refused.details().startswith("server overloaded"),
+                                    refused.details())
+                    self.assertFalse(slow.done(), "the slow query ended too soon to test")
+                    self.assertEqual(patient.distance("spot", "v:0", "v:1500", epsilon=0.01),
+                                     want)
+                    self.assertEqual(slow.result().shape, (len(sources), 2))
+        finally:
+            daemon_ports.stop(daemon)
+            shutil.rmtree(work)
+
     def test_pseudo_vertices_past_the_default_limit_are_refused_with_the_estimate(self):
         # spot would take tens of pseudo vertices per vertex at 1e-2: a daemon
         # on default flags refuses the graph, saying what it would cost, and

@@ -35,6 +35,21 @@ _MATRIX_LIMITS = re.compile(r"limits \((\d+) sources, (\d+) targets\)")
 _ROW_BLOCKS = re.compile(r"split it into row blocks")
 
 
+def _overload_hint(e: grpc.RpcError) -> Optional[float]:
+    """Seconds the server asks a client to wait when it answers RESOURCE_EXHAUSTED because it
+    is overloaded (its retry-after-ms trailer); None for any other error."""
+    if not hasattr(e, "code") or e.code() != grpc.StatusCode.RESOURCE_EXHAUSTED:
+        return None
+    trailing = e.trailing_metadata() if hasattr(e, "trailing_metadata") else None
+    for key, value in trailing or ():
+        if key == "retry-after-ms":
+            try:
+                return max(0.0, int(value) / 1e3)
+            except ValueError:
+                return None
+    return None
+
+
 class Client:
     """A connection to one geodesicd (or a proxy in front of several).
 
@@ -124,10 +139,12 @@ class Client:
                 return run()
             except grpc.RpcError as e:
                 error = from_rpc_error(e, name)
-                delay = next(delays, None) if error.code().name in self.retry.codes else None
+                hint = _overload_hint(e) if self.retry.overload else None
+                retried = error.code().name in self.retry.codes or hint is not None
+                delay = next(delays, None) if retried else None
                 if delay is None:
                     raise error from None
-                time.sleep(random.uniform(delay / 2, delay))
+                time.sleep(max(hint or 0.0, random.uniform(delay / 2, delay)))
 
     def _unary(self, name: str, request: Any, mesh: Optional[str]) -> Any:
         method = getattr(self._stub, name)

@@ -249,7 +249,9 @@ class RetryPolicy:
     The n-th retry waits a random time in [d/2, d], d = min(initial_backoff * multiplier**(n-1),
     max_backoff). max_attempts counts the first call; 1 disables retries. UNAVAILABLE is what
     the server answers while a graph is still building or loading, and what gRPC reports
-    while the server cannot be reached.
+    while the server cannot be reached. With `overload`, RESOURCE_EXHAUSTED answers that say
+    the server is overloaded (those carrying its retry-after-ms hint; never a limit the request
+    itself passes) are retried too, waiting at least the hint.
     """
 
     max_attempts: int = 8
@@ -257,6 +259,7 @@ class RetryPolicy:
     multiplier: float = 2.0
     max_backoff: float = 2.0
     codes: Tuple[str, ...] = ("UNAVAILABLE",)
+    overload: bool = True
 
     def delays(self) -> Iterator[float]:
         d = self.initial_backoff
