@@ -227,10 +227,27 @@ absl::StatusOr<AsciiVertices> ScanObjVertices(std::ifstream& in, const std::stri
   return out;
 }
 
-// The vertex count of an OFF header: header "OFF" (counts may follow on the
-// same line), then the counts; '#' starts a comment. nullopt for a variant
-// (COFF, NOFF, ...), whose values OpenMesh keeps; 0 if no count is found.
-std::optional<size_t> ReadOffVertexCount(std::ifstream& in, size_t& line_number) {
+// Whether `word` is an OFF keyword, [ST][C][N][4][n]OFF, of at most six
+// characters: anything else before "OFF" (a control byte, found by fuzzing)
+// is not OFF.
+bool IsOffKeyword(std::string_view word) {
+  return word.size() <= 6 && word.ends_with("OFF") &&
+         word.substr(0, word.size() - 3).find_first_not_of("STCN4n") == std::string_view::npos;
+}
+
+// An OFF header: the keyword, then the vertex, face and edge counts, on one
+// line or more; '#' starts a comment. A variant (COFF, NOFF, ...) has values
+// besides the position on each vertex line, which OpenMesh keeps.
+struct OffHeader {
+  bool variant = false;
+  size_t vertices = 0;  // 0 if no count is found
+};
+
+// Nothing may follow the counts on their line: OpenMesh reads on from there
+// into the faces, and garbage there ran it out of memory (found by fuzzing),
+// where the face check (which reads the lines after the header) never saw it.
+absl::StatusOr<OffHeader> ReadOffHeader(std::ifstream& in, const std::string& name,
+                                        size_t& line_number) {
   std::string line;
   std::vector<std::string> words;
   while (std::getline(in, line)) {
@@ -239,10 +256,16 @@ std::optional<size_t> ReadOffVertexCount(std::ifstream& in, size_t& line_number)
     std::istringstream fields(line);
     std::string word;
     while (fields >> word) words.push_back(word);
-    if (!words.empty() && words[0] != "OFF") return std::nullopt;
-    if (words.size() >= 2) return std::strtoull(words[1].c_str(), nullptr, 10);
+    if (words.size() > 4) {
+      return absl::InvalidArgumentError(
+          absl::StrFormat("%s line %u: '%s' after the OFF header's vertex, face and edge counts",
+                          name, line_number, absl::CHexEscape(words[4].substr(0, 30))));
+    }
+    if (words.size() == 4) {
+      return OffHeader{words[0] != "OFF", std::strtoull(words[1].c_str(), nullptr, 10)};
+    }
   }
-  return 0;
+  return OffHeader{};
 }
 
 // Each face starts with its corner count, and OpenMesh reserves room for
@@ -283,28 +306,33 @@ absl::Status CheckOffFaceNumbers(std::ifstream& in, const std::string& name, siz
   return absl::OkStatus();
 }
 
+// A variant's vertex lines are only counted (their positions are OpenMesh's
+// to read), but its faces are checked all the same: a garbled corner count
+// there ran OpenMesh out of memory too (found by fuzzing).
 absl::StatusOr<AsciiVertices> ScanOffVertices(std::ifstream& in, const std::string& name) {
   AsciiVertices out;
   size_t line_number = 0;
-  const std::optional<size_t> declared = ReadOffVertexCount(in, line_number);
-  if (!declared) return out;
-  const size_t nv = *declared;
+  ASSIGN_OR_RETURN(const OffHeader header, ReadOffHeader(in, name, line_number));
+  const size_t nv = header.vertices;
+  size_t vertex_lines = 0;
   std::string line;
-  while (out.positions.size() < nv && std::getline(in, line)) {
+  while (vertex_lines < nv && std::getline(in, line)) {
     ++line_number;
     if (auto hash = line.find('#'); hash != std::string::npos) line.resize(hash);
     if (line.find_first_not_of(" \t\r") == std::string::npos) continue;
+    ++vertex_lines;
+    if (header.variant) continue;
     absl::Status s = ParseAsciiVertex(line, name, line_number, out.positions);
     if (!s.ok()) return s;
   }
   // OpenMesh reads on past a short vertex list into the faces, garbage and
   // all, and looped there (found by fuzzing).
-  if (out.positions.size() < nv) {
+  if (vertex_lines < nv) {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: the OFF header declares %u vertices, but %u vertex lines follow", name,
-                        nv, out.positions.size()));
+                        nv, vertex_lines));
   }
-  out.available = true;
+  out.available = !header.variant;
   RETURN_IF_ERROR(CheckOffFaceNumbers(in, name, line_number, nv));
   return out;
 }
@@ -342,7 +370,7 @@ DeclaredCounts ReadDeclaredCounts(const std::string& path, const std::string& fo
         // merely contains "OFF" later is garbage that OpenMesh would read as
         // a count (found by tests/fuzz).
         if (!keyword_seen) {
-          if (word.size() > 6 || !word.ends_with("OFF")) return d;
+          if (!IsOffKeyword(word)) return d;
           keyword_seen = true;
           continue;
         }

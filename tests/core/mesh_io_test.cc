@@ -426,6 +426,39 @@ TEST(MeshIoTest, OffCommentsAnywhereReadAsWithoutThem) {
   }
 }
 
+// Found by tests/fuzz/mesh_reader_fuzzer: garbage after the counts on the
+// header's line ran OpenMesh out of memory (the face check reads only the
+// lines after the header), and a variant's faces went unchecked, so a
+// garbled corner count there did the same. A keyword with anything but
+// [ST][C][N][4][n] before "OFF" is not OFF.
+TEST(MeshIoTest, OffHeadersAndVariantFacesAreCheckedBeforeOpenMeshReadsThem) {
+  const std::string garbage_after_counts(
+      "OFF 0  2  0 \x1d\0\0@\x01\x08\0\0 2 3\x02"
+      "2\n",
+      27);
+  auto refused = ReadTriangleSoupFromMemory(garbage_after_counts, "off", "garbage.off");
+  ASSERT_FALSE(refused.ok());
+  EXPECT_NE(refused.status().message().find(
+                "garbage.off line 1: '\\x1d\\x00\\x00@\\x01\\x08\\x00\\x00' after the OFF "
+                "header's vertex, face and edge counts"),
+            std::string::npos)
+      << refused.status();
+  const std::string noff_vertices = "0 0 0 0 0 1\n1 0 0 0 0 1\n0 1 0 0 0 1\n";
+  auto variant = ReadTriangleSoupFromMemory("NOFF\n3 1 0\n" + noff_vertices + "-3 0 1 2\n", "off",
+                                            "variant.off");
+  ASSERT_FALSE(variant.ok());
+  EXPECT_NE(variant.status().message().find("variant.off line 6: a face with -3 corners"),
+            std::string::npos)
+      << variant.status();
+  auto good = ReadTriangleSoupFromMemory("NOFF\n3 1 0\n" + noff_vertices + "3 0 1 2\n", "off",
+                                         "variant.off");
+  ASSERT_TRUE(good.ok()) << good.status();
+  EXPECT_EQ(good->triangles.size(), 1u);
+  auto keyword = ReadTriangleSoupFromMemory("\x01OFF 3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off",
+                                            "keyword.off");
+  EXPECT_FALSE(keyword.ok());
+}
+
 // The radix sort of edge uses gives exactly what std::sort gives the same
 // pairs, for small and for 32-bit vertex counts.
 TEST(MeshIoTest, SortEdgeUsesMatchesSortingThePairs) {
