@@ -19,6 +19,7 @@
 #include <optional>
 #include <sstream>
 
+#include "absl/cleanup/cleanup.h"
 #include "absl/container/flat_hash_map.h"
 #include "absl/container/flat_hash_set.h"
 #include "absl/status/status.h"
@@ -455,6 +456,28 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
   return absl::InvalidArgumentError(absl::StrFormat("%s: PLY header has no end_header line", name));
 }
 
+// OpenMesh's readers pick the format by file name: bytes read from memory, or
+// rewritten, go through a private temporary file, which the caller removes
+// right after reading.
+absl::StatusOr<std::string> WriteTemporaryMeshFile(std::string_view bytes, const std::string& fmt) {
+  std::string path =
+      (std::filesystem::temp_directory_path() / ("geodesic-mesh-XXXXXX." + fmt)).string();
+  int fd = ::mkstemps(path.data(), static_cast<int>(fmt.size() + 1));
+  if (fd < 0) return absl::InternalError("cannot create a temporary file for the mesh");
+  size_t written = 0;
+  while (written < bytes.size()) {
+    ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
+    if (n <= 0) {
+      ::close(fd);
+      ::unlink(path.c_str());
+      return absl::ResourceExhaustedError("cannot write the mesh to a temporary file");
+    }
+    written += n;
+  }
+  ::close(fd);
+  return path;
+}
+
 // An OFF file's text without its comments ('#' to the end of a line) and
 // blank lines, or nullopt when it has no comment. OpenMesh's OFF reader does not know comments: a
 // comment line after the header made it read made-up counts (a different
@@ -502,14 +525,21 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
   SoupImporter importer(&soup);
   OpenMesh::IO::Options options;
   bool ok = false;
-  try {
-    if (std::optional<std::string> text =
-            format == "off" ? OffWithoutComments(path) : std::nullopt) {
-      std::istringstream stream(*std::move(text));
-      ok = OpenMesh::IO::IOManager().read(stream, ".off", importer, options);
-    } else {
-      ok = OpenMesh::IO::IOManager().read(path, importer, options);
+  // Read by name, never from a stream: OpenMesh's OFF reader learns a file's
+  // variant from its header only when given the name, and a stream read
+  // took the variant of the file read before.
+  std::string uncommented;
+  absl::Cleanup remove_uncommented = [&uncommented] {
+    if (!uncommented.empty()) ::unlink(uncommented.c_str());
+  };
+  if (format == "off") {
+    if (std::optional<std::string> text = OffWithoutComments(path)) {
+      ASSIGN_OR_RETURN(uncommented, WriteTemporaryMeshFile(*text, format));
     }
+  }
+  try {
+    ok =
+        OpenMesh::IO::IOManager().read(uncommented.empty() ? path : uncommented, importer, options);
   } catch (const std::exception& e) {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: unreadable %s file (%s)", name, format, e.what()));
@@ -609,25 +639,9 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
   const std::string fmt = absl::AsciiStrToLower(std::string(format));
   RETURN_IF_ERROR(CheckFormat(fmt, name));
   if (bytes.empty()) return absl::InvalidArgumentError(absl::StrFormat("%s is empty", name));
-  // OpenMesh's readers pick the format by file name: go through a private
-  // temporary file that is removed right after reading.
-  std::string pattern =
-      (std::filesystem::temp_directory_path() / ("geodesic-upload-XXXXXX." + fmt)).string();
-  int fd = ::mkstemps(pattern.data(), static_cast<int>(fmt.size() + 1));
-  if (fd < 0) return absl::InternalError("cannot create a temporary file for the upload");
-  size_t written = 0;
-  while (written < bytes.size()) {
-    ssize_t n = ::write(fd, bytes.data() + written, bytes.size() - written);
-    if (n <= 0) {
-      ::close(fd);
-      ::unlink(pattern.c_str());
-      return absl::ResourceExhaustedError("cannot write the upload to a temporary file");
-    }
-    written += n;
-  }
-  ::close(fd);
-  auto soup = ReadWithOpenMesh(pattern, std::string(name), fmt, diagnostics);
-  ::unlink(pattern.c_str());
+  ASSIGN_OR_RETURN(const std::string path, WriteTemporaryMeshFile(bytes, fmt));
+  auto soup = ReadWithOpenMesh(path, std::string(name), fmt, diagnostics);
+  ::unlink(path.c_str());
   return soup;
 }
 
