@@ -188,12 +188,9 @@ class GeodesicEngine {
   // Safe while queries run; once it has succeeded, later calls return at
   // once. CANCELLED (and no landmarks) if `cancelled` says so.
   absl::Status PrepareExactLandmarks(int count, const std::function<bool()>& cancelled = {}) const;
-  // What PrepareExactLandmarks holds while it runs, and after.
+  // What PrepareExactLandmarks holds while it runs.
   uint64_t ExactLandmarkComputeBytes(int count) const {
     return ExactLandmarks::ComputeBytes(*mesh_, count);
-  }
-  uint64_t ExactLandmarkBytes(int count) const {
-    return uint64_t{mesh_->num_vertices()} * count * sizeof(float);
   }
   // Bytes held by the exact landmark fields (0 before PrepareExactLandmarks).
   uint64_t exact_landmark_bytes() const;
