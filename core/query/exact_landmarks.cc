@@ -41,6 +41,9 @@ std::vector<VertexId> CornersOf(const Mesh& mesh, const SurfacePoint& p) {
 
 absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
     const Mesh& mesh, std::span<const VertexId> vertices, const std::function<bool()>& cancelled) {
+  if (vertices.empty()) {
+    return absl::InvalidArgumentError("exact landmarks need at least one landmark vertex");
+  }
   for (VertexId v : vertices) {
     if (v >= mesh.num_vertices()) {
       return absl::OutOfRangeError(

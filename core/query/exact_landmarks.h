@@ -33,7 +33,7 @@ namespace geodesic {
 class ExactLandmarks {
  public:
   // One exact field from each of `vertices` (OUT_OF_RANGE for an id past the
-  // mesh), spread over the cores. `cancelled` is polled during the
+  // mesh, INVALID_ARGUMENT for none), spread over the cores. `cancelled` is polled during the
   // propagations (CANCELLED).
   static absl::StatusOr<std::unique_ptr<const ExactLandmarks>> Compute(
       const Mesh& mesh, std::span<const VertexId> vertices,

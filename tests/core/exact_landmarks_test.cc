@@ -76,13 +76,14 @@ TEST(ExactLandmarksTest, FloorIsInfiniteAcrossComponents) {
   }
 }
 
-TEST(ExactLandmarksTest, RefusesAVertexPastTheMeshAndStopsWhenCancelled) {
+TEST(ExactLandmarksTest, RefusesNoVerticesOrOnePastTheMeshAndStopsWhenCancelled) {
   const Mesh mesh = PlanarGrid(4, 4, 0.1);
   const std::vector<VertexId> past = {0, static_cast<VertexId>(mesh.num_vertices())};
   auto refused = ExactLandmarks::Compute(mesh, past);
   EXPECT_EQ(refused.status().code(), absl::StatusCode::kOutOfRange);
   EXPECT_NE(refused.status().message().find(std::to_string(mesh.num_vertices())), std::string::npos)
       << refused.status();
+  EXPECT_EQ(ExactLandmarks::Compute(mesh, {}).status().code(), absl::StatusCode::kInvalidArgument);
   auto cancelled = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 2), [] { return true; });
   EXPECT_EQ(cancelled.status().code(), absl::StatusCode::kCancelled);
 }
