@@ -166,8 +166,9 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "--graph-dir is always mapped)");
   app.add_option("--exact-landmarks", o.exact_landmarks,
                  "exact distance fields from this many landmarks a graph computes in the "
-                 "background once asked for exact answers (4 bytes per vertex each, one exact "
-                 "field's time each, on a build worker): each exact pair then sweeps a narrower "
+                 "background once asked for exact answers (4 bytes per vertex each, and 64 per "
+                 "half-edge for the face frames exact pairs then share; one exact field's time "
+                 "each, on a build worker): each exact pair then sweeps a narrower "
                  "region (0: none, exact pairs prune by the straight line only)")
       ->check(CLI::Range(0, 64));
   app.add_flag("--exact-fans", f.exact_fans,

@@ -198,6 +198,9 @@ class ExactGeodesic {
 
   const ExactStats& stats() const { return stats_; }
   const Mesh& mesh() const { return mesh_; }
+  // Frames to read instead of computing each face's per window (nullptr:
+  // compute them); built from this engine's mesh, alive while in use.
+  void set_frames(const FaceFrames* frames) { frames_ = frames; }
 
  private:
   struct Window;

@@ -54,7 +54,10 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
   out->count_ = static_cast<int>(vertices.size());
   out->vertices_.assign(vertices.begin(), vertices.end());
   out->distance_.assign(mesh.num_vertices() * vertices.size(), static_cast<float>(kInf));
-  const FaceFrames frames(mesh);
+  out->num_vertices_ = mesh.num_vertices();
+  out->num_halfedges_ = mesh.num_halfedges();
+  out->frames_ = std::make_unique<const FaceFrames>(mesh);
+  const FaceFrames& frames = *out->frames_;
   std::vector<double> largest(vertices.size(), 0);
   RETURN_IF_ERROR(ForEachInParallel(vertices.size(), [&](size_t k) -> absl::Status {
     if (cancelled && cancelled()) return absl::CancelledError("exact landmarks cancelled");
@@ -75,12 +78,11 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
 
 uint64_t ExactLandmarks::ComputeBytes(const Mesh& mesh, int count) {
   // Each engine holds about 64 bytes per vertex and its wavefront's windows;
-  // the frames are one cache line per half-edge.
+  // what is kept is the fields and the frames (one cache line per half-edge).
   const uint64_t engines = std::min<uint64_t>(std::max(1u, std::thread::hardware_concurrency()),
                                               static_cast<uint64_t>(std::max(count, 1)));
   const uint64_t vertices = mesh.num_vertices();
-  return vertices * count * sizeof(float) + mesh.num_halfedges() * sizeof(FaceFrame) +
-         engines * vertices * 64;
+  return ByteSize(vertices, mesh.num_halfedges(), count) + engines * vertices * 64;
 }
 
 ExactLandmarks::Floor ExactLandmarks::FloorFor(const Mesh& mesh, const SurfacePoint& goal) const {

@@ -58,8 +58,16 @@ class ExactLandmarks {
   Floor FloorFor(const Mesh& mesh, const SurfacePoint& goal) const;
 
   int count() const { return count_; }
+  // The face frames the fields were computed with, kept for the exact pairs
+  // these landmarks serve: reading a frame is cheaper than computing it per
+  // window.
+  const FaceFrames* frames() const { return frames_.get(); }
   std::span<const VertexId> vertices() const { return vertices_; }
-  uint64_t byte_size() const { return distance_.size() * sizeof(float); }
+  // The fields and the frames.
+  uint64_t byte_size() const { return ByteSize(num_vertices_, num_halfedges_, count_); }
+  static uint64_t ByteSize(uint64_t vertices, uint64_t halfedges, int count) {
+    return vertices * count * sizeof(float) + halfedges * sizeof(FaceFrame);
+  }
 
  private:
   std::span<const float> of(VertexId v) const {
@@ -72,6 +80,8 @@ class ExactLandmarks {
   // Subtracted from every bound: float rounding of both distances, and the
   // engine's own, at the largest finite distance.
   double slack_ = 0;
+  std::unique_ptr<const FaceFrames> frames_;
+  uint64_t num_vertices_ = 0, num_halfedges_ = 0;
 };
 
 }  // namespace geodesic

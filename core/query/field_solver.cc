@@ -164,7 +164,11 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
     if (landmarks)
       options.goal_floor = &floor.emplace(landmarks->FloorFor(exact.mesh(), targets[0].point));
   }
-  absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
+  if (landmarks) exact.set_frames(landmarks->frames());
+  absl::Cleanup release = [&exact] {
+    exact.ReleaseLargeWindows();
+    exact.set_frames(nullptr);
+  };
   RETURN_IF_ERROR(exact.Distances(source, options).status());
   for (size_t j = 0; j < targets.size(); ++j) {
     if (row[j] == kInfinity) continue;

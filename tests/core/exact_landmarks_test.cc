@@ -25,7 +25,9 @@ TEST(ExactLandmarksTest, FloorNeverExceedsTheExactDistance) {
   auto landmarks = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 6));
   ASSERT_OK(landmarks);
   EXPECT_EQ((*landmarks)->count(), 6);
-  EXPECT_EQ((*landmarks)->byte_size(), mesh.num_vertices() * 6 * sizeof(float));
+  EXPECT_EQ((*landmarks)->byte_size(),
+            mesh.num_vertices() * 6 * sizeof(float) + mesh.num_halfedges() * sizeof(FaceFrame));
+  ASSERT_NE((*landmarks)->frames(), nullptr);
   const SurfacePoint goals[] = {SurfacePoint::Vertex(17), SurfacePoint::Edge(101, 0.3),
                                 SurfacePoint::Face(257, 0.2, 0.5, 0.3)};
   ExactGeodesic exact(mesh);

@@ -254,7 +254,8 @@ TEST_P(ExactPairsTest, EqualTheIndependentSolversPairsAndPaths) {
     windows_straight += r->windows;
   }
   ASSERT_OK(engine.PrepareExactLandmarks(8));
-  EXPECT_EQ(engine.exact_landmark_bytes(), mesh->num_vertices() * 8 * sizeof(float));
+  EXPECT_EQ(engine.exact_landmark_bytes(),
+            ExactLandmarks::ByteSize(mesh->num_vertices(), mesh->num_halfedges(), 8));
   for (size_t i = 0, k = 0; i < pairs.size(); i += 3, ++k) {
     const Pair& p = pairs[i];
     auto r = engine.Distance(p.a, p.b, exact_only);
