@@ -560,6 +560,15 @@ void GraphCache::WaitForReplica(const GraphKey& key, const std::shared_ptr<Entry
   e->not_before = absl::Now() + options_.replica_poll;
 }
 
+namespace {
+
+// GraphStatus::landmark_bytes: both kinds of landmarks.
+uint64_t LandmarkBytes(const GeodesicEngine& engine) {
+  return engine.landmark_bytes() + engine.exact_landmark_bytes();
+}
+
+}  // namespace
+
 void GraphCache::AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>& e,
                               const std::shared_ptr<const GeodesicEngine>& engine) {
   // Landmarks cut the nodes a point-to-point query settles several times;
@@ -580,7 +589,7 @@ void GraphCache::AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>&
     absl::MutexLock lock(&mu_);
     e->landmarks_pending = 0;
     if (!landmarks.ok() || !Current(key, *e) || e->engine != engine) return;
-    e->status.landmark_bytes = engine->landmark_bytes() + engine->exact_landmark_bytes();
+    e->status.landmark_bytes = LandmarkBytes(*engine);
     ++e->status.version;
     EvictOverBudget(key, notices);
   }
@@ -615,12 +624,12 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
     e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count);
     fits = EvictOverBudget(key, notices);
     if (!fits) {
-      e->exact_landmarks_pending = 0;
       Log(LogLevel::kWarning, "exact_landmarks_skipped",
           {{"mesh", key.mesh},
            {"eps", key.params.epsilon},
-           {"bytes", engine->ExactLandmarkComputeBytes(count)},
+           {"bytes", e->exact_landmarks_pending},
            {"reason", "over --memory-limit even after evicting every graph no query holds"}});
+      e->exact_landmarks_pending = 0;
     }
   }
   Announce(notices);
@@ -639,7 +648,7 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
           {{"mesh", key.mesh}, {"eps", key.params.epsilon}, {"error", made.ToString()}});
       return;
     }
-    e->status.landmark_bytes = engine->landmark_bytes() + engine->exact_landmark_bytes();
+    e->status.landmark_bytes = LandmarkBytes(*engine);
     ++e->status.version;
     Log(LogLevel::kInfo, "exact_landmarks_ready",
         {{"mesh", key.mesh},

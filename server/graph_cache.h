@@ -353,10 +353,11 @@ class GraphCache {
   void WaitForReplica(const GraphKey& key, const std::shared_ptr<Entry>& e);
   // Computes the landmarks of a published engine, counting their bytes
   // against the memory limit from the start.
-  // Runs on a worker: the exact landmarks WantExactLandmarks asked for.
-  void AddExactLandmarks(const GraphKey& key);
   void AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>& e,
                     const std::shared_ptr<const GeodesicEngine>& engine);
+  // Runs on a worker: the exact landmarks WantExactLandmarks asked for,
+  // counted the same way.
+  void AddExactLandmarks(const GraphKey& key);
   // Ends the entry's operation in failed or cancelled.
   void Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e, const absl::Status& why);
   // Moves `e` to a phase of its current state (progress reports).

@@ -152,6 +152,7 @@ class FaceFrames {
  public:
   explicit FaceFrames(const Mesh& mesh);
   const FaceFrame& operator[](HalfedgeId h) const { return frames_[h]; }
+  size_t size() const { return frames_.size(); }
 
  private:
   std::vector<FaceFrame> frames_;

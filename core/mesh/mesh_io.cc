@@ -479,10 +479,11 @@ absl::StatusOr<std::string> WriteTemporaryMeshFile(std::string_view bytes, const
 }
 
 // An OFF file's text without its comments ('#' to the end of a line) and
-// blank lines, or nullopt when it has no comment. OpenMesh's OFF reader does not know comments: a
-// comment line after the header made it read made-up counts (a different
-// error on each run), and one among the vertices shifted every number after
-// it, so the faces came out wrong and the file loaded all the same.
+// blank lines, or nullopt when it has no comment. OpenMesh's OFF reader does
+// not know comments: a comment line after the header made it read made-up
+// counts (a different error on each run), and one among the vertices shifted
+// every number after it, so the faces came out wrong and the file loaded all
+// the same.
 std::optional<std::string> OffWithoutComments(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());

@@ -1,7 +1,6 @@
 #include "core/query/exact_landmarks.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <limits>
 #include <thread>
@@ -52,10 +51,7 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
   }
   auto out = std::make_unique<ExactLandmarks>();
   out->count_ = static_cast<int>(vertices.size());
-  out->vertices_.assign(vertices.begin(), vertices.end());
   out->distance_.assign(mesh.num_vertices() * vertices.size(), static_cast<float>(kInf));
-  out->num_vertices_ = mesh.num_vertices();
-  out->num_halfedges_ = mesh.num_halfedges();
   out->frames_ = std::make_unique<const FaceFrames>(mesh);
   const FaceFrames& frames = *out->frames_;
   std::vector<double> largest(vertices.size(), 0);
@@ -100,6 +96,14 @@ ExactLandmarks::Floor ExactLandmarks::FloorFor(const Mesh& mesh, const SurfacePo
     }
   }
   return floor;
+}
+
+ExactLandmarkRun::ExactLandmarkRun(const ExactLandmarks* landmarks, ExactGeodesic& exact,
+                                   const SurfacePoint* goal, ExactOptions& options)
+    : exact_(exact) {
+  if (!landmarks) return;
+  if (goal) options.goal_floor = &floor_.emplace(landmarks->FloorFor(exact.mesh(), *goal));
+  exact.set_frames(landmarks->frames());
 }
 
 double ExactLandmarks::Floor::At(VertexId v) const {

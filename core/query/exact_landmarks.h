@@ -20,6 +20,7 @@
 #include <cstdint>
 #include <functional>
 #include <memory>
+#include <optional>
 #include <span>
 #include <vector>
 
@@ -33,8 +34,8 @@ namespace geodesic {
 class ExactLandmarks {
  public:
   // One exact field from each of `vertices` (OUT_OF_RANGE for an id past the
-  // mesh, INVALID_ARGUMENT for none), spread over the cores. `cancelled` is polled during the
-  // propagations (CANCELLED).
+  // mesh, INVALID_ARGUMENT for none), spread over the cores. `cancelled` is
+  // polled during the propagations (CANCELLED).
   static absl::StatusOr<std::unique_ptr<const ExactLandmarks>> Compute(
       const Mesh& mesh, std::span<const VertexId> vertices,
       const std::function<bool()>& cancelled = {});
@@ -62,9 +63,10 @@ class ExactLandmarks {
   // these landmarks serve: reading a frame is cheaper than computing it per
   // window.
   const FaceFrames* frames() const { return frames_.get(); }
-  std::span<const VertexId> vertices() const { return vertices_; }
   // The fields and the frames.
-  uint64_t byte_size() const { return ByteSize(num_vertices_, num_halfedges_, count_); }
+  uint64_t byte_size() const {
+    return ByteSize(distance_.size() / count_, frames_->size(), count_);
+  }
   static uint64_t ByteSize(uint64_t vertices, uint64_t halfedges, int count) {
     return vertices * count * sizeof(float) + halfedges * sizeof(FaceFrame);
   }
@@ -75,13 +77,27 @@ class ExactLandmarks {
   }
 
   int count_ = 0;
-  std::vector<VertexId> vertices_;
   std::vector<float> distance_;  // vertex-major: count_ values per vertex, +inf unreached
   // Subtracted from every bound: float rounding of both distances, and the
   // engine's own, at the largest finite distance.
   double slack_ = 0;
   std::unique_ptr<const FaceFrames> frames_;
-  uint64_t num_vertices_ = 0, num_halfedges_ = 0;
+};
+
+// What one exact run on a pooled engine takes from the landmarks, when they
+// are ready: their bounds towards the run's goal (if it has one) in its
+// options, and their frames, which the engine reads until this goes.
+class ExactLandmarkRun {
+ public:
+  ExactLandmarkRun(const ExactLandmarks* landmarks, ExactGeodesic& exact, const SurfacePoint* goal,
+                   ExactOptions& options);
+  ~ExactLandmarkRun() { exact_.set_frames(nullptr); }
+  ExactLandmarkRun(const ExactLandmarkRun&) = delete;
+  ExactLandmarkRun& operator=(const ExactLandmarkRun&) = delete;
+
+ private:
+  ExactGeodesic& exact_;
+  std::optional<ExactLandmarks::Floor> floor_;
 };
 
 }  // namespace geodesic

@@ -158,17 +158,10 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
   if (bound < 0) return absl::OkStatus();  // nothing reachable
   ExactOptions options =
       query_internal::ExactWithinGraphAnswer(bound, matrix.cancelled, matrix.exact_max_bytes);
-  std::optional<ExactLandmarks::Floor> floor;
-  if (targets.size() == 1) {
-    options.goal = targets[0].xyz;
-    if (landmarks)
-      options.goal_floor = &floor.emplace(landmarks->FloorFor(exact.mesh(), targets[0].point));
-  }
-  if (landmarks) exact.set_frames(landmarks->frames());
-  absl::Cleanup release = [&exact] {
-    exact.ReleaseLargeWindows();
-    exact.set_frames(nullptr);
-  };
+  if (targets.size() == 1) options.goal = targets[0].xyz;
+  ExactLandmarkRun with_landmarks(landmarks, exact,
+                                  targets.size() == 1 ? &targets[0].point : nullptr, options);
+  absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(source, options).status());
   for (size_t j = 0; j < targets.size(); ++j) {
     if (row[j] == kInfinity) continue;

@@ -385,12 +385,7 @@ absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const ExactLandmarks*
   ExactOptions options =
       query_internal::ExactWithinGraphAnswer(result.distance, pair.cancelled, pair.exact_max_bytes);
   options.goal = PositionOf(mesh, b);
-  std::optional<ExactLandmarks::Floor> floor;
-  if (landmarks) {
-    options.goal_floor = &floor.emplace(landmarks->FloorFor(mesh, b));
-    exact.set_frames(landmarks->frames());
-  }
-  absl::Cleanup unframe = [&exact] { exact.set_frames(nullptr); };
+  ExactLandmarkRun with_landmarks(landmarks, exact, &b, options);
   // The windows go once the answer is read: the engine stays in the pool.
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(a, options).status());
