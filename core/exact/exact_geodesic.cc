@@ -139,8 +139,47 @@ double BracketEndOnSideOf(const F& f, double a, double fa, double b, double fb, 
   return a;
 }
 
+// Where |x - I| - |x - R| = c on the edge line (y = 0) within [lo, hi], or
+// NaN. Squaring twice leaves a quadratic; of its roots, the one where
+// c^2 + (|I|^2 - |R|^2) + 2 (R.x - I.x) x has c's sign is on the right branch
+// (the other solves |x - I| - |x - R| = -c).
+double HyperbolaCrossing(const Vec2& I, const Vec2& R, double c, double lo, double hi) {
+  const double k1 = 2 * (R.x - I.x), k0 = Dot(I, I) - Dot(R, R) + c * c;
+  const double a = k1 * k1 - 4 * c * c;
+  const double b = 2 * k1 * k0 + 8 * c * c * I.x;
+  const double q = k0 * k0 - 4 * c * c * Dot(I, I);
+  const double disc = b * b - 4 * a * q;
+  if (!(disc >= 0) || c == 0) return std::nan("");
+  const double s = -0.5 * (b + std::copysign(std::sqrt(disc), b));
+  for (const double x : {s / a, q / s}) {
+    if (x >= lo && x <= hi && (k0 + k1 * x) * c > 0) return x;
+  }
+  return std::nan("");
+}
+
+// The end on a's side of the cut where f, |x - I| - |x - R| - c, changes sign
+// between a and b once (see BracketEndOnSideOf): the crossing in closed form,
+// moved a hair towards a and checked, or else root finding.
+template <typename F>
+double DominatedEnd(const F& f, const Vec2& I, const Vec2& R, double c, double a, double fa,
+                    double b, double fb, double L) {
+  const double root = HyperbolaCrossing(I, R, c, std::min(a, b), std::max(a, b));
+  if (!std::isnan(root)) {
+    // Rounding in the closed form is far below this; the cut gives it up.
+    const double hair = 1e-9 * L;
+    const double x = a < b ? root - hair : root + hair;
+    if ((x - a) * (b - x) > 0) {
+      const double fx = f(x);
+      if ((fx > 0) == (fa > 0)) return x;
+      b = x, fb = fx;
+    }
+  }
+  return BracketEndOnSideOf(f, a, fa, b, fb, kFilterSteps);
+}
+
 }  // namespace
 
+// A queued window: all that a full run reads of it, in one cache line.
 struct ExactGeodesic::Window {
   HalfedgeId h;     // crossed into face(h); frame: tail(h) at 0, head(h) at (L, 0)
   uint32_t parent;  // window this one was propagated from (kept windows only)
@@ -148,15 +187,22 @@ struct ExactGeodesic::Window {
   double b0, b1;    // interval along h from its tail
   double sx, sy;    // the (pseudo-)source unfolded into h's frame, sy < 0
   double sigma;     // distance from the source to the pseudo-source
-  double dmax;      // direct mode: Theorem 2's travel limit
-  double angle0;    // direct mode: polar angle at the source of the ray through b0
-  // Direct mode with epsilon: points on the window's two boundary rays that
-  // the graph reaches by a known route ("corners"), with that route's length.
-  // Any point beyond the window is reachable through a corner and a straight
+};
+
+// What direct mode also knows of a window's rays.
+struct ExactGeodesic::Rays {
+  double dmax;    // Theorem 2's travel limit
+  double angle0;  // polar angle at the source of the ray through b0
+  // With epsilon: points on the window's two boundary rays that the graph
+  // reaches by a known route ("corners"), with that route's length. Any
+  // point beyond the window is reachable through a corner and a straight
   // segment inside the window's cone (which is convex).
   Vec2 lc, rc;
   double lg, rg;
 };
+
+// A window being made or propagated.
+struct ExactGeodesic::Draft : Window, Rays {};
 
 struct ExactGeodesic::Candidate {
   double distance = kInf;
@@ -214,25 +260,29 @@ void ExactGeodesic::Reset() {
   floored_.clear();
   ClearSeen();
   windows_.clear();
+  rays_.clear();
   free_windows_.clear();
   heap_.Clear();
   stats_ = {};
 }
 
-uint32_t ExactGeodesic::Allocate(const Window& w) {
+uint32_t ExactGeodesic::Allocate(const Draft& w) {
   ++stats_.windows_created;
+  const bool direct = mode_ == Mode::kDirect;
   if (!free_windows_.empty()) {
     uint32_t i = free_windows_.back();
     free_windows_.pop_back();
     windows_[i] = w;
+    if (direct) rays_[i] = w;
     return i;
   }
   windows_.push_back(w);
+  if (direct) rays_.push_back(w);
   return static_cast<uint32_t>(windows_.size() - 1);
 }
 
-void ExactGeodesic::Push(double key, uint32_t item) {
-  heap_.Push(key, {item, false});
+void ExactGeodesic::Push(double key, uint32_t window, HalfedgeId h) {
+  heap_.Push(key, {window, h});
   stats_.peak_queue = std::max<uint64_t>(stats_.peak_queue, heap_.size());
 }
 
@@ -250,7 +300,7 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   } else if (!emitted_[v] && RadiatesFrom(mesh_, v) && !PastGoal(v, d)) {
     // A geodesic may bend here, or pass straight through: once this
     // distance is final, v radiates.
-    heap_.Push(d, {v, true});
+    heap_.Push(d, {v, kNone});
   }
 }
 
@@ -264,7 +314,7 @@ bool ExactGeodesic::PastGoal(VertexId v, double d) {
   return d + gap > max_distance_;
 }
 
-bool ExactGeodesic::Trim(Window& w, const EdgeEnds& edge) const {
+bool ExactGeodesic::Trim(Draft& w, const EdgeEnds& edge) const {
   const double L = edge.length;
   if (!(w.sy < -kMinHeight * L)) return false;
   const double width_floor = kMinWidth * L;
@@ -293,10 +343,10 @@ bool ExactGeodesic::Trim(Window& w, const EdgeEnds& edge) const {
   }
   if (w.b1 - w.b0 <= width_floor) return false;
   if (relays_) KeepCornersOnBoundary(w, b0, b1);
-  return TrimByFaceBehind(w);
+  return TrimByFaceBehind(w, edge);
 }
 
-void ExactGeodesic::KeepCornersOnBoundary(Window& w, double b0, double b1) const {
+void ExactGeodesic::KeepCornersOnBoundary(Draft& w, double b0, double b1) const {
   // A corner serves the points beyond a window along segments that stay
   // between the window's boundary rays and the corner, a region no vertex
   // lies in: the vertices inside the cone split it, and each child takes
@@ -316,28 +366,15 @@ void ExactGeodesic::KeepCornersOnBoundary(Window& w, double b0, double b1) const
   }
 }
 
-bool ExactGeodesic::TrimByFaceBehind(Window& w) const {
+bool ExactGeodesic::TrimByFaceBehind(Window& w, const EdgeEnds& edge) const {
   // The third vertex R of the face the window came through: a point x of the
   // window is also reached by d(R) + |R x| (a segment inside that face).
   // In direct mode with corners R is a corner of the window's shadow, whose
   // cut (TrimByRelays) already covers this: the test would remove nothing.
-  if (relays_) return true;
-  const HalfedgeId back = mesh_.twin(w.h);
-  if (back == kNone) return true;
-  const double dR = dist_[mesh_.opposite(back)];
+  if (relays_ || edge.behind == kNone) return true;
+  const double dR = dist_[edge.behind];
   if (!(dR < kInf)) return true;
-  const double L = mesh_.length(w.h);
-  Vec2 R;
-  if (frames_) {
-    // The face behind is the face of twin(h), in whose frame R is the apex:
-    // turning that frame half a turn about the edge's middle gives h's.
-    const Vec2 apex = (*frames_)[back].apex;
-    R = {L - apex.x, -apex.y};
-  } else {
-    R = PlaceFromDistances(L, mesh_.length(Mesh::next(back)), mesh_.length(Mesh::prev(back)),
-                           /*above=*/false);
-  }
-  return CutWhereShorter(w, R, dR, w.b0, w.b1, L);
+  return CutWhereShorter(w, edge.behind_at, dR, w.b0, w.b1, edge.length);
 }
 
 bool ExactGeodesic::CutWhereShorter(Window& w, const Vec2& R, double dR, double lo, double hi,
@@ -349,6 +386,9 @@ bool ExactGeodesic::CutWhereShorter(Window& w, const Vec2& R, double dR, double 
   if (!(hi > lo)) return true;
   const Vec2 I{w.sx, w.sy};
   const double c = dR * (1 + kFilterSlack) + kFilterSlack * L - w.sigma;
+  // |I x| - |R x| <= |I R|: a route from R no shorter than the window's
+  // source to R is nowhere shorter. Most windows pass so, with no root.
+  if (c >= 0 && Dot(I - R, I - R) <= c * c) return true;
   auto excess = [&](double x) {
     const Vec2 p{x, 0};
     return Norm(p - I) - Norm(p - R) - c;
@@ -369,9 +409,9 @@ bool ExactGeodesic::CutWhereShorter(Window& w, const Vec2& R, double dR, double 
   } else if (e0 > 0) {
     // One end is dominated, so the hyperbola crosses [lo, hi] once; only a
     // part at an end of w can be cut from it.
-    if (lo <= w.b0) w.b0 = BracketEndOnSideOf(excess, lo, e0, hi, e1, kFilterSteps);
+    if (lo <= w.b0) w.b0 = DominatedEnd(excess, I, R, c, lo, e0, hi, e1, L);
   } else if (hi >= w.b1) {
-    w.b1 = BracketEndOnSideOf(excess, hi, e1, lo, e0, kFilterSteps);
+    w.b1 = DominatedEnd(excess, I, R, c, hi, e1, lo, e0, L);
   }
   return w.b1 - w.b0 > kMinWidth * L;
 }
@@ -391,7 +431,7 @@ void ExactGeodesic::RememberSeen(const Window& w) {
   uint32_t& slot = seen_slot_[w.h];
   if (slot == kNone) {
     slot = seen_slots_.size();
-    seen_slots_.push_back({.h = w.h});
+    seen_slots_.push_back({.windows = {}, .h = w.h});
   }
   SeenSlot& seen = seen_slots_[slot];
   seen.windows[seen.next] = {w.b0, w.b1, w.sx, w.sy, w.sigma};
@@ -410,7 +450,7 @@ double ExactGeodesic::Nearest(const Window& w) {
   return w.sigma - w.sy;
 }
 
-bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
+bool ExactGeodesic::TrimAndPush(Draft& w, const EdgeEnds& edge) {
   // Rays the corners serve are cut before the window is queued, so windows
   // served whole are never stored (a window's own corners do not change
   // while it waits).
@@ -421,7 +461,7 @@ bool ExactGeodesic::TrimAndPush(Window& w, const EdgeEnds& edge) {
   if (key > max_distance_) return false;
   if (goal_ && key + GoalGap(w, edge) > max_distance_) return false;
   if (mode_ == Mode::kFull) RememberSeen(w);
-  Push(key, Allocate(w));
+  Push(key, Allocate(w), w.h);
   return true;
 }
 
@@ -463,8 +503,8 @@ void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double
   double d0 = Distance(point, mesh_.position(mesh_.tail(g)));
   double d1 = Distance(point, mesh_.position(mesh_.head(g)));
   Vec2 s = PlaceFromDistances(L, d0, d1, /*above=*/false);
-  Window w{g,     kNone, pseudo_source, 0,      L,      s.x,        s.y,
-           sigma, kInf,  angle_tail,    {0, 0}, {L, 0}, sigma + d0, sigma + d1};
+  Draft w{{g, kNone, pseudo_source, 0, L, s.x, s.y, sigma},
+          {kInf, angle_tail, {0, 0}, {L, 0}, sigma + d0, sigma + d1}};
   TrimAndPush(w, EndsOf(g));
 }
 
@@ -494,20 +534,13 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo) {
     if (g != kNone) {
       const double L = mesh_.length(g);
       Vec2 s = PlaceFromDistances(L, mesh_.length(p), mesh_.length(h), /*above=*/false);
-      Window w{g,
-               kNone,
-               pseudo,
-               0,
-               L,
-               s.x,
-               s.y,
-               sigma,
-               kInf,
+      Draft w{{g, kNone, pseudo, 0, L, s.x, s.y, sigma},
+              {kInf,
                mesh_.polar_angle(h) + mesh_.corner_angle(h),
                {0, 0},
                {L, 0},
                sigma + mesh_.length(p),
-               sigma + mesh_.length(h)};
+               sigma + mesh_.length(h)}};
       TrimAndPush(w, EndsOf(g));
     }
     h = mesh_.rotate(h);
@@ -582,7 +615,7 @@ void ExactGeodesic::SeedSource(const SurfacePoint& source) {
   }
 }
 
-bool ExactGeodesic::TrimByRelays(Window& w) const {
+bool ExactGeodesic::TrimByRelays(Draft& w) const {
   // Rays through x are served by a corner c once g_c + |c x| <= (1 + eps)
   // |I x|: every point p beyond x then has a graph route within 1 + eps of
   // its direct geodesic, g_c + |c x| + |x p| <= (1 + eps) (|I x| + |x p|).
@@ -632,14 +665,14 @@ bool ExactGeodesic::TrimByRelays(Window& w) const {
 
 // The direction from the window's source through x on its edge, as an angle
 // around the source.
-inline double ExactGeodesic::RayAngle(const Window& w, double x) {
+inline double ExactGeodesic::RayAngle(const Draft& w, double x) {
   return w.angle0 + SignedAngle(Vec2{w.b0 - w.sx, -w.sy}, Vec2{x - w.sx, -w.sy});
 }
 
 // The distance past which a direct-mode window's rays stop: its own limit,
 // and Theorem 2's d_max, past which every geodesic through the window is
 // within 1 + epsilon of a route through a vertex of its face sequence.
-ABSL_ATTRIBUTE_ALWAYS_INLINE inline double ExactGeodesic::DirectLimit(const Window& w,
+ABSL_ATTRIBUTE_ALWAYS_INLINE inline double ExactGeodesic::DirectLimit(const Draft& w,
                                                                       double L) const {
   double dmax = w.dmax;
   if (mode_ == Mode::kDirect && epsilon_ > 0) {
@@ -655,7 +688,7 @@ ABSL_ATTRIBUTE_ALWAYS_INLINE inline double ExactGeodesic::DirectLimit(const Wind
 // The window lights its face's apex C, crossing its edge at xc: C's distance
 // (and in direct mode the directions at both ends), and whether a route
 // through a corner already serves it.
-ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index, const Window& w,
+ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index, const Draft& w,
                                                                   const FaceFrame& face,
                                                                   double xc) {
   const Vec2 A{0, 0}, C = face.apex, I{w.sx, w.sy};
@@ -687,7 +720,9 @@ void ExactGeodesic::Propagate(uint32_t index) {
   // A copy: children may reallocate windows_. The window is not trimmed again
   // by distances that improved while it was queued: that removed few windows
   // for a large share of the solve (bench/notes.md, "Exact engine").
-  const Window w = windows_[index];
+  Draft w;
+  static_cast<Window&>(w) = windows_[index];
+  static_cast<Rays&>(w) = mode_ == Mode::kDirect ? rays_[index] : Rays{kInf, 0, {}, {}, 0, 0};
   ++stats_.windows_propagated;
   const FaceFrame& face = FrameOf(w.h);
   const double L = face.length;
@@ -705,7 +740,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
   auto ray_angle = [&](double x) { return RayAngle(w, x); };
   if (sees_c) ReachApex(index, w, face, xc);
 
-  auto make_child = [&](HalfedgeId g, const EdgeEnds& edge, const Vec2& origin, const Vec2& toward,
+  auto make_child = [&](HalfedgeId g, EdgeEnds edge, const Vec2& origin, const Vec2& toward,
                         double t0, double t1, double angle0, bool c_is_left, bool c_is_right) {
     const double len = edge.length;
     if (g == kNone || len <= 0) return;
@@ -719,13 +754,9 @@ void ExactGeodesic::Propagate(uint32_t index) {
       return Vec2{Dot(rel, u), Cross(u, rel)};
     };
     const Vec2 src = to_child(I);
-    Window c{g,        keep_windows_ ? index : kNone,
-             w.pseudo, t0 * len,
-             t1 * len, src.x,
-             src.y,    w.sigma,
-             dmax,     angle0,
-             {},       {},
-             w.lg,     w.rg};
+    edge.behind_at = to_child(edge.behind == face.head ? B : A);
+    Draft c{{g, keep_windows_ ? index : kNone, w.pseudo, t0 * len, t1 * len, src.x, src.y, w.sigma},
+            {dmax, angle0, {}, {}, w.lg, w.rg}};
     if (relays_) {
       // The ray through C bounds the children it separates; C is its corner.
       c.lc = c_is_left ? to_child(C) : to_child(w.lc);
@@ -750,7 +781,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const double end = std::min(w.b1, xc);
     const double t0 = HitParameter(I, Vec2{w.b0, 0} - I, A, C, 0);
     const double t1 = sees_c || xc <= w.b1 ? 1.0 : HitParameter(I, Vec2{end, 0} - I, A, C, 1);
-    make_child(face.twin_prev, {lb, face.tail, vc}, A, C, t0, t1, w.angle0, false,
+    make_child(face.twin_prev, {lb, face.tail, vc, face.head, {}}, A, C, t0, t1, w.angle0, false,
                sees_c && route_[vc] < kInf);
   }
   // Child on edge C -> B (the twin of next(h) runs C -> B).
@@ -758,7 +789,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const double begin = std::max(w.b0, xc);
     const double t0 = sees_c || xc >= w.b0 ? 0.0 : HitParameter(I, Vec2{begin, 0} - I, C, B, 0);
     const double t1 = HitParameter(I, Vec2{w.b1, 0} - I, C, B, 1);
-    make_child(face.twin_next, {la, vc, face.head}, C, B, t0, t1,
+    make_child(face.twin_next, {la, vc, face.head, face.tail, {}}, C, B, t0, t1,
                mode_ == Mode::kDirect ? ray_angle(begin) : 0.0, sees_c && route_[vc] < kInf, false);
   }
 }
@@ -808,7 +839,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
           "the exact propagation passed %u windows (%u MB), over its limit of %u MB",
           windows_.size(), WindowBytes() >> 20, max_window_bytes_ >> 20));
     }
-    if (top.is_vertex) {
+    if (top.h == kNone) {
       const VertexId v = top.item;
       if (emitted_[v]) continue;  // an older, longer entry
       emitted_[v] = 1;
@@ -816,6 +847,11 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       EmitFromVertex(v, dist_[v], v);
       continue;
     }
+    // The window was queued long ago and both it and its frame are likely
+    // out of cache: ask for them together rather than one after the other.
+    __builtin_prefetch(&windows_[top.item]);
+    if (mode_ == Mode::kDirect) __builtin_prefetch(&rays_[top.item]);
+    if (frames_) __builtin_prefetch(&(*frames_)[top.h]);
     Propagate(top.item);
     if (!keep_windows_) free_windows_.push_back(top.item);
   }
@@ -826,15 +862,18 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
 }
 
 uint64_t ExactGeodesic::WindowBytes() const {
-  return windows_.size() * sizeof(Window) + seen_slots_.size() * sizeof(SeenSlot);
+  return windows_.size() * sizeof(Window) + rays_.size() * sizeof(Rays) +
+         seen_slots_.size() * sizeof(SeenSlot);
 }
 
 void ExactGeodesic::ReleaseLargeWindows() {
-  if (windows_.capacity() * sizeof(Window) + seen_slots_.capacity() * sizeof(SeenSlot) <=
+  if (windows_.capacity() * sizeof(Window) + rays_.capacity() * sizeof(Rays) +
+          seen_slots_.capacity() * sizeof(SeenSlot) <=
       kScratchKeepBytes) {
     return;
   }
   windows_ = {};
+  rays_ = {};
   free_windows_ = {};
   ClearSeen();
   seen_slots_.shrink_to_fit();
@@ -846,8 +885,8 @@ uint64_t ExactGeodesic::memory_bytes() const {
   return sizeof(*this) + bytes(dist_) + bytes(via_window_) + bytes(via_vertex_) +
          bytes(angle_src_) + bytes(angle_vtx_) + bytes(emitted_) + bytes(route_) +
          bytes(excluded_) + bytes(touched_) + bytes(floor_at_) + bytes(floored_) +
-         bytes(seen_slot_) + bytes(seen_slots_) + bytes(windows_) + bytes(free_windows_) +
-         heap_.memory_bytes();
+         bytes(seen_slot_) + bytes(seen_slots_) + bytes(windows_) + bytes(rays_) +
+         bytes(free_windows_) + heap_.memory_bytes();
 }
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,

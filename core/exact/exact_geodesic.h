@@ -205,6 +205,8 @@ class ExactGeodesic {
 
  private:
   struct Window;
+  struct Rays;
+  struct Draft;
   struct Seed;
   enum class Mode { kFull, kDirect };
 
@@ -218,18 +220,25 @@ class ExactGeodesic {
   void EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma, uint32_t pseudo_source,
                         double angle_tail, double angle_head);
   void Propagate(uint32_t index);
-  static double RayAngle(const Window& w, double x);
-  double DirectLimit(const Window& w, double L) const;
-  void ReachApex(uint32_t index, const Window& w, const FaceFrame& face, double xc);
+  static double RayAngle(const Draft& w, double x);
+  double DirectLimit(const Draft& w, double L) const;
+  void ReachApex(uint32_t index, const Draft& w, const FaceFrame& face, double xc);
   void UpdateVertex(VertexId v, double d, uint32_t window, uint32_t via_vertex, double angle_src,
                     double angle_vertex);
   // The edge a window lies on, as its creator knows it: a child's edge is a
-  // side of its parent's face, so trimming it reads nothing of its own face.
+  // side of its parent's face, so trimming it reads nothing of its own face,
+  // and the parent's face is the face behind it, whose third vertex trims it
+  // too (kNone for windows from a vertex or source point: the face behind
+  // holds their source, which no vertex of it can beat).
   struct EdgeEnds {
     double length;
     VertexId tail, head;
+    VertexId behind = kNone;
+    Vec2 behind_at;  // in the edge's frame
   };
-  EdgeEnds EndsOf(HalfedgeId h) const { return {mesh_.length(h), mesh_.tail(h), mesh_.head(h)}; }
+  EdgeEnds EndsOf(HalfedgeId h) const {
+    return {mesh_.length(h), mesh_.tail(h), mesh_.head(h), kNone, {}};
+  }
   const FaceFrame& FrameOf(HalfedgeId h) {
     if (frames_) return (*frames_)[h];
     own_frame_ = FaceFrame::Of(mesh_, h);
@@ -238,10 +247,10 @@ class ExactGeodesic {
   // Whether no route through v, reached at d, can reach the goal within the
   // run's bound.
   bool PastGoal(VertexId v, double d);
-  bool Trim(Window& w, const EdgeEnds& edge) const;
-  bool TrimByRelays(Window& w) const;
-  void KeepCornersOnBoundary(Window& w, double b0, double b1) const;
-  bool TrimByFaceBehind(Window& w) const;
+  bool Trim(Draft& w, const EdgeEnds& edge) const;
+  bool TrimByRelays(Draft& w) const;
+  void KeepCornersOnBoundary(Draft& w, double b0, double b1) const;
+  bool TrimByFaceBehind(Window& w, const EdgeEnds& edge) const;
   // Cuts from w's ends what a route from R (at distance dR, in w's frame)
   // reaches shorter on [lo, hi] of the edge; false when nothing is left.
   bool CutWhereShorter(Window& w, const Vec2& R, double dR, double lo, double hi, double L) const;
@@ -249,7 +258,7 @@ class ExactGeodesic {
   void RememberSeen(const Window& w);
   // Trims w in place (copying the window for each child showed in the DGG
   // candidates' time) and queues what is left.
-  bool TrimAndPush(Window& w, const EdgeEnds& edge);
+  bool TrimAndPush(Draft& w, const EdgeEnds& edge);
   // The distance from the source to the window's nearest point: its key.
   static double Nearest(const Window& w);
   // A lower bound on the distance from the part of `edge` a window covers to
@@ -258,10 +267,10 @@ class ExactGeodesic {
   // The goal floor at v, asked of it once per run: every window on an edge
   // of v reads it.
   double FloorAt(VertexId v);
-  uint32_t Allocate(const Window& w);
+  uint32_t Allocate(const Draft& w);
   // What the run's windows hold: the windows and the seen slots.
   uint64_t WindowBytes() const;
-  void Push(double key, uint32_t item);
+  void Push(double key, uint32_t window, HalfedgeId h);
 
   struct Candidate;
   Candidate BestCandidate(const SurfacePoint& target) const;
@@ -311,11 +320,14 @@ class ExactGeodesic {
   void ClearSeen();
 
   std::vector<Window> windows_;
+  std::vector<Rays> rays_;  // direct mode: each window's rays, beside it
   std::vector<uint32_t> free_windows_;
   // Queued windows, and saddle or boundary vertices waiting to radiate.
   struct QueueItem {
     uint32_t item;
-    bool is_vertex;
+    // A window's half-edge, so that its frame is fetched alongside it; kNone:
+    // item is a vertex.
+    HalfedgeId h;
   };
   RadixHeap<QueueItem> heap_;
 };
