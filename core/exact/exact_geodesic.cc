@@ -720,9 +720,8 @@ void ExactGeodesic::Propagate(uint32_t index) {
   // A copy: children may reallocate windows_. The window is not trimmed again
   // by distances that improved while it was queued: that removed few windows
   // for a large share of the solve (bench/notes.md, "Exact engine").
-  Draft w;
-  static_cast<Window&>(w) = windows_[index];
-  static_cast<Rays&>(w) = mode_ == Mode::kDirect ? rays_[index] : Rays{kInf, 0, {}, {}, 0, 0};
+  static constexpr Rays kFullRun{kInf, 0, {}, {}, 0, 0};
+  const Draft w{windows_[index], mode_ == Mode::kDirect ? rays_[index] : kFullRun};
   ++stats_.windows_propagated;
   const FaceFrame& face = FrameOf(w.h);
   const double L = face.length;
@@ -756,7 +755,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const Vec2 src = to_child(I);
     edge.behind_at = to_child(edge.behind == face.head ? B : A);
     Draft c{{g, keep_windows_ ? index : kNone, w.pseudo, t0 * len, t1 * len, src.x, src.y, w.sigma},
-            {dmax, angle0, {}, {}, w.lg, w.rg}};
+            {dmax, angle0, w.lc, w.rc, w.lg, w.rg}};
     if (relays_) {
       // The ray through C bounds the children it separates; C is its corner.
       c.lc = c_is_left ? to_child(C) : to_child(w.lc);
