@@ -8,6 +8,7 @@
 #include <charconv>
 #include <chrono>
 #include <filesystem>
+#include <new>
 #include <set>
 
 #include "absl/status/status.h"
@@ -81,11 +82,25 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Open(const std::stri
 
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Build(const Mesh& mesh,
                                                                   const DggBuildOptions& options) {
-  return BuildDgg(mesh, options);
+  // The build's edge array throws, as std::vector does, when it cannot have
+  // its pages; kept in a file, also when the disk has no blocks for them. A
+  // full graph directory fails this graph; it must not end the daemon.
+  try {
+    return BuildDgg(mesh, options);
+  } catch (const std::bad_alloc&) {
+    return absl::ResourceExhaustedError(
+        options.edge_file.fd >= 0
+            ? "no room for the graph: no disk blocks for its edges in its file, or no memory"
+            : "no memory for the graph");
+  }
 }
 
 absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {
   return GraphFile::Write(graph, path);
+}
+
+absl::Status GraphMaker::Finish(GraphFileDraft draft, const DggGraph& graph) {
+  return std::move(draft).Finish(graph);
 }
 
 absl::StatusOr<CertifiedGraph> GraphMaker::BuildCertified(std::shared_ptr<const Mesh> mesh,
@@ -520,16 +535,22 @@ void GraphCache::Run(const GraphKey& key) {
   const bool from_file = graph != nullptr;
   if (!graph) {
     if (!SetPhase(key, e, GraphState::kBuilding, "candidates", 0)) return;
-    auto built = Build(key, *e, &certificate);
+    // Every return before Persist drops the draft, and its temporary file.
+    std::optional<GraphFileDraft> draft;
+    auto built = Build(key, *e, &draft, &certificate);
     if (!built.ok()) {
+      // Nothing of the build is left once it is seen failed or cancelled.
+      draft.reset();
+      building.Release();
       Abandon(key, e, built.status());
       return;
     }
     graph = *std::move(built);
     if (!e->path.empty()) {
       if (!SetPhase(key, e, GraphState::kPersisting, "writing", 1)) return;
-      auto persisted = Persist(key, *e, std::move(graph), certificate, &note);
+      auto persisted = Persist(key, *e, std::move(graph), std::move(draft), certificate, &note);
       if (!persisted.ok()) {
+        building.Release();
         Abandon(key, e, persisted.status());
         return;
       }
@@ -697,12 +718,27 @@ std::shared_ptr<const DggGraph> GraphCache::Load(const GraphKey& key, Entry& e, 
   return nullptr;
 }
 
-absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
-    const GraphKey& key, Entry& e, std::optional<GraphCertificate>* certificate) {
-  Log(LogLevel::kInfo, "graph_build_started",
-      {{"mesh", key.mesh}, {"params", DescribeParams(key.params)}, {"max_error", key.max_error}});
-  ++builds_started_;
-  ++builds_running_;
+namespace {
+
+// The file a plain build keeps its edges in as it makes them
+// (GraphFileDraft), so that they take page cache, which the kernel writes
+// back and reclaims, instead of the daemon's memory; Persist commits it.
+// None without a graph directory; none with pseudo vertices, whose node
+// count, which lays the file out, the build decides; none for a certified
+// graph, whose builds are several, at epsilons it picks as it goes: it
+// stays built in memory and is written whole.
+absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const GraphKey& key, const std::string& path,
+                                                       const Mesh& mesh, DggBuildOptions& options) {
+  if (path.empty() || key.params.pseudo_vertices || key.max_error > 0) return std::nullopt;
+  auto draft = GraphFileDraft::Create(path, mesh.num_vertices());
+  if (!draft.ok()) return draft.status();
+  options.edge_file = draft->edge_file();
+  return std::optional<GraphFileDraft>(*std::move(draft));
+}
+
+}  // namespace
+
+DggBuildOptions GraphCache::BuildOptions(const GraphKey& key, Entry& e) {
   DggBuildOptions options;
   options.params = key.params;
   options.threads = options_.build_threads;
@@ -710,56 +746,78 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   options.candidate_memory_limit = options_.build_memory_limit;
   options.spill_dir = options_.graph_dir.empty() ? std::filesystem::temp_directory_path().string()
                                                  : options_.graph_dir;
-  int logged_quarter = 0;
-  options.progress = [&](std::string_view phase, double fraction) {
+  auto logged_quarter = std::make_shared<int>(0);  // under mu_
+  options.progress = [this, &e, key, logged_quarter](std::string_view phase, double fraction) {
     absl::MutexLock lock(&mu_);
     if (e.status.phase != phase || fraction - e.status.progress >= 0.01 || fraction >= 1) {
       e.status.phase = std::string(phase);
       e.status.progress = fraction;
       ++e.status.version;
     }
-    if (static_cast<int>(4 * fraction) > logged_quarter && fraction < 1) {
-      logged_quarter = static_cast<int>(4 * fraction);
+    if (static_cast<int>(4 * fraction) > *logged_quarter && fraction < 1) {
+      *logged_quarter = static_cast<int>(4 * fraction);
       Log(LogLevel::kInfo, "graph_build_progress",
           {{"mesh", key.mesh},
            {"eps", key.params.epsilon},
-           {"percent", 25 * logged_quarter},
+           {"percent", 25 * *logged_quarter},
            {"phase", std::string(phase)}});
     }
     return !e.cancel.load();
   };
+  return options;
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::BuildCertified(
+    const GraphKey& key, Entry& e, const DggBuildOptions& options,
+    std::optional<GraphCertificate>* certificate) {
+  // Build, check against the exact engine, rebuild tighter if it missed:
+  // the phases of each build and then "check", the fraction of each
+  // build-and-check; later builds say which they are.
+  CertifyOptions certify;
+  certify.build = options;
+  certify.build.progress = nullptr;
+  certify.progress = [&](uint32_t build, std::string_view phase, double fraction) {
+    const std::string name =
+        build <= 1 ? std::string(phase) : absl::StrFormat("%s (build %u)", phase, build);
+    return options.progress(name, fraction);
+  };
+  certify.cancelled = [&e] { return e.cancel.load(); };
+  auto certified = options_.maker->BuildCertified(e.mesh->mesh, key.max_error, certify);
+  if (!certified.ok()) return certified.status();
+  *certificate = certified->certificate;
+  Log(LogLevel::kInfo, "graph_certified",
+      {{"mesh", key.mesh},
+       {"max_error", key.max_error},
+       {"eps", certified->certificate.epsilon},
+       {"measured_max_error", certified->certificate.measured_max_error},
+       {"measured_mean_error", certified->certificate.measured_mean_error},
+       {"sources", certified->certificate.sources},
+       {"builds", certified->certificate.builds}});
+  return std::move(certified->graph);
+}
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
+    const GraphKey& key, Entry& e, std::optional<GraphFileDraft>* draft,
+    std::optional<GraphCertificate>* certificate) {
+  Log(LogLevel::kInfo, "graph_build_started",
+      {{"mesh", key.mesh}, {"params", DescribeParams(key.params)}, {"max_error", key.max_error}});
+  DggBuildOptions options = BuildOptions(key, e);
+  // A directory that cannot take the file fails the graph before its build.
+  auto drafted = DraftFor(key, e.path, *e.mesh->mesh, options);
+  if (!drafted.ok()) return drafted.status();
+  if (drafted->has_value()) draft->emplace(*std::move(*drafted));
+  ++builds_started_;
+  ++builds_running_;
   const auto start = std::chrono::steady_clock::now();
   absl::StatusOr<std::shared_ptr<const DggGraph>> built;
   if (key.max_error > 0) {
-    // Build, check against the exact engine, rebuild tighter if it missed:
-    // the phases of each build and then "check", the fraction of each
-    // build-and-check; later builds say which they are.
-    CertifyOptions certify;
-    certify.build = options;
-    certify.build.progress = nullptr;
-    certify.progress = [&](uint32_t build, std::string_view phase, double fraction) {
-      const std::string name =
-          build <= 1 ? std::string(phase) : absl::StrFormat("%s (build %u)", phase, build);
-      return options.progress(name, fraction);
-    };
-    certify.cancelled = [&e] { return e.cancel.load(); };
-    auto certified = options_.maker->BuildCertified(e.mesh->mesh, key.max_error, certify);
-    if (certified.ok()) {
-      *certificate = certified->certificate;
-      built = std::move(certified->graph);
-      Log(LogLevel::kInfo, "graph_certified",
-          {{"mesh", key.mesh},
-           {"max_error", key.max_error},
-           {"eps", certified->certificate.epsilon},
-           {"measured_max_error", certified->certificate.measured_max_error},
-           {"measured_mean_error", certified->certificate.measured_mean_error},
-           {"sources", certified->certificate.sources},
-           {"builds", certified->certificate.builds}});
-    } else {
-      built = certified.status();
-    }
+    built = BuildCertified(key, e, options, certificate);
   } else {
     built = options_.maker->Build(*e.mesh->mesh, options);
+    if (*draft && absl::IsResourceExhausted(built.status())) {
+      built = absl::ResourceExhaustedError(
+          absl::StrFormat("building %s: %s", e.path, built.status().message()));
+    }
   }
   --builds_running_;
   const double seconds =
@@ -777,33 +835,46 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
 
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
     const GraphKey& key, Entry& e, std::shared_ptr<const DggGraph> graph,
-    const std::optional<GraphCertificate>& certificate, std::string* note) {
+    std::optional<GraphFileDraft> draft, const std::optional<GraphCertificate>& certificate,
+    std::string* note) {
   // The arrays are the file but for its header and alignment.
   const uint64_t bytes = graph->byte_size();
   {
     absl::MutexLock lock(&mu_);
     built_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = bytes;
   }
+  // A draft's edges have been in the directory, under a temporary name, all
+  // through the build; the budget admits the file as a whole, as it does a
+  // file written after the build, and a refused draft is dropped with them.
   if (options_.disk) {
     if (absl::Status room = options_.disk->Reserve(bytes); !room.ok()) {
       Log(LogLevel::kWarning, "graph_write_refused",
           {{"mesh", key.mesh}, {"path", e.path}, {"error", room.ToString()}});
       return absl::ResourceExhaustedError(absl::StrFormat(
-          "the graph was built but its file was not kept: %s; use a larger epsilon or raise "
+          "the graph was built but its file %s was not kept: %s; use a larger epsilon or raise "
           "--disk-limit",
-          room.message()));
+          e.path, room.message()));
     }
   }
-  absl::Status written = options_.maker->Write(*graph, e.path);
+  const bool drafted = draft.has_value();
+  absl::Status written = drafted ? options_.maker->Finish(*std::move(draft), *graph)
+                                 : options_.maker->Write(*graph, e.path);
   if (options_.disk) {
     std::error_code ec;
     const uint64_t on_disk = written.ok() ? std::filesystem::file_size(e.path, ec) : 0;
     options_.disk->Done(bytes, ec ? bytes : on_disk);
   }
   if (!written.ok()) {
-    *note = absl::StrFormat("graph kept in memory only: %s", written.message());
     Log(LogLevel::kWarning, "graph_write_failed",
         {{"mesh", key.mesh}, {"path", e.path}, {"error", written.ToString()}});
+    // A graph built into its file is served from that file or not at all:
+    // the directory could not hold it.
+    if (drafted) {
+      return absl::Status(written.code(),
+                          absl::StrFormat("the graph was built but its file %s was not kept: %s",
+                                          e.path, written.message()));
+    }
+    *note = absl::StrFormat("graph kept in memory only: %s", written.message());
     return graph;
   }
   if (certificate) {
@@ -816,8 +887,12 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
     }
   }
   if (options_.on_file_used) options_.on_file_used(e.path);
-  // Serve the mapped copy: resident memory stays with the page cache. A
-  // certified graph's epsilon is its build's, not its key's.
+  // Serve the file mapped as a restart would map it, not the graph the
+  // build returned: read-only, its pages the page cache's, and counted the
+  // same (mapped, the file's bytes) whether built here or loaded. A draft's
+  // graph has only its edges in the file (a writable mapping of it) and
+  // the rest in memory, which goes with it. A certified graph's epsilon is
+  // its build's, not its key's.
   auto mapped =
       options_.maker->Open(e.path, *e.mesh->mesh, graph->params(), GraphFile::Check::kHeader);
   return mapped.ok() ? *std::move(mapped) : graph;

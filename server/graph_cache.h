@@ -25,7 +25,11 @@
 //   maps them again instead of rebuilding.
 // - Persistence: built graphs are written atomically to --graph-dir; a file
 //   that fails validation, or was built with other parameters, is moved
-//   aside, reported and rebuilt, never served.
+//   aside, reported and rebuilt, never served. A plain graph (no pseudo
+//   vertices, not certified) is built into its file (GraphFileDraft): its
+//   edges, most of its bytes, take page cache rather than the daemon's
+//   memory while it builds, and the file appears whole when committed, or
+//   not at all.
 // - Admission and lanes: each request carries an estimate of its graph's
 //   file bytes and build time (EstimateDggBuild). Admit() refuses, before
 //   any work, a graph over --max-graph-bytes or one that cannot fit the
@@ -164,9 +168,16 @@ class GraphMaker {
                                                                const Mesh& mesh,
                                                                const DggParams& params,
                                                                GraphFile::Check check);
+  // BuildDgg; with options.edge_file set, into the cache's draft of the
+  // graph's file. RESOURCE_EXHAUSTED when the build runs out of memory, or
+  // of disk for the edges kept in that file.
   virtual absl::StatusOr<std::shared_ptr<const DggGraph>> Build(const Mesh& mesh,
                                                                 const DggBuildOptions& options);
+  // A graph built in memory (a certified one): GraphFile::Write.
   virtual absl::Status Write(const DggGraph& graph, const std::string& path);
+  // A graph built into `draft` (through its edge_file): commits the file,
+  // GraphFileDraft::Finish.
+  virtual absl::Status Finish(GraphFileDraft draft, const DggGraph& graph);
 
   // A certified graph: BuildCertifiedGraph.
   virtual absl::StatusOr<CertifiedGraph> BuildCertified(std::shared_ptr<const Mesh> mesh,
@@ -333,14 +344,24 @@ class GraphCache {
   // A certified graph's certificate comes with it through `certificate`.
   std::shared_ptr<const DggGraph> Load(const GraphKey& key, Entry& e, std::string* note,
                                        std::optional<GraphCertificate>* certificate);
+  // A plain graph with a file to go to is built into `draft`, which the
+  // build leaves for Persist to commit; dropped, it leaves no file.
   absl::StatusOr<std::shared_ptr<const DggGraph>> Build(
-      const GraphKey& key, Entry& e, std::optional<GraphCertificate>* certificate);
-  // The written file's mapping (or `graph`, kept in memory, if the write
-  // failed); RESOURCE_EXHAUSTED if the disk budget refused the write. A
-  // certificate is written beside the file.
+      const GraphKey& key, Entry& e, std::optional<GraphFileDraft>* draft,
+      std::optional<GraphCertificate>* certificate);
+  // The options of the entry's build, progress reports and cancel included.
+  DggBuildOptions BuildOptions(const GraphKey& key, Entry& e);
+  absl::StatusOr<std::shared_ptr<const DggGraph>> BuildCertified(
+      const GraphKey& key, Entry& e, const DggBuildOptions& options,
+      std::optional<GraphCertificate>* certificate);
+  // The written file's mapping; RESOURCE_EXHAUSTED if the disk budget
+  // refused the write. A graph built into `draft` fails if its file cannot
+  // be committed; one built in memory is then kept in memory. A certificate
+  // is written beside the file.
   absl::StatusOr<std::shared_ptr<const DggGraph>> Persist(
       const GraphKey& key, Entry& e, std::shared_ptr<const DggGraph> graph,
-      const std::optional<GraphCertificate>& certificate, std::string* note);
+      std::optional<GraphFileDraft> draft, const std::optional<GraphCertificate>& certificate,
+      std::string* note);
   // Makes `graph` the entry's, if the entry is still current and not
   // cancelled; returns the engine published, or null.
   std::shared_ptr<const GeodesicEngine> Publish(const GraphKey& key,

@@ -11,11 +11,14 @@
 #include <filesystem>
 #include <fstream>
 #include <functional>
+#include <optional>
 #include <set>
 #include <vector>
 
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/notification.h"
+#include "core/base/atomic_file.h"
+#include "core/mesh/mesh_io.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "server/convert.h"
@@ -86,6 +89,16 @@ class HeldMaker : public GraphMaker {
     for (int s = 0; s < kSteps; ++s) Release(Step(s));
   }
   void FailBuild(bool fail) { fail_build_ = fail; }
+  // Writes and commits of drafts fail, after their step is passed.
+  void FailWrite(bool fail) { fail_write_ = fail; }
+  // Called after each real build with its options and result, on the
+  // build's worker.
+  using BuiltHook = std::function<void(const DggBuildOptions&,
+                                       const absl::StatusOr<std::shared_ptr<const DggGraph>>&)>;
+  void OnBuilt(BuiltHook hook) {
+    absl::MutexLock lock(&mu_);
+    on_built_ = std::move(hook);
+  }
   int calls(Step s) const { return calls_[s]; }
 
   absl::StatusOr<std::shared_ptr<const DggGraph>> Open(const std::string& path, const Mesh& mesh,
@@ -100,11 +113,25 @@ class HeldMaker : public GraphMaker {
                                                         const DggBuildOptions& options) override {
     Pass(kBuild);
     if (fail_build_) return absl::InternalError("the build broke on purpose");
-    return GraphMaker::Build(mesh, options);
+    auto built = GraphMaker::Build(mesh, options);
+    BuiltHook hook;
+    {
+      absl::MutexLock lock(&mu_);
+      hook = on_built_;
+    }
+    if (hook) hook(options, built);
+    return built;
   }
   absl::Status Write(const DggGraph& graph, const std::string& path) override {
     Pass(kWrite);
+    if (fail_write_) return absl::InternalError("the write broke on purpose");
     return GraphMaker::Write(graph, path);
+  }
+  // Committing a graph built into its file is the same step.
+  absl::Status Finish(GraphFileDraft draft, const DggGraph& graph) override {
+    Pass(kWrite);
+    if (fail_write_) return absl::InternalError("the write broke on purpose");
+    return GraphMaker::Finish(std::move(draft), graph);
   }
   // A certified graph's build and file take the same steps.
   absl::StatusOr<CertifiedGraph> BuildCertified(std::shared_ptr<const Mesh> mesh, double max_error,
@@ -151,6 +178,8 @@ class HeldMaker : public GraphMaker {
   std::shared_ptr<Gate> gates_[kSteps] ABSL_GUARDED_BY(mu_);
   std::atomic<int> calls_[kSteps] = {};
   std::atomic<bool> fail_build_{false};
+  std::atomic<bool> fail_write_{false};
+  BuiltHook on_built_ ABSL_GUARDED_BY(mu_);
 };
 
 class GraphCacheTest : public ::testing::Test {
@@ -250,6 +279,24 @@ class GraphCacheTest : public ::testing::Test {
     }
     trail.push_back(Settle(key));
     return trail;
+  }
+
+  // The names in the graph directory.
+  std::set<std::string> Files() {
+    std::set<std::string> names;
+    std::error_code ec;
+    for (const auto& entry : fs::directory_iterator(dir_, ec)) {
+      names.insert(entry.path().filename().string());
+    }
+    return names;
+  }
+  // Those of them that are AtomicFileWriter temporaries (drafts included).
+  std::set<std::string> Temporaries() {
+    std::set<std::string> names;
+    for (const std::string& name : Files()) {
+      if (IsAtomicTemporaryName(name)) names.insert(name);
+    }
+    return names;
   }
 
   std::vector<std::string> Notices() {
@@ -755,10 +802,128 @@ TEST_F(GraphCacheTest, AGraphFileOverTheDiskLimitIsNotWrittenAndTheGraphFails) {
   cache_ = std::make_unique<GraphCache>(options);
   cache_->Request(mesh, key.params);
   const GraphStatus failed = WaitFor(key, GraphState::kFailed);
-  EXPECT_THAT(failed.error, ::testing::AllOf(HasSubstr("--disk-limit"), HasSubstr("4096")));
+  const std::string path = cache_->GraphPath(mesh->fingerprint, key.params);
+  EXPECT_THAT(failed.error,
+              ::testing::AllOf(HasSubstr("--disk-limit"), HasSubstr("4096"), HasSubstr(path)));
   EXPECT_EQ(maker_->calls(HeldMaker::kWrite), 0);
-  EXPECT_FALSE(fs::exists(cache_->GraphPath(mesh->fingerprint, key.params)));
+  EXPECT_FALSE(fs::exists(path));
+  // Nor the draft the graph was built into.
+  EXPECT_THAT(Temporaries(), ::testing::IsEmpty());
   EXPECT_EQ(disk.used(), 0u);
+}
+
+std::shared_ptr<const RegisteredMesh> SpotMesh() {
+  auto mesh = LoadMesh(std::string(GEODESIC_SOURCE_DIR) + "/data/spot.obj");
+  EXPECT_TRUE(mesh.ok()) << mesh.status();
+  auto m = std::make_shared<RegisteredMesh>();
+  m->name = "spot";
+  m->mesh = std::make_shared<const Mesh>(*std::move(mesh));
+  m->fingerprint = MeshFingerprint(*m->mesh);
+  return m;
+}
+
+std::string FileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+// A plain graph is built into its file: the build keeps its edges there (page
+// cache, not the daemon's memory), and the file committed is the one the same
+// build made in memory writes, byte for byte. What is served is that file,
+// mapped, and counted at its bytes as a graph loaded from it would be.
+TEST_F(GraphCacheTest, APlainGraphIsBuiltIntoItsFileTheSameBytesAsWrittenAfterwards) {
+  auto mesh = SpotMesh();
+  const GraphKey key{"spot", Eps(1e-2)};
+  GraphCache& cache = Cache();
+  const std::string path = cache.GraphPath(mesh->fingerprint, key.params);
+  std::optional<DggEdgeFile> edge_file;
+  uint64_t edge_bytes = 0, draft_bytes = 0;
+  maker_->OnBuilt([&](const DggBuildOptions& options, const auto& built) {
+    edge_file = options.edge_file;
+    if (built.ok()) edge_bytes = (*built)->edges().size_bytes();
+    // Before the commit, the edges are in the draft beside the file.
+    for (const std::string& name : Temporaries()) {
+      draft_bytes = std::max<uint64_t>(draft_bytes, fs::file_size(dir_ / name));
+    }
+  });
+  cache.Request(mesh, key.params);
+  const GraphStatus ready = WaitFor(key, GraphState::kReady);
+  ASSERT_TRUE(edge_file.has_value());
+  EXPECT_GE(edge_file->fd, 0);
+  EXPECT_GT(edge_file->offset, 0u);
+  EXPECT_GT(edge_bytes, 0u);
+  EXPECT_GE(draft_bytes, edge_file->offset + edge_bytes);
+  EXPECT_TRUE(ready.mapped);
+  EXPECT_EQ(ready.bytes, fs::file_size(path));
+  EXPECT_EQ(cache.mapped_bytes(), ready.bytes);
+  // Only the graph is left: no draft, no build lock.
+  EXPECT_THAT(Files(), ::testing::ElementsAre(fs::path(path).filename().string()));
+
+  DggBuildOptions options;
+  options.params = key.params;
+  options.threads = 1;
+  auto in_memory = BuildDgg(*mesh->mesh, options);
+  ASSERT_TRUE(in_memory.ok()) << in_memory.status();
+  const std::string written = dir_.string() + ".written.dgg";
+  ASSERT_TRUE(GraphFile::Write(**in_memory, written).ok());
+  const std::string built_bytes = FileBytes(path), written_bytes = FileBytes(written);
+  fs::remove(written);
+  EXPECT_EQ(built_bytes.size(), written_bytes.size());
+  EXPECT_TRUE(built_bytes == written_bytes) << "the file built into differs from the one written";
+}
+
+// A build cancelled midway leaves neither the graph's file nor the draft it
+// was built into; asked again, the graph is built and committed.
+TEST_F(GraphCacheTest, ACancelledBuildLeavesNoFileNorDraft) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache();
+  maker_->Hold(HeldMaker::kBuild);
+  cache.Request(mesh, key.params);
+  ASSERT_TRUE(maker_->AwaitReached(HeldMaker::kBuild));
+  EXPECT_THAT(Temporaries(), ::testing::SizeIs(1)) << "no draft while building";
+  ASSERT_TRUE(cache.Cancel(key).ok());
+  maker_->Release(HeldMaker::kBuild);
+  WaitFor(key, GraphState::kCancelled);
+  const std::string path = cache.GraphPath(mesh->fingerprint, key.params);
+  EXPECT_FALSE(fs::exists(path));
+  EXPECT_THAT(Temporaries(), ::testing::IsEmpty());
+
+  cache.Request(mesh, key.params);
+  WaitFor(key, GraphState::kReady);
+  EXPECT_THAT(Files(), ::testing::ElementsAre(fs::path(path).filename().string()));
+}
+
+// A graph built into its file that cannot be committed fails, naming the
+// file, and leaves nothing behind: it is not served from memory instead.
+TEST_F(GraphCacheTest, AGraphWhoseFileCannotBeCommittedFailsNamingIt) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache();
+  maker_->FailWrite(true);
+  cache.Request(mesh, key.params);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  const std::string path = cache.GraphPath(mesh->fingerprint, key.params);
+  EXPECT_THAT(failed.error, ::testing::AllOf(HasSubstr(path), HasSubstr("on purpose")));
+  EXPECT_FALSE(fs::exists(path));
+  EXPECT_THAT(Temporaries(), ::testing::IsEmpty());
+  EXPECT_EQ(cache.Acquire(key).status().code(), absl::StatusCode::kFailedPrecondition);
+}
+
+// Graphs whose node count the build decides (pseudo vertices) are built in
+// memory and written whole, as before.
+TEST_F(GraphCacheTest, APseudoVertexGraphIsBuiltInMemoryAndWrittenWhole) {
+  auto mesh = GridMesh("grid", 6, /*z=*/0.3);
+  const GraphKey key{"grid", Eps(0.05, /*pseudo=*/true)};
+  GraphCache& cache = Cache();
+  std::optional<DggEdgeFile> edge_file;
+  maker_->OnBuilt(
+      [&](const DggBuildOptions& options, const auto&) { edge_file = options.edge_file; });
+  cache.Request(mesh, key.params);
+  EXPECT_TRUE(WaitFor(key, GraphState::kReady).mapped);
+  ASSERT_TRUE(edge_file.has_value());
+  EXPECT_EQ(edge_file->fd, -1);
+  EXPECT_EQ(maker_->calls(HeldMaker::kWrite), 1);
 }
 
 // Two caches on one directory (two replicas) asking for one graph: one
