@@ -736,6 +736,25 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const GraphKey& key, cons
   return std::optional<GraphFileDraft>(*std::move(draft));
 }
 
+// A daemon starting on the directory removes temporary files left unwritten
+// for a while (kDiskGrace in daemon.cc: a killed writer's). A draft can go
+// unwritten far longer, until its build makes the edges, so the build's
+// progress reports keep its modification time current, at most this often.
+constexpr int64_t kDraftTouchSeconds = 30;
+
+std::function<bool(std::string_view, double)> KeepingFresh(
+    int fd, std::function<bool(std::string_view, double)> progress) {
+  auto touched = std::make_shared<std::atomic<int64_t>>(0);
+  return [fd, touched, progress = std::move(progress)](std::string_view phase, double fraction) {
+    const int64_t now = absl::ToUnixSeconds(absl::Now());
+    int64_t last = touched->load();
+    if (now - last >= kDraftTouchSeconds && touched->compare_exchange_strong(last, now)) {
+      ::futimens(fd, nullptr);
+    }
+    return progress(phase, fraction);
+  };
+}
+
 }  // namespace
 
 DggBuildOptions GraphCache::BuildOptions(const GraphKey& key, Entry& e) {
@@ -805,7 +824,10 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   // A directory that cannot take the file fails the graph before its build.
   auto drafted = DraftFor(key, e.path, *e.mesh->mesh, options);
   if (!drafted.ok()) return drafted.status();
-  if (drafted->has_value()) draft->emplace(*std::move(*drafted));
+  if (drafted->has_value()) {
+    draft->emplace(*std::move(*drafted));
+    options.progress = KeepingFresh(options.edge_file.fd, std::move(options.progress));
+  }
   ++builds_started_;
   ++builds_running_;
   const auto start = std::chrono::steady_clock::now();

@@ -99,6 +99,11 @@ class HeldMaker : public GraphMaker {
     absl::MutexLock lock(&mu_);
     on_built_ = std::move(hook);
   }
+  // Called before each real build with its options, on the build's worker.
+  void BeforeBuild(std::function<void(const DggBuildOptions&)> hook) {
+    absl::MutexLock lock(&mu_);
+    before_build_ = std::move(hook);
+  }
   int calls(Step s) const { return calls_[s]; }
 
   absl::StatusOr<std::shared_ptr<const DggGraph>> Open(const std::string& path, const Mesh& mesh,
@@ -113,12 +118,15 @@ class HeldMaker : public GraphMaker {
                                                         const DggBuildOptions& options) override {
     Pass(kBuild);
     if (fail_build_) return absl::InternalError("the build broke on purpose");
-    auto built = GraphMaker::Build(mesh, options);
     BuiltHook hook;
+    std::function<void(const DggBuildOptions&)> before;
     {
       absl::MutexLock lock(&mu_);
       hook = on_built_;
+      before = before_build_;
     }
+    if (before) before(options);
+    auto built = GraphMaker::Build(mesh, options);
     if (hook) hook(options, built);
     return built;
   }
@@ -180,6 +188,7 @@ class HeldMaker : public GraphMaker {
   std::atomic<bool> fail_build_{false};
   std::atomic<bool> fail_write_{false};
   BuiltHook on_built_ ABSL_GUARDED_BY(mu_);
+  std::function<void(const DggBuildOptions&)> before_build_ ABSL_GUARDED_BY(mu_);
 };
 
 class GraphCacheTest : public ::testing::Test {
@@ -892,6 +901,31 @@ TEST_F(GraphCacheTest, ACancelledBuildLeavesNoFileNorDraft) {
   cache.Request(mesh, key.params);
   WaitFor(key, GraphState::kReady);
   EXPECT_THAT(Files(), ::testing::ElementsAre(fs::path(path).filename().string()));
+}
+
+// A daemon starting on the directory removes temporaries it finds unwritten
+// for a while; a build's progress keeps its draft's time current, even in
+// phases that write nothing to it.
+TEST_F(GraphCacheTest, ABuildsProgressKeepsItsDraftFresh) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  GraphCache& cache = Cache();
+  const auto an_hour_ago = fs::file_time_type::clock::now() - std::chrono::hours(1);
+  std::optional<fs::file_time_type> before, after;
+  maker_->BeforeBuild([&](const DggBuildOptions& options) {
+    const std::set<std::string> drafts = Temporaries();
+    if (drafts.size() != 1) return;
+    const fs::path draft = dir_ / *drafts.begin();
+    fs::last_write_time(draft, an_hour_ago);
+    before = fs::last_write_time(draft);
+    options.progress("candidates", 0);
+    after = fs::last_write_time(draft);
+  });
+  cache.Request(mesh, key.params);
+  WaitFor(key, GraphState::kReady);
+  ASSERT_TRUE(before.has_value() && after.has_value()) << "no draft while building";
+  EXPECT_LT(*before, an_hour_ago + std::chrono::minutes(1));
+  EXPECT_GT(*after, an_hour_ago + std::chrono::minutes(30));
 }
 
 // A graph built into its file that cannot be committed fails, naming the
