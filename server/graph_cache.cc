@@ -755,6 +755,17 @@ std::function<bool(std::string_view, double)> KeepingFresh(
   };
 }
 
+// What the disk budget must admit for a graph file of `bytes`. A draft's
+// edges are on disk since its build made them, under a temporary name, which
+// the budget's last count of the directory may or may not have seen: it
+// counts the directory now, draft included, and admits what the file adds.
+uint64_t BytesToAdmit(DiskBudget& disk, uint64_t bytes,
+                      const std::optional<GraphFileDraft>& draft) {
+  struct stat st;
+  if (!draft || !disk.Scan().ok() || ::fstat(draft->edge_file().fd, &st) != 0) return bytes;
+  return bytes - std::min<uint64_t>(bytes, st.st_size);
+}
+
 }  // namespace
 
 DggBuildOptions GraphCache::BuildOptions(const GraphKey& key, Entry& e) {
@@ -865,23 +876,27 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
     absl::MutexLock lock(&mu_);
     built_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = bytes;
   }
-  // A draft's edges have been in the directory, under a temporary name, all
-  // through the build; the budget admits the file as a whole, as it does a
-  // file written after the build, and a refused draft is dropped with them.
+  const bool drafted = draft.has_value();
+  const uint64_t admitted = options_.disk ? BytesToAdmit(*options_.disk, bytes, draft) : bytes;
   if (options_.disk) {
-    if (absl::Status room = options_.disk->Reserve(bytes); !room.ok()) {
+    if (absl::Status room = options_.disk->Reserve(admitted); !room.ok()) {
       Log(LogLevel::kWarning, "graph_write_refused",
           {{"mesh", key.mesh}, {"path", e.path}, {"error", room.ToString()}});
+      draft.reset();
+      if (drafted) options_.disk->Scan().IgnoreError();  // without the draft now
       return absl::ResourceExhaustedError(absl::StrFormat(
           "the graph was built but its file %s was not kept: %s; use a larger epsilon or raise "
           "--disk-limit",
           e.path, room.message()));
     }
   }
-  const bool drafted = draft.has_value();
   absl::Status written = drafted ? options_.maker->Finish(*std::move(draft), *graph)
                                  : options_.maker->Write(*graph, e.path);
-  if (options_.disk) {
+  if (options_.disk && drafted) {
+    // The draft became the file or went: the directory says which.
+    const bool scanned = options_.disk->Scan().ok();
+    options_.disk->Done(admitted, scanned || !written.ok() ? 0 : admitted);
+  } else if (options_.disk) {
     std::error_code ec;
     const uint64_t on_disk = written.ok() ? std::filesystem::file_size(e.path, ec) : 0;
     options_.disk->Done(bytes, ec ? bytes : on_disk);

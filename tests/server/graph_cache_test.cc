@@ -821,6 +821,39 @@ TEST_F(GraphCacheTest, AGraphFileOverTheDiskLimitIsNotWrittenAndTheGraphFails) {
   EXPECT_EQ(disk.used(), 0u);
 }
 
+// A draft's edges are on disk before its file is admitted: the budget counts
+// them once, also when a sweep counted the directory, draft and all, during
+// the build, and a file that fits beside what is there is kept.
+TEST_F(GraphCacheTest, TheDiskBudgetCountsADraftsEdgesOnce) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  Cache().Request(mesh, key.params);
+  WaitFor(key, GraphState::kReady);
+  const uint64_t file_bytes = fs::file_size(cache_->GraphPath(mesh->fingerprint, key.params));
+
+  Fresh();
+  fs::create_directories(dir_);
+  constexpr uint64_t kFiller = 100000;
+  std::ofstream(dir_ / "filler") << std::string(kFiller, 'x');
+  // Room for the file, not for the file and its edges again.
+  DiskBudget disk(dir_, kFiller + file_bytes + 1024);
+  ASSERT_TRUE(disk.Scan().ok());
+  Cache(/*persist=*/true, /*memory_limit=*/0, &disk);
+  uint64_t counted_with_draft = 0;
+  maker_->OnBuilt([&](const DggBuildOptions&, const auto&) {
+    EXPECT_TRUE(disk.Scan().ok());  // a sweep while the draft holds the edges
+    counted_with_draft = disk.used();
+  });
+  cache_->Request(mesh, key.params);
+  const GraphStatus ready = WaitFor(key, GraphState::kReady);
+  EXPECT_GT(counted_with_draft, kFiller + 1024) << ready.error;
+  std::error_code ec;
+  const uint64_t kept = fs::file_size(cache_->GraphPath(mesh->fingerprint, key.params), ec);
+  EXPECT_FALSE(ec) << ec.message();
+  EXPECT_EQ(disk.used(), kFiller + kept);
+  cache_.reset();  // before the budget it points to goes
+}
+
 std::shared_ptr<const RegisteredMesh> SpotMesh() {
   auto mesh = LoadMesh(std::string(GEODESIC_SOURCE_DIR) + "/data/spot.obj");
   EXPECT_TRUE(mesh.ok()) << mesh.status();
