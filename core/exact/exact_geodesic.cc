@@ -846,11 +846,11 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       EmitFromVertex(v, dist_[v], v);
       continue;
     }
-    // The window was queued long ago and both it and its frame are likely
-    // out of cache: ask for them together rather than one after the other.
-    __builtin_prefetch(&windows_[top.item]);
-    if (mode_ == Mode::kDirect) __builtin_prefetch(&rays_[top.item]);
-    if (frames_) __builtin_prefetch(&(*frames_)[top.h]);
+    // Windows are queued long before they are propagated, so a window and
+    // its frame are likely out of cache when popped: the next window's are
+    // asked for now, to arrive while this one is propagated.
+    Prefetch(top);
+    if (const QueueItem* next = heap_.PeekNext()) Prefetch(*next);
     Propagate(top.item);
     if (!keep_windows_) free_windows_.push_back(top.item);
   }
@@ -858,6 +858,13 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   // beyond max_distance and reported as +inf by the callers.
   heap_.Clear();
   return absl::OkStatus();
+}
+
+void ExactGeodesic::Prefetch(const QueueItem& item) const {
+  if (item.h == kNone) return;
+  __builtin_prefetch(&windows_[item.item]);
+  if (mode_ == Mode::kDirect) __builtin_prefetch(&rays_[item.item]);
+  if (frames_) __builtin_prefetch(&(*frames_)[item.h]);
 }
 
 uint64_t ExactGeodesic::WindowBytes() const {

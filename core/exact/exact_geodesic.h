@@ -330,6 +330,7 @@ class ExactGeodesic {
     HalfedgeId h;
   };
   RadixHeap<QueueItem> heap_;
+  void Prefetch(const QueueItem& item) const;
 };
 
 }  // namespace geodesic

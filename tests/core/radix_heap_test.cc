@@ -51,6 +51,32 @@ TEST(RadixHeapTest, PopsMonotoneWorkloadInKeyOrder) {
   EXPECT_GT(popped, 1000u);
 }
 
+// PeekNext, when it answers, names the value the next Pop returns (keys are
+// distinct here, so that value is unique), and it answers often enough to be
+// worth asking.
+TEST(RadixHeapTest, PeekNextIsWhatPopReturnsNext) {
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> step(0.0, 3.0);
+  RadixHeap<uint32_t> heap;
+  uint32_t next_id = 0;
+  for (int i = 0; i < 64; ++i) heap.Push(step(rng), next_id++);
+  size_t answered = 0, popped = 0;
+  while (!heap.empty()) {
+    const uint32_t* peeked = heap.PeekNext();
+    const uint32_t expected = peeked ? *peeked : 0;
+    const auto [key, id] = heap.Pop();
+    if (peeked) {
+      ++answered;
+      ASSERT_EQ(id, expected) << "after " << popped << " pops";
+    }
+    if (++popped < 5000) {
+      for (int k = 0; k < 2; ++k) heap.Push(key + step(rng), next_id++);
+    }
+  }
+  EXPECT_GT(popped, 5000u);
+  EXPECT_GT(answered, popped / 4);
+}
+
 TEST(RadixHeapTest, RaisesKeysBelowTheLastPoppedOne) {
   RadixHeap<int> heap;
   heap.Push(2.0, 1);
