@@ -8,7 +8,6 @@
 #include <charconv>
 #include <chrono>
 #include <filesystem>
-#include <new>
 #include <set>
 
 #include "absl/status/status.h"
@@ -82,17 +81,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Open(const std::stri
 
 absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Build(const Mesh& mesh,
                                                                   const DggBuildOptions& options) {
-  // The build's edge array throws, as std::vector does, when it cannot have
-  // its pages; kept in a file, also when the disk has no blocks for them. A
-  // full graph directory fails this graph; it must not end the daemon.
-  try {
-    return BuildDgg(mesh, options);
-  } catch (const std::bad_alloc&) {
-    return absl::ResourceExhaustedError(
-        options.edge_file.fd >= 0
-            ? "no room for the graph: no disk blocks for its edges in its file, or no memory"
-            : "no memory for the graph");
-  }
+  return BuildDgg(mesh, options);
 }
 
 absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {

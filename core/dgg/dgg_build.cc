@@ -6,6 +6,7 @@
 #include <chrono>
 #include <cmath>
 #include <memory>
+#include <new>
 #include <span>
 #include <vector>
 
@@ -45,10 +46,9 @@ absl::Status CheckBuildParams(const DggParams& params) {
   return absl::OkStatus();
 }
 
-// Phases 2-4 on the candidates of every vertex (`counts` long lists, by
-// vertex, fed by `feed`): pseudo vertices, pruning, fans. Runs inside the
-// caller's arena; null when cancelled.
-absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(
+namespace {
+
+absl::StatusOr<std::shared_ptr<const DggGraph>> FinishPhases(
     const Mesh& mesh, std::span<const uint32_t> counts, const CandidateFeed& feed,
     const DggParams& params, double pseudo_vertex_limit, const DggEdgeFile& edge_file,
     Progress& progress, DggBuildStats& st) {
@@ -98,6 +98,28 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(
   st.average_fan = arrays.edges.empty() ? 0 : double(fans) / arrays.edges.size();
   return DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
                                      MeshFingerprint(mesh));
+}
+
+}  // namespace
+
+// Phases 2-4 on the candidates of every vertex (`counts` long lists, by
+// vertex, fed by `feed`): pseudo vertices, pruning, fans. Runs inside the
+// caller's arena; null when cancelled.
+absl::StatusOr<std::shared_ptr<const DggGraph>> FinishBuild(
+    const Mesh& mesh, std::span<const uint32_t> counts, const CandidateFeed& feed,
+    const DggParams& params, double pseudo_vertex_limit, const DggEdgeFile& edge_file,
+    Progress& progress, DggBuildStats& st) {
+  // The edge array grows as std::vector does and throws when it cannot have
+  // its pages: no memory or, kept in the graph's file, no disk blocks.
+  try {
+    return FinishPhases(mesh, counts, feed, params, pseudo_vertex_limit, edge_file, progress, st);
+  } catch (const std::bad_alloc&) {
+    return absl::ResourceExhaustedError(
+        edge_file.fd >= 0
+            ? "no room for the graph's edges: the disk of its file has no blocks for them, or "
+              "there is no memory"
+            : "no memory for the graph's edges");
+  }
 }
 
 }  // namespace geodesic::dgg_build_internal
