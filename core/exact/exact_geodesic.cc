@@ -724,6 +724,14 @@ void ExactGeodesic::Propagate(uint32_t index) {
   const Draft w{windows_[index], mode_ == Mode::kDirect ? rays_[index] : kFullRun};
   ++stats_.windows_propagated;
   const FaceFrame& face = FrameOf(w.h);
+  // What the apex and the children read first, asked for together rather
+  // than one miss after another: the apex's distance, and in full runs the
+  // children's seen slots.
+  __builtin_prefetch(&dist_[face.apex_vertex]);
+  if (mode_ == Mode::kFull) {
+    if (face.twin_prev != kNone) __builtin_prefetch(&seen_slot_[face.twin_prev]);
+    if (face.twin_next != kNone) __builtin_prefetch(&seen_slot_[face.twin_next]);
+  }
   const double L = face.length;
   const double lb = face.length_prev;  // |AC|
   const double la = face.length_next;  // |BC|
