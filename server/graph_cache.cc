@@ -725,25 +725,6 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const GraphKey& key, cons
   return std::optional<GraphFileDraft>(*std::move(draft));
 }
 
-// A daemon starting on the directory removes temporary files left unwritten
-// for a while (kDiskGrace in daemon.cc: a killed writer's). A draft can go
-// unwritten far longer, until its build makes the edges, so the build's
-// progress reports keep its modification time current, at most this often.
-constexpr int64_t kDraftTouchSeconds = 30;
-
-std::function<bool(std::string_view, double)> KeepingFresh(
-    int fd, std::function<bool(std::string_view, double)> progress) {
-  auto touched = std::make_shared<std::atomic<int64_t>>(0);
-  return [fd, touched, progress = std::move(progress)](std::string_view phase, double fraction) {
-    const int64_t now = absl::ToUnixSeconds(absl::Now());
-    int64_t last = touched->load();
-    if (now - last >= kDraftTouchSeconds && touched->compare_exchange_strong(last, now)) {
-      ::futimens(fd, nullptr);
-    }
-    return progress(phase, fraction);
-  };
-}
-
 // What the disk budget must admit for a graph file of `bytes`. A draft's
 // edges are on disk since its build made them, under a temporary name, which
 // the budget's last count of the directory may or may not have seen: it
@@ -826,7 +807,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   if (!drafted.ok()) return drafted.status();
   if (drafted->has_value()) {
     draft->emplace(*std::move(*drafted));
-    options.progress = KeepingFresh(options.edge_file.fd, std::move(options.progress));
+    options.progress = (*draft)->KeepingFresh(std::move(options.progress));
   }
   ++builds_started_;
   ++builds_running_;

@@ -6,8 +6,10 @@
 #include <unistd.h>
 
 #include <array>
+#include <atomic>
 #include <cerrno>
 #include <charconv>
+#include <chrono>
 #include <cstring>
 #include <filesystem>
 #include <future>
@@ -214,6 +216,22 @@ absl::StatusOr<GraphFileDraft> GraphFileDraft::Create(const std::string& path, u
   auto file = AtomicFileWriter::Create(path);
   if (!file.ok()) return file.status();
   return GraphFileDraft(std::move(*file), num_nodes, EdgesOffset(num_nodes));
+}
+
+std::function<bool(std::string_view, double)> GraphFileDraft::KeepingFresh(
+    std::function<bool(std::string_view, double)> progress) const {
+  auto touched = std::make_shared<std::atomic<int64_t>>(0);  // seconds, steady clock
+  return [fd = file_.fd(), touched, progress = std::move(progress)](std::string_view phase,
+                                                                    double fraction) {
+    const int64_t now = std::chrono::duration_cast<std::chrono::seconds>(
+                            std::chrono::steady_clock::now().time_since_epoch())
+                            .count();
+    int64_t last = touched->load();
+    if ((last == 0 || now - last >= kTouchSeconds) && touched->compare_exchange_strong(last, now)) {
+      ::futimens(fd, nullptr);
+    }
+    return progress ? progress(phase, fraction) : true;
+  };
 }
 
 absl::Status GraphFileDraft::Finish(const DggGraph& graph) && {

@@ -12,8 +12,11 @@
 #ifndef GEODESIC_CORE_DGG_GRAPH_FILE_H_
 #define GEODESIC_CORE_DGG_GRAPH_FILE_H_
 
+#include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
+#include <string_view>
 
 #include "absl/status/statusor.h"
 #include "core/base/atomic_file.h"
@@ -84,6 +87,15 @@ class GraphFileDraft {
   static absl::StatusOr<GraphFileDraft> Create(const std::string& path, uint32_t num_nodes);
   DggEdgeFile edge_file() const { return {file_.fd(), edges_offset_}; }
   absl::Status Finish(const DggGraph& graph) &&;
+
+  // `progress` (may be empty) that also keeps the draft's modification time
+  // current, at most every kTouchSeconds: sweeps of stale temporary files (a
+  // daemon's, at start) judge by it, and a draft goes unwritten for as long
+  // as its build's candidate phase. For DggBuildOptions::progress while the
+  // draft lives.
+  static constexpr int64_t kTouchSeconds = 30;
+  std::function<bool(std::string_view, double)> KeepingFresh(
+      std::function<bool(std::string_view, double)> progress) const;
 
  private:
   GraphFileDraft(AtomicFileWriter file, uint32_t num_nodes, uint64_t edges_offset)

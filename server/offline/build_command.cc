@@ -78,6 +78,7 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const Mesh& mesh, const D
       GraphFileDraft::Create(GraphPath(out_path, graph_dir, MeshFingerprint(mesh), params),
                              mesh.num_vertices()));
   options.edge_file = draft.edge_file();
+  options.progress = draft.KeepingFresh(std::move(options.progress));
   return std::optional<GraphFileDraft>(std::move(draft));
 }
 
@@ -316,11 +317,12 @@ int RunBuild(int argc, char** argv) {
     return BuildPart(**mesh, options, f.part, f.out_path, f.json);
   }
   if (app.count("--max-error")) return BuildCertified(*mesh, options, f);
+  const bool bar = static_cast<bool>(options.progress);
   auto draft = DraftFor(**mesh, options.params, f.out_path, f.graph_dir, options);
   if (!draft.ok()) return Fail("build", draft.status());
   DggBuildStats stats;
   auto graph = BuildDgg(**mesh, options, &stats);
-  if (options.progress) std::fprintf(stderr, "\n");
+  if (bar) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("build", graph.status());
   return WriteAndReport("build", **mesh, **graph, stats, f.out_path, f.graph_dir, f.threads, f.json,
                         nullptr, std::move(*draft));
@@ -384,6 +386,7 @@ int RunMerge(int argc, char** argv) {
   options.threads = threads;
   options.pseudo_vertex_limit = pseudo_limit;
   options.progress = ProgressBar(!json && !quiet);
+  const bool bar = static_cast<bool>(options.progress);
   // The parts carry the graph's build record (checked alike by the merge).
   auto draft = parts.empty()
                    ? absl::StatusOr<std::optional<GraphFileDraft>>(std::nullopt)
@@ -391,7 +394,7 @@ int RunMerge(int argc, char** argv) {
   if (!draft.ok()) return Fail("merge", draft.status());
   DggBuildStats stats;
   auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);
-  if (options.progress) std::fprintf(stderr, "\n");
+  if (bar) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("merge", graph.status());
   return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json,
                         nullptr, std::move(*draft));

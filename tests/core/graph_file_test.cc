@@ -4,10 +4,12 @@
 
 #include <signal.h>
 #include <sys/resource.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <set>
@@ -314,6 +316,30 @@ TEST(GraphFileDraftTest, ADraftDroppedLeavesNoFile) {
     ASSERT_OK(draft);
   }
   EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+}
+
+// A draft goes unwritten through its build's candidate phase, and sweeps of
+// stale temporary files judge by modification time: the build's progress
+// keeps it current, and still reports to the caller's progress.
+TEST(GraphFileDraftTest, ProgressKeepsTheDraftFresh) {
+  TempDir dir;
+  auto draft = GraphFileDraft::Create(dir.File("fresh.dgg"), 100);
+  ASSERT_OK(draft);
+  const int fd = draft->edge_file().fd;
+  const timespec an_hour_ago[2] = {{time(nullptr) - 3600, 0}, {time(nullptr) - 3600, 0}};
+  ASSERT_EQ(::futimens(fd, an_hour_ago), 0);
+  std::vector<double> reported;
+  auto progress = draft->KeepingFresh([&](std::string_view, double fraction) {
+    reported.push_back(fraction);
+    return false;
+  });
+  EXPECT_FALSE(progress("candidates", 0.25));  // the caller's answer
+  EXPECT_EQ(reported, std::vector<double>{0.25});
+  struct stat st;
+  ASSERT_EQ(::fstat(fd, &st), 0);
+  EXPECT_GE(st.st_mtime, time(nullptr) - 60);
+  // With no progress of its own, the build goes on.
+  EXPECT_TRUE(draft->KeepingFresh(nullptr)("fans", 1.0));
 }
 
 }  // namespace geodesic
