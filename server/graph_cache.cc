@@ -721,7 +721,7 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const GraphKey& key, cons
   if (path.empty() || key.params.pseudo_vertices || key.max_error > 0) return std::nullopt;
   auto draft = GraphFileDraft::Create(path, mesh.num_vertices());
   if (!draft.ok()) return draft.status();
-  options.edge_file = draft->edge_file();
+  draft->AttachTo(options);
   return std::optional<GraphFileDraft>(*std::move(draft));
 }
 
@@ -805,10 +805,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   // A directory that cannot take the file fails the graph before its build.
   auto drafted = DraftFor(key, e.path, *e.mesh->mesh, options);
   if (!drafted.ok()) return drafted.status();
-  if (drafted->has_value()) {
-    draft->emplace(*std::move(*drafted));
-    options.progress = (*draft)->KeepingFresh(std::move(options.progress));
-  }
+  if (drafted->has_value()) draft->emplace(*std::move(*drafted));
   ++builds_started_;
   ++builds_running_;
   const auto start = std::chrono::steady_clock::now();

@@ -218,11 +218,11 @@ absl::StatusOr<GraphFileDraft> GraphFileDraft::Create(const std::string& path, u
   return GraphFileDraft(std::move(*file), num_nodes, EdgesOffset(num_nodes));
 }
 
-std::function<bool(std::string_view, double)> GraphFileDraft::KeepingFresh(
-    std::function<bool(std::string_view, double)> progress) const {
+void GraphFileDraft::AttachTo(DggBuildOptions& options) const {
+  options.edge_file = edge_file();
   auto touched = std::make_shared<std::atomic<int64_t>>(0);  // seconds, steady clock
-  return [fd = file_.fd(), touched, progress = std::move(progress)](std::string_view phase,
-                                                                    double fraction) {
+  options.progress = [fd = file_.fd(), touched, progress = std::move(options.progress)](
+                         std::string_view phase, double fraction) {
     const int64_t now = std::chrono::duration_cast<std::chrono::seconds>(
                             std::chrono::steady_clock::now().time_since_epoch())
                             .count();

@@ -88,14 +88,14 @@ class GraphFileDraft {
   DggEdgeFile edge_file() const { return {file_.fd(), edges_offset_}; }
   absl::Status Finish(const DggGraph& graph) &&;
 
-  // `progress` (may be empty) that also keeps the draft's modification time
-  // current, at most every kTouchSeconds: sweeps of stale temporary files (a
-  // daemon's, at start) judge by it, and a draft goes unwritten for as long
-  // as its build's candidate phase. For DggBuildOptions::progress while the
-  // draft lives.
+  // Makes the build of `options` keep its edges in this draft, and its
+  // progress reports (options.progress, may be empty) keep the draft's
+  // modification time current, at most every kTouchSeconds: sweeps of stale
+  // temporary files (a daemon's, at start) judge by it, and a draft goes
+  // unwritten for as long as its build's candidate phase. The draft must
+  // outlive the build.
   static constexpr int64_t kTouchSeconds = 30;
-  std::function<bool(std::string_view, double)> KeepingFresh(
-      std::function<bool(std::string_view, double)> progress) const;
+  void AttachTo(DggBuildOptions& options) const;
 
  private:
   GraphFileDraft(AtomicFileWriter file, uint32_t num_nodes, uint64_t edges_offset)

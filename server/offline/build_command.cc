@@ -77,8 +77,7 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const Mesh& mesh, const D
       GraphFileDraft draft,
       GraphFileDraft::Create(GraphPath(out_path, graph_dir, MeshFingerprint(mesh), params),
                              mesh.num_vertices()));
-  options.edge_file = draft.edge_file();
-  options.progress = draft.KeepingFresh(std::move(options.progress));
+  draft.AttachTo(options);
   return std::optional<GraphFileDraft>(std::move(draft));
 }
 

@@ -319,8 +319,9 @@ TEST(GraphFileDraftTest, ADraftDroppedLeavesNoFile) {
 }
 
 // A draft goes unwritten through its build's candidate phase, and sweeps of
-// stale temporary files judge by modification time: the build's progress
-// keeps it current, and still reports to the caller's progress.
+// stale temporary files judge by modification time: a build attached to the
+// draft keeps its edges there, and its progress keeps the draft current and
+// still reports to the caller's progress.
 TEST(GraphFileDraftTest, ProgressKeepsTheDraftFresh) {
   TempDir dir;
   auto draft = GraphFileDraft::Create(dir.File("fresh.dgg"), 100);
@@ -329,17 +330,23 @@ TEST(GraphFileDraftTest, ProgressKeepsTheDraftFresh) {
   const timespec an_hour_ago[2] = {{time(nullptr) - 3600, 0}, {time(nullptr) - 3600, 0}};
   ASSERT_EQ(::futimens(fd, an_hour_ago), 0);
   std::vector<double> reported;
-  auto progress = draft->KeepingFresh([&](std::string_view, double fraction) {
+  DggBuildOptions options;
+  options.progress = [&](std::string_view, double fraction) {
     reported.push_back(fraction);
     return false;
-  });
-  EXPECT_FALSE(progress("candidates", 0.25));  // the caller's answer
+  };
+  draft->AttachTo(options);
+  EXPECT_EQ(options.edge_file.fd, fd);
+  EXPECT_EQ(options.edge_file.offset, draft->edge_file().offset);
+  EXPECT_FALSE(options.progress("candidates", 0.25));  // the caller's answer
   EXPECT_EQ(reported, std::vector<double>{0.25});
   struct stat st;
   ASSERT_EQ(::fstat(fd, &st), 0);
   EXPECT_GE(st.st_mtime, time(nullptr) - 60);
   // With no progress of its own, the build goes on.
-  EXPECT_TRUE(draft->KeepingFresh(nullptr)("fans", 1.0));
+  DggBuildOptions quiet;
+  draft->AttachTo(quiet);
+  EXPECT_TRUE(quiet.progress("fans", 1.0));
 }
 
 }  // namespace geodesic
