@@ -61,10 +61,7 @@ class RadixHeap {
     // The next Refill takes the least entry of the lowest bucket; a few are
     // quickly scanned.
     const std::vector<Entry>& lowest = buckets_[1 + std::countr_zero(occupied_)];
-    if (lowest.size() > kPeekScan) return nullptr;
-    return &std::min_element(lowest.begin(), lowest.end(), [](const Entry& a, const Entry& b) {
-              return a.bits < b.bits;
-            })->value;
+    return lowest.size() > kPeekScan ? nullptr : &Least(lowest).value;
   }
 
   // The smallest key and its value; the heap must not be empty.
@@ -83,6 +80,12 @@ class RadixHeap {
     Value value;
   };
 
+  // The entry of a non-empty bucket with the smallest key.
+  static const Entry& Least(const std::vector<Entry>& bucket) {
+    return *std::min_element(bucket.begin(), bucket.end(),
+                             [](const Entry& a, const Entry& b) { return a.bits < b.bits; });
+  }
+
   size_t BucketOf(uint64_t bits) const {
     return bits == last_ ? 0 : 64 - std::countl_zero(bits ^ last_);
   }
@@ -97,9 +100,7 @@ class RadixHeap {
     const size_t i = 1 + std::countr_zero(occupied_);
     occupied_ &= ~(uint64_t{1} << (i - 1));
     std::vector<Entry>& from = buckets_[i];
-    last_ = std::min_element(from.begin(), from.end(), [](const Entry& a, const Entry& b) {
-              return a.bits < b.bits;
-            })->bits;
+    last_ = Least(from).bits;
     for (const Entry& e : from) Place(e);
     from.clear();
   }

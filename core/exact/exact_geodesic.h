@@ -268,7 +268,7 @@ class ExactGeodesic {
   // of v reads it.
   double FloorAt(VertexId v);
   uint32_t Allocate(const Draft& w);
-  // What the run's windows hold: the windows and the seen slots.
+  // What the run's windows hold: the windows, their rays and the seen slots.
   uint64_t WindowBytes() const;
   void Push(double key, uint32_t window, HalfedgeId h);
 
