@@ -459,28 +459,68 @@ bool ExactGeodesic::TrimAndPush(Draft& w, const EdgeEnds& edge) {
   if (mode_ == Mode::kFull && !TrimBySeenWindows(w, edge)) return false;
   const double key = Nearest(w);
   if (key > max_distance_) return false;
-  if (goal_ && key + GoalGap(w, edge) > max_distance_) return false;
+  if (goal_ && PastGoal(w, edge, key)) return false;
   if (mode_ == Mode::kFull) RememberSeen(w);
   Push(key, Allocate(w), w.h);
   return true;
 }
 
-double ExactGeodesic::GoalGap(const Window& w, const EdgeEnds& edge) {
+namespace exact_internal {
+
+double LeastStraightRoute(const SegmentRoutes& r, Vec2 goal) {
+  // The goal hinged about the line onto the side away from the source:
+  // |x - s| + |x - g| is least where segment s-g crosses the line, or at
+  // the segment's end nearer that crossing (the sum is convex in x).
+  const double sy = std::min(r.s.y, 0.0), gy = std::abs(goal.y);
+  const double crossing = r.s.x + (goal.x - r.s.x) * (-sy / (gy - sy));
+  const double x = std::clamp(std::isfinite(crossing) ? crossing : r.s.x, r.b0, r.b1);
+  return r.sigma + Hypot(x - r.s.x, sy) + Hypot(goal.x - x, gy);
+}
+
+double FlooredRest(const SegmentRoutes& r, double length, double f_tail, double f_head,
+                   double* at) {
+  *at = std::clamp((f_tail - f_head + length) / 2, r.b0, r.b1);
+  return std::max(f_tail - *at, f_head - (length - *at));
+}
+
+double LeastFlooredRoute(const SegmentRoutes& r, double length, double f_tail, double f_head) {
+  // D(x) - x falls and D(x) + x grows (|D'| < 1), so D plus the larger of
+  // f_tail - x and f_head - (L - x) is least where those two cross, or at
+  // the segment's end nearer that crossing.
+  double x;
+  const double rest = FlooredRest(r, length, f_tail, f_head, &x);
+  return r.sigma + Hypot(x - r.s.x, r.s.y) + rest;
+}
+
+}  // namespace exact_internal
+
+bool ExactGeodesic::PastGoal(const Window& w, const EdgeEnds& edge, double key) {
+  // Each test bounds the least, over the window's segment, of the distance
+  // there plus one lower bound on the rest of the way: the region swept is
+  // the ellipse of short routes, not what the two separate minima allow.
+  const exact_internal::SegmentRoutes routes{{w.sx, w.sy}, w.sigma, w.b0, w.b1};
+  if (goal_floor_) {
+    // A point x along the edge is at least floor(tail) - x and floor(head) -
+    // (L - x) from the goal (the edge is a path on the surface).
+    const double f_tail = FloorAt(edge.tail), f_head = FloorAt(edge.head);
+    // An edge's ends share a component: a goal beyond it is beyond both.
+    if (f_tail == kInf || f_head == kInf) return true;
+    double x;
+    // The nearest distance first: it needs no square root.
+    if (key + exact_internal::FlooredRest(routes, edge.length, f_tail, f_head, &x) >
+        max_distance_) {
+      return true;
+    }
+    if (exact_internal::LeastFlooredRoute(routes, edge.length, f_tail, f_head) > max_distance_) {
+      return true;
+    }
+  }
   const Vec3& p = mesh_.position(edge.tail);
   const Vec3 along = (mesh_.position(edge.head) - p) * (1 / edge.length);
   const Vec3 from_p = *goal_ - p;
-  // The goal's foot on the edge line, clamped to the window's interval.
-  const double t = std::clamp(Dot(from_p, along), w.b0, w.b1);
-  const double straight = Norm(from_p - along * t);
-  if (!goal_floor_) return straight;
-  // A point x along the edge is at least floor(tail) - x and floor(head) -
-  // (L - x) from the goal (the edge is a path on the surface); the larger of
-  // the two is least where they cross, or at the window's nearer end.
-  const double f_tail = FloorAt(edge.tail), f_head = FloorAt(edge.head);
-  // An edge's ends share a component: a goal beyond it is beyond both.
-  if (f_tail == kInf || f_head == kInf) return kInf;
-  const double x = std::clamp((f_tail - f_head + edge.length) / 2, w.b0, w.b1);
-  return std::max(straight, std::max(f_tail - x, f_head - (edge.length - x)));
+  const double gx = Dot(from_p, along);
+  const Vec2 goal{gx, Norm(from_p - along * gx)};
+  return exact_internal::LeastStraightRoute(routes, goal) > max_distance_;
 }
 
 double ExactGeodesic::FloorAt(VertexId v) {

@@ -80,8 +80,8 @@ struct ExactOptions {
   // Polled now and then; returning true aborts with CANCELLED.
   std::function<bool()> cancelled;
   // A point whose distance alone is wanted, with max_distance an upper bound
-  // on it (a graph answer): a window is dropped when its nearest distance
-  // plus the straight line from its segment to the goal passes that bound.
+  // on it (a graph answer): a window is dropped when every route through it
+  // to the goal, straight on from its segment, passes that bound.
   // Every window holding a point of a shortest path to the goal passes, so
   // the goal's distance (DistanceTo, Trace) stays exact while most of the
   // disc of radius max_distance is never swept; other vertices' distances
@@ -261,9 +261,10 @@ class ExactGeodesic {
   bool TrimAndPush(Draft& w, const EdgeEnds& edge);
   // The distance from the source to the window's nearest point: its key.
   static double Nearest(const Window& w);
-  // A lower bound on the distance from the part of `edge` a window covers to
-  // the goal: the straight line, or the goal floor's, whichever is larger.
-  double GoalGap(const Window& w, const EdgeEnds& edge);
+  // Whether every route from the source through the window (nearest at
+  // `key`) to the goal passes the run's bound, straight on from the window's
+  // segment or by the goal floor.
+  bool PastGoal(const Window& w, const EdgeEnds& edge, double key);
   // The goal floor at v, asked of it once per run: every window on an edge
   // of v reads it.
   double FloorAt(VertexId v);
@@ -332,6 +333,28 @@ class ExactGeodesic {
   RadixHeap<QueueItem> heap_;
   void Prefetch(const QueueItem& item) const;
 };
+
+namespace exact_internal {
+
+// Routes that reach a point (x, 0) of a segment [b0, b1] of the x axis at
+// sigma + |(x, 0) - s|, with s below the axis: a window on its edge's line.
+struct SegmentRoutes {
+  Vec2 s;
+  double sigma;
+  double b0, b1;
+};
+// The least, over the segment, of a route's length there plus the straight
+// line on to `goal` (taken on the axis' far side from s, as when hinged).
+double LeastStraightRoute(const SegmentRoutes& r, Vec2 goal);
+// The least, over the segment, of a route's length plus the larger of
+// f_tail - x and f_head - (length - x): the goal floors at the edge's ends
+// less the way along it.
+double LeastFlooredRoute(const SegmentRoutes& r, double length, double f_tail, double f_head);
+// That larger of the two where they cross (or at the segment's nearer end),
+// the point in `at`.
+double FlooredRest(const SegmentRoutes& r, double length, double f_tail, double f_head, double* at);
+
+}  // namespace exact_internal
 
 }  // namespace geodesic
 

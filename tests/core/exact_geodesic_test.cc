@@ -184,6 +184,51 @@ TEST(ExactGeodesicTest, DistanceLimitAndTargets) {
   EXPECT_LT(exact.stats().windows_propagated, full_work / 4);
 }
 
+// The bounds a goal run drops windows by are the least route over the
+// window's segment, not the sum of two minima taken at different points
+// (which let a third more windows through with a perfect goal floor,
+// bench/measurements.md, "Exact pairs"): never above a dense sampling of
+// the route, and within the sampling's step of its least value.
+TEST(ExactGeodesicTest, GoalBoundsAreTheLeastRouteOverTheSegment) {
+  using exact_internal::LeastFlooredRoute;
+  using exact_internal::LeastStraightRoute;
+  using exact_internal::SegmentRoutes;
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<double> u(0, 1);
+  int looser_sum = 0;
+  for (int trial = 0; trial < 2000; ++trial) {
+    const double length = 0.5 + u(rng);
+    double b0 = length * u(rng), b1 = length * u(rng);
+    if (b0 > b1) std::swap(b0, b1);
+    const SegmentRoutes r{{3 * u(rng) - 1, -0.01 - 2 * u(rng)}, u(rng), b0, b1};
+    const Vec2 goal{4 * u(rng) - 2, 2 * u(rng) - 1};
+    const double f_tail = 3 * u(rng), f_head = 3 * u(rng);
+    auto at = [&](double x) { return r.sigma + std::hypot(x - r.s.x, r.s.y); };
+    double straight = kInf, floored = kInf, nearest = kInf, to_goal = kInf;
+    for (int k = 0; k <= 20000; ++k) {
+      const double x = b0 + (b1 - b0) * k / 20000;
+      const double goal_line = std::hypot(goal.x - x, goal.y);
+      straight = std::min(straight, at(x) + goal_line);
+      floored = std::min(floored, at(x) + std::max(f_tail - x, f_head - (length - x)));
+      nearest = std::min(nearest, at(x));
+      to_goal = std::min(to_goal, goal_line);
+    }
+    ASSERT_TRUE(std::isfinite(straight) && std::isfinite(floored));
+    const double got_straight = LeastStraightRoute(r, goal);
+    const double got_floored = LeastFlooredRoute(r, length, f_tail, f_head);
+    EXPECT_LE(got_straight, straight + 1e-12) << trial;
+    // Samples miss the least value by at most a step times the slope
+    // (under 2) on either side.
+    const double sampling = 2 * (b1 - b0) / 20000;
+    EXPECT_GE(got_straight, straight - sampling) << trial;
+    EXPECT_LE(got_floored, floored + 1e-12) << trial;
+    EXPECT_GE(got_floored, floored - sampling) << trial;
+    if (nearest + to_goal < straight - 1e-3) ++looser_sum;
+  }
+  // The separate minima are often far looser: the cases are not degenerate.
+  EXPECT_GT(looser_sum, 200);
+}
+
 class TruthTest : public ::testing::TestWithParam<std::string> {};
 
 // Against the independent exact solver's fields (../shared/truth).
