@@ -725,6 +725,38 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const GraphKey& key, cons
   return std::optional<GraphFileDraft>(*std::move(draft));
 }
 
+// The disk a draft's edges take while its build makes them: the budget
+// admits each growth of the edge file before it happens, so the directory
+// stays within --disk-limit during the build instead of passing it until
+// the file is admitted afterwards. What it admitted is given back when the
+// build ends; Persist then admits the file, with the draft counted as on
+// disk (BytesToAdmit).
+class DraftAdmission {
+ public:
+  DraftAdmission(DiskBudget* disk, DggBuildOptions& options) : disk_(disk) {
+    if (!disk_ || options.edge_file.fd < 0) return;
+    options.edge_file.admit_growth = [this](uint64_t bytes) -> absl::Status {
+      if (bytes <= reserved_) return absl::OkStatus();
+      if (absl::Status room = disk_->Reserve(bytes - reserved_); !room.ok()) {
+        return absl::ResourceExhaustedError(absl::StrFormat(
+            "its edges need %u bytes on disk: %s; use a larger epsilon or raise --disk-limit",
+            bytes, room.message()));
+      }
+      reserved_ = bytes;
+      return absl::OkStatus();
+    };
+  }
+  ~DraftAdmission() {
+    if (reserved_ > 0) disk_->Done(reserved_, 0);
+  }
+  DraftAdmission(const DraftAdmission&) = delete;
+  DraftAdmission& operator=(const DraftAdmission&) = delete;
+
+ private:
+  DiskBudget* const disk_;
+  uint64_t reserved_ = 0;  // asked by the build's one thread that grows the file
+};
+
 // What the disk budget must admit for a graph file of `bytes`. A draft's
 // edges are on disk since its build made them, under a temporary name, which
 // the budget's last count of the directory may or may not have seen: it
@@ -806,6 +838,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   auto drafted = DraftFor(key, e.path, *e.mesh->mesh, options);
   if (!drafted.ok()) return drafted.status();
   if (drafted->has_value()) draft->emplace(*std::move(*drafted));
+  DraftAdmission admission(options_.disk, options);
   ++builds_started_;
   ++builds_running_;
   const auto start = std::chrono::steady_clock::now();

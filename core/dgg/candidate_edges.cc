@@ -137,6 +137,12 @@ absl::StatusOr<Adjacency> Symmetrize(const NodeOrder& order, std::span<const uin
   for (uint32_t u = 0; u < n; ++u) {
     adj.offsets[u + 1] = adj.offsets[u] + counts[order.vertex_of_node[u]];
   }
+  auto admit = [&](uint64_t count) {
+    return edge_file.fd >= 0 && edge_file.admit_growth
+               ? edge_file.admit_growth(count * sizeof(DggHalfEdge))
+               : absl::OkStatus();
+  };
+  RETURN_IF_ERROR(admit(adj.offsets[n]));
   adj.edges.resize(adj.offsets[n]);
   RETURN_IF_ERROR(feed([&](uint32_t s, std::span<const DggHalfEdge> found) {
     DggHalfEdge* row = adj.of(order.node_of_vertex[s]).data();
@@ -180,6 +186,7 @@ absl::StatusOr<Adjacency> Symmetrize(const NodeOrder& order, std::span<const uin
     own[u] = adj.offsets[u + 1] - adj.offsets[u];
     grown[u + 1] = grown[u] + own[u] + missing[u];
   }
+  RETURN_IF_ERROR(admit(grown[n]));
   adj.Grow(std::move(grown));
   auto own_of = [&](uint32_t u) {
     return std::span<const DggHalfEdge>(adj.edges.data() + adj.offsets[u], own[u]);

@@ -22,6 +22,12 @@ namespace geodesic {
 struct DggEdgeFile {
   int fd = -1;
   uint64_t offset = 0;
+  // Asked, if set, before the file is made to hold `bytes` bytes of edges
+  // past the offset in all (it grows twice, once its edges are counted and
+  // again with the edges found from one end only): a caller that keeps a
+  // directory within a disk budget admits the growth here, before the disk
+  // fills. An error stops the build with it.
+  std::function<absl::Status(uint64_t bytes)> admit_growth;
 };
 
 struct DggBuildOptions {

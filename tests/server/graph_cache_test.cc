@@ -821,6 +821,36 @@ TEST_F(GraphCacheTest, AGraphFileOverTheDiskLimitIsNotWrittenAndTheGraphFails) {
   EXPECT_EQ(disk.used(), 0u);
 }
 
+// A plain graph's edges fill its draft during the build: the budget admits
+// them before they are written, so a build the directory has no room for
+// stops there, naming what it needed, instead of passing --disk-limit until
+// its file is refused after the build.
+TEST_F(GraphCacheTest, ABuildWhoseEdgesTheDiskLimitHasNoRoomForStopsBeforeWritingThem) {
+  auto mesh = GridMesh("grid", 6);
+  const GraphKey key{"grid", Eps(0.05)};
+  fs::create_directories(dir_);
+  constexpr uint64_t kFiller = 100000;
+  std::ofstream(dir_ / "filler") << std::string(kFiller, 'x');
+  DiskBudget disk(dir_, kFiller + 4096);
+  ASSERT_TRUE(disk.Scan().ok());
+  Cache(/*persist=*/true, /*memory_limit=*/0, &disk);
+  std::optional<absl::Status> built;  // the build's own result
+  maker_->OnBuilt([&](const DggBuildOptions&, const auto& result) { built = result.status(); });
+  cache_->Request(mesh, key.params);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  const std::string path = cache_->GraphPath(mesh->fingerprint, key.params);
+  EXPECT_THAT(failed.error, ::testing::AllOf(HasSubstr("its edges need"), HasSubstr("--disk-limit"),
+                                             HasSubstr(path)));
+  ASSERT_TRUE(built.has_value());
+  EXPECT_TRUE(absl::IsResourceExhausted(*built)) << *built;
+  EXPECT_FALSE(fs::exists(path));
+  EXPECT_THAT(Temporaries(), ::testing::IsEmpty());
+  // The admission was given back: only the filler is counted.
+  ASSERT_TRUE(disk.Scan().ok());
+  EXPECT_EQ(disk.used(), kFiller);
+  cache_.reset();  // before the budget it points to goes
+}
+
 // A draft's edges are on disk before its file is admitted: the budget counts
 // them once, also when a sweep counted the directory, draft and all, during
 // the build, and a file that fits beside what is there is kept.
@@ -1113,12 +1143,19 @@ class GraphMovesTest : public GraphCacheTest {
   // A graph file the disk budget has no room for: the graph fails while
   // persisting. The budget's eviction, asked for room, looks at the state.
   Trail FailsWhilePersisting() {
+    DggBuildOptions options;
+    options.params = key_.params;
+    auto graph = BuildDgg(*mesh_->mesh, options);
+    EXPECT_TRUE(graph.ok()) << graph.status();
+    if (!graph.ok()) return {};
     Fresh();
     fs::create_directories(dir_);
     constexpr uint64_t kLimit = 1 << 20;
-    // The directory all but full: the graph alone would fit, so the budget
-    // asks for room, and none is made.
-    std::ofstream(dir_ / "filler") << std::string(kLimit - 64, 'x');
+    // The directory all but full: room for the edges the build writes into
+    // its draft, not for the file around them. The graph alone would fit,
+    // so the budget asks for room, and none is made.
+    const uint64_t edges = (*graph)->num_directed_edges() * sizeof(DggHalfEdge);
+    std::ofstream(dir_ / "filler") << std::string(kLimit - edges, 'x');
     std::vector<GraphState> seen;
     absl::Mutex seen_mu;
     DiskBudget disk(dir_, kLimit, [&](uint64_t) -> absl::StatusOr<uint64_t> {
