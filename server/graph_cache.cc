@@ -631,7 +631,7 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
     if (it == entries_.end() || it->second->status.state != GraphState::kReady) return;
     e = it->second;
     engine = e->engine;
-    e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count);
+    e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count, options_.build_threads);
     fits = EvictOverBudget(key, notices);
     if (!fits) {
       Log(LogLevel::kWarning, "exact_landmarks_skipped",
@@ -646,7 +646,9 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
   notices.clear();
   if (!fits) return;
   const auto start = std::chrono::steady_clock::now();
-  absl::Status made = engine->PrepareExactLandmarks(count, [e] { return e->cancel.load(); });
+  // A build worker's job: no more threads than a build on it takes.
+  absl::Status made = engine->PrepareExactLandmarks(
+      count, [e] { return e->cancel.load(); }, options_.build_threads);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   {

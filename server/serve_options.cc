@@ -168,7 +168,8 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "exact distance fields from this many landmarks a graph computes in the "
                  "background once asked for exact answers (4 bytes per vertex each, and 64 per "
                  "half-edge for the face frames exact pairs then share; one exact field's time "
-                 "each, on a build worker): each exact pair then sweeps a narrower "
+                 "each, on a build worker and its --build-threads): each exact pair then sweeps "
+                 "a narrower "
                  "region (0: none, exact pairs prune by the straight line only)")
       ->check(CLI::Range(0, 64));
   app.add_flag("--exact-fans", f.exact_fans,

@@ -9,6 +9,7 @@
 #include "absl/strings/str_format.h"
 #include "core/base/for_each_in_parallel.h"
 #include "core/base/status.h"
+#include "core/base/thread_arena.h"
 
 namespace geodesic {
 namespace {
@@ -39,7 +40,8 @@ std::vector<VertexId> CornersOf(const Mesh& mesh, const SurfacePoint& p) {
 }  // namespace
 
 absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
-    const Mesh& mesh, std::span<const VertexId> vertices, const std::function<bool()>& cancelled) {
+    const Mesh& mesh, std::span<const VertexId> vertices, const std::function<bool()>& cancelled,
+    int threads) {
   if (vertices.empty()) {
     return absl::InvalidArgumentError("exact landmarks need at least one landmark vertex");
   }
@@ -55,28 +57,33 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
   out->frames_ = std::make_unique<const FaceFrames>(mesh);
   const FaceFrames& frames = *out->frames_;
   std::vector<double> largest(vertices.size(), 0);
-  RETURN_IF_ERROR(ForEachInParallel(vertices.size(), [&](size_t k) -> absl::Status {
-    if (cancelled && cancelled()) return absl::CancelledError("exact landmarks cancelled");
-    ExactGeodesic engine(mesh, &frames);
-    ExactOptions options;
-    options.cancelled = cancelled;
-    ASSIGN_OR_RETURN(const std::vector<double> field,
-                     engine.Distances(SurfacePoint::Vertex(vertices[k]), options));
-    for (size_t v = 0; v < field.size(); ++v) {
-      out->distance_[v * vertices.size() + k] = static_cast<float>(field[v]);
-      if (field[v] < kInf) largest[k] = std::max(largest[k], field[v]);
-    }
-    return absl::OkStatus();
-  }));
+  absl::Status computed;
+  ThreadArena(threads).execute([&] {
+    computed = ForEachInParallel(vertices.size(), [&](size_t k) -> absl::Status {
+      if (cancelled && cancelled()) return absl::CancelledError("exact landmarks cancelled");
+      ExactGeodesic engine(mesh, &frames);
+      ExactOptions options;
+      options.cancelled = cancelled;
+      ASSIGN_OR_RETURN(const std::vector<double> field,
+                       engine.Distances(SurfacePoint::Vertex(vertices[k]), options));
+      for (size_t v = 0; v < field.size(); ++v) {
+        out->distance_[v * vertices.size() + k] = static_cast<float>(field[v]);
+        if (field[v] < kInf) largest[k] = std::max(largest[k], field[v]);
+      }
+      return absl::OkStatus();
+    });
+  });
+  RETURN_IF_ERROR(computed);
   out->slack_ = kSlackPerDistance * *std::max_element(largest.begin(), largest.end());
   return out;
 }
 
-uint64_t ExactLandmarks::ComputeBytes(const Mesh& mesh, int count) {
+uint64_t ExactLandmarks::ComputeBytes(const Mesh& mesh, int count, int threads) {
   // Each engine holds about 64 bytes per vertex and its wavefront's windows;
   // what is kept is the fields and the frames (one cache line per half-edge).
-  const uint64_t engines = std::min<uint64_t>(std::max(1u, std::thread::hardware_concurrency()),
-                                              static_cast<uint64_t>(std::max(count, 1)));
+  const uint64_t cores = threads > 0 ? static_cast<uint64_t>(threads)
+                                     : std::max(1u, std::thread::hardware_concurrency());
+  const uint64_t engines = std::min<uint64_t>(cores, static_cast<uint64_t>(std::max(count, 1)));
   const uint64_t vertices = mesh.num_vertices();
   return ByteSize(vertices, mesh.num_halfedges(), count) + engines * vertices * 64;
 }

@@ -34,14 +34,14 @@ namespace geodesic {
 class ExactLandmarks {
  public:
   // One exact field from each of `vertices` (OUT_OF_RANGE for an id past the
-  // mesh, INVALID_ARGUMENT for none), spread over the cores. `cancelled` is
-  // polled during the propagations (CANCELLED).
+  // mesh, INVALID_ARGUMENT for none), spread over `threads` threads (0: every
+  // core). `cancelled` is polled during the propagations (CANCELLED).
   static absl::StatusOr<std::unique_ptr<const ExactLandmarks>> Compute(
       const Mesh& mesh, std::span<const VertexId> vertices,
-      const std::function<bool()>& cancelled = {});
+      const std::function<bool()>& cancelled = {}, int threads = 0);
   // What Compute holds while it runs (the fields it keeps, the face frames
   // its engines share and their per-vertex state), for counting it first.
-  static uint64_t ComputeBytes(const Mesh& mesh, int count);
+  static uint64_t ComputeBytes(const Mesh& mesh, int count, int threads = 0);
 
   // Lower bounds on each vertex's distance to `goal` (a valid surface point
   // of the mesh the fields were computed on), for one exact run.

@@ -31,12 +31,13 @@ absl::Status GeodesicEngine::PrepareLandmarks(int count,
 }
 
 absl::Status GeodesicEngine::PrepareExactLandmarks(int count,
-                                                   const std::function<bool()>& cancelled) const {
+                                                   const std::function<bool()>& cancelled,
+                                                   int threads) const {
   return exact_landmarks_.Make([&]() -> absl::StatusOr<std::unique_ptr<const ExactLandmarks>> {
     SampleOptions sample;
     sample.cancelled = cancelled;
     ASSIGN_OR_RETURN(const SampleResult spread, SamplePoints(count, sample));
-    return ExactLandmarks::Compute(*mesh_, spread.vertices, cancelled);
+    return ExactLandmarks::Compute(*mesh_, spread.vertices, cancelled, threads);
   });
 }
 

@@ -183,14 +183,16 @@ class GeodesicEngine {
 
   // Computes exact distance fields from `count` landmarks spread by
   // SamplePoints (core/query/exact_landmarks.h): `count` exact single-source
-  // solves over the cores. Until it has run, exact pairs and one-target exact
-  // rows prune by the straight line alone, which is as exact, only slower.
-  // Safe while queries run; once it has succeeded, later calls return at
-  // once. CANCELLED (and no landmarks) if `cancelled` says so.
-  absl::Status PrepareExactLandmarks(int count, const std::function<bool()>& cancelled = {}) const;
+  // solves on `threads` threads (0: every core). Until it has run, exact
+  // pairs and one-target exact rows prune by the straight line alone, which
+  // is as exact, only slower. Safe while queries run; once it has
+  // succeeded, later calls return at once. CANCELLED (and no landmarks) if
+  // `cancelled` says so.
+  absl::Status PrepareExactLandmarks(int count, const std::function<bool()>& cancelled = {},
+                                     int threads = 0) const;
   // What PrepareExactLandmarks holds while it runs.
-  uint64_t ExactLandmarkComputeBytes(int count) const {
-    return ExactLandmarks::ComputeBytes(*mesh_, count);
+  uint64_t ExactLandmarkComputeBytes(int count, int threads = 0) const {
+    return ExactLandmarks::ComputeBytes(*mesh_, count, threads);
   }
   // Bytes held by the exact landmark fields (0 before PrepareExactLandmarks).
   uint64_t exact_landmark_bytes() const;

@@ -1,7 +1,11 @@
 #include "core/query/exact_landmarks.h"
 
 #include <cmath>
+#include <set>
+#include <thread>
 
+#include "absl/synchronization/mutex.h"
+#include "gmock/gmock.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -76,6 +80,25 @@ TEST(ExactLandmarksTest, FloorIsInfiniteAcrossComponents) {
       EXPECT_EQ(floor.At(v), std::numeric_limits<double>::infinity()) << "vertex " << v;
     }
   }
+}
+
+// A daemon computes them on a build worker, with a build's threads: asked
+// for one thread, every propagation runs on the caller's (which polls the
+// cancel callback), not on every core.
+TEST(ExactLandmarksTest, ComputeKeepsToTheThreadsItIsGiven) {
+  const Mesh mesh = NoisyTorus(48, 24, 2.0, 5);
+  absl::Mutex mu;
+  std::set<std::thread::id> seen;
+  auto polled = [&] {
+    absl::MutexLock lock(&mu);
+    seen.insert(std::this_thread::get_id());
+    return false;
+  };
+  auto landmarks = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 16), polled, /*threads=*/1);
+  ASSERT_OK(landmarks);
+  EXPECT_EQ((*landmarks)->count(), 16);
+  absl::MutexLock lock(&mu);
+  EXPECT_THAT(seen, ::testing::ElementsAre(std::this_thread::get_id()));
 }
 
 TEST(ExactLandmarksTest, RefusesNoVerticesOrOnePastTheMeshAndStopsWhenCancelled) {
