@@ -740,6 +740,7 @@ class DraftAdmission {
     options.edge_file.admit_growth = [this](uint64_t bytes) -> absl::Status {
       if (bytes <= reserved_) return absl::OkStatus();
       if (absl::Status room = disk_->Reserve(bytes - reserved_); !room.ok()) {
+        refused_ = bytes;
         return absl::ResourceExhaustedError(absl::StrFormat(
             "its edges need %u bytes on disk: %s; use a larger epsilon or raise --disk-limit",
             bytes, room.message()));
@@ -754,9 +755,15 @@ class DraftAdmission {
   DraftAdmission(const DraftAdmission&) = delete;
   DraftAdmission& operator=(const DraftAdmission&) = delete;
 
+  // The edge bytes a refused growth asked for (0: none refused): at least
+  // the graph's file size.
+  uint64_t refused() const { return refused_; }
+
  private:
   DiskBudget* const disk_;
-  uint64_t reserved_ = 0;  // asked by the build's one thread that grows the file
+  // Set by the build's one thread that grows the file, read after it.
+  uint64_t reserved_ = 0;
+  uint64_t refused_ = 0;
 };
 
 // What the disk budget must admit for a graph file of `bytes`. A draft's
@@ -849,6 +856,11 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
     built = BuildCertified(key, e, options, certificate);
   } else {
     built = options_.maker->Build(*e.mesh->mesh, options);
+    if (admission.refused() > 0) {
+      // Asked again, the graph is refused at once for that size (Admit).
+      absl::MutexLock lock(&mu_);
+      built_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = admission.refused();
+    }
     if (*draft && absl::IsResourceExhausted(built.status())) {
       built = absl::ResourceExhaustedError(
           absl::StrFormat("building %s: %s", e.path, built.status().message()));

@@ -399,9 +399,11 @@ class GraphCache {
   bool stopping_ ABSL_GUARDED_BY(mu_) = false;
   std::vector<std::thread> workers_;
   std::atomic<uint64_t> hits_{0}, misses_{0}, evictions_{0};
-  // The bytes of graphs this cache built, by mesh fingerprint and build
-  // record: once a graph was refused for its real size, asking again is
-  // refused at once rather than built again to the same end.
+  // The bytes of graphs this cache built (or, for a build stopped when its
+  // edges found no room on disk, those edges' bytes: at least the file's),
+  // by mesh fingerprint and build record: once a graph was refused for its
+  // real size, asking again is refused at once rather than built again to
+  // the same end.
   std::map<std::tuple<uint64_t, DggParams, double>, uint64_t> built_bytes_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> builds_running_{0};
   std::atomic<uint64_t> builds_started_{0};
