@@ -12,6 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "core/dgg/graph_file.h"
 #include "core/mesh/mesh_snapshot.h"
+#include "core/query/exact_landmarks_file.h"
 #include "server/graph_cache.h"
 
 namespace geodesic::server {
@@ -38,9 +39,12 @@ bool Removable(const std::string& name) {
 
 // A certified graph's certificate (server/offline/certificate_file.h) goes
 // with its graph: kept alone it would certify nothing, and left behind it
-// would be refused beside a graph rebuilt under the name.
-std::string SidecarOf(const std::string& name) {
-  return absl::EndsWith(name, ".dgg") ? name + ".certificate.json" : "";
+// would be refused beside a graph rebuilt under the name. So do the exact
+// landmarks kept beside it (core/query/exact_landmarks_file.h), which only
+// that graph's requests read back.
+std::vector<std::string> SidecarsOf(const std::string& name) {
+  if (!absl::EndsWith(name, ".dgg")) return {};
+  return {name + ".certificate.json", ExactLandmarksPathOf(name)};
 }
 
 }  // namespace
@@ -127,7 +131,7 @@ absl::StatusOr<DiskReport> EnforceDiskLimit(
     if (fs::remove(fs::path(dir) / c.name, remove_ec)) {
       report.removed.push_back(c.name);
       report.bytes_after -= c.bytes;
-      if (const std::string sidecar = SidecarOf(c.name); !sidecar.empty()) {
+      for (const std::string& sidecar : SidecarsOf(c.name)) {
         std::error_code sidecar_ec;
         const fs::path sidecar_path = fs::path(dir) / sidecar;
         const uint64_t sidecar_bytes = fs::file_size(sidecar_path, sidecar_ec);

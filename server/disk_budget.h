@@ -40,8 +40,8 @@ struct DiskReport {
 };
 
 // `role` is asked about each *.dgg and *.mesh file by name; a graph's
-// certificate sidecar ("<graph>.certificate.json") is removed with its
-// graph (and listed after it in `removed`). Other files
+// sidecars ("<graph>.certificate.json", "<graph>.exact-landmarks") are
+// removed with its graph (and listed after it in `removed`). Other files
 // (the catalog, temporary files) count towards the total but are never
 // removed; the catalog's reserve file is not counted. A limit of 0 means no limit (nothing is
 // removed).

@@ -13,6 +13,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/base/atomic_file.h"
+#include "core/query/exact_landmarks_file.h"
 #include "core/query/landmarks.h"
 #include "server/log.h"
 #include "server/offline/certificate_file.h"
@@ -619,6 +620,46 @@ void GraphCache::WantExactLandmarks(const GraphKey& key) {
   ++queue_changes_;
 }
 
+bool GraphCache::RestoreExactLandmarks(const GraphKey& key, const Entry& e,
+                                       const GeodesicEngine& engine, int count) {
+  if (e.path.empty()) return false;
+  const std::string path = ExactLandmarksPathOf(e.path);
+  auto read = ReadExactLandmarks(path, *e.mesh->mesh, count);
+  if (!read.ok()) {
+    // Another count, mesh or version, or damage: computed again and
+    // written over.
+    if (!absl::IsNotFound(read.status())) {
+      Log(LogLevel::kWarning, "exact_landmarks_file_rejected",
+          {{"mesh", key.mesh}, {"path", path}, {"error", read.status().ToString()}});
+    }
+    return false;
+  }
+  if (options_.on_file_used) options_.on_file_used(path);
+  return engine.AdoptExactLandmarks(*std::move(read)).ok();
+}
+
+void GraphCache::SaveExactLandmarks(const GraphKey& key, const Entry& e,
+                                    const GeodesicEngine& engine) {
+  const ExactLandmarks* landmarks = engine.exact_landmarks();
+  if (e.path.empty() || !landmarks) return;
+  // Best effort: without the file they are only computed again.
+  const std::string path = ExactLandmarksPathOf(e.path);
+  const uint64_t bytes = landmarks->fields().size_bytes() + 64;
+  if (options_.disk) {
+    if (absl::Status room = options_.disk->Reserve(bytes); !room.ok()) {
+      Log(LogLevel::kWarning, "exact_landmarks_not_saved",
+          {{"mesh", key.mesh}, {"path", path}, {"error", room.ToString()}});
+      return;
+    }
+  }
+  const absl::Status written = WriteExactLandmarks(*landmarks, *e.mesh->mesh, path);
+  if (options_.disk) options_.disk->Done(bytes, written.ok() ? bytes : 0);
+  if (!written.ok()) {
+    Log(LogLevel::kWarning, "exact_landmarks_not_saved",
+        {{"mesh", key.mesh}, {"path", path}, {"error", written.ToString()}});
+  }
+}
+
 void GraphCache::AddExactLandmarks(const GraphKey& key) {
   const int count = options_.exact_landmarks;
   std::shared_ptr<Entry> e;
@@ -646,9 +687,13 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
   notices.clear();
   if (!fits) return;
   const auto start = std::chrono::steady_clock::now();
+  const bool restored = RestoreExactLandmarks(key, *e, *engine, count);
   // A build worker's job: no more threads than a build on it takes.
-  absl::Status made = engine->PrepareExactLandmarks(
-      count, [e] { return e->cancel.load(); }, options_.build_threads);
+  absl::Status made = restored
+                          ? absl::OkStatus()
+                          : engine->PrepareExactLandmarks(
+                                count, [e] { return e->cancel.load(); }, options_.build_threads);
+  if (made.ok() && !restored) SaveExactLandmarks(key, *e, *engine);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   {
@@ -667,6 +712,7 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
          {"eps", key.params.epsilon},
          {"landmarks", count},
          {"seconds", seconds},
+         {"from_file", restored},
          {"bytes", engine->exact_landmark_bytes()}});
     EvictOverBudget(key, notices);
   }

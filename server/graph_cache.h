@@ -379,6 +379,13 @@ class GraphCache {
   // Runs on a worker: the exact landmarks WantExactLandmarks asked for,
   // counted the same way.
   void AddExactLandmarks(const GraphKey& key);
+  // Reads the landmarks kept beside the graph's file, when they are this
+  // mesh's and count's, into `engine`; false to compute them.
+  bool RestoreExactLandmarks(const GraphKey& key, const Entry& e, const GeodesicEngine& engine,
+                             int count);
+  // Keeps the engine's landmarks beside the graph's file for a restart,
+  // within the disk budget; logged and skipped when they do not fit.
+  void SaveExactLandmarks(const GraphKey& key, const Entry& e, const GeodesicEngine& engine);
   // Ends the entry's operation in failed or cancelled.
   void Abandon(const GraphKey& key, const std::shared_ptr<Entry>& e, const absl::Status& why);
   // Moves `e` to a phase of its current state (progress reports).

@@ -78,6 +78,17 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ExactLandmarks::Compute(
   return out;
 }
 
+std::unique_ptr<const ExactLandmarks> ExactLandmarks::FromFields(const Mesh& mesh, int count,
+                                                                 std::vector<float> fields,
+                                                                 double slack) {
+  auto out = std::make_unique<ExactLandmarks>();
+  out->count_ = count;
+  out->distance_ = std::move(fields);
+  out->slack_ = slack;
+  out->frames_ = std::make_unique<const FaceFrames>(mesh);
+  return out;
+}
+
 uint64_t ExactLandmarks::ComputeBytes(const Mesh& mesh, int count, int threads) {
   // Each engine holds about 64 bytes per vertex and its wavefront's windows;
   // what is kept is the fields and the frames (one cache line per half-edge).

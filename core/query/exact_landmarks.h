@@ -39,6 +39,11 @@ class ExactLandmarks {
   static absl::StatusOr<std::unique_ptr<const ExactLandmarks>> Compute(
       const Mesh& mesh, std::span<const VertexId> vertices,
       const std::function<bool()>& cancelled = {}, int threads = 0);
+  // Landmarks from fields computed before (as `fields()` and `slack()` give
+  // them), with the face frames made again from `mesh`: for reading them
+  // back from a file (core/query/exact_landmarks_file.h).
+  static std::unique_ptr<const ExactLandmarks> FromFields(const Mesh& mesh, int count,
+                                                          std::vector<float> fields, double slack);
   // What Compute holds while it runs (the fields it keeps, the face frames
   // its engines share and their per-vertex state), for counting it first.
   static uint64_t ComputeBytes(const Mesh& mesh, int count, int threads = 0);
@@ -59,6 +64,10 @@ class ExactLandmarks {
   Floor FloorFor(const Mesh& mesh, const SurfacePoint& goal) const;
 
   int count() const { return count_; }
+  // Every field, vertex-major: count() values per vertex, +inf unreached.
+  std::span<const float> fields() const { return distance_; }
+  // What every bound is lowered by (float rounding of the fields).
+  double slack() const { return slack_; }
   // The face frames the fields were computed with, kept for the exact pairs
   // these landmarks serve: reading a frame is cheaper than computing it per
   // window.

@@ -41,6 +41,13 @@ absl::Status GeodesicEngine::PrepareExactLandmarks(int count,
   });
 }
 
+absl::Status GeodesicEngine::AdoptExactLandmarks(
+    std::unique_ptr<const ExactLandmarks> landmarks) const {
+  return exact_landmarks_.Make([&]() -> absl::StatusOr<std::unique_ptr<const ExactLandmarks>> {
+    return std::move(landmarks);
+  });
+}
+
 int GeodesicEngine::DefaultLandmarkCount() const {
   constexpr uint64_t kMin = 16, kMax = 64;
   const uint64_t nodes = std::max<uint64_t>(graph_->num_nodes(), 1);

@@ -190,6 +190,12 @@ class GeodesicEngine {
   // `cancelled` says so.
   absl::Status PrepareExactLandmarks(int count, const std::function<bool()>& cancelled = {},
                                      int threads = 0) const;
+  // Takes landmarks made before (read back from a file, say) as if
+  // PrepareExactLandmarks had made them; a no-op once there are some. They
+  // must be this engine's mesh's.
+  absl::Status AdoptExactLandmarks(std::unique_ptr<const ExactLandmarks> landmarks) const;
+  // The exact landmarks, once made (nullptr before).
+  const ExactLandmarks* exact_landmarks() const { return exact_landmarks_.get(); }
   // What PrepareExactLandmarks holds while it runs.
   uint64_t ExactLandmarkComputeBytes(int count, int threads = 0) const {
     return ExactLandmarks::ComputeBytes(*mesh_, count, threads);

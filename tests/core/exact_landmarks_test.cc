@@ -1,10 +1,14 @@
 #include "core/query/exact_landmarks.h"
 
+#include <algorithm>
 #include <cmath>
+#include <filesystem>
+#include <fstream>
 #include <set>
 #include <thread>
 
 #include "absl/synchronization/mutex.h"
+#include "core/query/exact_landmarks_file.h"
 #include "gmock/gmock.h"
 #include "tests/core/test_util.h"
 
@@ -14,6 +18,7 @@ namespace {
 using testing::MustBuild;
 using testing::NoisyTorus;
 using testing::PlanarGrid;
+using testing::TempDir;
 
 std::vector<VertexId> SpreadVertices(const Mesh& mesh, int count) {
   std::vector<VertexId> out;
@@ -99,6 +104,69 @@ TEST(ExactLandmarksTest, ComputeKeepsToTheThreadsItIsGiven) {
   EXPECT_EQ((*landmarks)->count(), 16);
   absl::MutexLock lock(&mu);
   EXPECT_THAT(seen, ::testing::ElementsAre(std::this_thread::get_id()));
+}
+
+// Landmarks written to a file come back with the same fields and slack, so
+// the same bounds, and frames made again from the mesh.
+TEST(ExactLandmarksFileTest, WrittenLandmarksReadBackGiveTheSameBounds) {
+  const Mesh mesh = NoisyTorus(48, 24, 2.0, 5);
+  auto landmarks = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 6));
+  ASSERT_OK(landmarks);
+  TempDir dir;
+  const std::string path = dir.path() + "/g.dgg.exact-landmarks";
+  ASSERT_OK(WriteExactLandmarks(**landmarks, mesh, path));
+  auto read = ReadExactLandmarks(path, mesh, 6);
+  ASSERT_OK(read);
+  ASSERT_EQ((*read)->fields().size(), (*landmarks)->fields().size());
+  ASSERT_FALSE((*read)->fields().empty());
+  EXPECT_TRUE(std::equal((*read)->fields().begin(), (*read)->fields().end(),
+                         (*landmarks)->fields().begin()));
+  EXPECT_EQ((*read)->slack(), (*landmarks)->slack());
+  EXPECT_EQ((*read)->byte_size(), (*landmarks)->byte_size());
+  const SurfacePoint goal = SurfacePoint::Face(257, 0.2, 0.5, 0.3);
+  const ExactLandmarks::Floor before = (*landmarks)->FloorFor(mesh, goal);
+  const ExactLandmarks::Floor after = (*read)->FloorFor(mesh, goal);
+  int positive = 0;
+  for (VertexId v = 0; v < mesh.num_vertices(); ++v) {
+    ASSERT_EQ(after.At(v), before.At(v)) << v;
+    positive += before.At(v) > 0;
+  }
+  EXPECT_GT(positive, 0);
+}
+
+// A file for another mesh or count is refused naming what differs; a
+// damaged one is DATA_LOSS; no file is NOT_FOUND (compute them then).
+TEST(ExactLandmarksFileTest, ReadRefusesOtherMeshesCountsAndDamage) {
+  const Mesh mesh = NoisyTorus(48, 24, 2.0, 5);
+  auto landmarks = ExactLandmarks::Compute(mesh, SpreadVertices(mesh, 4));
+  ASSERT_OK(landmarks);
+  TempDir dir;
+  const std::string path = dir.path() + "/g.dgg.exact-landmarks";
+  EXPECT_EQ(ReadExactLandmarks(path, mesh, 4).status().code(), absl::StatusCode::kNotFound);
+  ASSERT_OK(WriteExactLandmarks(**landmarks, mesh, path));
+
+  const Mesh other = NoisyTorus(48, 24, 2.0, 6);
+  auto wrong_mesh = ReadExactLandmarks(path, other, 4);
+  EXPECT_EQ(wrong_mesh.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_THAT(wrong_mesh.status().message(),
+              ::testing::AllOf(::testing::HasSubstr(path), ::testing::HasSubstr("another mesh")));
+  auto wrong_count = ReadExactLandmarks(path, mesh, 8);
+  EXPECT_EQ(wrong_count.status().code(), absl::StatusCode::kFailedPrecondition);
+  EXPECT_THAT(wrong_count.status().message(), ::testing::HasSubstr("4 landmarks"));
+
+  const uint64_t size = std::filesystem::file_size(path);
+  {
+    std::fstream f(path, std::ios::in | std::ios::out | std::ios::binary);
+    f.seekg(size - 3);
+    const char byte = static_cast<char>(f.get());
+    f.seekp(size - 3);
+    f.put(static_cast<char>(byte ^ 0x55));
+  }
+  auto damaged = ReadExactLandmarks(path, mesh, 4);
+  EXPECT_EQ(damaged.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(damaged.status().message(), ::testing::HasSubstr("checksum"));
+  std::filesystem::resize_file(path, size / 2);
+  EXPECT_EQ(ReadExactLandmarks(path, mesh, 4).status().code(), absl::StatusCode::kDataLoss);
 }
 
 TEST(ExactLandmarksTest, RefusesNoVerticesOrOnePastTheMeshAndStopsWhenCancelled) {

@@ -85,6 +85,20 @@ TEST_F(DiskBudgetTest, AGraphsCertificateGoesWithItAndCountsInTheTotal) {
   EXPECT_TRUE(Exists("kept.dgg.certificate.json"));
 }
 
+TEST_F(DiskBudgetTest, AGraphsExactLandmarksGoWithIt) {
+  Add("old.dgg", 100, 300, FileRole::kSpare);
+  std::ofstream(dir_ / "old.dgg.exact-landmarks") << std::string(40, 'l');
+  Add("kept.dgg", 100, 10, FileRole::kSpare);
+  std::ofstream(dir_ / "kept.dgg.exact-landmarks") << std::string(40, 'l');
+  auto report = Enforce(150);  // 280 bytes: the older graph goes, and its landmarks
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_EQ(report->bytes_before, 280u);
+  EXPECT_THAT(report->removed, ElementsAre("old.dgg", "old.dgg.exact-landmarks"));
+  EXPECT_EQ(report->bytes_after, 140u);
+  EXPECT_FALSE(Exists("old.dgg.exact-landmarks"));
+  EXPECT_TRUE(Exists("kept.dgg.exact-landmarks"));
+}
+
 TEST_F(DiskBudgetTest, CatalogedFilesGoOnlyWhenSpareOnesAreNotEnough) {
   Add("spare.dgg", 100, 10, FileRole::kSpare);
   Add("cataloged-old.dgg", 100, 500, FileRole::kCataloged);

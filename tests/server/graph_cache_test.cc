@@ -19,6 +19,7 @@
 #include "absl/synchronization/notification.h"
 #include "core/base/atomic_file.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/exact_landmarks_file.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "server/convert.h"
@@ -640,6 +641,76 @@ TEST_F(GraphCacheTest, AGraphAskedForExactAnswersGetsItsExactLandmarks) {
     ASSERT_TRUE(settled()) << (s.ok() ? s->landmark_bytes : 0);
     EXPECT_EQ((*engine)->exact_landmark_bytes(), want);
   }
+}
+
+// The exact landmarks of a graph in --graph-dir are kept beside its file:
+// a restarted cache reads them back instead of computing them again (here,
+// landmarks written there from other vertices come back as written), and a
+// damaged file is computed again and written over.
+TEST_F(GraphCacheTest, ExactLandmarksAreKeptBesideTheGraphAndReadBackAfterARestart) {
+  auto mesh = GridMesh("grid", 8);
+  const GraphKey key{"grid", Eps(0.05)};
+  exact_landmarks_ = 4;
+  // The landmarks the cache holds once it has them (nullptr after 30 s).
+  auto landmarks_of = [&]() -> std::shared_ptr<const GeodesicEngine> {
+    cache_->Request(mesh, key.params);
+    WaitFor(key, GraphState::kReady);
+    auto engine = cache_->Acquire(key);
+    EXPECT_TRUE(engine.ok()) << engine.status();
+    if (!engine.ok()) return nullptr;
+    cache_->WantExactLandmarks(key);
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    while ((*engine)->exact_landmarks() == nullptr && absl::Now() < deadline) {
+      absl::SleepFor(absl::Milliseconds(5));
+    }
+    EXPECT_NE((*engine)->exact_landmarks(), nullptr);
+    return *engine;
+  };
+  auto fields = [](const GeodesicEngine& engine) {
+    std::span<const float> f = engine.exact_landmarks()->fields();
+    return std::vector<float>(f.begin(), f.end());
+  };
+  Fresh();
+  auto computed = landmarks_of();
+  ASSERT_NE(computed, nullptr);
+  ASSERT_NE(computed->exact_landmarks(), nullptr);
+  const std::string path = ExactLandmarksPathOf(cache_->GraphPath(mesh->fingerprint, key.params));
+  // Written just after the engine has them.
+  auto kept_file = [&] {
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    auto read = ReadExactLandmarks(path, *mesh->mesh, 4);
+    while (!read.ok() && absl::Now() < deadline) {
+      absl::SleepFor(absl::Milliseconds(5));
+      read = ReadExactLandmarks(path, *mesh->mesh, 4);
+    }
+    return read;
+  };
+  auto kept = kept_file();
+  ASSERT_TRUE(kept.ok()) << kept.status();
+  EXPECT_EQ(std::vector<float>((*kept)->fields().begin(), (*kept)->fields().end()),
+            fields(*computed));
+
+  const std::vector<VertexId> others = {0, 7, 40, 63};
+  auto other = ExactLandmarks::Compute(*mesh->mesh, others);
+  ASSERT_TRUE(other.ok()) << other.status();
+  const absl::Status written = WriteExactLandmarks(**other, *mesh->mesh, path);
+  ASSERT_TRUE(written.ok()) << written;
+  ASSERT_NE(fields(*computed),
+            std::vector<float>((*other)->fields().begin(), (*other)->fields().end()));
+  Cache();  // a restart on the same directory
+  auto restored = landmarks_of();
+  ASSERT_NE(restored, nullptr);
+  ASSERT_NE(restored->exact_landmarks(), nullptr);
+  EXPECT_EQ(fields(*restored),
+            std::vector<float>((*other)->fields().begin(), (*other)->fields().end()));
+
+  std::filesystem::resize_file(path, 100);
+  Cache();
+  auto recomputed = landmarks_of();
+  ASSERT_NE(recomputed, nullptr);
+  ASSERT_NE(recomputed->exact_landmarks(), nullptr);
+  EXPECT_EQ(fields(*recomputed), fields(*computed));
+  EXPECT_TRUE(kept_file().ok());
 }
 
 // Exact landmarks that cannot fit the memory limit, even with every graph no
