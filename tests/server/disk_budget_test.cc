@@ -71,31 +71,24 @@ TEST_F(DiskBudgetTest, SpareFilesGoFirstLeastRecentlyUsedFirst) {
   EXPECT_TRUE(Exists("in-use.dgg"));
 }
 
-TEST_F(DiskBudgetTest, AGraphsCertificateGoesWithItAndCountsInTheTotal) {
-  Add("cert.dgg", 100, 300, FileRole::kSpare);
-  std::ofstream(dir_ / "cert.dgg.certificate.json") << std::string(20, 'j');
-  Add("kept.dgg", 100, 10, FileRole::kSpare);
-  std::ofstream(dir_ / "kept.dgg.certificate.json") << std::string(20, 'j');
-  auto report = Enforce(150);  // 240 bytes: the older graph goes, and its certificate
-  ASSERT_TRUE(report.ok()) << report.status();
-  EXPECT_EQ(report->bytes_before, 240u);
-  EXPECT_THAT(report->removed, ElementsAre("cert.dgg", "cert.dgg.certificate.json"));
-  EXPECT_EQ(report->bytes_after, 120u);
-  EXPECT_FALSE(Exists("cert.dgg.certificate.json"));
-  EXPECT_TRUE(Exists("kept.dgg.certificate.json"));
-}
-
-TEST_F(DiskBudgetTest, AGraphsExactLandmarksGoWithIt) {
+// A certificate and exact landmarks are a graph's sidecars: counted, and
+// removed with it.
+TEST_F(DiskBudgetTest, AGraphsSidecarsGoWithItAndCountInTheTotal) {
   Add("old.dgg", 100, 300, FileRole::kSpare);
-  std::ofstream(dir_ / "old.dgg.exact-landmarks") << std::string(40, 'l');
   Add("kept.dgg", 100, 10, FileRole::kSpare);
-  std::ofstream(dir_ / "kept.dgg.exact-landmarks") << std::string(40, 'l');
-  auto report = Enforce(150);  // 280 bytes: the older graph goes, and its landmarks
+  for (const std::string graph : {"old.dgg", "kept.dgg"}) {
+    std::ofstream(dir_ / (graph + ".certificate.json")) << std::string(20, 'j');
+    std::ofstream(dir_ / (graph + ".exact-landmarks")) << std::string(40, 'l');
+  }
+  auto report = Enforce(170);  // 320 bytes: the older graph goes, and its sidecars
   ASSERT_TRUE(report.ok()) << report.status();
-  EXPECT_EQ(report->bytes_before, 280u);
-  EXPECT_THAT(report->removed, ElementsAre("old.dgg", "old.dgg.exact-landmarks"));
-  EXPECT_EQ(report->bytes_after, 140u);
+  EXPECT_EQ(report->bytes_before, 320u);
+  EXPECT_THAT(report->removed,
+              ElementsAre("old.dgg", "old.dgg.certificate.json", "old.dgg.exact-landmarks"));
+  EXPECT_EQ(report->bytes_after, 160u);
+  EXPECT_FALSE(Exists("old.dgg.certificate.json"));
   EXPECT_FALSE(Exists("old.dgg.exact-landmarks"));
+  EXPECT_TRUE(Exists("kept.dgg.certificate.json"));
   EXPECT_TRUE(Exists("kept.dgg.exact-landmarks"));
 }
 
