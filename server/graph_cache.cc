@@ -641,7 +641,10 @@ bool GraphCache::RestoreExactLandmarks(const GraphKey& key, const Entry& e,
 void GraphCache::SaveExactLandmarks(const GraphKey& key, const Entry& e,
                                     const GeodesicEngine& engine) {
   const ExactLandmarks* landmarks = engine.exact_landmarks();
-  if (e.path.empty() || !landmarks) return;
+  // Only beside a graph file: the disk budget removes them with it, and
+  // a graph kept in memory only would leave them behind.
+  std::error_code ec;
+  if (e.path.empty() || !landmarks || !std::filesystem::exists(e.path, ec)) return;
   // Best effort: without the file they are only computed again.
   const std::string path = ExactLandmarksPathOf(e.path);
   const uint64_t bytes = landmarks->fields().size_bytes() + 64;
