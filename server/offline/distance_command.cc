@@ -7,6 +7,7 @@
 #include "absl/strings/str_format.h"
 #include "core/base/status.h"
 #include "core/dgg/graph_file.h"
+#include "core/query/exact_landmarks_file.h"
 #include "core/query/geodesic_engine.h"
 #include "core/query/result_files.h"
 #include "server/offline/commands.h"
@@ -29,7 +30,38 @@ struct DistanceFlags {
   bool json = false, want_path = false, no_astar = false, exact = false, repair = false;
   std::optional<int> landmarks;
   int exact_landmarks = 0;
+  bool save_exact_landmarks = false;
 };
+
+// The exact landmarks --exact-landmarks asks for: read from beside the
+// graph file when they are there for this mesh and count (a daemon, or an
+// earlier --save-exact-landmarks, kept them), else computed, and with
+// --save-exact-landmarks kept there. The time goes to stderr.
+absl::Status PrepareExactLandmarks(const DistanceFlags& f, const Mesh& mesh,
+                                   const GeodesicEngine& engine) {
+  const auto t0 = std::chrono::steady_clock::now();
+  auto seconds = [&] {
+    return std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  };
+  const std::string path = ExactLandmarksPathOf(f.graph_path);
+  auto read = ReadExactLandmarks(path, mesh, f.exact_landmarks);
+  if (read.ok()) {
+    RETURN_IF_ERROR(engine.AdoptExactLandmarks(*std::move(read)));
+    std::fprintf(stderr, "exact landmarks: %d fields read from %s in %.2f s\n", f.exact_landmarks,
+                 path.c_str(), seconds());
+    return absl::OkStatus();
+  }
+  if (!absl::IsNotFound(read.status())) {
+    std::fprintf(stderr, "exact landmarks: not read (%s); computing them\n",
+                 std::string(read.status().message()).c_str());
+  }
+  RETURN_IF_ERROR(engine.PrepareExactLandmarks(f.exact_landmarks));
+  std::fprintf(stderr, "exact landmarks: %d fields in %.2f s\n", f.exact_landmarks, seconds());
+  if (!f.save_exact_landmarks) return absl::OkStatus();
+  RETURN_IF_ERROR(WriteExactLandmarks(*engine.exact_landmarks(), mesh, path));
+  std::fprintf(stderr, "exact landmarks: kept in %s\n", path.c_str());
+  return absl::OkStatus();
+}
 
 void AddDistanceFlags(CLI::App& app, DistanceFlags& f) {
   app.add_option("--mesh", f.mesh_path, "mesh file the graph was built for")->required();
@@ -56,8 +88,14 @@ void AddDistanceFlags(CLI::App& app, DistanceFlags& f) {
                  "with --exact: exact distance fields from this many landmarks, computed once "
                  "before the queries (one exact field each), whose bounds leave each pair's "
                  "propagation a narrower region; worth it for many pairs (0: straight-line "
-                 "bounds only)")
+                 "bounds only). Read from beside the graph file (GRAPH.exact-landmarks, as "
+                 "geodesicd serve and --save-exact-landmarks keep them) when that file holds "
+                 "this many for this mesh")
       ->check(CLI::Range(0, 64));
+  app.add_flag("--save-exact-landmarks", f.save_exact_landmarks,
+               "with --exact-landmarks: keep the landmarks computed beside the graph file "
+               "(GRAPH.exact-landmarks), for later runs to read")
+      ->needs("--exact-landmarks");
   app.add_flag("--json", f.json, "print JSON");
   AddRepairFlag(app, &f.repair);
 }
@@ -151,11 +189,8 @@ int RunDistance(int argc, char** argv) {
     if (!prepared.ok()) return Fail("distance", prepared);
   }
   if (f.exact && f.exact_landmarks > 0) {
-    auto t0 = std::chrono::steady_clock::now();
-    absl::Status prepared = engine.PrepareExactLandmarks(f.exact_landmarks);
+    absl::Status prepared = PrepareExactLandmarks(f, **mesh, engine);
     if (!prepared.ok()) return Fail("distance", prepared);
-    std::fprintf(stderr, "exact landmarks: %d fields in %.2f s\n", f.exact_landmarks,
-                 std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
   }
   PairOptions options;
   options.want_path = f.want_path;

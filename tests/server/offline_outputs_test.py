@@ -107,6 +107,24 @@ with tempfile.TemporaryDirectory() as work:
           sum(x["windows"] for x in marked) < sum(x["windows"] for x in plain),
           ([x["windows"] for x in plain], [x["windows"] for x in marked]))
     check("the landmarks' cost is reported", "exact landmarks: 8 fields in" in r.stderr, r.stderr)
+    # Kept beside the graph with --save-exact-landmarks, read back by later
+    # runs asking for as many; another count is computed, not read.
+    kept = graph + ".exact-landmarks"
+    check("no landmarks are kept unasked", not os.path.exists(kept), os.listdir(work))
+    r = run("distance", *common, "--pairs", spread, "--exact", "--exact-landmarks", "8",
+            "--save-exact-landmarks", "--json")
+    check("--save-exact-landmarks keeps them beside the graph",
+          os.path.exists(kept) and f"kept in {kept}" in r.stderr, r.stderr)
+    r = run("distance", *common, "--pairs", spread, "--exact", "--exact-landmarks", "8", "--json")
+    again = json.loads(r.stdout)
+    check("a later run reads them back", f"8 fields read from {kept}" in r.stderr, r.stderr)
+    check("read back, they give the same answers from as many windows",
+          [(x["distance"], x["windows"]) for x in again] ==
+          [(x["distance"], x["windows"]) for x in marked], (again, marked))
+    r = run("distance", *common, "--pairs", spread, "--exact", "--exact-landmarks", "4", "--json")
+    check("another count is computed, saying why the file was not read",
+          "holds 8 landmarks, not the 4 asked for" in r.stderr and
+          "exact landmarks: 4 fields in" in r.stderr, r.stderr)
     for value in ("-1", "0", "nan"):
         r = run("field", *common, "--source", "v:0", "--max-distance", value, "--out",
                 os.path.join(work, "m.f64"), expect_ok=False)
