@@ -309,8 +309,7 @@ bool ExactGeodesic::PastGoal(VertexId v, double d) {
   // within the bound either: testing the vertex once spares making and
   // trimming a window per face of its fan.
   if (!goal_) return false;
-  double gap = Distance(mesh_.position(v), *goal_);
-  if (goal_floor_) gap = std::max(gap, FloorAt(v));
+  const double gap = goal_floor_ ? FloorAt(v) : Distance(mesh_.position(v), *goal_);
   return d + gap > max_distance_;
 }
 
@@ -496,12 +495,15 @@ double LeastFlooredRoute(const SegmentRoutes& r, double length, double f_tail, d
 
 bool ExactGeodesic::PastGoal(const Window& w, const EdgeEnds& edge, double key) {
   // Each test bounds the least, over the window's segment, of the distance
-  // there plus one lower bound on the rest of the way: the region swept is
+  // there plus a lower bound on the rest of the way: the region swept is
   // the ellipse of short routes, not what the two separate minima allow.
   const exact_internal::SegmentRoutes routes{{w.sx, w.sy}, w.sigma, w.b0, w.b1};
   if (goal_floor_) {
     // A point x along the edge is at least floor(tail) - x and floor(head) -
-    // (L - x) from the goal (the edge is a path on the surface).
+    // (L - x) from the goal (the edge is a path on the surface). The floors
+    // hold the straight line at the ends too (FloorAt), which near the goal
+    // is what binds: a straight-line test per window besides cost more
+    // than the few windows it dropped (bench/notes.md, "Exact engine").
     const double f_tail = FloorAt(edge.tail), f_head = FloorAt(edge.head);
     // An edge's ends share a component: a goal beyond it is beyond both.
     if (f_tail == kInf || f_head == kInf) return true;
@@ -511,9 +513,7 @@ bool ExactGeodesic::PastGoal(const Window& w, const EdgeEnds& edge, double key) 
         max_distance_) {
       return true;
     }
-    if (exact_internal::LeastFlooredRoute(routes, edge.length, f_tail, f_head) > max_distance_) {
-      return true;
-    }
+    return exact_internal::LeastFlooredRoute(routes, edge.length, f_tail, f_head) > max_distance_;
   }
   const Vec3& p = mesh_.position(edge.tail);
   const Vec3 along = (mesh_.position(edge.head) - p) * (1 / edge.length);
@@ -527,7 +527,7 @@ double ExactGeodesic::FloorAt(VertexId v) {
   if (floor_at_.empty()) floor_at_.assign(mesh_.num_vertices(), std::nan(""));
   double& f = floor_at_[v];
   if (std::isnan(f)) {
-    f = goal_floor_->At(v);
+    f = std::max(goal_floor_->At(v), Distance(mesh_.position(v), *goal_));
     floored_.push_back(v);
   }
   return f;

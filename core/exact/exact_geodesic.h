@@ -262,11 +262,11 @@ class ExactGeodesic {
   // The distance from the source to the window's nearest point: its key.
   static double Nearest(const Window& w);
   // Whether every route from the source through the window (nearest at
-  // `key`) to the goal passes the run's bound, straight on from the window's
-  // segment or by the goal floor.
+  // `key`) to the goal passes the run's bound: by the goal floor when the
+  // run has one, else straight on from the window's segment.
   bool PastGoal(const Window& w, const EdgeEnds& edge, double key);
-  // The goal floor at v, asked of it once per run: every window on an edge
-  // of v reads it.
+  // The goal floor at v, or v's straight line to the goal where that is
+  // larger, asked once per run: every window on an edge of v reads it.
   double FloorAt(VertexId v);
   uint32_t Allocate(const Draft& w);
   // What the run's windows hold: the windows, their rays and the seen slots.
