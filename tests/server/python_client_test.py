@@ -192,7 +192,7 @@ class ClientTest(unittest.TestCase):
         # exact=True: the exact engine's distance through the daemon, to rounding, for a face
         # point and a vertex, with the exact geodesic as its path; exact matrix rows agree.
         # The first exact answer also starts the graph's exact landmarks (the daemon's default
-        # --exact-landmarks 32: 4 bytes per vertex each, and 64 per half-edge for the face
+        # --exact-landmarks 64: 4 bytes per vertex each, and 64 per half-edge for the face
         # frames exact pairs then read) in the background; answers after them are the same.
         eps, source = 0.01, "f:0:0.2,0.3,0.5"
         truth = self.exact_field(source)
@@ -205,7 +205,7 @@ class ClientTest(unittest.TestCase):
             self.assertTrue(np.isfinite(got) and np.isfinite(truth[target]))
             self.assertAlmostEqual(got, truth[target], delta=1e-12 * truth[target])
         spot = self.client.mesh("spot")
-        exact_landmark_bytes = (spot.diagnostics.vertices * 32 * 4 +
+        exact_landmark_bytes = (spot.diagnostics.vertices * 64 * 4 +
                                 spot.diagnostics.faces * 3 * 64)
         wait_until(lambda: self.client.graph("spot", epsilon=eps).landmark_bytes,
                    lambda b: b == before + exact_landmark_bytes)
