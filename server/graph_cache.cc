@@ -11,6 +11,7 @@
 #include <set>
 
 #include "absl/status/status.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "core/base/atomic_file.h"
 #include "core/query/exact_landmarks_file.h"
@@ -623,8 +624,27 @@ void GraphCache::WantExactLandmarks(const GraphKey& key) {
 bool GraphCache::RestoreExactLandmarks(const GraphKey& key, const Entry& e,
                                        const GeodesicEngine& engine, int count) {
   if (e.path.empty()) return false;
+  const Mesh& mesh = *e.mesh->mesh;
   const std::string path = ExactLandmarksPathOf(e.path);
-  auto read = ReadExactLandmarks(path, *e.mesh->mesh, count);
+  auto read = ReadExactLandmarks(path, mesh, count);
+  bool from_sibling = false;
+  if (absl::IsNotFound(read.status())) {
+    // The fields are the mesh's, whichever of its graphs spread the
+    // landmarks: another graph of the mesh may keep them already.
+    const std::string prefix = absl::StrFormat("%016x-", e.mesh->fingerprint);
+    std::error_code ec;
+    for (const auto& entry : std::filesystem::directory_iterator(options_.graph_dir, ec)) {
+      const std::string name = entry.path().filename().string();
+      if (!absl::StartsWith(name, prefix) || !absl::EndsWith(name, ".dgg.exact-landmarks")) {
+        continue;
+      }
+      auto sibling = ReadExactLandmarks(entry.path().string(), mesh, count);
+      if (!sibling.ok()) continue;
+      read = std::move(sibling);
+      from_sibling = true;
+      break;
+    }
+  }
   if (!read.ok()) {
     // Another count, mesh or version, or damage: computed again and
     // written over.
@@ -634,8 +654,15 @@ bool GraphCache::RestoreExactLandmarks(const GraphKey& key, const Entry& e,
     }
     return false;
   }
-  if (options_.on_file_used) options_.on_file_used(path);
-  return engine.AdoptExactLandmarks(*std::move(read)).ok();
+  if (!engine.AdoptExactLandmarks(*std::move(read)).ok()) return false;
+  // A copy of its own, since the disk budget removes the other graph's
+  // with that graph.
+  if (from_sibling) {
+    SaveExactLandmarks(key, e, engine);
+  } else if (options_.on_file_used) {
+    options_.on_file_used(path);
+  }
+  return true;
 }
 
 void GraphCache::SaveExactLandmarks(const GraphKey& key, const Entry& e,

@@ -379,8 +379,9 @@ class GraphCache {
   // Runs on a worker: the exact landmarks WantExactLandmarks asked for,
   // counted the same way.
   void AddExactLandmarks(const GraphKey& key);
-  // Reads the landmarks kept beside the graph's file, when they are this
-  // mesh's and count's, into `engine`; false to compute them.
+  // Reads the landmarks kept beside the graph's file (or, when it has none,
+  // beside another graph of its mesh, then kept beside its own too), when
+  // they are this mesh's and count's, into `engine`; false to compute them.
   bool RestoreExactLandmarks(const GraphKey& key, const Entry& e, const GeodesicEngine& engine,
                              int count);
   // Keeps the engine's landmarks beside the graph's file for a restart,

@@ -713,6 +713,41 @@ TEST_F(GraphCacheTest, ExactLandmarksAreKeptBesideTheGraphAndReadBackAfterAResta
   EXPECT_TRUE(kept_file().ok());
 }
 
+// A graph of a mesh whose other graph keeps exact landmarks reads those
+// (they are the mesh's fields) and keeps a copy beside its own file.
+TEST_F(GraphCacheTest, ExactLandmarksOfAnotherGraphOfTheMeshAreReadAndCopied) {
+  auto mesh = GridMesh("grid", 8);
+  const GraphKey coarse{"grid", Eps(0.1)}, fine{"grid", Eps(0.05)};
+  exact_landmarks_ = 4;
+  Fresh();
+  fs::create_directories(dir_);
+  // Planted beside the coarse graph's file: landmarks from vertices no
+  // sampling of the fine graph would pick all of.
+  auto planted = ExactLandmarks::Compute(*mesh->mesh, std::vector<VertexId>{0, 7, 40, 63});
+  ASSERT_TRUE(planted.ok()) << planted.status();
+  const std::string coarse_kept =
+      ExactLandmarksPathOf(cache_->GraphPath(mesh->fingerprint, coarse.params));
+  const absl::Status written = WriteExactLandmarks(**planted, *mesh->mesh, coarse_kept);
+  ASSERT_TRUE(written.ok()) << written;
+
+  cache_->Request(mesh, fine.params);
+  WaitFor(fine, GraphState::kReady);
+  auto engine = cache_->Acquire(fine);
+  ASSERT_TRUE(engine.ok()) << engine.status();
+  cache_->WantExactLandmarks(fine);
+  const std::string fine_kept =
+      ExactLandmarksPathOf(cache_->GraphPath(mesh->fingerprint, fine.params));
+  const absl::Time deadline = absl::Now() + absl::Seconds(30);
+  while (!fs::exists(fine_kept) && absl::Now() < deadline) absl::SleepFor(absl::Milliseconds(5));
+  ASSERT_NE((*engine)->exact_landmarks(), nullptr);
+  const std::span<const float> got = (*engine)->exact_landmarks()->fields();
+  const std::span<const float> want = (*planted)->fields();
+  ASSERT_FALSE(want.empty());
+  EXPECT_TRUE(std::equal(got.begin(), got.end(), want.begin(), want.end()));
+  auto copy = ReadExactLandmarks(fine_kept, *mesh->mesh, 4);
+  EXPECT_TRUE(copy.ok()) << copy.status();
+}
+
 // Exact landmarks that cannot fit the memory limit, even with every graph no
 // query holds evicted, are skipped: the graph keeps serving without them.
 TEST_F(GraphCacheTest, ExactLandmarksOverTheMemoryLimitAreSkipped) {
