@@ -169,8 +169,9 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "background once asked for exact answers (4 bytes per vertex each, and 64 per "
                  "half-edge for the face frames exact pairs then share; one exact field's time "
                  "each, on a build worker and its --build-threads): each exact pair then sweeps "
-                 "a narrower "
-                 "region (0: none, exact pairs prune by the straight line only)")
+                 "a narrower region; with --graph-dir they are kept beside the graph's file "
+                 "and read back after a restart (0: none, exact pairs prune by the straight "
+                 "line only)")
       ->check(CLI::Range(0, 64));
   app.add_flag("--exact-fans", f.exact_fans,
                "build graphs with fans from exact local distances: faster fields, longer "
