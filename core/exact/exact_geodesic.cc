@@ -476,19 +476,16 @@ double LeastStraightRoute(const SegmentRoutes& r, Vec2 goal) {
   return r.sigma + Hypot(x - r.s.x, sy) + Hypot(goal.x - x, gy);
 }
 
-double FlooredRest(const SegmentRoutes& r, double length, double f_tail, double f_head,
-                   double* at) {
-  *at = std::clamp((f_tail - f_head + length) / 2, r.b0, r.b1);
-  return std::max(f_tail - *at, f_head - (length - *at));
+FloorCrossing FlooredRest(const SegmentRoutes& r, double length, double f_tail, double f_head) {
+  const double at = std::clamp((f_tail - f_head + length) / 2, r.b0, r.b1);
+  return {at, std::max(f_tail - at, f_head - (length - at))};
 }
 
-double LeastFlooredRoute(const SegmentRoutes& r, double length, double f_tail, double f_head) {
+double LeastFlooredRoute(const SegmentRoutes& r, const FloorCrossing& c) {
   // D(x) - x falls and D(x) + x grows (|D'| < 1), so D plus the larger of
   // f_tail - x and f_head - (L - x) is least where those two cross, or at
   // the segment's end nearer that crossing.
-  double x;
-  const double rest = FlooredRest(r, length, f_tail, f_head, &x);
-  return r.sigma + Hypot(x - r.s.x, r.s.y) + rest;
+  return r.sigma + Hypot(c.at - r.s.x, r.s.y) + c.rest;
 }
 
 }  // namespace exact_internal
@@ -507,13 +504,11 @@ bool ExactGeodesic::PastGoal(const Window& w, const EdgeEnds& edge, double key) 
     const double f_tail = FloorAt(edge.tail), f_head = FloorAt(edge.head);
     // An edge's ends share a component: a goal beyond it is beyond both.
     if (f_tail == kInf || f_head == kInf) return true;
-    double x;
+    const exact_internal::FloorCrossing crossing =
+        exact_internal::FlooredRest(routes, edge.length, f_tail, f_head);
     // The nearest distance first: it needs no square root.
-    if (key + exact_internal::FlooredRest(routes, edge.length, f_tail, f_head, &x) >
-        max_distance_) {
-      return true;
-    }
-    return exact_internal::LeastFlooredRoute(routes, edge.length, f_tail, f_head) > max_distance_;
+    if (key + crossing.rest > max_distance_) return true;
+    return exact_internal::LeastFlooredRoute(routes, crossing) > max_distance_;
   }
   const Vec3& p = mesh_.position(edge.tail);
   const Vec3 along = (mesh_.position(edge.head) - p) * (1 / edge.length);

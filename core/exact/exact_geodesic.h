@@ -346,13 +346,17 @@ struct SegmentRoutes {
 // The least, over the segment, of a route's length there plus the straight
 // line on to `goal` (taken on the axis' far side from s, as when hinged).
 double LeastStraightRoute(const SegmentRoutes& r, Vec2 goal);
-// The least, over the segment, of a route's length plus the larger of
-// f_tail - x and f_head - (length - x): the goal floors at the edge's ends
-// less the way along it.
-double LeastFlooredRoute(const SegmentRoutes& r, double length, double f_tail, double f_head);
-// That larger of the two where they cross (or at the segment's nearer end),
-// the point in `at`.
-double FlooredRest(const SegmentRoutes& r, double length, double f_tail, double f_head, double* at);
+// Where, on the segment, the larger of f_tail - x and f_head - (length - x)
+// (the goal floors at the edge's ends less the way along it) is least, and
+// that value: where the two cross, or the segment's end nearer that.
+struct FloorCrossing {
+  double at;
+  double rest;
+};
+FloorCrossing FlooredRest(const SegmentRoutes& r, double length, double f_tail, double f_head);
+// The least, over the segment, of a route's length plus that larger of the
+// two, given where they cross.
+double LeastFlooredRoute(const SegmentRoutes& r, const FloorCrossing& c);
 
 }  // namespace exact_internal
 

@@ -190,6 +190,7 @@ TEST(ExactGeodesicTest, DistanceLimitAndTargets) {
 // bench/measurements.md, "Exact pairs"): never above a dense sampling of
 // the route, and within the sampling's step of its least value.
 TEST(ExactGeodesicTest, GoalBoundsAreTheLeastRouteOverTheSegment) {
+  using exact_internal::FlooredRest;
   using exact_internal::LeastFlooredRoute;
   using exact_internal::LeastStraightRoute;
   using exact_internal::SegmentRoutes;
@@ -215,7 +216,7 @@ TEST(ExactGeodesicTest, GoalBoundsAreTheLeastRouteOverTheSegment) {
     }
     ASSERT_TRUE(std::isfinite(straight) && std::isfinite(floored));
     const double got_straight = LeastStraightRoute(r, goal);
-    const double got_floored = LeastFlooredRoute(r, length, f_tail, f_head);
+    const double got_floored = LeastFlooredRoute(r, FlooredRest(r, length, f_tail, f_head));
     EXPECT_LE(got_straight, straight + 1e-12) << trial;
     // Samples miss the least value by at most a step times the slope
     // (under 2) on either side.
