@@ -40,8 +40,8 @@ bool Removable(const std::string& name) {
 // A certified graph's certificate (server/offline/certificate_file.h) goes
 // with its graph: kept alone it would certify nothing, and left behind it
 // would be refused beside a graph rebuilt under the name. So do the exact
-// landmarks kept beside it (core/query/exact_landmarks_file.h), which only
-// that graph's requests read back.
+// landmarks kept beside it (core/query/exact_landmarks_file.h): another
+// graph of the mesh that read them keeps a copy of its own.
 std::vector<std::string> SidecarsOf(const std::string& name) {
   if (!absl::EndsWith(name, ".dgg")) return {};
   return {name + ".certificate.json", ExactLandmarksPathOf(name)};

@@ -674,7 +674,7 @@ void GraphCache::SaveExactLandmarks(const GraphKey& key, const Entry& e,
   if (e.path.empty() || !landmarks || !std::filesystem::exists(e.path, ec)) return;
   // Best effort: without the file they are only computed again.
   const std::string path = ExactLandmarksPathOf(e.path);
-  const uint64_t bytes = landmarks->fields().size_bytes() + 64;
+  const uint64_t bytes = ExactLandmarksFileBytes(*landmarks);
   if (options_.disk) {
     if (absl::Status room = options_.disk->Reserve(bytes); !room.ok()) {
       Log(LogLevel::kWarning, "exact_landmarks_not_saved",

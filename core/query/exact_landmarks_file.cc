@@ -40,6 +40,10 @@ uint64_t FileBytes(uint64_t vertices, uint64_t count) {
 
 }  // namespace
 
+uint64_t ExactLandmarksFileBytes(const ExactLandmarks& landmarks) {
+  return FileBytes(landmarks.fields().size() / landmarks.count(), landmarks.count());
+}
+
 absl::Status WriteExactLandmarks(const ExactLandmarks& landmarks, const Mesh& mesh,
                                  const std::string& path) {
   const std::span<const float> fields = landmarks.fields();
@@ -84,11 +88,12 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ReadExactLandmarks(const s
         absl::StrFormat("%s: %d bytes, shorter than an exact landmarks header", path, size));
   }
   RETURN_IF_ERROR(CheckHeader(h, kMagic, kFormatVersion, size, "exact landmarks file", path));
-  if (h.num_vertices != mesh.num_vertices() || h.mesh_fingerprint != MeshFingerprint(mesh)) {
+  const uint64_t fingerprint = MeshFingerprint(mesh);
+  if (h.num_vertices != mesh.num_vertices() || h.mesh_fingerprint != fingerprint) {
     return absl::FailedPreconditionError(absl::StrFormat(
         "%s holds landmarks of another mesh (fingerprint %016x, %u vertices; this mesh %016x, "
         "%u vertices)",
-        path, h.mesh_fingerprint, h.num_vertices, MeshFingerprint(mesh), mesh.num_vertices()));
+        path, h.mesh_fingerprint, h.num_vertices, fingerprint, mesh.num_vertices()));
   }
   if (h.count != static_cast<uint32_t>(count)) {
     return absl::FailedPreconditionError(

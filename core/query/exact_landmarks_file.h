@@ -21,6 +21,9 @@ inline std::string ExactLandmarksPathOf(const std::string& graph_path) {
   return graph_path + ".exact-landmarks";
 }
 
+// The bytes of the file WriteExactLandmarks makes of `landmarks`.
+uint64_t ExactLandmarksFileBytes(const ExactLandmarks& landmarks);
+
 // Writes atomically (temp + fsync + rename) landmarks computed on `mesh`.
 absl::Status WriteExactLandmarks(const ExactLandmarks& landmarks, const Mesh& mesh,
                                  const std::string& path);

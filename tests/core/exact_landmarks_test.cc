@@ -115,6 +115,7 @@ TEST(ExactLandmarksFileTest, WrittenLandmarksReadBackGiveTheSameBounds) {
   TempDir dir;
   const std::string path = dir.path() + "/g.dgg.exact-landmarks";
   ASSERT_OK(WriteExactLandmarks(**landmarks, mesh, path));
+  EXPECT_EQ(std::filesystem::file_size(path), ExactLandmarksFileBytes(**landmarks));
   auto read = ReadExactLandmarks(path, mesh, 6);
   ASSERT_OK(read);
   ASSERT_EQ((*read)->fields().size(), (*landmarks)->fields().size());
