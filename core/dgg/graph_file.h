@@ -85,7 +85,7 @@ class GraphFile {
 class GraphFileDraft {
  public:
   static absl::StatusOr<GraphFileDraft> Create(const std::string& path, uint32_t num_nodes);
-  DggEdgeFile edge_file() const { return {file_.fd(), edges_offset_}; }
+  DggEdgeFile edge_file() const { return {file_.fd(), edges_offset_, {}}; }
   absl::Status Finish(const DggGraph& graph) &&;
 
   // Makes the build of `options` keep its edges in this draft, and its
