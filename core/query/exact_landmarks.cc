@@ -5,6 +5,10 @@
 #include <limits>
 #include <thread>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/base/for_each_in_parallel.h"
@@ -17,9 +21,53 @@ namespace {
 constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // Four float steps (2^-24 each) of the largest distance cover the rounding
-// of a landmark's distance to each end of a bound; the engine's own error,
-// ~1e-14 of a distance, is far below.
+// of a landmark's distance to each end of a bound, and one more the float
+// subtraction that takes the bound; the engine's own error, ~1e-14 of a
+// distance, is far below.
 constexpr double kSlackPerDistance = 1e-6;
+
+// Stands for "unreached" in a bound's float arithmetic, where +inf would
+// make inf - inf: a field's +inf is clamped to it, and a landmark that does
+// not reach the goal gets it as both ends of the goal's range. Then a
+// difference near kFar means v and the goal lie in different components,
+// and one of 0 that neither is reached.
+constexpr float kFar = 1e30f;
+
+// The largest of low[k] - d[k] and d[k] - high[k] over k < n, with d's +inf
+// read as kFar. Branch-free, since a floor is asked for every vertex a run
+// meets and reads all of its landmarks.
+float LargestGap(const float* d, const float* low, const float* high, int n) {
+  float best = 0;
+  int k = 0;
+#if defined(__SSE2__)
+  const __m128 far = _mm_set1_ps(kFar);
+  __m128 best4 = _mm_setzero_ps();
+  for (; k + 4 <= n; k += 4) {
+    const __m128 dk = _mm_min_ps(_mm_loadu_ps(d + k), far);
+    const __m128 below = _mm_sub_ps(_mm_loadu_ps(low + k), dk);
+    const __m128 above = _mm_sub_ps(dk, _mm_loadu_ps(high + k));
+    best4 = _mm_max_ps(best4, _mm_max_ps(below, above));
+  }
+  alignas(16) float lanes[4];
+  _mm_store_ps(lanes, best4);
+  best = std::max(std::max(lanes[0], lanes[1]), std::max(lanes[2], lanes[3]));
+#endif
+  for (; k < n; ++k) {
+    const float dk = std::min(d[k], kFar);
+    best = std::max(best, std::max(low[k] - dk, dk - high[k]));
+  }
+  return best;
+}
+
+// `x` as a float no larger (RoundDown) or no smaller (RoundUp) than it.
+float RoundDown(double x) {
+  const float f = static_cast<float>(x);
+  return f > x ? std::nextafter(f, -std::numeric_limits<float>::infinity()) : f;
+}
+float RoundUp(double x) {
+  const float f = static_cast<float>(x);
+  return f < x ? std::nextafter(f, std::numeric_limits<float>::infinity()) : f;
+}
 
 // The vertices whose fields place `p`: itself, its edge's ends or its face's
 // corners (each joined to p by a straight segment on the surface).
@@ -100,18 +148,25 @@ uint64_t ExactLandmarks::ComputeBytes(const Mesh& mesh, int count, int threads) 
 }
 
 ExactLandmarks::Floor ExactLandmarks::FloorFor(const Mesh& mesh, const SurfacePoint& goal) const {
-  Floor floor;
-  floor.landmarks_ = this;
-  floor.low_.assign(count_, -kInf);
-  floor.high_.assign(count_, kInf);
+  std::vector<double> low(count_, -kInf), high(count_, kInf);
   const Vec3 at = PositionOf(mesh, goal);
   for (VertexId c : CornersOf(mesh, goal)) {
     const double gap = Distance(mesh.position(c), at);
     const std::span<const float> d = of(c);
     for (int k = 0; k < count_; ++k) {
-      floor.low_[k] = std::max(floor.low_[k], d[k] - gap);
-      floor.high_[k] = std::min(floor.high_[k], d[k] + gap);
+      low[k] = std::max(low[k], d[k] - gap);
+      high[k] = std::min(high[k], d[k] + gap);
     }
+  }
+  Floor floor;
+  floor.landmarks_ = this;
+  floor.low_.resize(count_);
+  floor.high_.resize(count_);
+  for (int k = 0; k < count_; ++k) {
+    // The corners share a component, so they are all reached or none is.
+    const bool reached = high[k] < kInf;
+    floor.low_[k] = reached ? RoundDown(low[k]) : kFar;
+    floor.high_[k] = reached ? RoundUp(high[k]) : kFar;
   }
   return floor;
 }
@@ -126,16 +181,11 @@ ExactLandmarkRun::ExactLandmarkRun(const ExactLandmarks* landmarks, ExactGeodesi
 
 double ExactLandmarks::Floor::At(VertexId v) const {
   const std::span<const float> d = landmarks_->of(v);
-  double best = 0;
-  for (size_t k = 0; k < d.size(); ++k) {
-    // A landmark that reaches one of v and the goal but not the other puts
-    // them in different components.
-    const bool v_reached = d[k] < kInf, goal_reached = high_[k] < kInf;
-    if (v_reached != goal_reached) return kInf;
-    if (!v_reached) continue;
-    best = std::max(best, std::max(low_[k] - d[k], d[k] - high_[k]));
-  }
-  return std::max(0.0, best - landmarks_->slack_);
+  const float gap = LargestGap(d.data(), low_.data(), high_.data(), static_cast<int>(d.size()));
+  // A landmark that reaches one of v and the goal but not the other puts
+  // them in different components.
+  if (gap >= kFar / 2) return kInf;
+  return std::max(0.0, gap - landmarks_->slack_);
 }
 
 }  // namespace geodesic

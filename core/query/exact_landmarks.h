@@ -12,8 +12,9 @@
 // error, which is measured, not proven. One exact field per landmark, so a
 // set is worth computing for a graph that answers many exact pairs.
 //
-// Fields are stored as float32, rounded to nearest: a bound then loses a
-// slack of a few float steps of the largest distance, which keeps it valid.
+// Fields are stored as float32, rounded to nearest, and a bound is taken in
+// float too, four landmarks at a time: it then loses a slack of a few float
+// steps of the largest distance, which keeps it valid.
 #ifndef GEODESIC_CORE_QUERY_EXACT_LANDMARKS_H_
 #define GEODESIC_CORE_QUERY_EXACT_LANDMARKS_H_
 
@@ -58,8 +59,9 @@ class ExactLandmarks {
     friend class ExactLandmarks;
     const ExactLandmarks* landmarks_ = nullptr;
     // Per landmark, the goal's distance lies in [low, high]: from the
-    // fields at the corners of the goal's edge or face.
-    std::vector<double> low_, high_;
+    // fields at the corners of the goal's edge or face, rounded outwards to
+    // float; kFar for a landmark that does not reach the goal.
+    std::vector<float> low_, high_;
   };
   Floor FloorFor(const Mesh& mesh, const SurfacePoint& goal) const;
 

@@ -60,7 +60,8 @@ TEST(ExactLandmarksTest, FloorNeverExceedsTheExactDistance) {
 }
 
 // Two pieces: the floor is +inf on the piece without the goal (no route
-// exists) and finite on the goal's own.
+// exists) and finite on the goal's own, whichever piece each landmark lies
+// on (six of them: the floor takes four at a time, then the rest).
 TEST(ExactLandmarksTest, FloorIsInfiniteAcrossComponents) {
   const Mesh grid = PlanarGrid(6, 6, 0.1);
   TriangleSoup soup;
@@ -74,7 +75,7 @@ TEST(ExactLandmarksTest, FloorIsInfiniteAcrossComponents) {
   }
   const Mesh mesh = MustBuild(std::move(soup));
   const VertexId per_piece = grid.num_vertices();
-  const std::vector<VertexId> marks = {0, per_piece + 5};
+  const std::vector<VertexId> marks = {0, per_piece + 5, 20, per_piece + 30, per_piece + 11, 33};
   auto landmarks = ExactLandmarks::Compute(mesh, marks);
   ASSERT_OK(landmarks);
   const ExactLandmarks::Floor floor = (*landmarks)->FloorFor(mesh, SurfacePoint::Vertex(3));
