@@ -171,12 +171,9 @@ ExactLandmarks::Floor ExactLandmarks::FloorFor(const Mesh& mesh, const SurfacePo
   return floor;
 }
 
-ExactLandmarkRun::ExactLandmarkRun(const ExactLandmarks* landmarks, ExactGeodesic& exact,
-                                   const SurfacePoint* goal, ExactOptions& options)
-    : exact_(exact) {
-  if (!landmarks) return;
-  if (goal) options.goal_floor = &floor_.emplace(landmarks->FloorFor(exact.mesh(), *goal));
-  exact.set_frames(landmarks->frames());
+ExactLandmarkRun::ExactLandmarkRun(const ExactLandmarks* landmarks, const Mesh& mesh,
+                                   const SurfacePoint* goal, ExactOptions& options) {
+  if (landmarks && goal) options.goal_floor = &floor_.emplace(landmarks->FloorFor(mesh, *goal));
 }
 
 double ExactLandmarks::Floor::At(VertexId v) const {

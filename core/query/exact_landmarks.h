@@ -70,9 +70,9 @@ class ExactLandmarks {
   std::span<const float> fields() const { return distance_; }
   // What every bound is lowered by (float rounding of the fields).
   double slack() const { return slack_; }
-  // The face frames the fields were computed with, kept for the exact pairs
-  // these landmarks serve: reading a frame is cheaper than computing it per
-  // window.
+  // The face frames the fields were computed with, kept for the queries'
+  // exact engines (their joins to the graph and their exact pairs): reading
+  // a frame is cheaper than computing it per window.
   const FaceFrames* frames() const { return frames_.get(); }
   // The fields and the frames.
   uint64_t byte_size() const {
@@ -95,19 +95,18 @@ class ExactLandmarks {
   std::unique_ptr<const FaceFrames> frames_;
 };
 
-// What one exact run on a pooled engine takes from the landmarks, when they
-// are ready: their bounds towards the run's goal (if it has one) in its
-// options, and their frames, which the engine reads until this goes.
+// What one exact run takes from the landmarks, when they are ready: their
+// bounds towards the run's goal (if it has one), put in its options and
+// kept while it runs. (Their face frames reach pooled engines through the
+// query scratch.)
 class ExactLandmarkRun {
  public:
-  ExactLandmarkRun(const ExactLandmarks* landmarks, ExactGeodesic& exact, const SurfacePoint* goal,
+  ExactLandmarkRun(const ExactLandmarks* landmarks, const Mesh& mesh, const SurfacePoint* goal,
                    ExactOptions& options);
-  ~ExactLandmarkRun() { exact_.set_frames(nullptr); }
   ExactLandmarkRun(const ExactLandmarkRun&) = delete;
   ExactLandmarkRun& operator=(const ExactLandmarkRun&) = delete;
 
  private:
-  ExactGeodesic& exact_;
   std::optional<ExactLandmarks::Floor> floor_;
 };
 

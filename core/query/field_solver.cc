@@ -159,7 +159,7 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
   ExactOptions options =
       query_internal::ExactWithinGraphAnswer(bound, matrix.cancelled, matrix.exact_max_bytes);
   if (targets.size() == 1) options.goal = targets[0].xyz;
-  ExactLandmarkRun with_landmarks(landmarks, exact,
+  ExactLandmarkRun with_landmarks(landmarks, exact.mesh(),
                                   targets.size() == 1 ? &targets[0].point : nullptr, options);
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(source, options).status());
@@ -186,7 +186,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   for (size_t i = 0; i < sources.size(); ++i) {
     RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
   }
-  ScratchPool::Lease sc = scratch_.Acquire();
+  ScratchPool::Lease sc = AcquireScratch();
   std::vector<Endpoint> ends;
   ends.reserve(sources.size());
   for (const SurfacePoint& p : sources) {
@@ -212,7 +212,7 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   std::vector<Endpoint> target_ends;
   target_ends.reserve(targets.size());
   {
-    ScratchPool::Lease sc = scratch_.Acquire();
+    ScratchPool::Lease sc = AcquireScratch();
     for (const SurfacePoint& t : targets) {
       ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
     }
@@ -221,7 +221,7 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
   FieldOptions options;
   options.cancelled = matrix_options.cancelled;
   auto solve_row = [&](size_t i) -> absl::Status {
-    ScratchPool::Lease row_sc = scratch_.Acquire();
+    ScratchPool::Lease row_sc = AcquireScratch();
     ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *row_sc, sources[i], true));
     double* row = out.data() + i * target_ends.size();
     for (size_t j = 0; j < target_ends.size(); ++j) {

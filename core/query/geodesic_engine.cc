@@ -55,6 +55,13 @@ int GeodesicEngine::DefaultLandmarkCount() const {
       std::clamp(graph_->byte_size() / 4 / (sizeof(float) * nodes), kMin, kMax));
 }
 
+ScratchPool::Lease GeodesicEngine::AcquireScratch() const {
+  ScratchPool::Lease lease = scratch_.Acquire();
+  const ExactLandmarks* landmarks = exact_landmarks_.get();
+  lease->frames = landmarks ? landmarks->frames() : nullptr;
+  return lease;
+}
+
 uint64_t GeodesicEngine::landmark_bytes() const {
   const Landmarks* l = landmarks_.get();
   return l ? l->byte_size() : 0;

@@ -238,6 +238,9 @@ class GeodesicEngine {
   std::vector<Vec3> node_xyz_;
   BucketShape buckets_;
   mutable ScratchPool scratch_;
+  // A scratch for one query, its exact engine reading the exact landmarks'
+  // face frames when there are some.
+  ScratchPool::Lease AcquireScratch() const;
   mutable MadeOnce<Landmarks> landmarks_;
   mutable MadeOnce<ExactLandmarks> exact_landmarks_;
 };

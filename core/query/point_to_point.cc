@@ -385,7 +385,7 @@ absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const ExactLandmarks*
   ExactOptions options =
       query_internal::ExactWithinGraphAnswer(result.distance, pair.cancelled, pair.exact_max_bytes);
   options.goal = PositionOf(mesh, b);
-  ExactLandmarkRun with_landmarks(landmarks, exact, &b, options);
+  ExactLandmarkRun with_landmarks(landmarks, mesh, &b, options);
   // The windows go once the answer is read: the engine stays in the pool.
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
   RETURN_IF_ERROR(exact.Distances(a, options).status());
@@ -413,7 +413,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   const DggGraph& g = *graph_;
   RETURN_IF_ERROR(CheckPoint(mesh, raw_a, "first point"));
   RETURN_IF_ERROR(CheckPoint(mesh, raw_b, "second point"));
-  ScratchPool::Lease lease = scratch_.Acquire();
+  ScratchPool::Lease lease = AcquireScratch();
   QueryScratch& sc = *lease;
   PairResult result;
   // A point that is not a node joins the graph by its direct geodesics. The

@@ -104,10 +104,15 @@ struct QueryScratch {
 
   // Direct geodesics of points that are not graph nodes; made on first use.
   std::unique_ptr<ExactGeodesic> exact;
+  // Face frames for `exact` to read instead of computing one per window:
+  // the exact landmarks' (which live as long as the graph's engine), once
+  // there are some. Set at each lease.
+  const FaceFrames* frames = nullptr;
 
   void PrepareField(size_t nodes);
   ExactGeodesic& Exact(const Mesh& mesh) {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);
+    exact->set_frames(frames);
     return *exact;
   }
   // What this scratch holds, the exact engine's buffers included.
