@@ -8,7 +8,7 @@ pair's region) and one whole exact field from the first pair's first point,
 all in the same run, one thread.
 
   bench/exact_pairs_bench.py [--meshes armadillo,bunny] [--eps 1e-3] [--pairs 200]
-                             [--exact-landmarks 64]
+                             [--exact-landmarks 128]
 
 Prints a Markdown table for BENCHMARKS.md (bench/measurements.md, "Exact
 pairs") and the rows as JSON on stderr.
@@ -128,7 +128,7 @@ def main():
     ap.add_argument("--meshes", default="armadillo,bunny")
     ap.add_argument("--eps", type=float, default=1e-3)
     ap.add_argument("--pairs", type=int, default=200)
-    ap.add_argument("--exact-landmarks", type=int, default=64)
+    ap.add_argument("--exact-landmarks", type=int, default=128)
     args = ap.parse_args()
     work = tempfile.mkdtemp(prefix="exact_pairs_")
     rows = []

@@ -172,7 +172,7 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "a narrower region; with --graph-dir they are kept beside the graph's file "
                  "and read back after a restart (0: none, exact pairs prune by the straight "
                  "line only)")
-      ->check(CLI::Range(0, 64));
+      ->check(CLI::Range(0, 256));
   app.add_flag("--exact-fans", f.exact_fans,
                "build graphs with fans from exact local distances: faster fields, longer "
                "builds (graphs found in --graph-dir are used as they are)");

@@ -31,7 +31,7 @@ struct ServeOptions {
   uint64_t build_memory_limit = 0;
   double large_build_seconds = 60;
   uint64_t max_graph_bytes = 0;
-  int exact_landmarks = 64;  // GraphCache::Options::exact_landmarks
+  int exact_landmarks = 128;  // GraphCache::Options::exact_landmarks
   ServiceLimits limits;      // query_threads resolved to the cores when 0
   ServeConfig config;        // --config's meshes and graphs (none without it)
 

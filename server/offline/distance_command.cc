@@ -91,7 +91,7 @@ void AddDistanceFlags(CLI::App& app, DistanceFlags& f) {
                  "bounds only). Read from beside the graph file (GRAPH.exact-landmarks, as "
                  "geodesicd serve and --save-exact-landmarks keep them) when that file holds "
                  "this many for this mesh")
-      ->check(CLI::Range(0, 64));
+      ->check(CLI::Range(0, 256));
   app.add_flag("--save-exact-landmarks", f.save_exact_landmarks,
                "with --exact-landmarks: keep the landmarks computed beside the graph file "
                "(GRAPH.exact-landmarks), for later runs to read")

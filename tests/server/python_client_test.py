@@ -192,7 +192,7 @@ class ClientTest(unittest.TestCase):
         # exact=True: the exact engine's distance through the daemon, to rounding, for a face
         # point and a vertex, with the exact geodesic as its path; exact matrix rows agree.
         # The first exact answer also starts the graph's exact landmarks (the daemon's default
-        # --exact-landmarks 64: 4 bytes per vertex each, and 64 per half-edge for the face
+        # --exact-landmarks 128: 4 bytes per vertex each, and 64 per half-edge for the face
         # frames exact pairs then read) in the background; answers after them are the same.
         eps, source = 0.01, "f:0:0.2,0.3,0.5"
         truth = self.exact_field(source)
@@ -205,7 +205,7 @@ class ClientTest(unittest.TestCase):
             self.assertTrue(np.isfinite(got) and np.isfinite(truth[target]))
             self.assertAlmostEqual(got, truth[target], delta=1e-12 * truth[target])
         spot = self.client.mesh("spot")
-        exact_landmark_bytes = (spot.diagnostics.vertices * 64 * 4 +
+        exact_landmark_bytes = (spot.diagnostics.vertices * 128 * 4 +
                                 spot.diagnostics.faces * 3 * 64)
         wait_until(lambda: self.client.graph("spot", epsilon=eps).landmark_bytes,
                    lambda b: b == before + exact_landmark_bytes)
@@ -324,10 +324,13 @@ class ClientTest(unittest.TestCase):
     def test_an_overloaded_server_is_waited_for_unless_retries_are_off(self):
         # A daemon that admits one query at a time answers a second one RESOURCE_EXHAUSTED
         # "server overloaded" with a retry-after-ms hint: a client on the default policy waits
-        # and gets its answer, one with retries off gets the error.
+        # and gets its answer, one with retries off gets the error. No exact landmarks: their
+        # background fields would share the two cores with the slow query and stretch it past
+        # the default policy's few seconds of retries.
         work = tempfile.mkdtemp()
         daemon, ports = start_daemon(
-            BIN, work, ["--log-level", "error", "--max-inflight", "1", "--query-threads", "1"])
+            BIN, work, ["--log-level", "error", "--max-inflight", "1", "--query-threads", "1",
+                        "--exact-landmarks", "0"])
         address = f"127.0.0.1:{ports['grpc']}"
         try:
             with Client(address, timeout=120) as busy, \
