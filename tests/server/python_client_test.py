@@ -339,7 +339,10 @@ class ClientTest(unittest.TestCase):
                            retry=geodesic_client.RetryPolicy(max_attempts=1)) as hasty:
                 busy.request_graph("spot", epsilon=0.01, wait=True)
                 want = patient.distance("spot", "v:0", "v:1500", epsilon=0.01)
-                sources = list(range(0, 2930, 30))  # exact rows: a second or two in one query
+                # Exact rows: under a second alone, long enough to be overtaken, and short
+                # enough, even with the other core busy (ctest -j2), to end within the default
+                # policy's retries (at least about 3.5 s of backoff).
+                sources = list(range(0, 2930, 60))
                 with concurrent.futures.ThreadPoolExecutor(1) as pool:
                     slow = pool.submit(busy.matrix, "spot", sources, [1500, 700], epsilon=0.01,
                                        exact=True)
