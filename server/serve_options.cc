@@ -164,14 +164,15 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "RequestGraph refuses graphs whose estimated file passes this, e.g. 4G, with "
                  "RESOURCE_EXHAUSTED naming the estimate (0: no limit; a graph already in "
                  "--graph-dir is always mapped)");
-  app.add_option("--exact-landmarks", o.exact_landmarks,
-                 "exact distance fields from this many landmarks a graph computes in the "
-                 "background once asked for exact answers (4 bytes per vertex each, and 64 per "
-                 "half-edge for the face frames exact pairs then share; one exact field's time "
-                 "each, on a build worker and its --build-threads): each exact pair then sweeps "
-                 "a narrower region; with --graph-dir they are kept beside the graph's file "
-                 "and read back after a restart (0: none, exact pairs prune by the straight "
-                 "line only)")
+  app.add_option(
+         "--exact-landmarks", o.exact_landmarks,
+         "exact distance fields from this many landmarks a graph computes in the "
+         "background once asked for exact answers (4 bytes per vertex each, and 64 per "
+         "half-edge for the face frames the graph's queries then read; one exact field's time "
+         "each, on a build worker and its --build-threads): each exact pair then sweeps "
+         "a narrower region; with --graph-dir they are kept beside the graph's file "
+         "and read back after a restart (0: none, exact pairs prune by the straight "
+         "line only)")
       ->check(CLI::Range(0, 256));
   app.add_flag("--exact-fans", f.exact_fans,
                "build graphs with fans from exact local distances: faster fields, longer "
