@@ -32,8 +32,8 @@ struct ServeOptions {
   double large_build_seconds = 60;
   uint64_t max_graph_bytes = 0;
   int exact_landmarks = 128;  // GraphCache::Options::exact_landmarks
-  ServiceLimits limits;      // query_threads resolved to the cores when 0
-  ServeConfig config;        // --config's meshes and graphs (none without it)
+  ServiceLimits limits;       // query_threads resolved to the cores when 0
+  ServeConfig config;         // --config's meshes and graphs (none without it)
 
   std::string http_listen;  // empty: no HTTP gateway
   HttpLimits http_limits;
