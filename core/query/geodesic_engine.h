@@ -230,6 +230,10 @@ class GeodesicEngine {
                                              const MatrixOptions& options) const;
 
  private:
+  // A scratch for one query, its exact engine reading the exact landmarks'
+  // face frames when there are some.
+  ScratchPool::Lease AcquireScratch() const;
+
   std::shared_ptr<const Mesh> mesh_;
   std::shared_ptr<const DggGraph> graph_;
   // Where each graph node lies, in node order: point-to-point A* reads the
@@ -238,9 +242,6 @@ class GeodesicEngine {
   std::vector<Vec3> node_xyz_;
   BucketShape buckets_;
   mutable ScratchPool scratch_;
-  // A scratch for one query, its exact engine reading the exact landmarks'
-  // face frames when there are some.
-  ScratchPool::Lease AcquireScratch() const;
   mutable MadeOnce<Landmarks> landmarks_;
   mutable MadeOnce<ExactLandmarks> exact_landmarks_;
 };
