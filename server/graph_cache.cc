@@ -14,6 +14,7 @@
 #include "absl/strings/match.h"
 #include "absl/strings/str_format.h"
 #include "core/base/atomic_file.h"
+#include "core/base/status.h"
 #include "core/query/exact_landmarks_file.h"
 #include "core/query/landmarks.h"
 #include "server/log.h"
@@ -803,43 +804,66 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const GraphKey& key, cons
   return std::optional<GraphFileDraft>(*std::move(draft));
 }
 
-// The disk a draft's edges take while its build makes them: the budget
-// admits each growth of the edge file before it happens, so the directory
-// stays within --disk-limit during the build instead of passing it until
-// the file is admitted afterwards. What it admitted is given back when the
+// The disk a build writes while it runs, its draft's edges and the spill
+// file of --build-memory-limit: the budget admits each growth before it
+// happens, so the directory stays within --disk-limit during the build
+// instead of passing it until the file is admitted afterwards. The spill's
+// admission is given back when the spill is read back, the edges' when the
 // build ends; Persist then admits the file, with the draft counted as on
 // disk (BytesToAdmit).
-class DraftAdmission {
+class BuildAdmission {
  public:
-  DraftAdmission(DiskBudget* disk, DggBuildOptions& options) : disk_(disk) {
-    if (!disk_ || options.edge_file.fd < 0) return;
-    options.edge_file.admit_growth = [this](uint64_t bytes) -> absl::Status {
-      if (bytes <= reserved_) return absl::OkStatus();
-      if (absl::Status room = disk_->Reserve(bytes - reserved_); !room.ok()) {
+  BuildAdmission(DiskBudget* disk, DggBuildOptions& options) : disk_(disk) {
+    if (!disk_) return;
+    if (options.edge_file.fd >= 0) {
+      options.edge_file.admit_growth = [this](uint64_t bytes) -> absl::Status {
+        absl::Status room = Admit(edges_, bytes);
+        if (room.ok()) return room;
         refused_ = bytes;
         return absl::ResourceExhaustedError(absl::StrFormat(
             "its edges need %u bytes on disk: %s; use a larger epsilon or raise --disk-limit",
             bytes, room.message()));
-      }
-      reserved_ = bytes;
-      return absl::OkStatus();
+      };
+    }
+    options.admit_spill = [this](uint64_t bytes) -> absl::Status {
+      absl::Status room = Admit(spill_, bytes);
+      if (room.ok()) return room;
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "its candidate edges past --build-memory-limit need %u bytes of spill file on disk: %s; "
+          "raise --build-memory-limit or --disk-limit",
+          bytes, room.message()));
     };
   }
-  ~DraftAdmission() {
-    if (reserved_ > 0) disk_->Done(reserved_, 0);
+  ~BuildAdmission() {
+    Admit(edges_, 0).IgnoreError();
+    Admit(spill_, 0).IgnoreError();
   }
-  DraftAdmission(const DraftAdmission&) = delete;
-  DraftAdmission& operator=(const DraftAdmission&) = delete;
+  BuildAdmission(const BuildAdmission&) = delete;
+  BuildAdmission& operator=(const BuildAdmission&) = delete;
 
   // The edge bytes a refused growth asked for (0: none refused): at least
   // the graph's file size.
   uint64_t refused() const { return refused_; }
 
  private:
+  // Makes what is admitted for one file `bytes`: reserves its growth, or
+  // gives everything back at 0. Each file's hook is called by one build
+  // thread at a time.
+  absl::Status Admit(uint64_t& reserved, uint64_t bytes) {
+    if (bytes == 0) {
+      if (reserved > 0) disk_->Done(reserved, 0);
+      reserved = 0;
+      return absl::OkStatus();
+    }
+    if (bytes <= reserved) return absl::OkStatus();
+    RETURN_IF_ERROR(disk_->Reserve(bytes - reserved));
+    reserved = bytes;
+    return absl::OkStatus();
+  }
+
   DiskBudget* const disk_;
-  // Set by the build's one thread that grows the file, read after it.
-  uint64_t reserved_ = 0;
-  uint64_t refused_ = 0;
+  uint64_t edges_ = 0, spill_ = 0;  // bytes reserved for each
+  uint64_t refused_ = 0;            // set by the thread that grows the edges, read after
 };
 
 // What the disk budget must admit for a graph file of `bytes`. A draft's
@@ -923,7 +947,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   auto drafted = DraftFor(key, e.path, *e.mesh->mesh, options);
   if (!drafted.ok()) return drafted.status();
   if (drafted->has_value()) draft->emplace(*std::move(*drafted));
-  DraftAdmission admission(options_.disk, options);
+  BuildAdmission admission(options_.disk, options);
   ++builds_started_;
   ++builds_running_;
   const auto start = std::chrono::steady_clock::now();

@@ -152,8 +152,8 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
       ->check(CLI::NonNegativeNumber);
   app.add_option("--build-memory-limit", f.build_memory_limit,
                  "candidate edges a build keeps in memory, e.g. 2G; beyond it they go to an "
-                 "unlinked file in --graph-dir (the system's temporary directory without one) "
-                 "(0: no limit)");
+                 "unlinked file in --graph-dir (the system's temporary directory without one), "
+                 "which counts within --disk-limit while it lasts (0: no limit)");
   app.add_option("--build-workers", o.build_workers,
                  "graphs built at once, besides one build estimated to take longer than "
                  "--large-build-seconds, which runs in a lane of its own");

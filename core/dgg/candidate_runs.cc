@@ -37,15 +37,15 @@ size_t RecordBytes(size_t count) { return sizeof(RecordHeader) + count * sizeof(
 
 }  // namespace
 
-CandidateRuns::CandidateRuns(uint32_t num_vertices, uint64_t memory_budget, std::string spill_dir)
+CandidateRuns::CandidateRuns(uint32_t num_vertices, uint64_t memory_budget, std::string spill_dir,
+                             AdmitSpill admit_spill)
     : memory_budget_(memory_budget),
       chunk_bytes_(ChunkBytes(memory_budget)),
       spill_dir_(std::move(spill_dir)),
+      admit_spill_(std::move(admit_spill)),
       counts_(num_vertices, 0) {}
 
-CandidateRuns::~CandidateRuns() {
-  if (spill_fd_ >= 0) ::close(spill_fd_);
-}
+CandidateRuns::~CandidateRuns() { CloseSpillFile(); }
 
 absl::Status CandidateRuns::Add(uint32_t source, std::span<const DggHalfEdge> edges) {
   counts_[source] = edges.size();
@@ -73,6 +73,9 @@ absl::Status CandidateRuns::Seal(std::unique_ptr<Chunk> chunk) {
     sealed_.push_back(std::move(chunk));
     return absl::OkStatus();
   }
+  // Admitted before the file grows, so that a disk budget is never passed,
+  // not even for the moments the spill lasts.
+  if (admit_spill_) RETURN_IF_ERROR(admit_spill_(spilled_bytes_ + chunk->used));
   if (spill_fd_ < 0) RETURN_IF_ERROR(OpenSpillFile());
   const std::byte* data = chunk->bytes.data();
   for (size_t done = 0; done < chunk->used;) {
@@ -97,6 +100,13 @@ absl::Status CandidateRuns::OpenSpillFile() {
   if (spill_fd_ < 0) return ErrnoStatus("cannot create a spill file in", dir);
   ::unlink(path.c_str());
   return absl::OkStatus();
+}
+
+void CandidateRuns::CloseSpillFile() {
+  if (spill_fd_ < 0) return;
+  ::close(spill_fd_);  // unlinked: its blocks go with the descriptor
+  spill_fd_ = -1;
+  if (admit_spill_) admit_spill_(0).IgnoreError();
 }
 
 void CandidateRuns::VisitChunk(const std::byte* data, size_t bytes, const Visitor& visit) {
@@ -152,8 +162,7 @@ absl::Status CandidateRuns::Drain(const Visitor& visit) {
     VisitChunk(buffer.data(), s.bytes, visit);
   }
   spilled_.clear();
-  if (spill_fd_ >= 0) ::close(spill_fd_);
-  spill_fd_ = -1;
+  CloseSpillFile();
   return absl::OkStatus();
 }
 

@@ -28,7 +28,11 @@ class CandidateRuns {
  public:
   // memory_budget: bytes of sealed chunks kept in memory (0: no limit).
   // spill_dir: where the unlinked spill file goes once the budget is spent.
-  CandidateRuns(uint32_t num_vertices, uint64_t memory_budget, std::string spill_dir);
+  // admit_spill: asked, if set, before the spill file grows to `bytes` in
+  // all, and with 0 once it is gone (DggBuildOptions::admit_spill).
+  using AdmitSpill = std::function<absl::Status(uint64_t bytes)>;
+  CandidateRuns(uint32_t num_vertices, uint64_t memory_budget, std::string spill_dir,
+                AdmitSpill admit_spill = {});
   ~CandidateRuns();
   CandidateRuns(const CandidateRuns&) = delete;
   CandidateRuns& operator=(const CandidateRuns&) = delete;
@@ -61,10 +65,12 @@ class CandidateRuns {
   static void VisitChunk(const std::byte* data, size_t bytes, const Visitor& visit);
   absl::Status Seal(std::unique_ptr<Chunk> chunk);  // takes the lock
   absl::Status OpenSpillFile();                     // with the lock held
+  void CloseSpillFile();
 
   const uint64_t memory_budget_;
   const size_t chunk_bytes_;
   const std::string spill_dir_;
+  const AdmitSpill admit_spill_;
   std::vector<uint32_t> counts_;
 
   tbb::enumerable_thread_specific<std::unique_ptr<Chunk>> open_;  // one per thread

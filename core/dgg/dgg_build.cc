@@ -173,7 +173,8 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
   ThreadArena arena(options.threads);
   absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
   arena.execute([&] {
-    CandidateRuns runs(mesh.num_vertices(), options.candidate_memory_limit, options.spill_dir);
+    CandidateRuns runs(mesh.num_vertices(), options.candidate_memory_limit, options.spill_dir,
+                       options.admit_spill);
     absl::Status computed = ComputeCandidates(
         mesh, CandidateBudget(options.params.epsilon, options.params.prune_redundant),
         options.stop_at_corners, 0, mesh.num_vertices(), progress, 0.7, &st.windows_created, runs);
@@ -210,7 +211,7 @@ absl::StatusOr<DggCandidatePart> BuildDggCandidatePart(const Mesh& mesh,
   part.end = n * (index + 1) / count;
   Progress progress(options);
   ThreadArena arena(options.threads);
-  CandidateRuns runs(n, options.candidate_memory_limit, options.spill_dir);
+  CandidateRuns runs(n, options.candidate_memory_limit, options.spill_dir, options.admit_spill);
   absl::Status computed;
   arena.execute([&] {
     computed = ComputeCandidates(

@@ -50,6 +50,11 @@ struct DggBuildOptions {
   // at 1 the graph stays within about twice the plain one's size and time.
   double pseudo_vertex_limit = 0;
   std::string spill_dir;
+  // Asked, if set, before the spill file is made to hold `bytes` bytes in
+  // all, and with 0 once it is gone (read back, or the build ended): a
+  // caller that keeps spill_dir within a disk budget admits the spill here,
+  // as DggEdgeFile::admit_growth the edges. An error stops the build with it.
+  std::function<absl::Status(uint64_t bytes)> admit_spill;
   // Keep the edge array in this file (GraphFileDraft::edge_file) instead of
   // anonymous memory. Ignored with pseudo vertices, which change the node
   // count the file's layout was made for.

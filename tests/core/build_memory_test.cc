@@ -3,9 +3,11 @@
 // must leave the graph exactly as the plain in-memory build makes it.
 #include <atomic>
 #include <cstring>
+#include <mutex>
 #include <thread>
 #include <vector>
 
+#include "absl/strings/str_cat.h"
 #include "core/base/large_array.h"
 #include "core/dgg/candidate_runs.h"
 #include "core/dgg/dgg_build.h"
@@ -99,6 +101,45 @@ TEST(CandidateRunsTest, ASpillDirectoryThatCannotBeWrittenIsNamed) {
   EXPECT_THAT(std::string(s.message()), HasSubstr("/nonexistent/spill"));
 }
 
+// A caller keeping the spill directory within a disk budget is asked before
+// every growth of the spill file, with its size in all, and told once it is
+// gone; a refusal stops the runs with it, before anything is written.
+TEST(CandidateRunsTest, EachSpillIsAdmittedBeforeItIsWrittenAndGivenBackOnceRead) {
+  TempDir dir;
+  std::vector<uint64_t> asked;
+  CandidateRuns runs(3, /*memory_budget=*/1, dir.path(), [&](uint64_t bytes) {
+    asked.push_back(bytes);
+    return absl::OkStatus();
+  });
+  std::vector<DggHalfEdge> big(70000, DggHalfEdge{1, 1, 0, 0});  // over a 1 MB chunk
+  for (uint32_t s = 0; s < 3; ++s) ASSERT_OK(runs.Add(s, big));  // two seals
+  ASSERT_EQ(asked.size(), 2u);
+  EXPECT_GT(asked[0], big.size() * sizeof(DggHalfEdge));
+  EXPECT_EQ(asked[1], 2 * asked[0]);
+  EXPECT_EQ(runs.spilled_bytes(), asked[1]);
+  int lists = 0;
+  ASSERT_OK(runs.Drain([&](uint32_t, std::span<const DggHalfEdge> edges) {
+    EXPECT_EQ(edges.size(), big.size());
+    ++lists;
+  }));
+  EXPECT_EQ(lists, 3);
+  ASSERT_EQ(asked.size(), 3u);
+  EXPECT_EQ(asked[2], 0u);
+}
+
+TEST(CandidateRunsTest, ARefusedSpillStopsTheRunsWithTheRefusal) {
+  TempDir dir;
+  CandidateRuns runs(2, /*memory_budget=*/1, dir.path(), [](uint64_t bytes) {
+    return absl::ResourceExhaustedError(absl::StrCat("no room for ", bytes));
+  });
+  std::vector<DggHalfEdge> big(70000, DggHalfEdge{1, 1, 0, 0});
+  ASSERT_OK(runs.Add(0, big));
+  const absl::Status s = runs.Add(1, big);
+  EXPECT_TRUE(absl::IsResourceExhausted(s)) << s;
+  EXPECT_THAT(std::string(s.message()), HasSubstr("no room for"));
+  EXPECT_EQ(runs.spilled_bytes(), 0u);
+}
+
 std::vector<char> Bytes(const DggGraph& g) {
   std::vector<char> out;
   auto add = [&](auto span) {
@@ -137,6 +178,27 @@ TEST_F(BuildMemoryTest, SpilledCandidatesGiveTheSameGraph) {
   ASSERT_OK(spilled);
   EXPECT_GT(stats.spilled_bytes, 0u);
   EXPECT_TRUE(Bytes(**plain) == Bytes(**spilled));
+}
+
+// The build passes its admit_spill to its runs: the spill is admitted in
+// full before it is written and given back before the build ends.
+TEST_F(BuildMemoryTest, ABuildAdmitsItsSpillAndGivesItBack) {
+  TempDir dir;
+  DggBuildOptions spilling = options_;
+  spilling.candidate_memory_limit = 1;
+  spilling.spill_dir = dir.path();
+  std::mutex mu;
+  std::vector<uint64_t> asked;
+  spilling.admit_spill = [&](uint64_t bytes) {
+    std::lock_guard<std::mutex> lock(mu);
+    asked.push_back(bytes);
+    return absl::OkStatus();
+  };
+  DggBuildStats stats;
+  ASSERT_OK(BuildDgg(*mesh_, spilling, &stats));
+  ASSERT_GE(asked.size(), 2u);
+  EXPECT_EQ(asked[asked.size() - 2], stats.spilled_bytes);
+  EXPECT_EQ(asked.back(), 0u);
 }
 
 TEST_F(BuildMemoryTest, PartsLoadedOneAtATimeMergeToTheSameGraph) {

@@ -18,6 +18,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/synchronization/notification.h"
 #include "core/base/atomic_file.h"
+#include "core/dgg/dgg_build.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/exact_landmarks_file.h"
 #include "gmock/gmock.h"
@@ -214,6 +215,7 @@ class GraphCacheTest : public ::testing::Test {
     options.resident_bytes_outside = [this] { return outside_bytes_.load(); };
     options.build_threads = 1;
     options.exact_landmarks = exact_landmarks_;
+    options.build_memory_limit = build_memory_limit_;
     options.maker = maker_;
     // The callback asks the cache that calls it (not cache_, which the test
     // may be replacing meanwhile).
@@ -327,6 +329,7 @@ class GraphCacheTest : public ::testing::Test {
   std::unique_ptr<GraphCache> cache_;
   std::atomic<uint64_t> outside_bytes_{0};  // "meshes" the limit covers
   int exact_landmarks_ = 0;                 // for the next Cache()
+  uint64_t build_memory_limit_ = 0;         // for the next Cache()
   absl::Mutex notices_mu_;
   std::vector<std::string> notices_;
 };
@@ -1003,6 +1006,69 @@ std::shared_ptr<const RegisteredMesh> SpotMesh() {
 std::string FileBytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+// The spill file of --build-memory-limit lies in the graph directory, which
+// --disk-limit bounds: a build admits each spill before writing it, and stops
+// there, naming the spill, when the directory has no room for it.
+TEST_F(GraphCacheTest, ABuildWhoseSpillTheDiskLimitHasNoRoomForStopsBeforeWritingIt) {
+  auto mesh = SpotMesh();
+  const GraphKey key{"spot", Eps(1e-3)};
+  fs::create_directories(dir_);
+  constexpr uint64_t kFiller = 100000;
+  std::ofstream(dir_ / "filler") << std::string(kFiller, 'x');
+  DiskBudget disk(dir_, kFiller + 4096);
+  ASSERT_TRUE(disk.Scan().ok());
+  build_memory_limit_ = 1;  // every sealed chunk of candidates spills
+  Cache(/*persist=*/true, /*memory_limit=*/0, &disk);
+  cache_->Request(mesh, key.params);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  EXPECT_THAT(failed.error,
+              ::testing::AllOf(HasSubstr("spill file"), HasSubstr("--build-memory-limit"),
+                               HasSubstr("--disk-limit")));
+  EXPECT_THAT(Temporaries(), ::testing::IsEmpty());
+  ASSERT_TRUE(disk.Scan().ok());
+  EXPECT_EQ(disk.used(), kFiller);  // the admissions were given back
+  cache_.reset();                   // before the budget it points to goes
+}
+
+// The spill and the draft's edges are on disk together (the draft grows
+// once the runs are counted, and is filled as they are read back): a
+// directory with room for both takes the build, and the spill is given back
+// once read, so that only the file stays counted.
+TEST_F(GraphCacheTest, ABuildsSpillIsCountedBesideItsEdgesAndGivenBack) {
+  auto mesh = SpotMesh();
+  const GraphKey key{"spot", Eps(1e-3)};
+  Cache().Request(mesh, key.params);
+  WaitFor(key, GraphState::kReady);
+  const uint64_t file_bytes = fs::file_size(cache_->GraphPath(mesh->fingerprint, key.params));
+  // The spill of a one-thread build like the cache's.
+  DggBuildOptions probe;
+  probe.params = key.params;
+  probe.threads = 1;
+  probe.candidate_memory_limit = 1;
+  probe.spill_dir = fs::temp_directory_path().string();
+  DggBuildStats stats;
+  ASSERT_TRUE(BuildDgg(*mesh->mesh, probe, &stats).ok());
+  const uint64_t spill_bytes = stats.spilled_bytes;
+  ASSERT_GT(spill_bytes, 0u);
+
+  Fresh();
+  fs::create_directories(dir_);
+  constexpr uint64_t kFiller = 100000;
+  std::ofstream(dir_ / "filler") << std::string(kFiller, 'x');
+  DiskBudget disk(dir_, kFiller + spill_bytes + file_bytes + 4096);
+  ASSERT_TRUE(disk.Scan().ok());
+  build_memory_limit_ = 1;
+  Cache(/*persist=*/true, /*memory_limit=*/0, &disk);
+  cache_->Request(mesh, key.params);
+  const GraphStatus ready = WaitFor(key, GraphState::kReady);
+  EXPECT_EQ(ready.error, "");
+  std::error_code ec;
+  const uint64_t kept = fs::file_size(cache_->GraphPath(mesh->fingerprint, key.params), ec);
+  EXPECT_FALSE(ec) << ec.message();
+  EXPECT_EQ(disk.used(), kFiller + kept);
+  cache_.reset();
 }
 
 // A plain graph is built into its file: the build keeps its edges there (page
