@@ -4,6 +4,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <queue>
 #include <random>
 #include <sstream>
 #include <thread>
@@ -352,6 +353,70 @@ TEST(QueriesTest, ABatchOfPairsAnswersAsEachPairAlone) {
   EXPECT_EQ(bad.status().code(), absl::StatusCode::kOutOfRange) << bad.status();
   EXPECT_THAT(std::string(bad.status().message()), ::testing::HasSubstr(std::to_string(1u << 30)));
   EXPECT_FALSE(engine.Distances(from, absl::MakeConstSpan(to).subspan(1), {}).ok());
+}
+
+// The search's shortcuts (each node relaxes only the fan of the edge it came
+// by, A* with landmark bounds, two sides meeting) lose no distance: pairs of
+// face points equal a plain Dijkstra that relaxes every edge of every node
+// of the augmented graph (the points' direct geodesics as temporary edges,
+// and the direct geodesic between them), to the rounding of the weights'
+// sums.
+TEST(QueriesTest, PairsEqualADijkstraRelaxingEveryEdgeOfTheAugmentedGraph) {
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_TRUE(graph);
+  GeodesicEngine engine(mesh, graph);
+  ASSERT_OK(engine.PrepareLandmarks(engine.DefaultLandmarkCount()));
+  ExactGeodesic exact(*mesh);
+  std::mt19937 rng(11);
+  std::uniform_int_distribution<FaceId> face(0, mesh->num_faces() - 1);
+  std::uniform_real_distribution<double> unit(0.05, 0.9);
+  auto random_point = [&] {
+    const double u = unit(rng), v = (1 - u) * unit(rng);
+    return SurfacePoint::Face(face(rng), u, v, 1 - u - v);
+  };
+  const uint32_t nodes = graph->num_nodes();
+  auto offsets = graph->offsets();
+  auto edges = graph->edges();
+  for (int i = 0; i < 40; ++i) {
+    const SurfacePoint a = random_point(), b = random_point();
+    DirectOptions options;
+    options.epsilon = graph->params().epsilon;
+    auto to_b = exact.DirectGeodesics(b, options);
+    ASSERT_OK(to_b);
+    options.keep_windows = true;
+    auto from_a = exact.DirectGeodesics(a, options);
+    ASSERT_OK(from_a);
+    ASSERT_FALSE(from_a->empty());
+    ASSERT_FALSE(to_b->empty());
+    auto direct = exact.DistanceTo(b);
+    ASSERT_OK(direct);
+    std::vector<double> dist(nodes, kInfinity);
+    using Item = std::pair<double, uint32_t>;
+    std::priority_queue<Item, std::vector<Item>, std::greater<>> queue;
+    for (const DirectHit& h : *from_a) {
+      const uint32_t u = graph->node_of_vertex(h.vertex);
+      if (h.distance < dist[u]) queue.push({dist[u] = h.distance, u});
+    }
+    while (!queue.empty()) {
+      const auto [d, u] = queue.top();
+      queue.pop();
+      if (d > dist[u]) continue;
+      for (uint64_t k = offsets[u]; k < offsets[u + 1]; ++k) {
+        const double through = d + edges[k].weight;
+        if (through < dist[edges[k].target])
+          queue.push({dist[edges[k].target] = through, edges[k].target});
+      }
+    }
+    double want = *direct;
+    for (const DirectHit& h : *to_b) {
+      want = std::min(want, dist[graph->node_of_vertex(h.vertex)] + h.distance);
+    }
+    ASSERT_LT(want, kInfinity) << "pair " << i;
+    auto got = engine.Distance(a, b, {});
+    ASSERT_OK(got);
+    ASSERT_GT(got->distance, 0) << "pair " << i;
+    EXPECT_NEAR(got->distance, want, 1e-6 * want) << "pair " << i;
+  }
 }
 
 TEST(QueriesTest, DifferentComponentsAreUnreachable) {
