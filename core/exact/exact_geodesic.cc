@@ -227,6 +227,16 @@ FaceFrame FaceFrame::Of(const Mesh& mesh, HalfedgeId h) {
   return f;
 }
 
+void FaceFrame::Prefetch(const Mesh& mesh, HalfedgeId h) {
+  // A face's three half-edges are consecutive in every per-half-edge array.
+  const HalfedgeId first = 3 * Mesh::face(h);
+  const Mesh::Arrays& a = mesh.arrays();
+  __builtin_prefetch(&a.length[first]);
+  __builtin_prefetch(&a.length[first + 2]);
+  __builtin_prefetch(&a.twin[first]);
+  __builtin_prefetch(&a.corners[first]);
+}
+
 FaceFrames::FaceFrames(const Mesh& mesh) : frames_(mesh.num_halfedges()) {
   for (HalfedgeId h = 0; h < frames_.size(); ++h) frames_[h] = FaceFrame::Of(mesh, h);
 }
@@ -789,7 +799,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
     // The child's face is read when it is propagated, usually soon: asking
     // for it now hides that miss, which the candidate phase would otherwise
     // wait on (bench/notes.md, "Build engine").
-    if (frames_) __builtin_prefetch(&(*frames_)[g]);
+    PrefetchFrame(g);
     const Vec2 u = (toward - origin) * (1 / len);
     auto to_child = [&](const Vec2& p) {
       const Vec2 rel = p - origin;
@@ -907,7 +917,7 @@ void ExactGeodesic::Prefetch(const QueueItem& item) const {
   if (item.h == kNone) return;
   __builtin_prefetch(&windows_[item.item]);
   if (mode_ == Mode::kDirect) __builtin_prefetch(&rays_[item.item]);
-  if (frames_) __builtin_prefetch(&(*frames_)[item.h]);
+  PrefetchFrame(item.h);
 }
 
 uint64_t ExactGeodesic::WindowBytes() const {

@@ -142,6 +142,8 @@ struct alignas(64) FaceFrame {
   VertexId tail, head, apex_vertex;
 
   static FaceFrame Of(const Mesh& mesh, HalfedgeId h);
+  // Asks for the mesh's cache lines Of(mesh, h) reads.
+  static void Prefetch(const Mesh& mesh, HalfedgeId h);
 };
 
 // The frames of every half-edge, for engines that share one mesh over many
@@ -243,6 +245,14 @@ class ExactGeodesic {
     if (frames_) return (*frames_)[h];
     own_frame_ = FaceFrame::Of(mesh_, h);
     return own_frame_;
+  }
+  // Asks for what FrameOf(h) will read.
+  void PrefetchFrame(HalfedgeId h) const {
+    if (frames_) {
+      __builtin_prefetch(&(*frames_)[h]);
+    } else {
+      FaceFrame::Prefetch(mesh_, h);
+    }
   }
   // Whether no route through v, reached at d, can reach the goal within the
   // run's bound.
