@@ -21,16 +21,10 @@ sys.path.insert(0, os.path.join(SRC, "client", "python"))
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from geodesic_client import Client, GraphCertificate, GraphState  # noqa: E402
 import daemon_ports  # noqa: E402
+from checklist import Checklist  # noqa: E402
 
 BOUND = 1e-2
-passes = failures = 0
-
-
-def check(name, ok, detail=""):
-    global passes, failures
-    print(("ok   " if ok else "FAIL ") + name + ("" if ok else f": {detail}"), flush=True)
-    passes += bool(ok)
-    failures += not ok
+check = Checklist()
 
 
 def serve(work, graphs, *args):
@@ -206,9 +200,8 @@ with tempfile.TemporaryDirectory() as work:
     check("a --config graph with both eps and max_error is refused with file and line",
           r.returncode != 0 and "deploy.yaml:7:" in r.stderr and
           "gives both 'eps' and 'max_error'" in r.stderr, r.stderr)
-    if failures:
+    if check.failures:
         with open(os.path.join(work, "daemon.log")) as f:
             print(f.read()[-4000:])
 
-print(f"{passes} passed, {failures} failed")
-sys.exit(1 if failures else 0)
+check.finish()

@@ -22,18 +22,12 @@ import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import daemon_ports  # noqa: E402
+from checklist import Checklist  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 bin_dir, src = sys.argv[1], sys.argv[2]
 data = os.path.join(src, "data")
-passes = failures = 0
-
-
-def check(name, ok, detail=""):
-    global passes, failures
-    print(("ok   " if ok else "FAIL ") + name + ("" if ok else f": {detail}"), flush=True)
-    passes += bool(ok)
-    failures += not ok
+check = Checklist()
 
 
 def cli(port, *args, timeout=120):
@@ -258,9 +252,8 @@ with tempfile.TemporaryDirectory() as work:
                        capture_output=True, text=True, timeout=60)
     check("a bad --config is refused with file and line", r.returncode != 0 and "bad.yaml:" in r.stderr,
           r.stderr)
-    if failures:
+    if check.failures:
         with open(os.path.join(work, "daemon.log")) as f:
             print(f.read()[-4000:])
 
-print(f"{passes} passed, {failures} failed")
-sys.exit(1 if failures else 0)
+check.finish()

@@ -19,20 +19,14 @@ import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import daemon_ports  # noqa: E402
+from checklist import Checklist  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
 bin_dir, src = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
 full_disk = "--full-disk" in sys.argv[3:]
 data = os.path.join(src, "data")
-passes = failures = 0
+check = Checklist()
 RESERVE = ".geodesicd-reserve"
-
-
-def check(name, ok, detail=""):
-    global passes, failures
-    print(("ok   " if ok else "FAIL ") + name + ("" if ok else f": {detail}"), flush=True)
-    passes += bool(ok)
-    failures += not ok
 
 
 def cli(port, *args, timeout=120):
@@ -251,8 +245,7 @@ with tempfile.TemporaryDirectory() as work:
             if d.poll() is None:
                 d.kill()
                 d.wait(timeout=30)
-        if failures and os.path.exists(os.path.join(work, "daemon.log")):
+        if check.failures and os.path.exists(os.path.join(work, "daemon.log")):
             with open(os.path.join(work, "daemon.log")) as f:
                 print("--- daemon log\n" + f.read()[-20000:])
-print(f"{passes} passed, {failures} failed")
-sys.exit(1 if failures else 0)
+check.finish()

@@ -10,17 +10,12 @@ import tempfile
 
 import numpy as np
 
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from checklist import Checklist  # noqa: E402
+
 bin_dir, src = sys.argv[1], sys.argv[2]
 mesh = os.path.join(src, "data", "spot.obj")
-failures = 0
-passes = 0
-
-
-def check(name, ok, detail=""):
-    global failures, passes
-    print(("ok   " if ok else "FAIL ") + name + ("" if ok else f": {detail}"))
-    failures += 0 if ok else 1
-    passes += 1 if ok else 0
+check = Checklist()
 
 
 def run(*args, expect_ok=True):
@@ -261,5 +256,4 @@ with tempfile.TemporaryDirectory() as work:
         check(f"build {' '.join(args)} is refused", r.returncode != 0 and says in r.stderr,
               r.stderr)
 
-print(f"{passes} passed, {failures} failed")
-sys.exit(1 if failures else 0)
+check.finish()
