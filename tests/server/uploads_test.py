@@ -7,7 +7,8 @@ upload made again succeeds. Registration opens only regular files (a FIFO is
 refused at once and does not hold up SIGTERM), names and paths with NUL, "."
 and ".." are refused, error messages repeat at most 80 characters of what a
 client sent, and a mesh with no faces is refused. A mesh uploaded as numpy
-arrays reads back equal.
+arrays reads back equal. Request bytes that are not the message at all are
+INVALID_ARGUMENT naming it.
 
 Usage: uploads_test.py BUILD_BIN_DIR SOURCE_DIR
 """
@@ -225,6 +226,25 @@ class UploadsTest(unittest.TestCase):
                                                  timeout=30))
         self.assert_no_trace("garbled", before)
         self.assert_retry_works("garbled")
+
+    def test_a_request_that_does_not_parse_is_the_clients_error(self):
+        # gRPC's own deserializer answers INTERNAL, the server's fault to a
+        # client; the daemon's answers INVALID_ARGUMENT naming the message.
+        garbled = b"\x1a\xff\xff\xff\x07abc"
+        for method, message in [("RegisterMesh", "RegisterMeshRequest"),
+                                ("Distance", "DistanceRequest"),
+                                ("Matrix", "MatrixRequest")]:
+            raw = self.channel.unary_unary(f"/geodesic.v1.Geodesic/{method}",
+                                           request_serializer=None,
+                                           response_deserializer=None)
+            self.assert_refused(INVALID, lambda: raw(garbled, timeout=30),
+                                f"malformed geodesic.v1.{message}")
+        streamed = self.channel.unary_stream("/geodesic.v1.Geodesic/DistanceField",
+                                             request_serializer=None,
+                                             response_deserializer=None)
+        self.assert_refused(INVALID, lambda: list(streamed(garbled, timeout=30)),
+                            "malformed geodesic.v1.DistanceFieldRequest")
+        self.assert_retry_works("after-garbled")  # and the daemon keeps serving
 
     def test_a_taken_name_leaves_no_file(self):
         self.upload(messages("taken", SPOT))
