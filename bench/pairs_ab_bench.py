@@ -25,6 +25,7 @@ import tempfile
 
 import numpy as np
 
+from daemon_bench import random_pairs
 from exact_ab_bench import mesh_file
 
 
@@ -37,17 +38,9 @@ def run(args, what):
 
 def write_pairs(binary, mesh, count, seed, path):
     faces = json.loads(run([binary, "info", mesh, "--json"], f"info {mesh}"))["faces"]
-    rng = random.Random(seed)
-
-    def point():
-        u, v = rng.random(), rng.random()
-        if u + v > 1:
-            u, v = 1 - u, 1 - v
-        return f"f:{rng.randrange(faces)}:{u:.17g},{v:.17g},{1 - u - v:.17g}"
-
+    pairs = random_pairs(0, faces, count, True, random.Random(seed))
     with open(path, "w") as out:
-        for _ in range(count):
-            out.write(f"{point()} {point()}\n")
+        out.write("\n".join(pairs) + "\n")
 
 
 def start(binary, cpu, mesh, graph, pairs):
