@@ -7,10 +7,15 @@
 //
 // Non-negative doubles order like their bit patterns read as unsigned
 // integers, so the key's bits are the radix. An item sits in the bucket named
-// by the highest bit in which its key differs from the last popped key; all of
-// bucket 0 equals that key. A pop from an empty bucket 0 takes the smallest
-// key of the first non-empty bucket as the new last key and redistributes
-// that bucket, whose items all land in lower buckets.
+// by the highest bit in which its key differs from the last key taken out of
+// a bucket. A pop from an empty bucket 0 takes the first non-empty bucket:
+// a large one is redistributed (its smallest key becomes the new last key and
+// its items all land in lower buckets), a small one is sorted into bucket 0.
+// Bucket 0 is thus a sorted run of the smallest keys, popped from its end,
+// and a push smaller than its largest key is inserted in order. Wavefront
+// keys are distinct doubles, so redistributing alone emptied a bucket of a
+// few items on nearly every pop, moving each item some ten times on its way
+// down; a sorted run moves it once.
 #ifndef GEODESIC_CORE_BASE_RADIX_HEAP_H_
 #define GEODESIC_CORE_BASE_RADIX_HEAP_H_
 
@@ -40,6 +45,7 @@ class RadixHeap {
     occupied_ = 0;
     size_ = 0;
     last_ = 0;
+    popped_ = 0;
   }
 
   // A key below the last popped one (rounding in the caller's geometry) is
@@ -47,8 +53,16 @@ class RadixHeap {
   void Push(double key, const Value& value) {
     uint64_t bits = key > 0 ? std::bit_cast<uint64_t>(key) : 0;
     if (key != key) bits = std::bit_cast<uint64_t>(std::numeric_limits<double>::infinity());
-    bits = std::max(bits, last_);
-    Place({bits, value});
+    bits = std::max(bits, popped_);
+    std::vector<Entry>& run = buckets_[0];
+    if (!run.empty() && bits < run.front().bits) {
+      // Within the run: after every larger key, before the smaller ones.
+      auto at = std::upper_bound(run.begin(), run.end(), bits,
+                                 [](uint64_t b, const Entry& e) { return b > e.bits; });
+      run.insert(at, {bits, value});
+    } else {
+      Place({bits, value});
+    }
     ++size_;
   }
 
@@ -70,11 +84,15 @@ class RadixHeap {
     Entry e = buckets_[0].back();
     buckets_[0].pop_back();
     --size_;
+    popped_ = e.bits;
     return {std::bit_cast<double>(e.bits), e.value};
   }
 
  private:
   static constexpr size_t kPeekScan = 8;
+  // Buckets of at most this many items are sorted into the run rather than
+  // redistributed: sorting so few costs less than moving each down again.
+  static constexpr size_t kSortedRun = 64;
   struct Entry {
     uint64_t bits;
     Value value;
@@ -100,6 +118,16 @@ class RadixHeap {
     const size_t i = 1 + std::countr_zero(occupied_);
     occupied_ &= ~(uint64_t{1} << (i - 1));
     std::vector<Entry>& from = buckets_[i];
+    if (from.size() <= kSortedRun) {
+      // Every other bucket's keys exceed these, so they can be the run. Its
+      // smallest key is the new last key: the buckets' items and the pushes
+      // to come are all at least that.
+      std::sort(from.begin(), from.end(),
+                [](const Entry& a, const Entry& b) { return a.bits > b.bits; });
+      last_ = from.back().bits;
+      buckets_[0].swap(from);
+      return;
+    }
     last_ = Least(from).bits;
     for (const Entry& e : from) Place(e);
     from.clear();
@@ -108,7 +136,8 @@ class RadixHeap {
   std::array<std::vector<Entry>, 65> buckets_;
   uint64_t occupied_ = 0;  // bit b - 1 set: bucket b (b >= 1) is not empty
   size_t size_ = 0;
-  uint64_t last_ = 0;
+  uint64_t last_ = 0;    // the radix the buckets' items are placed by
+  uint64_t popped_ = 0;  // the last key popped; pushes are raised to it
 };
 
 }  // namespace geodesic

@@ -5,6 +5,7 @@
 #include <limits>
 #include <map>
 #include <random>
+#include <vector>
 
 #include "gtest/gtest.h"
 
@@ -87,6 +88,25 @@ TEST(RadixHeapTest, RaisesKeysBelowTheLastPoppedOne) {
   EXPECT_EQ(heap.Pop(), std::make_pair(2.0, 3));
   EXPECT_EQ(heap.Pop(), std::make_pair(5.0, 2));
   EXPECT_TRUE(heap.empty());
+}
+
+// A small bucket becomes a sorted run that pops from its end; keys pushed
+// among the run's keys must come out in order with them, and keys beyond it
+// after it.
+TEST(RadixHeapTest, PushesAmongASortedRunPopInOrder) {
+  RadixHeap<int> heap;
+  for (int k = 2; k <= 10; ++k) heap.Push(k, k);
+  heap.Push(1.0, 1);
+  EXPECT_EQ(heap.Pop(), std::make_pair(1.0, 1));
+  EXPECT_EQ(heap.Pop(), std::make_pair(2.0, 2));  // 3..10 wait in the run
+  heap.Push(9.5, 95);
+  heap.Push(20.0, 200);
+  heap.Push(3.5, 35);
+  heap.Push(5.0, 50);
+  heap.Push(10.0, 100);
+  std::vector<double> keys;
+  while (!heap.empty()) keys.push_back(heap.Pop().first);
+  EXPECT_EQ(keys, (std::vector<double>{3, 3.5, 4, 5, 5, 6, 7, 8, 9, 9.5, 10, 10, 20}));
 }
 
 TEST(RadixHeapTest, InfinityNanAndZeroKeys) {
