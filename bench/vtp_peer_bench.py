@@ -19,9 +19,16 @@ vertex count is reported and skipped, since vertex 0 would differ.
 
 Prints a Markdown table for bench/measurements.md: median propagation seconds
 of each (VTP's own clock around its propagation; our solve_seconds), their
-ratio, windows (VTP: intervals propagated), and the largest relative
+ratio, children computed (a window propagated across a face, counted before
+any trim: VTP's "interval propagation number" and our children_computed, the
+same count), our windows queued after the trims, and the largest relative
 difference between the two fields (and, where ../shared/truth has the field
 from vertex 0, between ours and that exact truth).
+
+Our build uses the project's flags (-O3, no -march=native). For a same-flags
+comparison build VTP with `g++ -O3 -DNDEBUG -std=c++11` as well; -march=native
+speeds VTP up more than it does ours (bench/measurements.md, "Exact engine
+beside VTP: same flags").
 """
 import argparse
 import os
@@ -93,9 +100,10 @@ def main():
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--cpu", type=int, default=1)
     args = parser.parse_args()
-    print("| mesh | V | ours (s) | VTP (s) | ours / VTP | windows ours | windows VTP "
-          "| windows ours / VTP | ours vs VTP, max rel. diff | ours vs truth |")
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("| mesh | V | ours (s) | VTP (s) | ours / VTP | children ours | children VTP "
+          "| children ours / VTP | windows queued ours | ours vs VTP, max rel. diff "
+          "| ours vs truth |")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     with tempfile.TemporaryDirectory() as work:
         for name in args.meshes.split(","):
             mesh = mesh_file(name)
@@ -106,7 +114,7 @@ def main():
                 theirs.append(run_vtp(args.vtp, obj, args.cpu, f"{work}/vtp.txt"))
             if theirs[0][2] != ours[0]["vertices"]:
                 print(f"| {name} | {ours[0]['vertices']:,} | VTP merged coincident vertices "
-                      f"({theirs[0][2]:,} left): not compared | | | | | | | |", flush=True)
+                      f"({theirs[0][2]:,} left): not compared | | | | | | | | |", flush=True)
                 continue
             field = np.fromfile(f"{work}/ours.f64")
             vtp_field = np.loadtxt(f"{work}/vtp.txt")
@@ -119,10 +127,10 @@ def main():
                      if os.path.exists(truth_file) else "-")
             t_ours = statistics.median(r["solve_seconds"] for r in ours)
             t_vtp = statistics.median(r[0] for r in theirs)
-            w_ours, w_vtp = ours[0]["windows_created"], theirs[0][1]
+            c_ours, c_vtp = ours[0]["children_computed"], theirs[0][1]
             print(f"| {name} | {ours[0]['vertices']:,} | {t_ours:.3g} | {t_vtp:.3g} | "
-                  f"{t_ours / t_vtp:.2f}x | {w_ours:,} | {w_vtp:,} | {w_ours / w_vtp:.2f}x | "
-                  f"{diff:.2g} | {truth} |", flush=True)
+                  f"{t_ours / t_vtp:.2f}x | {c_ours:,} | {c_vtp:,} | {c_ours / c_vtp:.2f}x | "
+                  f"{ours[0]['windows_created']:,} | {diff:.2g} | {truth} |", flush=True)
 
 
 if __name__ == "__main__":

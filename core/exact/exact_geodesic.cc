@@ -796,6 +796,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
                         double t0, double t1, double angle0, bool c_is_left, bool c_is_right) {
     const double len = edge.length;
     if (g == kNone || len <= 0) return;
+    ++stats_.children_computed;
     // The child's face is read when it is propagated, usually soon: asking
     // for it now hides that miss, which the candidate phase would otherwise
     // wait on (bench/notes.md, "Build engine").

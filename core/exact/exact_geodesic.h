@@ -126,6 +126,9 @@ struct DirectHit {
 struct ExactStats {
   uint64_t windows_created = 0;
   uint64_t windows_propagated = 0;
+  // Windows computed by propagating one across a face, before any trim:
+  // what VTP (Qin et al. 2016) counts as interval propagations.
+  uint64_t children_computed = 0;
   uint64_t pseudo_sources = 0;
   uint64_t peak_queue = 0;
 };

@@ -69,6 +69,7 @@ int RunExact(int argc, char** argv) {
                {"windows_created", st.windows_created},
                {"windows_per_vertex", double(st.windows_created) / n},
                {"windows_propagated", st.windows_propagated},
+               {"children_computed", st.children_computed},
                {"vertices_per_second", n / std::max(solve_seconds, 1e-9)},
                {"pseudo_sources", st.pseudo_sources},
                {"peak_queue", st.peak_queue},

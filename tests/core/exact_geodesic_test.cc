@@ -1,5 +1,6 @@
 #include "core/exact/exact_geodesic.h"
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <random>
@@ -339,6 +340,23 @@ TEST_F(SpotTest, SharedFaceFramesChangeNoResult) {
     ASSERT_OK(full_b);
     EXPECT_EQ(*full_a, *full_b);
   }
+}
+
+// children_computed counts what VTP counts as interval propagations: every
+// child made by propagating a window across a face, before any trim. A
+// window makes at most two children, and every queued window is such a child
+// or was emitted across a face of the source's or a pseudo-source's fan.
+TEST_F(SpotTest, StatsCountEveryChildBeforeItsTrim) {
+  std::vector<uint64_t> fan(mesh_->num_vertices(), 0);
+  for (HalfedgeId h = 0; h < mesh_->num_halfedges(); ++h) ++fan[mesh_->tail(h)];
+  const uint64_t largest_fan = *std::max_element(fan.begin(), fan.end());
+  ExactGeodesic exact(*mesh_);
+  ASSERT_OK(exact.Distances(SurfacePoint::Vertex(10)));
+  const ExactStats& st = exact.stats();
+  ASSERT_GT(st.windows_propagated, 1000u);
+  EXPECT_GT(st.children_computed, st.windows_propagated / 2);
+  EXPECT_LE(st.children_computed, 2 * st.windows_propagated);
+  EXPECT_LE(st.windows_created, st.children_computed + (st.pseudo_sources + 1) * largest_fan);
 }
 
 TEST_F(SpotTest, DirectAnglesOfMeshEdgesMatchTheFrame) {
