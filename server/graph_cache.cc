@@ -320,11 +320,16 @@ absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
                                                    double max_error) const {
   DggBuildEstimate estimate = Estimate(mesh, params);
   uint64_t least = EstimateDggBytesLowerBound(mesh.mesh->num_vertices(), params.epsilon);
+  uint64_t spill = 0;
   {
     absl::MutexLock lock(&mu_);
     if (auto it = built_bytes_.find({mesh.fingerprint, params, max_error});
         it != built_bytes_.end()) {
       estimate.bytes = least = it->second;
+    }
+    if (auto it = spill_bytes_.find({mesh.fingerprint, params, max_error});
+        it != spill_bytes_.end()) {
+      spill = it->second;
     }
   }
   const std::string what =
@@ -354,6 +359,14 @@ absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
         "%s needs at least %u bytes on disk, over the server's disk limit of %u bytes "
         "(--disk-limit): use a larger epsilon",
         what, least, options_.disk->limit()));
+  }
+  if (spill > 0 && options_.disk && options_.disk->limit() > 0 && spill > options_.disk->limit()) {
+    // Its last build stopped there: building again would end the same way.
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "%s needs at least %u bytes of spill file on disk for its candidate edges past "
+        "--build-memory-limit, over the server's disk limit of %u bytes (--disk-limit): raise "
+        "--build-memory-limit or --disk-limit",
+        what, spill, options_.disk->limit()));
   }
   return estimate;
 }
@@ -828,6 +841,7 @@ class BuildAdmission {
     options.admit_spill = [this](uint64_t bytes) -> absl::Status {
       absl::Status room = Admit(spill_, bytes);
       if (room.ok()) return room;
+      spill_refused_ = bytes;
       return absl::ResourceExhaustedError(absl::StrFormat(
           "its candidate edges past --build-memory-limit need %u bytes of spill file on disk: %s; "
           "raise --build-memory-limit or --disk-limit",
@@ -844,6 +858,8 @@ class BuildAdmission {
   // The edge bytes a refused growth asked for (0: none refused): at least
   // the graph's file size.
   uint64_t refused() const { return refused_; }
+  // The same for the spill file.
+  uint64_t spill_refused() const { return spill_refused_; }
 
  private:
   // Makes what is admitted for one file `bytes`: reserves its growth, or
@@ -864,6 +880,7 @@ class BuildAdmission {
   DiskBudget* const disk_;
   uint64_t edges_ = 0, spill_ = 0;  // bytes reserved for each
   uint64_t refused_ = 0;            // set by the thread that grows the edges, read after
+  uint64_t spill_refused_ = 0;      // set by the thread that writes the spill, read after
 };
 
 // What the disk budget must admit for a graph file of `bytes`. A draft's
@@ -965,6 +982,10 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
       built = absl::ResourceExhaustedError(
           absl::StrFormat("building %s: %s", e.path, built.status().message()));
     }
+  }
+  if (admission.spill_refused() > 0) {
+    absl::MutexLock lock(&mu_);
+    spill_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = admission.spill_refused();
   }
   --builds_running_;
   const double seconds =

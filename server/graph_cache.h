@@ -413,6 +413,11 @@ class GraphCache {
   // real size, asking again is refused at once rather than built again to
   // the same end.
   std::map<std::tuple<uint64_t, DggParams, double>, uint64_t> built_bytes_ ABSL_GUARDED_BY(mu_);
+  // The same for the spill file of --build-memory-limit: the bytes a build
+  // stopped for its spill asked for. Disk, not memory, so apart from the
+  // above, and only refused at once while the disk limit could never hold
+  // them.
+  std::map<std::tuple<uint64_t, DggParams, double>, uint64_t> spill_bytes_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> builds_running_{0};
   std::atomic<uint64_t> builds_started_{0};
 };

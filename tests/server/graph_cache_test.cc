@@ -1032,6 +1032,44 @@ TEST_F(GraphCacheTest, ABuildWhoseSpillTheDiskLimitHasNoRoomForStopsBeforeWritin
   cache_.reset();                   // before the budget it points to goes
 }
 
+// A build stopped because its spill could never fit within --disk-limit is
+// not run again to the same end: asked again, the graph is refused at once,
+// naming the spill and both flags, as a graph refused for its edges is.
+TEST_F(GraphCacheTest, AGraphWhoseSpillTheDiskLimitCanNeverHoldIsRefusedAtOnceWhenAskedAgain) {
+  auto mesh = SpotMesh();
+  const GraphKey key{"spot", Eps(1e-3)};
+  // A limit above the least file Admit expects and below the whole spill of
+  // a one-thread build like the cache's.
+  DggBuildOptions probe;
+  probe.params = key.params;
+  probe.threads = 1;
+  probe.candidate_memory_limit = 1;
+  probe.spill_dir = fs::temp_directory_path().string();
+  DggBuildStats stats;
+  ASSERT_TRUE(BuildDgg(*mesh->mesh, probe, &stats).ok());
+  const uint64_t least = EstimateDggBytesLowerBound(mesh->mesh->num_vertices(), 1e-3);
+  ASSERT_LT(least, stats.spilled_bytes);
+  const uint64_t limit = (least + stats.spilled_bytes) / 2;
+  fs::create_directories(dir_);
+  DiskBudget disk(dir_, limit);
+  ASSERT_TRUE(disk.Scan().ok());
+  build_memory_limit_ = 1;  // every sealed chunk of candidates spills
+  Cache(/*persist=*/true, /*memory_limit=*/0, &disk);
+  ASSERT_TRUE(cache_->Admit(*mesh, key.params, 0).ok());
+  cache_->Request(mesh, key.params);
+  const GraphStatus failed = WaitFor(key, GraphState::kFailed);
+  ASSERT_THAT(failed.error, HasSubstr("spill file"));
+  EXPECT_EQ(maker_->calls(HeldMaker::kBuild), 1);
+  auto again = cache_->Admit(*mesh, key.params, 0);
+  EXPECT_EQ(again.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(std::string(again.status().message()),
+              ::testing::AllOf(HasSubstr("spill file"), HasSubstr("--build-memory-limit"),
+                               HasSubstr("--disk-limit"), HasSubstr(std::to_string(limit))));
+  // Another graph of the mesh is still admitted.
+  EXPECT_TRUE(cache_->Admit(*mesh, Eps(1e-2), 0).ok());
+  cache_.reset();  // before the budget it points to goes
+}
+
 // The spill and the draft's edges are on disk together (the draft grows
 // once the runs are counted, and is filled as they are read back): a
 // directory with room for both takes the build, and the spill is given back
