@@ -1003,6 +1003,20 @@ std::shared_ptr<const RegisteredMesh> SpotMesh() {
   return m;
 }
 
+// The bytes a one-thread build like the cache's (with build_memory_limit_
+// 1: every sealed chunk of candidates spills) writes to its spill file.
+uint64_t OneThreadSpillBytes(const Mesh& mesh, const DggParams& params) {
+  DggBuildOptions probe;
+  probe.params = params;
+  probe.threads = 1;
+  probe.candidate_memory_limit = 1;
+  probe.spill_dir = fs::temp_directory_path().string();
+  DggBuildStats stats;
+  absl::Status built = BuildDgg(mesh, probe, &stats).status();
+  EXPECT_TRUE(built.ok()) << built;
+  return stats.spilled_bytes;
+}
+
 std::string FileBytes(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   return std::string(std::istreambuf_iterator<char>(in), {});
@@ -1038,18 +1052,11 @@ TEST_F(GraphCacheTest, ABuildWhoseSpillTheDiskLimitHasNoRoomForStopsBeforeWritin
 TEST_F(GraphCacheTest, AGraphWhoseSpillTheDiskLimitCanNeverHoldIsRefusedAtOnceWhenAskedAgain) {
   auto mesh = SpotMesh();
   const GraphKey key{"spot", Eps(1e-3)};
-  // A limit above the least file Admit expects and below the whole spill of
-  // a one-thread build like the cache's.
-  DggBuildOptions probe;
-  probe.params = key.params;
-  probe.threads = 1;
-  probe.candidate_memory_limit = 1;
-  probe.spill_dir = fs::temp_directory_path().string();
-  DggBuildStats stats;
-  ASSERT_TRUE(BuildDgg(*mesh->mesh, probe, &stats).ok());
+  // A limit above the least file Admit expects and below the whole spill.
+  const uint64_t spill_bytes = OneThreadSpillBytes(*mesh->mesh, key.params);
   const uint64_t least = EstimateDggBytesLowerBound(mesh->mesh->num_vertices(), 1e-3);
-  ASSERT_LT(least, stats.spilled_bytes);
-  const uint64_t limit = (least + stats.spilled_bytes) / 2;
+  ASSERT_LT(least, spill_bytes);
+  const uint64_t limit = (least + spill_bytes) / 2;
   fs::create_directories(dir_);
   DiskBudget disk(dir_, limit);
   ASSERT_TRUE(disk.Scan().ok());
@@ -1080,15 +1087,7 @@ TEST_F(GraphCacheTest, ABuildsSpillIsCountedBesideItsEdgesAndGivenBack) {
   Cache().Request(mesh, key.params);
   WaitFor(key, GraphState::kReady);
   const uint64_t file_bytes = fs::file_size(cache_->GraphPath(mesh->fingerprint, key.params));
-  // The spill of a one-thread build like the cache's.
-  DggBuildOptions probe;
-  probe.params = key.params;
-  probe.threads = 1;
-  probe.candidate_memory_limit = 1;
-  probe.spill_dir = fs::temp_directory_path().string();
-  DggBuildStats stats;
-  ASSERT_TRUE(BuildDgg(*mesh->mesh, probe, &stats).ok());
-  const uint64_t spill_bytes = stats.spilled_bytes;
+  const uint64_t spill_bytes = OneThreadSpillBytes(*mesh->mesh, key.params);
   ASSERT_GT(spill_bytes, 0u);
 
   Fresh();
