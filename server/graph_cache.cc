@@ -360,7 +360,7 @@ absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
         "(--disk-limit): use a larger epsilon",
         what, least, options_.disk->limit()));
   }
-  if (spill > 0 && options_.disk && options_.disk->limit() > 0 && spill > options_.disk->limit()) {
+  if (options_.disk && options_.disk->limit() > 0 && spill > options_.disk->limit()) {
     // Its last build stopped there: building again would end the same way.
     return absl::ResourceExhaustedError(absl::StrFormat(
         "%s needs at least %u bytes of spill file on disk for its candidate edges past "
