@@ -36,7 +36,8 @@ TEST(RadixHeapTest, PopsMonotoneWorkloadInKeyOrder) {
     auto smallest = reference.begin();
     ASSERT_EQ(key, smallest->first);
     auto [lo, hi] = reference.equal_range(key);
-    auto it = std::find_if(lo, hi, [id](const auto& kv) { return kv.second == id; });
+    // By value: clang before 16 cannot capture a structured binding.
+    auto it = std::find_if(lo, hi, [popped = id](const auto& kv) { return kv.second == popped; });
     ASSERT_NE(it, hi) << "popped id " << id << " with key " << key;
     reference.erase(it);
     last = key;
