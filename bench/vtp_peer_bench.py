@@ -28,7 +28,7 @@ from vertex 0, between ours and that exact truth).
 Our build uses the project's flags (-O3, no -march=native). For a same-flags
 comparison build VTP with `g++ -O3 -DNDEBUG -std=c++11` as well; -march=native
 speeds VTP up more than it does ours (bench/measurements.md, "Exact engine
-beside VTP: same flags").
+beside VTP: same flags, children computed").
 """
 import argparse
 import os

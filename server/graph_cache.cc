@@ -323,13 +323,10 @@ absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
   uint64_t spill = 0;
   {
     absl::MutexLock lock(&mu_);
-    if (auto it = built_bytes_.find({mesh.fingerprint, params, max_error});
-        it != built_bytes_.end()) {
-      estimate.bytes = least = it->second;
-    }
-    if (auto it = spill_bytes_.find({mesh.fingerprint, params, max_error});
-        it != spill_bytes_.end()) {
-      spill = it->second;
+    if (auto it = known_bytes_.find({mesh.fingerprint, params, max_error});
+        it != known_bytes_.end()) {
+      if (it->second.file > 0) estimate.bytes = least = it->second.file;
+      spill = it->second.spill;
     }
   }
   const std::string what =
@@ -973,19 +970,17 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
     built = BuildCertified(key, e, options, certificate);
   } else {
     built = options_.maker->Build(*e.mesh->mesh, options);
-    if (admission.refused() > 0) {
-      // Asked again, the graph is refused at once for that size (Admit).
-      absl::MutexLock lock(&mu_);
-      built_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = admission.refused();
-    }
     if (*draft && absl::IsResourceExhausted(built.status())) {
       built = absl::ResourceExhaustedError(
           absl::StrFormat("building %s: %s", e.path, built.status().message()));
     }
   }
-  if (admission.spill_refused() > 0) {
+  if (admission.refused() > 0 || admission.spill_refused() > 0) {
+    // Asked again, the graph is refused at once for those sizes (Admit).
     absl::MutexLock lock(&mu_);
-    spill_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = admission.spill_refused();
+    KnownBytes& known = known_bytes_[{e.mesh->fingerprint, key.params, key.max_error}];
+    if (admission.refused() > 0) known.file = admission.refused();
+    if (admission.spill_refused() > 0) known.spill = admission.spill_refused();
   }
   --builds_running_;
   const double seconds =
@@ -1009,7 +1004,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
   const uint64_t bytes = graph->byte_size();
   {
     absl::MutexLock lock(&mu_);
-    built_bytes_[{e.mesh->fingerprint, key.params, key.max_error}] = bytes;
+    known_bytes_[{e.mesh->fingerprint, key.params, key.max_error}].file = bytes;
   }
   const bool drafted = draft.has_value();
   const uint64_t admitted = options_.disk ? BytesToAdmit(*options_.disk, bytes, draft) : bytes;

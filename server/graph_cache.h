@@ -407,17 +407,19 @@ class GraphCache {
   bool stopping_ ABSL_GUARDED_BY(mu_) = false;
   std::vector<std::thread> workers_;
   std::atomic<uint64_t> hits_{0}, misses_{0}, evictions_{0};
-  // The bytes of graphs this cache built (or, for a build stopped when its
-  // edges found no room on disk, those edges' bytes: at least the file's),
-  // by mesh fingerprint and build record: once a graph was refused for its
-  // real size, asking again is refused at once rather than built again to
-  // the same end.
-  std::map<std::tuple<uint64_t, DggParams, double>, uint64_t> built_bytes_ ABSL_GUARDED_BY(mu_);
-  // The same for the spill file of --build-memory-limit: the bytes a build
-  // stopped for its spill asked for. Disk, not memory, so apart from the
-  // above, and only refused at once while the disk limit could never hold
-  // them.
-  std::map<std::tuple<uint64_t, DggParams, double>, uint64_t> spill_bytes_ ABSL_GUARDED_BY(mu_);
+  // What builds of a graph taught about its bytes, by mesh fingerprint and
+  // build record: once a graph was refused for its real size, asking again
+  // is refused at once rather than built again to the same end.
+  struct KnownBytes {
+    // The graph's file (or, for a build stopped when its edges found no room
+    // on disk, those edges' bytes: at least the file's); 0: not known.
+    uint64_t file = 0;
+    // The spill file of --build-memory-limit that a build stopped for asked
+    // for (0: none): disk, not memory, and refused at once only while the
+    // disk limit could never hold it.
+    uint64_t spill = 0;
+  };
+  std::map<std::tuple<uint64_t, DggParams, double>, KnownBytes> known_bytes_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> builds_running_{0};
   std::atomic<uint64_t> builds_started_{0};
 };
