@@ -115,25 +115,20 @@ class FanBuilder {
  private:
   static constexpr double kUnknown = std::numeric_limits<double>::infinity();
 
-  // A turn u -> v -> y: the k-th edge of v after u's edge `edge` (local
-  // indices), and its length.
-  struct Turn {
-    double length;
-    uint32_t y;
-    uint32_t edge, k;
-  };
   struct Scratch {
     // Per node, valid for the nodes in `ring`: the shortest path of at most
     // two edges from the current node.
     std::vector<double> best;
-    // The nodes within two edges and the listed turns (in order of edge,
-    // then k): the first ring_size and turns_size entries. The vectors only
-    // grow, since the walk writes past those ends.
+    // The nodes within two edges, and the listed turns u -> v -> y, each as
+    // the index of v -> y in v's edges (its length and y are read again
+    // there, from lines the walk just brought in): the first ring_size and
+    // listed entries, those of u's i-th edge ending at listed_end[i]. The
+    // vectors only grow, since the walk writes past those ends.
     std::vector<uint32_t> ring;
-    std::vector<Turn> turns;
-    size_t ring_size = 0, turns_size = 0;
+    std::vector<uint32_t> turns;
+    std::vector<size_t> listed_end;
+    size_t ring_size = 0;
     std::span<const uint32_t> ring_nodes() const { return {ring.data(), ring_size}; }
-    std::vector<uint32_t> kept;
     std::vector<double> exact;  // the exact pass only
     std::vector<FanRange> fan;  // the exact pass only
     std::vector<std::pair<double, uint32_t>> heap;
@@ -163,6 +158,7 @@ class FanBuilder {
     for (const DggEdge& e : edges) turns += of(e.target).size();
     if (sc.turns.size() < turns) sc.turns.resize(turns);
     if (sc.ring.size() < turns + edges.size() + 1) sc.ring.resize(turns + edges.size() + 1);
+    if (sc.listed_end.size() < edges.size()) sc.listed_end.resize(edges.size());
     size_t ring = 0, listed = 0;
     auto touch = [&](uint32_t y, double length) {
       double& best = sc.best[y];
@@ -177,12 +173,12 @@ class FanBuilder {
       for (uint32_t k = 0; k < next.size(); ++k) {
         const uint32_t y = next[k].target;
         const double length = double{edges[i].weight} + next[k].weight;
-        sc.turns[listed] = {length, y, i, k};
+        sc.turns[listed] = k;
         listed += length * kStrictlyShorter <= sc.best[y];
         touch(y, length);
       }
+      sc.listed_end[i] = listed;
     }
-    sc.turns_size = listed;
     sc.ring_size = ring;
   }
 
@@ -191,21 +187,25 @@ class FanBuilder {
   template <typename Store>
   void KeepTurns(Scratch& sc, uint32_t u, const std::vector<double>& shortest, Store store) {
     const auto edges = of(u);
-    const Turn* t = sc.turns.data();
-    const Turn* const end = t + sc.turns_size;
-    for (uint32_t i = 0; i < edges.size(); ++i) {
-      sc.kept.clear();
-      for (; t != end && t->edge == i; ++t) {
-        if (shortest[t->y] >= t->length * kStrictlyShorter) sc.kept.push_back(t->k);
+    // The turns kept move to the front of the edge's listed ones, without
+    // a branch (whether a turn is kept is close to random).
+    for (uint32_t i = 0, t = 0; i < edges.size(); ++i) {
+      const auto next = of(edges[i].target);
+      uint32_t* const kept = sc.turns.data() + t;
+      uint32_t count = 0;
+      for (; t < sc.listed_end[i]; ++t) {
+        const uint32_t k = sc.turns[t];
+        const double length = double{edges[i].weight} + next[k].weight;
+        kept[count] = k;
+        count += shortest[next[k].target] >= length * kStrictlyShorter;
       }
-      store(a_.offsets[u] + i,
-            CircularHull(sc.kept, static_cast<uint32_t>(of(edges[i].target).size())));
+      store(a_.offsets[u] + i, CircularHull({kept, count}, static_cast<uint32_t>(next.size())));
     }
   }
 
   void Clear(Scratch& sc) {
     for (uint32_t y : sc.ring_nodes()) sc.best[y] = kUnknown;
-    sc.ring_size = sc.turns_size = 0;
+    sc.ring_size = 0;
   }
 
   DggGraphArrays& a_;
