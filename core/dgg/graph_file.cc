@@ -14,6 +14,8 @@
 #include <filesystem>
 #include <future>
 #include <random>
+#include <span>
+#include <vector>
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
@@ -126,15 +128,38 @@ namespace {
 
 using SectionData = std::array<std::pair<const void*, uint64_t>, kSectionCount>;
 
-SectionData SectionsOf(const DggGraph& graph) {
-  return {{
+// SurfacePoint has padding after its kind, which holds whatever the memory
+// held: pseudo points are written from a copy with it zeroed, so that a
+// graph's file is the same bytes whenever the graph is built.
+std::vector<SurfacePoint> WithZeroPadding(std::span<const SurfacePoint> points) {
+  std::vector<SurfacePoint> out(points.size());
+  std::memset(static_cast<void*>(out.data()), 0, out.size() * sizeof(SurfacePoint));
+  for (size_t i = 0; i < points.size(); ++i) {
+    out[i].kind = points[i].kind;
+    out[i].id = points[i].id;
+    out[i].t = points[i].t;
+    out[i].bary = points[i].bary;
+  }
+  return out;
+}
+
+// The bytes each section is written from.
+struct Sections {
+  std::vector<SurfacePoint> pseudo_points;
+  SectionData data;
+};
+
+Sections SectionsOf(const DggGraph& graph) {
+  Sections s{WithZeroPadding(graph.pseudo_points()), {}};
+  s.data = {{
       {graph.offsets().data(), graph.offsets().size_bytes()},
       {graph.edges().data(), graph.edges().size_bytes()},
       {graph.angles().data(), graph.angles().size_bytes()},
-      {graph.pseudo_points().data(), graph.pseudo_points().size_bytes()},
+      {s.pseudo_points.data(), s.pseudo_points.size() * sizeof(SurfacePoint)},
       {graph.node_of_vertex().data(), graph.node_of_vertex().size_bytes()},
       {graph.vertex_of_node().data(), graph.vertex_of_node().size_bytes()},
   }};
+  return s;
 }
 
 uint64_t PageSize() { return static_cast<uint64_t>(sysconf(_SC_PAGESIZE)); }
@@ -205,11 +230,11 @@ absl::Status WriteLaidOut(AtomicFileWriter file, const Header& h, const SectionD
 }  // namespace
 
 absl::Status GraphFile::Write(const DggGraph& graph, const std::string& path) {
-  const SectionData data = SectionsOf(graph);
-  const Header h = LayOut(graph, data);
+  const Sections sections = SectionsOf(graph);
+  const Header h = LayOut(graph, sections.data);
   auto file = AtomicFileWriter::Create(path);
   if (!file.ok()) return file.status();
-  return WriteLaidOut(std::move(*file), h, data, /*edges_in_place=*/false);
+  return WriteLaidOut(std::move(*file), h, sections.data, /*edges_in_place=*/false);
 }
 
 absl::StatusOr<GraphFileDraft> GraphFileDraft::Create(const std::string& path, uint32_t num_nodes) {
@@ -241,13 +266,13 @@ absl::Status GraphFileDraft::Finish(const DggGraph& graph) && {
         absl::StrFormat("a graph of %u nodes was built into a file laid out for %u",
                         graph.num_nodes(), num_nodes_));
   }
-  const SectionData data = SectionsOf(graph);
+  const Sections sections = SectionsOf(graph);
   // Where the build did not keep its edges here (it added pseudo vertices),
   // they are written like any other section.
-  const Header h = LayOut(graph, data);
+  const Header h = LayOut(graph, sections.data);
   // Pages written through the mapping are the file's; fsync at commit
   // writes them with the rest.
-  return WriteLaidOut(std::move(file_), h, data, in_place);
+  return WriteLaidOut(std::move(file_), h, sections.data, in_place);
 }
 
 namespace {

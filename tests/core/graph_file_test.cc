@@ -55,6 +55,57 @@ std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_tar
   return DggGraphBuilder::FromArrays(std::move(a), 4, 4, params, MeshFingerprint(mesh));
 }
 
+// The square's complete graph and a pseudo vertex in its first face, on no
+// edge, whose bytes between its kind and its id are `padding`: what memory
+// left there, which a copy need not clear.
+std::shared_ptr<const DggGraph> GraphWithPseudoPoint(const Mesh& mesh, unsigned char padding) {
+  DggGraphArrays a;
+  a.vertex_of_node = {0, 1, 2, 3};
+  a.node_of_vertex = {0, 1, 2, 3};
+  a.offsets = {0};
+  for (uint32_t u = 0; u < 4; ++u) {
+    for (uint32_t v = 0; v < 4; ++v) {
+      if (u == v) continue;
+      a.edges.push_back({v, 1.5f, {0, 1}});
+      a.angles.push_back(0.1f * v);
+    }
+    a.offsets.push_back(a.edges.size());
+  }
+  a.offsets.push_back(a.edges.size());
+  a.pseudo_points.resize(1);
+  SurfacePoint& p = a.pseudo_points[0];
+  std::memset(static_cast<void*>(&p), padding, sizeof(p));
+  p.kind = SurfacePoint::Kind::kFace;
+  p.id = 0;
+  p.t = 0;
+  p.bary = {0.25, 0.25, 0.5};
+  return DggGraphBuilder::FromArrays(std::move(a), 5, 4, {.epsilon = 0.1, .pseudo_vertices = true},
+                                     MeshFingerprint(mesh));
+}
+
+std::string FileBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  return std::string(std::istreambuf_iterator<char>(in), {});
+}
+
+// A file holds no byte that memory left undefined: the same graph is the
+// same bytes, whatever its pseudo points' padding held.
+TEST(GraphFileTest, PseudoPointsAreWrittenWithoutWhatTheirPaddingHeld) {
+  Mesh mesh = Square();
+  TempDir dir;
+  ASSERT_OK(GraphFile::Write(*GraphWithPseudoPoint(mesh, 0xab), dir.File("ab.dgg")));
+  ASSERT_OK(GraphFile::Write(*GraphWithPseudoPoint(mesh, 0xcd), dir.File("cd.dgg")));
+  const std::string ab = FileBytes(dir.File("ab.dgg")), cd = FileBytes(dir.File("cd.dgg"));
+  ASSERT_FALSE(ab.empty());
+  EXPECT_EQ(ab.size(), cd.size());
+  EXPECT_TRUE(ab == cd) << "the files differ";
+  EXPECT_EQ(ab.find("\xab\xab\xab"), std::string::npos);
+  auto opened = GraphFile::Open(dir.File("ab.dgg"), mesh, GraphFile::Check::kFull);
+  ASSERT_OK(opened);
+  ASSERT_EQ((*opened)->num_pseudo_vertices(), 1u);
+  EXPECT_EQ((*opened)->pseudo_points()[0].bary[2], 0.5);
+}
+
 TEST(GraphFileTest, OutOfRangeIndexWithValidChecksumsIsRejectedByTheFullCheck) {
   const Mesh mesh = Square();
   TempDir dir;
@@ -280,11 +331,7 @@ TEST(GraphFileDraftTest, ABuildIntoItsFileIsTheGraphWrittenAfterTheBuild) {
   ExpectSameGraph(**written, **opened);
   ExpectSameGraph(**in_memory, **in_file);
   // Every writer lays the edges out at the same place: the same bytes.
-  auto bytes = [](const std::string& path) {
-    std::ifstream in(path, std::ios::binary);
-    return std::string(std::istreambuf_iterator<char>(in), {});
-  };
-  EXPECT_EQ(bytes(dir.File("memory.dgg")), bytes(dir.File("draft.dgg")));
+  EXPECT_EQ(FileBytes(dir.File("memory.dgg")), FileBytes(dir.File("draft.dgg")));
 }
 
 // Pseudo vertices change the node count the layout was made for: the build
