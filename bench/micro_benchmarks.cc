@@ -10,6 +10,7 @@
 #include <filesystem>
 #include <random>
 
+#include "core/base/radix_heap.h"
 #include "core/dgg/dgg_build.h"
 #include "core/dgg/graph_file.h"
 #include "core/exact/exact_geodesic.h"
@@ -187,6 +188,26 @@ void BM_GraphOpen(benchmark::State& state) {
   state.SetLabel(state.range(0) ? "full" : "header");
 }
 BENCHMARK(BM_GraphOpen)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
+
+// The radix heap when every push lands inside its sorted run: 64 keys in
+// one bucket, then each pop pushes two keys just above the popped one. Arg:
+// pops. Time per pop stays flat as the pops grow only if the run is bounded.
+void BM_RadixHeapPushesIntoTheRun(benchmark::State& state) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> tiny(1e-9, 2e-9);
+  for (auto _ : state) {
+    RadixHeap<uint32_t> heap;
+    for (int k = 0; k < 64; ++k) heap.Push(1 + k / 64.0, k);
+    for (int64_t step = 0; step < state.range(0); ++step) {
+      const double key = heap.Pop().first;
+      heap.Push(key + tiny(rng), 0);
+      heap.Push(key + tiny(rng), 1);
+    }
+    benchmark::DoNotOptimize(heap.size());
+  }
+  state.SetItemsProcessed(state.iterations() * state.range(0));
+}
+BENCHMARK(BM_RadixHeapPushesIntoTheRun)->Arg(2000)->Arg(20000)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 }  // namespace geodesic

@@ -12,7 +12,9 @@
 // a large one is redistributed (its smallest key becomes the new last key and
 // its items all land in lower buckets), a small one is sorted into bucket 0.
 // Bucket 0 is thus a sorted run of the smallest keys, popped from its end,
-// and a push smaller than its largest key is inserted in order. Wavefront
+// and a push smaller than its largest key is inserted in order; a run grown
+// past a bound by such pushes gives its larger half back to the buckets, so
+// that an insert moves a bounded number of entries whatever the workload. Wavefront
 // keys are distinct doubles, so redistributing alone emptied a bucket of a
 // few items on nearly every pop, moving each item some ten times on its way
 // down; a sorted run moves it once.
@@ -32,12 +34,19 @@ namespace geodesic {
 template <typename Value>
 class RadixHeap {
  public:
+  // Buckets of at most kSortedRun items are sorted into the run rather than
+  // redistributed: sorting so few costs less than moving each down again.
+  // Pushes among the run's keys may grow it to kLongestRun; then it is
+  // halved.
+  static constexpr size_t kSortedRun = 64;
+  static constexpr size_t kLongestRun = 4 * kSortedRun;
+
   bool empty() const { return size_ == 0; }
   size_t size() const { return size_; }
   uint64_t memory_bytes() const {
     uint64_t total = 0;
     for (const auto& bucket : buckets_) total += bucket.capacity() * sizeof(Entry);
-    return total;
+    return total + spill_.capacity() * sizeof(Entry);
   }
 
   void Clear() {
@@ -60,11 +69,17 @@ class RadixHeap {
       auto at = std::upper_bound(run.begin(), run.end(), bits,
                                  [](uint64_t b, const Entry& e) { return b > e.bits; });
       run.insert(at, {bits, value});
+      if (run.size() > kLongestRun) ShortenRun();
     } else {
       Place({bits, value});
     }
     ++size_;
   }
+
+  // How many entries the sorted run holds; for tests. Inserts keep it within
+  // kLongestRun; keys equal to the radix are appended at its end, at no
+  // cost, and may take it beyond.
+  size_t run_size() const { return buckets_[0].size(); }
 
   // The value Pop will most likely return next, when that is cheap to tell
   // (nullptr otherwise): pushes before that Pop may still come first. For
@@ -90,9 +105,6 @@ class RadixHeap {
 
  private:
   static constexpr size_t kPeekScan = 8;
-  // Buckets of at most this many items are sorted into the run rather than
-  // redistributed: sorting so few costs less than moving each down again.
-  static constexpr size_t kSortedRun = 64;
   struct Entry {
     uint64_t bits;
     Value value;
@@ -112,6 +124,17 @@ class RadixHeap {
     const size_t b = BucketOf(e.bits);
     buckets_[b].push_back(e);
     if (b > 0) occupied_ |= uint64_t{1} << (b - 1);
+  }
+
+  // Gives the run's larger half (its front) back to the buckets. Those keys
+  // exceed every key left in the run and are at least the last key, as the
+  // buckets require.
+  void ShortenRun() {
+    std::vector<Entry>& run = buckets_[0];
+    const auto larger_end = run.begin() + (run.size() - run.size() / 2);
+    spill_.assign(run.begin(), larger_end);
+    run.erase(run.begin(), larger_end);
+    for (const Entry& e : spill_) Place(e);
   }
 
   void Refill() {
@@ -134,7 +157,8 @@ class RadixHeap {
   }
 
   std::array<std::vector<Entry>, 65> buckets_;
-  uint64_t occupied_ = 0;  // bit b - 1 set: bucket b (b >= 1) is not empty
+  std::vector<Entry> spill_;  // ShortenRun's, kept for its capacity
+  uint64_t occupied_ = 0;     // bit b - 1 set: bucket b (b >= 1) is not empty
   size_t size_ = 0;
   uint64_t last_ = 0;    // the radix the buckets' items are placed by
   uint64_t popped_ = 0;  // the last key popped; pushes are raised to it

@@ -5,6 +5,7 @@
 #include <limits>
 #include <map>
 #include <random>
+#include <set>
 #include <vector>
 
 #include "gtest/gtest.h"
@@ -108,6 +109,39 @@ TEST(RadixHeapTest, PushesAmongASortedRunPopInOrder) {
   std::vector<double> keys;
   while (!heap.empty()) keys.push_back(heap.Pop().first);
   EXPECT_EQ(keys, (std::vector<double>{3, 3.5, 4, 5, 5, 6, 7, 8, 9, 9.5, 10, 10, 20}));
+}
+
+// Each pop pushes two distinct keys just above the popped one, below the
+// run's largest: nearly every push lands inside the run. Unbounded, the run
+// would grow by one entry per pop and each insert would move all of it; it
+// stays within its bound, and keys still pop in order.
+TEST(RadixHeapTest, PushesThatAllLandInTheRunKeepItBounded) {
+  std::mt19937_64 rng(5);
+  std::uniform_real_distribution<double> tiny(1e-9, 2e-9);
+  RadixHeap<uint32_t> heap;
+  std::multiset<double> reference;
+  // 64 keys in [1, 2), one bucket: the first pop sorts them into the run.
+  for (int k = 0; k < 64; ++k) {
+    heap.Push(1 + k / 64.0, k);
+    reference.insert(1 + k / 64.0);
+  }
+  size_t longest = 0;
+  for (int step = 0; step < 20000; ++step) {
+    ASSERT_FALSE(heap.empty());
+    const double key = heap.Pop().first;
+    ASSERT_EQ(key, *reference.begin()) << "at step " << step;
+    reference.erase(reference.begin());
+    for (double above : {key + tiny(rng), key + tiny(rng)}) {
+      heap.Push(above, step);
+      reference.insert(above);
+    }
+    longest = std::max(longest, heap.run_size());
+  }
+  EXPECT_GT(longest, RadixHeap<uint32_t>::kSortedRun);
+  EXPECT_LE(longest, RadixHeap<uint32_t>::kLongestRun);
+  std::vector<double> rest;
+  while (!heap.empty()) rest.push_back(heap.Pop().first);
+  EXPECT_TRUE(std::equal(rest.begin(), rest.end(), reference.begin(), reference.end()));
 }
 
 TEST(RadixHeapTest, InfinityNanAndZeroKeys) {
