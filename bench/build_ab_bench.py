@@ -9,7 +9,6 @@ that the two graph files are the same bytes.
 Prints a Markdown table for bench/measurements.md: median build, candidate
 and fan seconds of each binary and the after/before ratios of the medians.
 """
-import argparse
 import filecmp
 import json
 import os
@@ -18,16 +17,12 @@ import subprocess
 import sys
 import tempfile
 
+from ab_args import before_after_parser
+from truth_meshes import mesh_path
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(os.path.dirname(ROOT), "shared"))
 PHASES = ["build_seconds", "candidate_seconds", "fan_seconds"]
-
-
-def mesh_file(name):
-    for f in sorted(os.listdir(os.path.join(SHARED, "meshes"))):
-        if os.path.splitext(f)[0] == name:
-            return os.path.join(SHARED, "meshes", f)
-    sys.exit(f"no mesh named {name} in {SHARED}/meshes")
 
 
 def build(binary, mesh, eps, threads, out):
@@ -43,13 +38,8 @@ def build(binary, mesh, eps, threads, out):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--before", required=True)
-    parser.add_argument("--after", required=True)
-    parser.add_argument("--meshes", default="armadillo,bunny")
-    parser.add_argument("--eps", type=float, default=1e-3)
+    parser = before_after_parser(__doc__, rounds=5)
     parser.add_argument("--threads", type=int, default=2)
-    parser.add_argument("--rounds", type=int, default=5)
     args = parser.parse_args()
 
     print(f"| mesh | eps | threads | before build / candidates / fans (s) "
@@ -57,7 +47,7 @@ def main():
     print("|---|---:|---:|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.meshes.split(","):
-            mesh = mesh_file(name)
+            mesh = mesh_path(SHARED, name)
             runs = {"before": [], "after": []}
             files = {side: os.path.join(tmp, side + ".dgg") for side in runs}
             for _ in range(args.rounds):

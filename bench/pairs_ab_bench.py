@@ -14,7 +14,6 @@ after/before ratio (median, least and largest over rounds), the median
 relaxed edges of each, and the largest relative difference between the two
 binaries' distances.
 """
-import argparse
 import json
 import os
 import random
@@ -25,6 +24,7 @@ import tempfile
 
 import numpy as np
 
+from ab_args import before_after_parser
 from daemon_bench import random_pairs
 from exact_ab_bench import mesh_file
 
@@ -64,13 +64,8 @@ def finish(process, binary):
 
 
 def main():
-    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--before", required=True)
-    parser.add_argument("--after", required=True)
-    parser.add_argument("--meshes", default="armadillo,bunny")
-    parser.add_argument("--eps", type=float, default=1e-3)
+    parser = before_after_parser(__doc__, rounds=6)
     parser.add_argument("--pairs", type=int, default=2000)
-    parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--seed", type=int, default=7)
     parser.add_argument("--graph-dir", default="")
     args = parser.parse_args()

@@ -34,10 +34,8 @@ Mesh Square() {
   return *Mesh::Build(std::move(soup), "square");
 }
 
-// A complete graph on the square's 4 vertices, with one target replaced.
-std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_target,
-                                              std::vector<uint32_t> node_of_vertex = {2, 0, 3, 1},
-                                              DggParams params = {.epsilon = 0.1}) {
+// The arrays of a complete graph on the square's 4 vertices.
+DggGraphArrays CompleteArrays(std::vector<uint32_t> node_of_vertex) {
   DggGraphArrays a;
   a.vertex_of_node.assign(4, 0);
   for (uint32_t v = 0; v < 4; ++v) a.vertex_of_node[node_of_vertex[v]] = v;
@@ -51,6 +49,14 @@ std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_tar
     }
     a.offsets.push_back(a.edges.size());
   }
+  return a;
+}
+
+// A complete graph on the square's 4 vertices, with one target replaced.
+std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_target,
+                                              std::vector<uint32_t> node_of_vertex = {2, 0, 3, 1},
+                                              DggParams params = {.epsilon = 0.1}) {
+  DggGraphArrays a = CompleteArrays(std::move(node_of_vertex));
   a.edges[5].target = bad_target;
   return DggGraphBuilder::FromArrays(std::move(a), 4, 4, params, MeshFingerprint(mesh));
 }
@@ -59,19 +65,8 @@ std::shared_ptr<const DggGraph> CompleteGraph(const Mesh& mesh, uint32_t bad_tar
 // edge, whose bytes between its kind and its id are `padding`: what memory
 // left there, which a copy need not clear.
 std::shared_ptr<const DggGraph> GraphWithPseudoPoint(const Mesh& mesh, unsigned char padding) {
-  DggGraphArrays a;
-  a.vertex_of_node = {0, 1, 2, 3};
-  a.node_of_vertex = {0, 1, 2, 3};
-  a.offsets = {0};
-  for (uint32_t u = 0; u < 4; ++u) {
-    for (uint32_t v = 0; v < 4; ++v) {
-      if (u == v) continue;
-      a.edges.push_back({v, 1.5f, {0, 1}});
-      a.angles.push_back(0.1f * v);
-    }
-    a.offsets.push_back(a.edges.size());
-  }
-  a.offsets.push_back(a.edges.size());
+  DggGraphArrays a = CompleteArrays({0, 1, 2, 3});
+  a.offsets.push_back(a.edges.size());  // the pseudo vertex's empty row
   a.pseudo_points.resize(1);
   SurfacePoint& p = a.pseudo_points[0];
   std::memset(static_cast<void*>(&p), padding, sizeof(p));
