@@ -14,10 +14,10 @@
 // Bucket 0 is thus a sorted run of the smallest keys, popped from its end,
 // and a push smaller than its largest key is inserted in order; a run grown
 // past a bound by such pushes gives its larger half back to the buckets, so
-// that an insert moves a bounded number of entries whatever the workload. Wavefront
-// keys are distinct doubles, so redistributing alone emptied a bucket of a
-// few items on nearly every pop, moving each item some ten times on its way
-// down; a sorted run moves it once.
+// that an insert moves a bounded number of entries whatever the workload.
+// Wavefront keys are distinct doubles, so redistributing alone emptied a
+// bucket of a few items on nearly every pop, moving each item some ten times
+// on its way down; a sorted run moves it once.
 #ifndef GEODESIC_CORE_BASE_RADIX_HEAP_H_
 #define GEODESIC_CORE_BASE_RADIX_HEAP_H_
 

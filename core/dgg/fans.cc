@@ -189,7 +189,8 @@ class FanBuilder {
     const auto edges = of(u);
     // The turns kept move to the front of the edge's listed ones, without
     // a branch (whether a turn is kept is close to random).
-    for (uint32_t i = 0, t = 0; i < edges.size(); ++i) {
+    size_t t = 0;
+    for (uint32_t i = 0; i < edges.size(); ++i) {
       const auto next = of(edges[i].target);
       uint32_t* const kept = sc.turns.data() + t;
       uint32_t count = 0;

@@ -143,7 +143,8 @@ std::vector<SurfacePoint> WithZeroPadding(std::span<const SurfacePoint> points) 
   return out;
 }
 
-// The bytes each section is written from.
+// The bytes each section is written from. `data` points into
+// `pseudo_points`, so a Sections is used where it was made, not copied.
 struct Sections {
   std::vector<SurfacePoint> pseudo_points;
   SectionData data;
