@@ -133,6 +133,7 @@ using SectionData = std::array<std::pair<const void*, uint64_t>, kSectionCount>;
 // graph's file is the same bytes whenever the graph is built.
 std::vector<SurfacePoint> WithZeroPadding(std::span<const SurfacePoint> points) {
   std::vector<SurfacePoint> out(points.size());
+  if (out.empty()) return out;  // no data() to clear
   std::memset(static_cast<void*>(out.data()), 0, out.size() * sizeof(SurfacePoint));
   for (size_t i = 0; i < points.size(); ++i) {
     out[i].kind = points[i].kind;
