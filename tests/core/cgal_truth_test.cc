@@ -13,6 +13,7 @@
 #include <CGAL/Surface_mesh_shortest_path.h>
 
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <random>
 #include <vector>
@@ -75,7 +76,10 @@ class CgalTruth : public ::testing::Test {
     const auto h = cgal_->halfedge(f);
     const CgalMesh::Vertex_index corners[3] = {cgal_->source(h), cgal_->target(h),
                                                cgal_->target(cgal_->next(h))};
-    double b[3];
+    // NaN until matched: a corner CGAL names that is not among the face's
+    // would make every distance from this point NaN, and the test fail.
+    const double unmatched = std::numeric_limits<double>::quiet_NaN();
+    double b[3] = {unmatched, unmatched, unmatched};
     for (int k = 0; k < 3; ++k) {
       for (int j = 0; j < 3; ++j) {
         if (static_cast<uint32_t>(corners[k]) == triangles_[p.id][j]) b[k] = p.bary[j];
