@@ -46,7 +46,7 @@ class RadixHeap {
   uint64_t memory_bytes() const {
     uint64_t total = 0;
     for (const auto& bucket : buckets_) total += bucket.capacity() * sizeof(Entry);
-    return total + spill_.capacity() * sizeof(Entry);
+    return total;
   }
 
   void Clear() {
@@ -128,13 +128,14 @@ class RadixHeap {
 
   // Gives the run's larger half (its front) back to the buckets. Those keys
   // exceed every key left in the run and are at least the last key, as the
-  // buckets require.
+  // buckets require. They are copied out first: a key equal to the last
+  // key is placed in the run itself.
   void ShortenRun() {
     std::vector<Entry>& run = buckets_[0];
     const auto larger_end = run.begin() + (run.size() - run.size() / 2);
-    spill_.assign(run.begin(), larger_end);
+    const std::vector<Entry> larger(run.begin(), larger_end);
     run.erase(run.begin(), larger_end);
-    for (const Entry& e : spill_) Place(e);
+    for (const Entry& e : larger) Place(e);
   }
 
   void Refill() {
@@ -157,8 +158,7 @@ class RadixHeap {
   }
 
   std::array<std::vector<Entry>, 65> buckets_;
-  std::vector<Entry> spill_;  // ShortenRun's, kept for its capacity
-  uint64_t occupied_ = 0;     // bit b - 1 set: bucket b (b >= 1) is not empty
+  uint64_t occupied_ = 0;  // bit b - 1 set: bucket b (b >= 1) is not empty
   size_t size_ = 0;
   uint64_t last_ = 0;    // the radix the buckets' items are placed by
   uint64_t popped_ = 0;  // the last key popped; pushes are raised to it
