@@ -34,8 +34,9 @@ def positions(bin_dir, mesh, work):
     # reader we already trust: ask geodesicd for a .ply field, whose vertices
     # carry x y z in file order.
     ply = os.path.join(work, "positions.ply")
+    # The smallest limit the command takes: the field is not wanted.
     subprocess.run([f"{bin_dir}/geodesicd", "exact", "--mesh", mesh, "--source", "v:0",
-                    "--max-distance", "0", "--out", ply], check=True, capture_output=True)
+                    "--max-distance", "1e-300", "--out", ply], check=True, capture_output=True)
     with open(ply) as f:
         lines = f.read().splitlines()
     n = int(next(l for l in lines if l.startswith("element vertex")).split()[2])

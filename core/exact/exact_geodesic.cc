@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include "absl/base/attributes.h"
 #include "absl/status/status.h"
@@ -304,9 +305,9 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   excluded_[v] = 0;
   via_window_[v] = window;
   via_vertex_[v] = via_vertex;
+  angle_vtx_[v] = angle_vertex;
   if (mode_ == Mode::kDirect) {
     angle_src_[v] = angle_src;
-    angle_vtx_[v] = angle_vertex;
   } else if (!emitted_[v] && RadiatesFrom(mesh_, v) && !PastGoal(v, d)) {
     // A geodesic may bend here, or pass straight through: once this
     // distance is final, v radiates.
@@ -553,9 +554,80 @@ void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double
   TrimAndPush(w, EndsOf(g));
 }
 
-void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo) {
+namespace {
+
+// A shortest path through an interior saddle v turns by at least pi on both
+// sides: were one side's angle between its arriving and leaving segments
+// below pi, a segment across that corner of v's (flat) neighbourhood would
+// be shorter. So it leaves v only in directions u turns from the direction
+// back along the path it arrived by, with pi <= u <= total - pi: a cone as
+// wide as v's angle excess. The other directions are served strictly
+// shorter by paths around v; windows v emitted there would travel until
+// trimmed, a large share of a full solve's work on scanned meshes
+// (bench/notes.md, "Exact engine"). Any one shortest arriving path gives a
+// sound cone, since every one has to turn so. At a flat vertex the cone is
+// the straight continuation, as wide as the margin.
+struct OutgoingCone {
+  double back;    // polar angle at v pointing back along the arriving path
+  double total;   // v's total angle
+  double lo, hi;  // turns from `back` allowed, widened by the margin
+
+  // Narrows [b0, b1] on the twin of next(h) (the edge across v's face(h))
+  // to where the cone's rays cross it; false when none do.
+  bool Within(const Mesh& mesh, HalfedgeId h, double& b0, double& b1) const {
+    const double corner = mesh.corner_angle(h);
+    double u0 = std::fmod(mesh.polar_angle(h) - back, total);
+    if (u0 < 0) u0 += total;
+    // The face spans turns [u0, u0 + corner]; the cone [lo, hi] is met there
+    // or one turn later.
+    double from = kInf, to = -kInf;
+    for (const double shift : {0.0, total}) {
+      const double a = std::max(u0, lo + shift), b = std::min(u0 + corner, hi + shift);
+      if (a <= b) {
+        from = std::min(from, a - u0);
+        to = std::max(to, b - u0);
+      }
+    }
+    if (!(from <= to)) return false;
+    // The face in v's frame: v at the origin, b = head(h) on the x axis, c
+    // at the corner's angle. A ray at angle psi meets b -> c at s (0 at b);
+    // the twin edge runs c -> b, so it is at (1 - s) L there.
+    const HalfedgeId p = Mesh::prev(h);
+    const Vec2 b{mesh.length(h), 0};
+    const Vec2 c{mesh.length(p) * std::cos(corner), mesh.length(p) * std::sin(corner)};
+    const double L = b1;
+    auto at = [&](double psi) {
+      const Vec2 dir{std::cos(psi), std::sin(psi)};
+      const double s = Cross(dir, b) / Cross(dir, b - c);
+      return std::clamp((1 - s) * L, 0.0, L);
+    };
+    if (to < corner) b0 = at(to);
+    if (from > 0) b1 = at(from);
+    return b1 > b0;
+  }
+};
+
+// The cone a vertex radiates into, or none (all directions) at the source,
+// on the boundary (where paths may bend around the surface's edge), and when
+// the arriving path is unknown (`back` NaN).
+std::optional<OutgoingCone> OutgoingConeAt(const Mesh& mesh, VertexId v, double back) {
+  // Rounding in the arriving direction is far below this; a wider cone only
+  // keeps a sliver of a window more.
+  constexpr double kMargin = 1e-8;
+  const double total = mesh.total_angle(v);
+  if (std::isnan(back) || mesh.is_boundary(v)) return std::nullopt;
+  return OutgoingCone{back, total, std::numbers::pi - kMargin, total - std::numbers::pi + kMargin};
+}
+
+}  // namespace
+
+void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, double back) {
   const HalfedgeId start = mesh_.vertex_halfedge(v);
   if (start == kNone) return;
+  // Only full runs radiate from vertices past the source, so a window's
+  // direct-mode ray angle need not follow its narrowed start.
+  const std::optional<OutgoingCone> cone =
+      mode_ == Mode::kFull ? OutgoingConeAt(mesh_, v, back) : std::nullopt;
   HalfedgeId h = start;
   do {
     const HalfedgeId p = Mesh::prev(h);
@@ -576,10 +648,13 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo) {
     // polar angle is polar(h) + corner(h).
     const HalfedgeId far = Mesh::next(h);
     const HalfedgeId g = mesh_.twin(far);
-    if (g != kNone) {
+    double b0 = 0, b1 = g != kNone ? mesh_.length(g) : 0;
+    if (g != kNone && cone && !cone->Within(mesh_, h, b0, b1)) {
+      ++stats_.pseudo_windows_skipped;
+    } else if (g != kNone) {
       const double L = mesh_.length(g);
       Vec2 s = PlaceFromDistances(L, mesh_.length(p), mesh_.length(h), /*above=*/false);
-      Draft w{{g, kNone, pseudo, 0, L, s.x, s.y, sigma},
+      Draft w{{g, kNone, pseudo, b0, b1, s.x, s.y, sigma},
               {kInf,
                mesh_.polar_angle(h) + mesh_.corner_angle(h),
                {0, 0},
@@ -625,7 +700,7 @@ void ExactGeodesic::SeedSource(const SurfacePoint& source) {
     touched_.push_back(v);
     dist_[v] = 0;
     emitted_[v] = 1;
-    EmitFromVertex(v, 0, v);
+    EmitFromVertex(v, 0, v, std::numeric_limits<double>::quiet_NaN());
     return;
   }
   // A point on an edge or inside a face: the faces that contain it, and for
@@ -740,9 +815,11 @@ ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index
   const VertexId vc = face.apex_vertex;
   const double d = w.sigma + Hypot(C.x - w.sx, C.y - w.sy);
   double a_src = 0, a_vtx = 0;
-  // The directions cost two atan2; they are only kept when d improves.
-  if (mode_ == Mode::kDirect && d < dist_[vc]) {
-    a_src = RayAngle(w, std::clamp(xc, w.b0, w.b1));
+  // The directions cost an atan2 each; they are only kept when d improves.
+  // Full runs keep the one at the vertex: where the path arrived from is what
+  // a saddle radiates away from (EmitFromVertex).
+  if (d < dist_[vc]) {
+    if (mode_ == Mode::kDirect) a_src = RayAngle(w, std::clamp(xc, w.b0, w.b1));
     const HalfedgeId hp = Mesh::prev(w.h);
     a_vtx =
         mesh_.polar_angle(hp) + std::clamp(SignedAngle(A - C, I - C), 0.0, mesh_.corner_angle(hp));
@@ -897,7 +974,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       if (emitted_[v]) continue;  // an older, longer entry
       emitted_[v] = 1;
       ++stats_.pseudo_sources;
-      EmitFromVertex(v, dist_[v], v);
+      EmitFromVertex(v, dist_[v], v, angle_vtx_[v]);
       continue;
     }
     // Windows are queued long before they are propagated, so a window and

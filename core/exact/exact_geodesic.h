@@ -130,6 +130,9 @@ struct ExactStats {
   // what VTP (Qin et al. 2016) counts as interval propagations.
   uint64_t children_computed = 0;
   uint64_t pseudo_sources = 0;
+  // Faces around a saddle that no shortest path leaves it through, so it
+  // emits no window across them (see OutgoingCone).
+  uint64_t pseudo_windows_skipped = 0;
   uint64_t peak_queue = 0;
 };
 
@@ -221,7 +224,9 @@ class ExactGeodesic {
                    bool stop_at_corners = false);
   void Reset();
   void SeedSource(const SurfacePoint& source);
-  void EmitFromVertex(VertexId v, double sigma, uint32_t provenance_vertex);
+  // `back`: the polar angle at v back along the path that reached it (NaN:
+  // unknown, or v is the source), which bounds where paths leave v.
+  void EmitFromVertex(VertexId v, double sigma, uint32_t provenance_vertex, double back);
   void EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma, uint32_t pseudo_source,
                         double angle_tail, double angle_head);
   void Propagate(uint32_t index);
@@ -311,7 +316,7 @@ class ExactGeodesic {
   std::vector<uint32_t> via_window_;  // window that lit the vertex, or kNone
   std::vector<uint32_t> via_vertex_;  // pseudo-source it was reached from
   std::vector<double> angle_src_;     // direct mode: direction at the source
-  std::vector<double> angle_vtx_;     // direct mode: direction at the vertex
+  std::vector<double> angle_vtx_;     // direction at the vertex back along its path
   std::vector<uint8_t> emitted_;      // pseudo-source already emitted
   std::vector<double> route_;         // relay mode: length of a known graph route
   std::vector<uint8_t> excluded_;     // relay mode: best lighting is served by a relay

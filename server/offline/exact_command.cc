@@ -70,6 +70,7 @@ int RunExact(int argc, char** argv) {
                {"windows_per_vertex", double(st.windows_created) / n},
                {"windows_propagated", st.windows_propagated},
                {"children_computed", st.children_computed},
+               {"pseudo_windows_skipped", st.pseudo_windows_skipped},
                {"vertices_per_second", n / std::max(solve_seconds, 1e-9)},
                {"pseudo_sources", st.pseudo_sources},
                {"peak_queue", st.peak_queue},

@@ -36,6 +36,19 @@ constexpr double kExactTolerance = 1e-9;  // relative to the bounding box diagon
 constexpr double kContractMax = 1.5;      // epsilons
 constexpr double kContractMean = 0.3;
 
+// CGAL's copy of a triangle soup, with the same vertex and face ids.
+std::unique_ptr<CgalMesh> CgalMeshOf(const TriangleSoup& soup) {
+  auto cgal = std::make_unique<CgalMesh>();
+  for (const Vec3& p : soup.positions) cgal->add_vertex(Kernel::Point_3(p.x, p.y, p.z));
+  for (const auto& t : soup.triangles) {
+    const auto face = cgal->add_face(CgalMesh::Vertex_index(t[0]), CgalMesh::Vertex_index(t[1]),
+                                     CgalMesh::Vertex_index(t[2]));
+    EXPECT_NE(face, CgalMesh::null_face());
+  }
+  EXPECT_EQ(cgal->number_of_faces(), soup.triangles.size());
+  return cgal;
+}
+
 // The bundled mesh, both as ours and as CGAL's, with the same vertex and face
 // ids (the file's order).
 class CgalTruth : public ::testing::Test {
@@ -46,16 +59,9 @@ class CgalTruth : public ::testing::Test {
     auto mesh = LoadMesh(testing::SourcePath("data/spot.obj"));
     ASSERT_OK(mesh);
     mesh_ = std::make_shared<const Mesh>(std::move(mesh).value());
-    cgal_ = new CgalMesh();
-    for (const Vec3& p : soup->positions) cgal_->add_vertex(Kernel::Point_3(p.x, p.y, p.z));
-    for (const auto& t : soup->triangles) {
-      const auto face = cgal_->add_face(CgalMesh::Vertex_index(t[0]), CgalMesh::Vertex_index(t[1]),
-                                        CgalMesh::Vertex_index(t[2]));
-      ASSERT_NE(face, CgalMesh::null_face());
-    }
+    cgal_ = CgalMeshOf(*soup).release();
     triangles_ = soup->triangles;
     ASSERT_EQ(cgal_->number_of_vertices(), mesh_->num_vertices());
-    ASSERT_EQ(cgal_->number_of_faces(), triangles_.size());
     double lo[3] = {INFINITY, INFINITY, INFINITY}, hi[3] = {-INFINITY, -INFINITY, -INFINITY};
     for (const Vec3& p : soup->positions) {
       const double c[3] = {p.x, p.y, p.z};
@@ -223,6 +229,53 @@ TEST_P(CgalTruthAtEpsilon, FacePointPairsKeepTheContract) {
 }
 
 INSTANTIATE_TEST_SUITE_P(BundledMesh, CgalTruthAtEpsilon, ::testing::Values(1e-2, 1e-3));
+
+// A hyperbolic paraboloid, z = (x^2 - y^2) / 2 on a grid: every interior
+// vertex is a saddle, and what lies behind one, seen from the source, is
+// reached through it. Our saddles emit windows only into the cone a shortest
+// path may leave them by (core/exact/exact_geodesic.cc, OutgoingCone); CGAL's
+// solver emits into every direction, so a cone too narrow or turned the wrong
+// way would show as longer distances behind the saddles.
+TEST(CgalSaddleSurface, ExactEngineEqualsCgalWhereSaddlesRadiateIntoCones) {
+  constexpr int kSide = 24;
+  TriangleSoup soup;
+  for (int j = 0; j <= kSide; ++j) {
+    for (int i = 0; i <= kSide; ++i) {
+      const double x = 2.0 * i / kSide - 1, y = 2.0 * j / kSide - 1;
+      soup.positions.push_back({x, y, (x * x - y * y) / 2});
+    }
+  }
+  auto id = [](int i, int j) { return static_cast<VertexId>(j * (kSide + 1) + i); };
+  for (int j = 0; j < kSide; ++j) {
+    for (int i = 0; i < kSide; ++i) {
+      soup.triangles.push_back({id(i, j), id(i + 1, j), id(i + 1, j + 1)});
+      soup.triangles.push_back({id(i, j), id(i + 1, j + 1), id(i, j + 1)});
+    }
+  }
+  const std::unique_ptr<CgalMesh> cgal = CgalMeshOf(soup);
+  auto mesh = Mesh::Build(soup, "saddle surface");
+  ASSERT_OK(mesh);
+  ExactGeodesic exact(*mesh);
+  const double diagonal = 3;  // of the box [-1, 1]^2 x [-1/2, 1/2]
+  for (const VertexId source : {id(0, kSide / 2), id(kSide / 2, 0), id(3, 5)}) {
+    ShortestPath tree(*cgal);
+    tree.add_source_point(CgalMesh::Vertex_index(source));
+    std::vector<double> truth;
+    for (auto v : cgal->vertices())
+      truth.push_back(tree.shortest_distance_to_source_points(v).first);
+    auto ours = exact.Distances(SurfacePoint::Vertex(source));
+    ASSERT_OK(ours);
+    ExpectRealField(truth, mesh->num_vertices(), "CGAL");
+    ExpectRealField(*ours, mesh->num_vertices(), "exact engine");
+    double worst = 0;
+    for (size_t v = 0; v < truth.size(); ++v) {
+      worst = std::max(worst, std::abs((*ours)[v] - truth[v]));
+    }
+    EXPECT_LE(worst, kExactTolerance * diagonal) << "source " << source;
+    EXPECT_GT(exact.stats().pseudo_sources, 0u) << "source " << source;
+    EXPECT_GT(exact.stats().pseudo_windows_skipped, 0u) << "source " << source;
+  }
+}
 
 }  // namespace
 }  // namespace geodesic
