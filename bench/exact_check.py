@@ -32,7 +32,7 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 def positions(bin_dir, mesh, work):
     # The offline exact command writes fields; positions come from an OBJ/OFF/PLY
     # reader we already trust: ask geodesicd for a .ply field, whose vertices
-    # carry x y z in file order.
+    # carry x y z in file order and whose faces tell which vertices they use.
     ply = os.path.join(work, "positions.ply")
     # The smallest limit the command takes: the field is not wanted.
     subprocess.run([f"{bin_dir}/geodesicd", "exact", "--mesh", mesh, "--source", "v:0",
@@ -41,7 +41,12 @@ def positions(bin_dir, mesh, work):
         lines = f.read().splitlines()
     n = int(next(l for l in lines if l.startswith("element vertex")).split()[2])
     start = lines.index("end_header") + 1
-    return np.array([[float(x) for x in l.split()[:3]] for l in lines[start:start + n]])
+    positions = np.array([[float(x) for x in l.split()[:3]] for l in lines[start:start + n]])
+    # Vertices no face uses (bunny has some) are refused as sources.
+    in_faces = np.zeros(n, dtype=bool)
+    for l in lines[start + n:]:
+        in_faces[[int(x) for x in l.split()[1:]]] = True
+    return positions, in_faces
 
 
 def main():
@@ -62,10 +67,12 @@ def main():
             graph = os.path.join(work, "g.dgg")
             subprocess.run([f"{args.bin}/geodesicd", "build", mesh, "--eps", str(args.eps),
                             "--out", graph, "--quiet"], check=True, capture_output=True)
-            P = positions(args.bin, mesh, work)
+            P, in_faces = positions(args.bin, mesh, work)
             n = len(P)
             rng = np.random.default_rng(7)
-            sources = rng.choice(n, size=min(args.sources, n), replace=False)
+            candidates = np.flatnonzero(in_faces)
+            sources = rng.choice(candidates, size=min(args.sources, len(candidates)),
+                                 replace=False)
             worst_over_dgg = worst_below_line = worst_cgal = -np.inf
             misses = 0
             for k, s in enumerate(sources):

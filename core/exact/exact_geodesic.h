@@ -325,10 +325,13 @@ class ExactGeodesic {
   // queued after them where they reach the same points shorter (a cheap part
   // of MMP's window intersection, as VTP's second rule is). Slots exist only
   // for half-edges a window reached: a run bounded by a goal touches few.
+  // Since saddles radiate only into their cone, a second window per edge
+  // removes about 1% of the windows for more than it saves (bench/notes.md,
+  // "Exact engine").
   struct SeenWindow {
     double b0, b1, sx, sy, sigma;
   };
-  static constexpr int kSeenPerEdge = 2;
+  static constexpr int kSeenPerEdge = 1;
   struct SeenSlot {
     SeenWindow windows[kSeenPerEdge];
     HalfedgeId h;  // whose slot, for clearing seen_slot_
