@@ -13,13 +13,15 @@
 // part is one interval, found in closed form. The third vertex R of the face
 // the window came through filters the same way (|Rx| is a segment in that
 // face); that test removes a large share of a full solve's windows. In full
-// runs a window is also cut where one of the last windows queued on its
+// runs a window is also cut where the last window queued on its
 // half-edge reaches the same points shorter: the cheap part of MMP's window
 // intersection, needing no list per edge, which removes another large share
 // (bench/notes.md, "Exact engine"; in direct mode it moved corners and left
 // more windows, so it is off there). Windows are trimmed once, when queued.
 // Saddle and boundary vertices become pseudo-sources once their distance is
-// final.
+// final. An interior saddle emits windows only into the cone a shortest path
+// can leave it by: a shortest path through a vertex turns by at least pi on
+// both sides (VTP and CGAL emit into every face around it).
 //
 // Three uses of one propagation:
 //  1. Distances from a source (vertex, edge point or face point) to all
