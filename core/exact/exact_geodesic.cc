@@ -556,36 +556,37 @@ void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double
 
 namespace {
 
-// A shortest path through an interior saddle v turns by at least pi on both
-// sides: were one side's angle between its arriving and leaving segments
-// below pi, a segment across that corner of v's (flat) neighbourhood would
-// be shorter. So it leaves v only in directions u turns from the direction
-// back along the path it arrived by, with pi <= u <= total - pi: a cone as
-// wide as v's angle excess. The other directions are served strictly
-// shorter by paths around v; windows v emitted there would travel until
-// trimmed, a large share of a full solve's work on scanned meshes
-// (bench/notes.md, "Exact engine"). Any one shortest arriving path gives a
-// sound cone, since every one has to turn so. At a flat vertex the cone is
-// the straight continuation, as wide as the margin.
-struct OutgoingCone {
-  double back;    // polar angle at v pointing back along the arriving path
-  double total;   // v's total angle
-  double lo, hi;  // turns from `back` allowed, widened by the margin
+// Where shortest paths through a vertex v can leave it. Such a path turns by
+// at least pi on each side: were the angle between its arriving and leaving
+// segments below pi on one side, a segment across that corner of v's (flat)
+// neighbourhood would be shorter. So it leaves at polar angles at least pi
+// from `back`, the direction back along the arriving path, both ways round.
+// At an interior vertex of total angle T that is a cone as wide as T - 2 pi
+// (at a flat vertex, the straight continuation, as wide as the margin); at a
+// boundary vertex only the way round through the surface counts, which
+// leaves nothing at a convex corner. The other directions are served
+// strictly shorter by paths around v; windows v emitted there would travel
+// until trimmed, a large share of a full solve's work on scanned meshes
+// (bench/notes.md, "Exact engine"). Any one shortest arriving path gives
+// sound directions, since every one has to turn so.
+struct ExitDirections {
+  // Polar angles allowed at v: two intervals, widened by the margin.
+  double lo[2], hi[2];
 
   // Narrows [b0, b1] on the twin of next(h) (the edge across v's face(h))
-  // to where the cone's rays cross it; false when none do.
+  // to where rays leaving v in allowed directions cross it; false when none
+  // do.
   bool Within(const Mesh& mesh, HalfedgeId h, double& b0, double& b1) const {
-    const double corner = mesh.corner_angle(h);
-    double u0 = std::fmod(mesh.polar_angle(h) - back, total);
-    if (u0 < 0) u0 += total;
-    // The face spans turns [u0, u0 + corner]; the cone [lo, hi] is met there
-    // or one turn later.
+    const double first = mesh.polar_angle(h), corner = mesh.corner_angle(h);
+    // The face spans polar angles [first, first + corner]. A face's corner
+    // is below pi, so it meets at most one interval; the hull is taken
+    // all the same.
     double from = kInf, to = -kInf;
-    for (const double shift : {0.0, total}) {
-      const double a = std::max(u0, lo + shift), b = std::min(u0 + corner, hi + shift);
+    for (int k = 0; k < 2; ++k) {
+      const double a = std::max(first, lo[k]), b = std::min(first + corner, hi[k]);
       if (a <= b) {
-        from = std::min(from, a - u0);
-        to = std::max(to, b - u0);
+        from = std::min(from, a - first);
+        to = std::max(to, b - first);
       }
     }
     if (!(from <= to)) return false;
@@ -607,16 +608,19 @@ struct OutgoingCone {
   }
 };
 
-// The cone a vertex radiates into, or none (all directions) at the source,
-// on the boundary (where paths may bend around the surface's edge), and when
-// the arriving path is unknown (`back` NaN).
-std::optional<OutgoingCone> OutgoingConeAt(const Mesh& mesh, VertexId v, double back) {
+// The directions v radiates into, or none (all of them) at the source and
+// when the arriving path is unknown (`back` NaN).
+std::optional<ExitDirections> ExitDirectionsAt(const Mesh& mesh, VertexId v, double back) {
+  if (std::isnan(back)) return std::nullopt;
   // Rounding in the arriving direction is far below this; a wider cone only
   // keeps a sliver of a window more.
   constexpr double kMargin = 1e-8;
+  constexpr double kPi = std::numbers::pi;
+  // Polar angles run from 0 to T around v; on the boundary they do not wrap.
   const double total = mesh.total_angle(v);
-  if (std::isnan(back) || mesh.is_boundary(v)) return std::nullopt;
-  return OutgoingCone{back, total, std::numbers::pi - kMargin, total - std::numbers::pi + kMargin};
+  const bool boundary = mesh.is_boundary(v);
+  return ExitDirections{{boundary ? -kInf : back - total + kPi - kMargin, back + kPi - kMargin},
+                        {back - kPi + kMargin, boundary ? kInf : back + total - kPi + kMargin}};
 }
 
 }  // namespace
@@ -626,8 +630,8 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, do
   if (start == kNone) return;
   // Only full runs radiate from vertices past the source, so a window's
   // direct-mode ray angle need not follow its narrowed start.
-  const std::optional<OutgoingCone> cone =
-      mode_ == Mode::kFull ? OutgoingConeAt(mesh_, v, back) : std::nullopt;
+  const std::optional<ExitDirections> exits =
+      mode_ == Mode::kFull ? ExitDirectionsAt(mesh_, v, back) : std::nullopt;
   HalfedgeId h = start;
   do {
     const HalfedgeId p = Mesh::prev(h);
@@ -649,7 +653,7 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, do
     const HalfedgeId far = Mesh::next(h);
     const HalfedgeId g = mesh_.twin(far);
     double b0 = 0, b1 = g != kNone ? mesh_.length(g) : 0;
-    if (g != kNone && cone && !cone->Within(mesh_, h, b0, b1)) {
+    if (g != kNone && exits && !exits->Within(mesh_, h, b0, b1)) {
       ++stats_.pseudo_windows_skipped;
     } else if (g != kNone) {
       const double L = mesh_.length(g);

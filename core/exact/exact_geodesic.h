@@ -132,8 +132,8 @@ struct ExactStats {
   // what VTP (Qin et al. 2016) counts as interval propagations.
   uint64_t children_computed = 0;
   uint64_t pseudo_sources = 0;
-  // Faces around a saddle that no shortest path leaves it through, so it
-  // emits no window across them (see OutgoingCone).
+  // Faces around a vertex that no shortest path leaves it through, so it
+  // emits no window across them (see ExitDirections).
   uint64_t pseudo_windows_skipped = 0;
   uint64_t peak_queue = 0;
 };
