@@ -596,7 +596,7 @@ struct ExitDirections {
     const HalfedgeId p = Mesh::prev(h);
     const Vec2 b{mesh.length(h), 0};
     const Vec2 c{mesh.length(p) * std::cos(corner), mesh.length(p) * std::sin(corner)};
-    const double L = b1;
+    const double L = b1;  // the caller passes the whole edge, [0, L]
     auto at = [&](double psi) {
       const Vec2 dir{std::cos(psi), std::sin(psi)};
       const double s = Cross(dir, b) / Cross(dir, b - c);
