@@ -573,10 +573,10 @@ struct ExitDirections {
   // Polar angles allowed at v: two intervals, widened by the margin.
   double lo[2], hi[2];
 
-  // Narrows [b0, b1] on the twin of next(h) (the edge across v's face(h))
-  // to where rays leaving v in allowed directions cross it; false when none
-  // do.
-  bool Within(const Mesh& mesh, HalfedgeId h, double& b0, double& b1) const {
+  // The part [b0, b1] of the twin of next(h) (the edge across v's face(h),
+  // of length L) that rays leaving v in allowed directions cross; false when
+  // none do.
+  bool Within(const Mesh& mesh, HalfedgeId h, double L, double& b0, double& b1) const {
     const double first = mesh.polar_angle(h), corner = mesh.corner_angle(h);
     // The face spans polar angles [first, first + corner]. A face's corner
     // is below pi, so it meets at most one interval; the hull is taken
@@ -596,14 +596,13 @@ struct ExitDirections {
     const HalfedgeId p = Mesh::prev(h);
     const Vec2 b{mesh.length(h), 0};
     const Vec2 c{mesh.length(p) * std::cos(corner), mesh.length(p) * std::sin(corner)};
-    const double L = b1;  // the caller passes the whole edge, [0, L]
     auto at = [&](double psi) {
       const Vec2 dir{std::cos(psi), std::sin(psi)};
       const double s = Cross(dir, b) / Cross(dir, b - c);
       return std::clamp((1 - s) * L, 0.0, L);
     };
-    if (to < corner) b0 = at(to);
-    if (from > 0) b1 = at(from);
+    b0 = to < corner ? at(to) : 0;
+    b1 = from > 0 ? at(from) : L;
     return b1 > b0;
   }
 };
@@ -652,20 +651,22 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, do
     // polar angle is polar(h) + corner(h).
     const HalfedgeId far = Mesh::next(h);
     const HalfedgeId g = mesh_.twin(far);
-    double b0 = 0, b1 = g != kNone ? mesh_.length(g) : 0;
-    if (g != kNone && exits && !exits->Within(mesh_, h, b0, b1)) {
-      ++stats_.pseudo_windows_skipped;
-    } else if (g != kNone) {
+    if (g != kNone) {
       const double L = mesh_.length(g);
-      Vec2 s = PlaceFromDistances(L, mesh_.length(p), mesh_.length(h), /*above=*/false);
-      Draft w{{g, kNone, pseudo, b0, b1, s.x, s.y, sigma},
-              {kInf,
-               mesh_.polar_angle(h) + mesh_.corner_angle(h),
-               {0, 0},
-               {L, 0},
-               sigma + mesh_.length(p),
-               sigma + mesh_.length(h)}};
-      TrimAndPush(w, EndsOf(g));
+      double b0 = 0, b1 = L;
+      if (exits && !exits->Within(mesh_, h, L, b0, b1)) {
+        ++stats_.pseudo_windows_skipped;
+      } else {
+        Vec2 s = PlaceFromDistances(L, mesh_.length(p), mesh_.length(h), /*above=*/false);
+        Draft w{{g, kNone, pseudo, b0, b1, s.x, s.y, sigma},
+                {kInf,
+                 mesh_.polar_angle(h) + mesh_.corner_angle(h),
+                 {0, 0},
+                 {L, 0},
+                 sigma + mesh_.length(p),
+                 sigma + mesh_.length(h)}};
+        TrimAndPush(w, EndsOf(g));
+      }
     }
     h = mesh_.rotate(h);
   } while (h != kNone && h != start);

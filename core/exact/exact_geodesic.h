@@ -19,9 +19,10 @@
 // (bench/notes.md, "Exact engine"; in direct mode it moved corners and left
 // more windows, so it is off there). Windows are trimmed once, when queued.
 // Saddle and boundary vertices become pseudo-sources once their distance is
-// final. An interior saddle emits windows only into the cone a shortest path
-// can leave it by: a shortest path through a vertex turns by at least pi on
-// both sides (VTP and CGAL emit into every face around it).
+// final. They emit windows only in the directions a shortest path can leave
+// them by (a cone, at an interior saddle): a shortest path through a vertex
+// turns by at least pi on both sides (VTP and CGAL emit into every face
+// around it).
 //
 // Three uses of one propagation:
 //  1. Distances from a source (vertex, edge point or face point) to all
