@@ -49,6 +49,20 @@ std::unique_ptr<CgalMesh> CgalMeshOf(const TriangleSoup& soup) {
   return cgal;
 }
 
+// CGAL's distances from a built tree's sources to every vertex, in id order.
+std::vector<double> CgalVertexField(const CgalMesh& cgal, ShortestPath& tree) {
+  std::vector<double> field;
+  for (auto v : cgal.vertices()) field.push_back(tree.shortest_distance_to_source_points(v).first);
+  return field;
+}
+
+// The largest absolute difference between two fields of the same size.
+double WorstDifference(const std::vector<double>& a, const std::vector<double>& b) {
+  double worst = 0;
+  for (size_t v = 0; v < a.size(); ++v) worst = std::max(worst, std::abs(a[v] - b[v]));
+  return worst;
+}
+
 // The bundled mesh, both as ours and as CGAL's, with the same vertex and face
 // ids (the file's order).
 class CgalTruth : public ::testing::Test {
@@ -106,11 +120,7 @@ class CgalTruth : public ::testing::Test {
   }
 
   static std::vector<double> CgalField(const SurfacePoint& source) {
-    auto tree = TreeFrom(source);
-    std::vector<double> field;
-    for (auto v : cgal_->vertices())
-      field.push_back(tree->shortest_distance_to_source_points(v).first);
-    return field;
+    return CgalVertexField(*cgal_, *TreeFrom(source));
   }
 
   static std::vector<SurfacePoint> Sources() {
@@ -146,10 +156,8 @@ TEST_F(CgalTruth, ExactEngineEqualsCgal) {
     ASSERT_OK(ours);
     ExpectRealField(truth, mesh_->num_vertices(), "CGAL");
     ExpectRealField(*ours, mesh_->num_vertices(), "exact engine");
-    double worst = 0;
-    for (size_t v = 0; v < truth.size(); ++v)
-      worst = std::max(worst, std::abs((*ours)[v] - truth[v]));
-    EXPECT_LE(worst, kExactTolerance * diagonal_) << FormatSurfacePoint(source);
+    EXPECT_LE(WorstDifference(*ours, truth), kExactTolerance * diagonal_)
+        << FormatSurfacePoint(source);
   }
 }
 
@@ -265,18 +273,12 @@ TEST(CgalSaddleSurface, ExactEngineEqualsCgalThroughSaddlesAndAroundASlit) {
   for (const VertexId source : {id(0, kSide / 2), id(kSide / 2, 0), id(3, 5), id(9, 12)}) {
     ShortestPath tree(*cgal);
     tree.add_source_point(CgalMesh::Vertex_index(source));
-    std::vector<double> truth;
-    for (auto v : cgal->vertices())
-      truth.push_back(tree.shortest_distance_to_source_points(v).first);
+    const std::vector<double> truth = CgalVertexField(*cgal, tree);
     auto ours = exact.Distances(SurfacePoint::Vertex(source));
     ASSERT_OK(ours);
     ExpectRealField(truth, mesh->num_vertices(), "CGAL");
     ExpectRealField(*ours, mesh->num_vertices(), "exact engine");
-    double worst = 0;
-    for (size_t v = 0; v < truth.size(); ++v) {
-      worst = std::max(worst, std::abs((*ours)[v] - truth[v]));
-    }
-    EXPECT_LE(worst, kExactTolerance * diagonal) << "source " << source;
+    EXPECT_LE(WorstDifference(*ours, truth), kExactTolerance * diagonal) << "source " << source;
     EXPECT_GT(exact.stats().pseudo_sources, 0u) << "source " << source;
     EXPECT_GT(exact.stats().pseudo_windows_skipped, 0u) << "source " << source;
   }
