@@ -62,4 +62,22 @@ ExactOptions ExactWithinGraphAnswer(double graph_distance, const std::function<b
   return options;
 }
 
+absl::StatusOr<std::vector<double>> ExactDistancesWithinGraphAnswer(
+    ExactGeodesic& exact, const SurfacePoint& source, absl::Span<const SurfacePoint> targets,
+    ExactOptions options) {
+  std::vector<double> d(targets.size(), kInfinity);
+  for (bool bounded : {true, false}) {
+    if (!bounded) {
+      if (options.max_distance == kInfinity) break;
+      options.max_distance = kInfinity;
+    }
+    RETURN_IF_ERROR(exact.Distances(source, options).status());
+    for (size_t j = 0; j < targets.size(); ++j) {
+      ASSIGN_OR_RETURN(d[j], exact.DistanceTo(targets[j]));
+    }
+    if (std::find(d.begin(), d.end(), kInfinity) == d.end()) break;
+  }
+  return d;
+}
+
 }  // namespace geodesic::query_internal

@@ -70,6 +70,16 @@ double FieldDistanceTo(const Endpoint& end, absl::Span<const double> field);
 ExactOptions ExactWithinGraphAnswer(double graph_distance, const std::function<bool()>& cancelled,
                                     uint64_t max_window_bytes);
 
+// Exact distances from `source` to each of `targets` by a propagation with
+// `options` (ExactWithinGraphAnswer's); +inf where even an unbounded one does
+// not reach. A target the bounded run leaves unreached has a graph answer
+// below its exact distance: rounding past the slack, or a graph file whose
+// weights are too short. That answer bounds nothing, so the run is made again
+// without the bound, and `exact` keeps the run that reached the targets.
+absl::StatusOr<std::vector<double>> ExactDistancesWithinGraphAnswer(
+    ExactGeodesic& exact, const SurfacePoint& source, absl::Span<const SurfacePoint> targets,
+    ExactOptions options);
+
 }  // namespace geodesic::query_internal
 
 #endif  // GEODESIC_CORE_QUERY_AUGMENTED_GRAPH_H_

@@ -162,11 +162,16 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
   ExactLandmarkRun with_landmarks(landmarks, exact.mesh(),
                                   targets.size() == 1 ? &targets[0].point : nullptr, options);
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
-  RETURN_IF_ERROR(exact.Distances(source, options).status());
+  std::vector<SurfacePoint> reachable;
   for (size_t j = 0; j < targets.size(); ++j) {
+    if (row[j] < kInfinity) reachable.push_back(targets[j].point);
+  }
+  ASSIGN_OR_RETURN(const std::vector<double> d, query_internal::ExactDistancesWithinGraphAnswer(
+                                                    exact, source, reachable, options));
+  for (size_t j = 0, k = 0; j < targets.size(); ++j) {
     if (row[j] == kInfinity) continue;
-    ASSIGN_OR_RETURN(const double d, exact.DistanceTo(targets[j].point));
-    if (d < kInfinity) row[j] = d;
+    if (d[k] < kInfinity) row[j] = d[k];
+    ++k;
   }
   return absl::OkStatus();
 }

@@ -388,11 +388,12 @@ absl::Status MakeExact(const Mesh& mesh, QueryScratch& sc, const ExactLandmarks*
   ExactLandmarkRun with_landmarks(landmarks, mesh, &b, options);
   // The windows go once the answer is read: the engine stays in the pool.
   absl::Cleanup release = [&exact] { exact.ReleaseLargeWindows(); };
-  RETURN_IF_ERROR(exact.Distances(a, options).status());
+  ASSIGN_OR_RETURN(const std::vector<double> reached,
+                   query_internal::ExactDistancesWithinGraphAnswer(exact, a, {&b, 1}, options));
   result.windows = exact.stats().windows_created;
-  ASSIGN_OR_RETURN(const double d, exact.DistanceTo(b));
-  // Not reached only if rounding put the geodesic past the slack; the graph
-  // answer, which is then within it, stays.
+  const double d = reached[0];
+  // Not reached even without the bound only on a surface the exact engine
+  // cannot cross where the graph's edges do; the graph answer stays.
   if (d == kInfinity) return absl::OkStatus();
   result.distance = d;
   if (!pair.want_path) return absl::OkStatus();

@@ -10,6 +10,7 @@
 
 #include "core/base/node_heap.h"
 #include "core/dgg/dgg_build.h"
+#include "core/dgg/dgg_graph_internal.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/geodesic_engine.h"
@@ -690,6 +691,64 @@ TEST(QueriesTest, ExactPairsKeepToTheirMemoryLimit) {
   ASSERT_OK(field);
   ASSERT_TRUE(std::isfinite((*field)[1500]) && std::isfinite(answered->distance));
   EXPECT_NEAR(answered->distance, (*field)[1500], 1e-12 * (*field)[1500]);
+}
+
+// A copy of `graph` whose every weight is `scale` times its own: what a
+// graph file written by someone else might claim.
+std::shared_ptr<const DggGraph> ScaledWeights(const DggGraph& graph, const Mesh& mesh,
+                                              float scale) {
+  DggGraphArrays a;
+  a.offsets.assign(graph.offsets().begin(), graph.offsets().end());
+  for (DggEdge e : graph.edges()) {
+    e.weight *= scale;
+    a.edges.push_back(e);
+  }
+  a.angles.assign(graph.angles().begin(), graph.angles().end());
+  a.pseudo_points.assign(graph.pseudo_points().begin(), graph.pseudo_points().end());
+  a.node_of_vertex.assign(graph.node_of_vertex().begin(), graph.node_of_vertex().end());
+  a.vertex_of_node.assign(graph.vertex_of_node().begin(), graph.vertex_of_node().end());
+  return DggGraphBuilder::FromArrays(std::move(a), graph.num_nodes(), graph.num_mesh_vertices(),
+                                     graph.params(), MeshFingerprint(mesh));
+}
+
+// Exact answers do not trust the graph: a graph whose weights are too short
+// bounds the exact propagation below the exact distance, and the pair and
+// the matrix row are still the exact ones.
+TEST(QueriesTest, ExactPairsAndRowsStayExactOnAGraphWhoseWeightsAreTooShort) {
+  auto [mesh, graph] = SpotAndGraph(1e-2);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, ScaledWeights(*graph, *mesh, 0.5f));
+  const SurfacePoint a = SurfacePoint::Vertex(0);
+  const std::vector<SurfacePoint> targets = {SurfacePoint::Vertex(1500),
+                                             SurfacePoint::Face(100, 0.2, 0.3, 0.5)};
+  ExactGeodesic whole(*mesh);
+  ExactOptions keep;
+  keep.keep_windows = true;
+  ASSERT_OK(whole.Distances(a, keep));
+  MatrixOptions exact_rows;
+  exact_rows.exact = true;
+  auto row = engine.Matrix({&a, 1}, targets, exact_rows);
+  ASSERT_OK(row);
+  ASSERT_EQ(row->size(), targets.size());
+  for (size_t j = 0; j < targets.size(); ++j) {
+    auto want = whole.DistanceTo(targets[j]);
+    ASSERT_OK(want);
+    auto graph_only = engine.Distance(a, targets[j], PairOptions{});
+    ASSERT_OK(graph_only);
+    ASSERT_TRUE(std::isfinite(*want) && std::isfinite(graph_only->distance)) << j;
+    // The scaled graph does answer below the exact distance.
+    ASSERT_LT(graph_only->distance, *want * 0.9) << j;
+    PairOptions exact;
+    exact.exact = true;
+    exact.want_path = true;
+    auto pair = engine.Distance(a, targets[j], exact);
+    ASSERT_OK(pair);
+    EXPECT_TRUE(pair->exact);
+    EXPECT_NEAR(pair->distance, *want, 1e-12 * *want) << j;
+    ASSERT_TRUE(pair->path.has_value()) << j;
+    EXPECT_NEAR(pair->path->length, *want, 1e-9 * *want) << j;
+    EXPECT_NEAR((*row)[j], *want, 1e-12 * *want) << j;
+  }
 }
 
 // Entries on the independent solver's exact pairs: within the accuracy
