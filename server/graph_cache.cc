@@ -323,7 +323,7 @@ absl::StatusOr<DggBuildEstimate> GraphCache::Admit(const RegisteredMesh& mesh,
   uint64_t spill = 0;
   {
     absl::MutexLock lock(&mu_);
-    if (auto it = known_bytes_.find({mesh.fingerprint, params, max_error});
+    if (auto it = known_bytes_.find(KnownBytesOf(mesh, params, max_error));
         it != known_bytes_.end()) {
       if (it->second.file > 0) estimate.bytes = least = it->second.file;
       spill = it->second.spill;
@@ -978,7 +978,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Build(
   if (admission.refused() > 0 || admission.spill_refused() > 0) {
     // Asked again, the graph is refused at once for those sizes (Admit).
     absl::MutexLock lock(&mu_);
-    KnownBytes& known = known_bytes_[{e.mesh->fingerprint, key.params, key.max_error}];
+    KnownBytes& known = known_bytes_[KnownBytesOf(*e.mesh, key.params, key.max_error)];
     if (admission.refused() > 0) known.file = admission.refused();
     if (admission.spill_refused() > 0) known.spill = admission.spill_refused();
   }
@@ -1004,7 +1004,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> GraphCache::Persist(
   const uint64_t bytes = graph->byte_size();
   {
     absl::MutexLock lock(&mu_);
-    known_bytes_[{e.mesh->fingerprint, key.params, key.max_error}].file = bytes;
+    known_bytes_[KnownBytesOf(*e.mesh, key.params, key.max_error)].file = bytes;
   }
   const bool drafted = draft.has_value();
   const uint64_t admitted = options_.disk ? BytesToAdmit(*options_.disk, bytes, draft) : bytes;

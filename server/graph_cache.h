@@ -419,7 +419,14 @@ class GraphCache {
     // disk limit could never hold it.
     uint64_t spill = 0;
   };
-  std::map<std::tuple<uint64_t, DggParams, double>, KnownBytes> known_bytes_ ABSL_GUARDED_BY(mu_);
+  // The mesh by its content, not its name: the same surface registered again
+  // under another name is the same graph.
+  using KnownBytesKey = std::tuple<uint64_t, DggParams, double>;
+  static KnownBytesKey KnownBytesOf(const RegisteredMesh& mesh, const DggParams& params,
+                                    double max_error) {
+    return {mesh.fingerprint, params, max_error};
+  }
+  std::map<KnownBytesKey, KnownBytes> known_bytes_ ABSL_GUARDED_BY(mu_);
   std::atomic<int> builds_running_{0};
   std::atomic<uint64_t> builds_started_{0};
 };
