@@ -19,9 +19,9 @@ import tempfile
 
 from ab_args import before_after_parser
 from truth_meshes import mesh_path
+from shared_data import SHARED
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(os.path.dirname(ROOT), "shared"))
 PHASES = ["build_seconds", "candidate_seconds", "fan_seconds"]
 
 
@@ -42,8 +42,8 @@ def main():
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
 
-    print(f"| mesh | eps | threads | before build / candidates / fans (s) "
-          f"| after build / candidates / fans (s) | after / before: build, fans | same bytes |")
+    print("| mesh | eps | threads | before build / candidates / fans (s) "
+          "| after build / candidates / fans (s) | after / before: build, fans | same bytes |")
     print("|---|---:|---:|---|---|---|---|")
     with tempfile.TemporaryDirectory() as tmp:
         for name in args.meshes.split(","):

@@ -21,9 +21,10 @@ import tempfile
 
 import numpy as np
 
+from shared_data import SHARED
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.join(ROOT, "build", "bin", "geodesicd")
-SHARED = os.path.join(os.path.dirname(ROOT), "shared")
 
 
 def run_json(*args):

@@ -39,10 +39,10 @@ import math
 import os
 import re
 import subprocess
-import sys
 import tempfile
 
 from truth_meshes import mesh_path, read_f64
+from shared_data import SHARED
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -147,7 +147,7 @@ def main():
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--bin", default=os.path.join(HERE, "..", "build", "bin"))
-    p.add_argument("--shared", default=os.path.join(HERE, "..", "..", "shared"))
+    p.add_argument("--shared", default=SHARED)
     p.add_argument("--out")
     p.add_argument("--certified", action="store_true")
     args = p.parse_args()

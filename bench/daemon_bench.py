@@ -23,9 +23,10 @@ import sys
 import tempfile
 import time
 
+from shared_data import SHARED
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 BIN = os.path.join(ROOT, "build", "bin")
-SHARED = os.path.join(os.path.dirname(ROOT), "shared")
 
 
 def free_port():

@@ -24,10 +24,10 @@ import math
 import os
 import re
 import subprocess
-import sys
 import tempfile
 
 from truth_meshes import DEFAULT_MESHES, mesh_path, read_f64
+from shared_data import SHARED
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -98,7 +98,7 @@ def main():
     p.add_argument("--scales", default="1,0.8,0.7")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--bin", default=os.path.join(HERE, "..", "build", "bin"))
-    p.add_argument("--shared", default=os.path.join(HERE, "..", "..", "shared"))
+    p.add_argument("--shared", default=SHARED)
     p.add_argument("--out")
     args = p.parse_args()
     out = open(args.out, "a") if args.out else None

@@ -21,8 +21,9 @@ import json
 
 import numpy as np
 
+from shared_data import SHARED
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(os.path.dirname(ROOT), "shared"))
 MESHES = ["eight", "spot", "blade_aniso", "camelhead", "fertility", "bunny", "armadillo", "igea"]
 
 

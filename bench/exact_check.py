@@ -25,6 +25,7 @@ import time
 import numpy as np
 
 from truth_meshes import DEFAULT_MESHES, mesh_path
+from shared_data import SHARED
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 
@@ -56,7 +57,7 @@ def main():
     ap.add_argument("--cgal-sources", type=int, default=20)
     ap.add_argument("--eps", type=float, default=1e-2)
     ap.add_argument("--bin", default=os.path.join(HERE, "..", "build", "bin"))
-    ap.add_argument("--shared", default=os.path.join(HERE, "..", "..", "shared"))
+    ap.add_argument("--shared", default=SHARED)
     ap.add_argument("--out")
     args = ap.parse_args()
     summary, failed = [], False

@@ -24,8 +24,9 @@ import tempfile
 
 import numpy as np
 
+from shared_data import SHARED
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(os.path.dirname(ROOT), "shared"))
 BIN = os.environ.get("GEODESIC_BIN", os.path.join(ROOT, "build", "bin"))
 MESHES = {"armadillo": "armadillo.obj", "bunny": "bunny.ply", "fertility": "fertility.off",
           "camelhead": "camelhead.off"}

@@ -24,11 +24,11 @@ import time
 import numpy as np
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(os.path.dirname(ROOT), "shared"))
 sys.path.insert(0, os.path.join(ROOT, "client", "python"))
 sys.path.insert(0, os.path.join(ROOT, "tests", "server"))
 from geodesic_client import Client, FacePoints  # noqa: E402
 from daemon_ports import stop, wait_for_ports, watch  # noqa: E402
+from shared_data import SHARED  # noqa: E402
 
 
 def start(bin_dir, work, mesh_dir, cpus, tag):

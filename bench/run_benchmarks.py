@@ -28,8 +28,9 @@ import time
 
 import numpy as np
 
+from shared_data import SHARED
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SHARED = os.path.join(os.path.dirname(ROOT), "shared")
 BIN = os.path.join(ROOT, "build", "bin")
 MESHES = {
     "eight": "eight.off", "spot": "spot.obj", "blade_aniso": "blade_aniso.off",
