@@ -16,6 +16,7 @@
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/geodesic_engine.h"
+#include "tests/core/radix_heap_workload.h"
 
 namespace geodesic {
 namespace {
@@ -193,16 +194,12 @@ BENCHMARK(BM_GraphOpen)->Arg(0)->Arg(1)->Unit(benchmark::kMicrosecond);
 // one bucket, then each pop pushes two keys just above the popped one. Arg:
 // pops. Time per pop stays flat as the pops grow only if the run is bounded.
 void BM_RadixHeapPushesIntoTheRun(benchmark::State& state) {
-  std::mt19937_64 rng(5);
-  std::uniform_real_distribution<double> tiny(1e-9, 2e-9);
+  auto pushed = [](double) {};
   for (auto _ : state) {
     RadixHeap<uint32_t> heap;
-    for (int k = 0; k < 64; ++k) heap.Push(1 + k / 64.0, k);
-    for (int64_t step = 0; step < state.range(0); ++step) {
-      const double key = heap.Pop().first;
-      heap.Push(key + tiny(rng), 0);
-      heap.Push(key + tiny(rng), 1);
-    }
+    testing::FillOneBucket(heap, pushed);
+    testing::PushIntoTheRun(
+        heap, state.range(0), [](int64_t, double) { return true; }, pushed);
     benchmark::DoNotOptimize(heap.size());
   }
   state.SetItemsProcessed(state.iterations() * state.range(0));

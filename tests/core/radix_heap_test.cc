@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "gtest/gtest.h"
+#include "tests/core/radix_heap_workload.h"
 
 namespace geodesic {
 namespace {
@@ -116,27 +117,27 @@ TEST(RadixHeapTest, PushesAmongASortedRunPopInOrder) {
 // would grow by one entry per pop and each insert would move all of it; it
 // stays within its bound, and keys still pop in order.
 TEST(RadixHeapTest, PushesThatAllLandInTheRunKeepItBounded) {
-  std::mt19937_64 rng(5);
-  std::uniform_real_distribution<double> tiny(1e-9, 2e-9);
   RadixHeap<uint32_t> heap;
   std::multiset<double> reference;
-  // 64 keys in [1, 2), one bucket: the first pop sorts them into the run.
-  for (int k = 0; k < 64; ++k) {
-    heap.Push(1 + k / 64.0, k);
-    reference.insert(1 + k / 64.0);
-  }
+  auto pushed = [&](double key) { reference.insert(key); };
+  testing::FillOneBucket(heap, pushed);
   size_t longest = 0;
-  for (int step = 0; step < 20000; ++step) {
-    ASSERT_FALSE(heap.empty());
-    const double key = heap.Pop().first;
-    ASSERT_EQ(key, *reference.begin()) << "at step " << step;
-    reference.erase(reference.begin());
-    for (double above : {key + tiny(rng), key + tiny(rng)}) {
-      heap.Push(above, step);
-      reference.insert(above);
-    }
-    longest = std::max(longest, heap.run_size());
-  }
+  int64_t pops = 0;
+  testing::PushIntoTheRun(
+      heap, 20000,
+      [&](int64_t step, double key) {
+        if (key != *reference.begin()) {
+          ADD_FAILURE() << "at step " << step << " popped " << key << ", not "
+                        << *reference.begin();
+          return false;
+        }
+        reference.erase(reference.begin());
+        longest = std::max(longest, heap.run_size());
+        ++pops;
+        return true;
+      },
+      pushed);
+  EXPECT_EQ(pops, 20000);
   EXPECT_GT(longest, RadixHeap<uint32_t>::kSortedRun);
   EXPECT_LE(longest, RadixHeap<uint32_t>::kLongestRun);
   std::vector<double> rest;
