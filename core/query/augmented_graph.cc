@@ -66,16 +66,15 @@ absl::StatusOr<std::vector<double>> ExactDistancesWithinGraphAnswer(
     ExactGeodesic& exact, const SurfacePoint& source, absl::Span<const SurfacePoint> targets,
     ExactOptions options) {
   std::vector<double> d(targets.size(), kInfinity);
-  for (bool bounded : {true, false}) {
-    if (!bounded) {
-      if (options.max_distance == kInfinity) break;
-      options.max_distance = kInfinity;
-    }
+  const double bound = options.max_distance;
+  for (double scale : {1.0, 2.0, kInfinity}) {
+    options.max_distance = bound * scale;
     RETURN_IF_ERROR(exact.Distances(source, options).status());
     for (size_t j = 0; j < targets.size(); ++j) {
       ASSIGN_OR_RETURN(d[j], exact.DistanceTo(targets[j]));
     }
-    if (std::find(d.begin(), d.end(), kInfinity) == d.end()) break;
+    const bool all_reached = std::find(d.begin(), d.end(), kInfinity) == d.end();
+    if (all_reached || options.max_distance == kInfinity) break;
   }
   return d;
 }

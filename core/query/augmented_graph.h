@@ -75,7 +75,8 @@ ExactOptions ExactWithinGraphAnswer(double graph_distance, const std::function<b
 // not reach. A target the bounded run leaves unreached has a graph answer
 // below its exact distance: rounding past the slack, or a graph file whose
 // weights are too short. That answer bounds nothing, so the run is made again
-// without the bound, and `exact` keeps the run that reached the targets.
+// within twice the bound (a rounding miss costs one more run of about the
+// same sweep), then without one; `exact` keeps the last run.
 absl::StatusOr<std::vector<double>> ExactDistancesWithinGraphAnswer(
     ExactGeodesic& exact, const SurfacePoint& source, absl::Span<const SurfacePoint> targets,
     ExactOptions options);
