@@ -613,6 +613,7 @@ void GraphCache::AddLandmarks(const GraphKey& key, const std::shared_ptr<Entry>&
     e->landmarks_pending = 0;
     if (!landmarks.ok() || !Current(key, *e) || e->engine != engine) return;
     e->status.landmark_bytes = LandmarkBytes(*engine);
+    e->counted_exact = engine->exact_landmarks();
     ++e->status.version;
     EvictOverBudget(key, notices);
   }
@@ -630,6 +631,26 @@ void GraphCache::WantExactLandmarks(const GraphKey& key) {
   it->second->exact_landmarks_asked = true;
   exact_landmark_jobs_.push_back(key);
   ++queue_changes_;
+}
+
+std::shared_ptr<const ExactLandmarks> GraphCache::SiblingExactLandmarks(const GraphKey& key,
+                                                                        const Entry& e,
+                                                                        int count) const {
+  for (const auto& [other_key, other] : entries_) {
+    if (other_key == key || other->status.state != GraphState::kReady || !other->engine ||
+        other->mesh->fingerprint != e.mesh->fingerprint) {
+      continue;
+    }
+    std::shared_ptr<const ExactLandmarks> held = other->engine->shared_exact_landmarks();
+    if (held && held->count() == count) return held;
+  }
+  return nullptr;
+}
+
+uint64_t GraphCache::CountedLandmarkBytes(const Entry& e,
+                                          std::set<const ExactLandmarks*>& counted) {
+  if (!e.counted_exact || counted.insert(e.counted_exact).second) return e.status.landmark_bytes;
+  return e.status.landmark_bytes - e.counted_exact->byte_size();
 }
 
 bool GraphCache::RestoreExactLandmarks(const GraphKey& key, const Entry& e,
@@ -705,6 +726,7 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
   const int count = options_.exact_landmarks;
   std::shared_ptr<Entry> e;
   std::shared_ptr<const GeodesicEngine> engine;
+  std::shared_ptr<const ExactLandmarks> sibling;
   Notices notices;
   bool fits = true;
   {
@@ -713,8 +735,12 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
     if (it == entries_.end() || it->second->status.state != GraphState::kReady) return;
     e = it->second;
     engine = e->engine;
-    e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count, options_.build_threads);
-    fits = EvictOverBudget(key, notices);
+    // Shared from another graph of the mesh, they take no memory more.
+    sibling = SiblingExactLandmarks(key, *e, count);
+    if (!sibling) {
+      e->exact_landmarks_pending = engine->ExactLandmarkComputeBytes(count, options_.build_threads);
+      fits = EvictOverBudget(key, notices);
+    }
     if (!fits) {
       Log(LogLevel::kWarning, "exact_landmarks_skipped",
           {{"mesh", key.mesh},
@@ -728,13 +754,18 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
   notices.clear();
   if (!fits) return;
   const auto start = std::chrono::steady_clock::now();
-  const bool restored = RestoreExactLandmarks(key, *e, *engine, count);
+  const bool shared = sibling && engine->AdoptExactLandmarks(std::move(sibling)).ok();
+  const bool restored = shared || RestoreExactLandmarks(key, *e, *engine, count);
   // A build worker's job: no more threads than a build on it takes.
   absl::Status made = restored
                           ? absl::OkStatus()
                           : engine->PrepareExactLandmarks(
                                 count, [e] { return e->cancel.load(); }, options_.build_threads);
-  if (made.ok() && !restored) SaveExactLandmarks(key, *e, *engine);
+  // Shared ones too get a copy beside this graph's file, for a restart:
+  // the disk budget removes the other graph's with that graph.
+  std::error_code ec;
+  const bool kept = shared && std::filesystem::exists(ExactLandmarksPathOf(e->path), ec);
+  if (made.ok() && (!restored || (shared && !kept))) SaveExactLandmarks(key, *e, *engine);
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
   {
@@ -747,13 +778,15 @@ void GraphCache::AddExactLandmarks(const GraphKey& key) {
       return;
     }
     e->status.landmark_bytes = LandmarkBytes(*engine);
+    e->counted_exact = engine->exact_landmarks();
     ++e->status.version;
     Log(LogLevel::kInfo, "exact_landmarks_ready",
         {{"mesh", key.mesh},
          {"eps", key.params.epsilon},
          {"landmarks", count},
          {"seconds", seconds},
-         {"from_file", restored},
+         {"from_file", restored && !shared},
+         {"shared", shared},
          {"bytes", engine->exact_landmark_bytes()}});
     EvictOverBudget(key, notices);
   }
@@ -1085,6 +1118,7 @@ std::shared_ptr<const GeodesicEngine> GraphCache::Publish(
     e->status.error = std::move(note);
     e->status.bytes = graph->byte_size();
     e->status.landmark_bytes = 0;
+    e->counted_exact = nullptr;
     e->status.mapped = graph->is_mapped();
     e->status.from_file = from_file;
     e->status.nodes = graph->num_nodes();
@@ -1130,9 +1164,10 @@ bool GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
     uint64_t total = outside;
     std::shared_ptr<Entry> victim;
     const GraphKey* victim_key = nullptr;
+    std::set<const ExactLandmarks*> counted;
     for (auto& [key, e] : entries_) {
       if (e->status.state != GraphState::kReady) continue;
-      total += e->status.bytes + e->status.landmark_bytes + e->landmarks_pending +
+      total += e->status.bytes + CountedLandmarkBytes(*e, counted) + e->landmarks_pending +
                e->exact_landmarks_pending + e->engine->scratch_bytes();
       // Only graphs no query holds; never the one just made ready.
       if (key == keep || e->engine.use_count() > 1) continue;
@@ -1146,6 +1181,7 @@ bool GraphCache::EvictOverBudget(const GraphKey& keep, Notices& notices) {
     victim->engine.reset();
     ++evictions_;
     victim->status.landmark_bytes = 0;
+    victim->counted_exact = nullptr;
     victim->status.phase = "evicted";
     notices.push_back({*victim_key, false});
     Log(LogLevel::kInfo, "graph_evicted",
@@ -1267,9 +1303,10 @@ bool GraphCache::FileInUse(const std::string& file_name) const {
 uint64_t GraphCache::resident_bytes() const {
   absl::MutexLock lock(&mu_);
   uint64_t total = 0;
+  std::set<const ExactLandmarks*> counted;
   for (const auto& [key, e] : entries_) {
     if (e->status.state != GraphState::kReady) continue;
-    total += e->status.landmark_bytes + e->landmarks_pending + e->exact_landmarks_pending +
+    total += CountedLandmarkBytes(*e, counted) + e->landmarks_pending + e->exact_landmarks_pending +
              (e->status.mapped ? 0 : e->status.bytes);
   }
   return total;

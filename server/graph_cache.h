@@ -57,6 +57,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <thread>
 #include <tuple>
@@ -316,6 +317,9 @@ class GraphCache {
     // Exact landmarks: asked for once, and their bytes while computed.
     bool exact_landmarks_asked = false;
     uint64_t exact_landmarks_pending = 0;
+    // The exact landmarks status.landmark_bytes counts: other graphs of the
+    // mesh may share them, and the memory limit counts them once.
+    const ExactLandmarks* counted_exact = nullptr;
     // Scheduling: the large lane's, and not before (a replica's build
     // being waited for).
     bool large = false;
@@ -379,6 +383,15 @@ class GraphCache {
   // Runs on a worker: the exact landmarks WantExactLandmarks asked for,
   // counted the same way.
   void AddExactLandmarks(const GraphKey& key);
+  // The exact landmarks of `count` fields another ready graph of e's mesh
+  // holds (null if none): they are the mesh's, whatever the graph.
+  std::shared_ptr<const ExactLandmarks> SiblingExactLandmarks(const GraphKey& key, const Entry& e,
+                                                              int count) const
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // What a ready entry's landmarks add to the resident total: exact
+  // landmarks shared by several graphs of a mesh count once, with the
+  // first entry that has them in `counted`.
+  static uint64_t CountedLandmarkBytes(const Entry& e, std::set<const ExactLandmarks*>& counted);
   // Reads the landmarks kept beside the graph's file (or, when it has none,
   // beside another graph of its mesh, then kept beside its own too), when
   // they are this mesh's and count's, into `engine`; false to compute them.

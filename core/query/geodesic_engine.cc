@@ -42,8 +42,8 @@ absl::Status GeodesicEngine::PrepareExactLandmarks(int count,
 }
 
 absl::Status GeodesicEngine::AdoptExactLandmarks(
-    std::unique_ptr<const ExactLandmarks> landmarks) const {
-  return exact_landmarks_.Make([&]() -> absl::StatusOr<std::unique_ptr<const ExactLandmarks>> {
+    std::shared_ptr<const ExactLandmarks> landmarks) const {
+  return exact_landmarks_.Make([&]() -> absl::StatusOr<std::shared_ptr<const ExactLandmarks>> {
     return std::move(landmarks);
   });
 }

@@ -33,16 +33,23 @@ namespace geodesic {
 inline constexpr double kInfinity = std::numeric_limits<double>::infinity();
 
 // A value made once, on request, while queries read it: written once under
-// the mutex, then read lock-free.
+// the mutex, then read lock-free. It may be shared with other owners.
 template <typename T>
 class MadeOnce {
  public:
   const T* get() const { return ready_.load(std::memory_order_acquire); }
+  // The value for another owner to share (null before it is made). Does not
+  // wait for a Make under way, which holds the mutex while it computes.
+  std::shared_ptr<const T> shared() const {
+    if (!get()) return nullptr;
+    absl::MutexLock lock(&mu_);
+    return storage_;
+  }
   // Runs `make` unless a value exists; its error leaves none.
-  absl::Status Make(const std::function<absl::StatusOr<std::unique_ptr<const T>>()>& make) {
+  absl::Status Make(const std::function<absl::StatusOr<std::shared_ptr<const T>>()>& make) {
     absl::MutexLock lock(&mu_);
     if (storage_) return absl::OkStatus();
-    absl::StatusOr<std::unique_ptr<const T>> made = make();
+    absl::StatusOr<std::shared_ptr<const T>> made = make();
     if (!made.ok()) return made.status();
     storage_ = *std::move(made);
     ready_.store(storage_.get(), std::memory_order_release);
@@ -50,8 +57,8 @@ class MadeOnce {
   }
 
  private:
-  absl::Mutex mu_;
-  std::unique_ptr<const T> storage_ ABSL_GUARDED_BY(mu_);
+  mutable absl::Mutex mu_;
+  std::shared_ptr<const T> storage_ ABSL_GUARDED_BY(mu_);
   std::atomic<const T*> ready_{nullptr};
 };
 
@@ -190,12 +197,17 @@ class GeodesicEngine {
   // `cancelled` says so.
   absl::Status PrepareExactLandmarks(int count, const std::function<bool()>& cancelled = {},
                                      int threads = 0) const;
-  // Takes landmarks made before (read back from a file, say) as if
+  // Takes landmarks made before (read back from a file, or another engine's
+  // on the same mesh: they are the mesh's fields, whatever the graph) as if
   // PrepareExactLandmarks had made them; a no-op once there are some. They
-  // must be this engine's mesh's.
-  absl::Status AdoptExactLandmarks(std::unique_ptr<const ExactLandmarks> landmarks) const;
+  // must be of a mesh with this engine's mesh's vertices and faces.
+  absl::Status AdoptExactLandmarks(std::shared_ptr<const ExactLandmarks> landmarks) const;
   // The exact landmarks, once made (nullptr before).
   const ExactLandmarks* exact_landmarks() const { return exact_landmarks_.get(); }
+  // The same, for another engine of the mesh to adopt.
+  std::shared_ptr<const ExactLandmarks> shared_exact_landmarks() const {
+    return exact_landmarks_.shared();
+  }
   // What PrepareExactLandmarks holds while it runs.
   uint64_t ExactLandmarkComputeBytes(int count, int threads = 0) const {
     return ExactLandmarks::ComputeBytes(*mesh_, count, threads);

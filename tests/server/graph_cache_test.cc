@@ -751,6 +751,56 @@ TEST_F(GraphCacheTest, ExactLandmarksOfAnotherGraphOfTheMeshAreReadAndCopied) {
   EXPECT_TRUE(copy.ok()) << copy.status();
 }
 
+// Graphs of one mesh share its exact landmarks in memory (they are the
+// mesh's fields, whatever the graph): the second graph asked for exact
+// answers takes the first's, each reports them in its landmark bytes, and
+// what is resident counts them once.
+TEST_F(GraphCacheTest, GraphsOfOneMeshShareItsExactLandmarksAndCountThemOnce) {
+  auto mesh = GridMesh("grid", 8);
+  const GraphKey coarse{"grid", Eps(0.1)}, fine{"grid", Eps(0.05)};
+  exact_landmarks_ = 4;
+  GraphCache& cache = Fresh(/*persist=*/false);
+  // The graph's engine once both kinds of landmarks are counted in its
+  // status (nullptr after 30 s).
+  auto with_exact_landmarks = [&](const GraphKey& key) -> std::shared_ptr<const GeodesicEngine> {
+    cache.Request(mesh, key.params);
+    WaitFor(key, GraphState::kReady);
+    auto engine = cache.Acquire(key);
+    EXPECT_TRUE(engine.ok()) << engine.status();
+    if (!engine.ok()) return nullptr;
+    cache.WantExactLandmarks(key);
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    auto s = cache.Get(key);
+    auto settled = [&] {
+      return s.ok() && (*engine)->landmark_bytes() > 0 && (*engine)->exact_landmarks() &&
+             s->landmark_bytes == (*engine)->landmark_bytes() + (*engine)->exact_landmark_bytes();
+    };
+    while (!settled() && absl::Now() < deadline) {
+      s = cache.WaitForChange(key, s->version, std::min(deadline, absl::Now() + absl::Seconds(1)));
+    }
+    EXPECT_TRUE(settled()) << key.params.epsilon;
+    return settled() ? *engine : nullptr;
+  };
+  auto first = with_exact_landmarks(coarse);
+  auto second = with_exact_landmarks(fine);
+  ASSERT_NE(first, nullptr);
+  ASSERT_NE(second, nullptr);
+  EXPECT_EQ(second->exact_landmarks(), first->exact_landmarks());
+  const uint64_t exact = first->exact_landmark_bytes();
+  ASSERT_GT(exact, 0u);
+  auto a = cache.Get(coarse), b = cache.Get(fine);
+  ASSERT_TRUE(a.ok() && b.ok());
+  ASSERT_FALSE(a->mapped || b->mapped);
+  // The first graph's worker may still hold its exact landmarks' pending
+  // bytes for a moment after they are counted.
+  const uint64_t want = a->bytes + b->bytes + a->landmark_bytes + b->landmark_bytes - exact;
+  const absl::Time deadline = absl::Now() + absl::Seconds(30);
+  while (cache.resident_bytes() != want && absl::Now() < deadline) {
+    absl::SleepFor(absl::Milliseconds(5));
+  }
+  EXPECT_EQ(cache.resident_bytes(), want);
+}
+
 // Exact landmarks that cannot fit the memory limit, even with every graph no
 // query holds evicted, are skipped: the graph keeps serving without them.
 TEST_F(GraphCacheTest, ExactLandmarksOverTheMemoryLimitAreSkipped) {
