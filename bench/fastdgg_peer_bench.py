@@ -18,7 +18,8 @@ backslashes in #include paths turned round and two include names lowercased,
 the standard headers MSVC includes implicitly added, temporaries bound to
 non-const references made const (AddIntoQueueOfPseudoSources) or values
 (`v.swap(vector<T>(v))` becomes `vector<T>(v).swap(v)`), `using` declarations
-for the base members of its Dijkstra<T> template, and _finite by
+for the base members of its Dijkstra<T> template, the extra `CPoint3D::`
+on Normalize's declaration in its class dropped, and _finite by
 std::isfinite. Then, in DIR, `g++ -O3 -DNDEBUG -std=c++17 -pthread -Isrc`
 builds DGG_Precompute from src/DGG_precompute/{main,FastDGG,SVG,
 dgg_precompute}.cpp and src/ICH/*.cpp, and DGG_Solution from
