@@ -67,14 +67,14 @@ absl::StatusOr<std::vector<double>> ExactDistancesWithinGraphAnswer(
     ExactOptions options) {
   std::vector<double> d(targets.size(), kInfinity);
   const double bound = options.max_distance;
-  for (double scale : {1.0, 2.0, kInfinity}) {
-    options.max_distance = bound * scale;
+  for (double limit : {bound, 2 * bound, kInfinity}) {
+    options.max_distance = limit;
     RETURN_IF_ERROR(exact.Distances(source, options).status());
     for (size_t j = 0; j < targets.size(); ++j) {
       ASSIGN_OR_RETURN(d[j], exact.DistanceTo(targets[j]));
     }
     const bool all_reached = std::find(d.begin(), d.end(), kInfinity) == d.end();
-    if (all_reached || options.max_distance == kInfinity) break;
+    if (all_reached || limit == kInfinity) break;
   }
   return d;
 }
