@@ -60,6 +60,7 @@ import time
 import numpy as np
 
 from exact_ab_bench import mesh_file
+from process_memory import peak_anonymous_bytes
 from shared_data import SHARED
 from vtp_peer_bench import as_obj
 
@@ -76,19 +77,6 @@ class Run:
         self.wall, self.peak_rss, self.peak_anon = wall, peak_rss, peak_anon
 
 
-def anonymous_bytes(pid):
-    """RssAnon of pid and its descendants (0 for those already gone)."""
-    total = 0
-    try:
-        with open(f"/proc/{pid}/status") as f:
-            total += sum(int(line.split()[1]) * 1024 for line in f if line.startswith("RssAnon:"))
-        with open(f"/proc/{pid}/task/{pid}/children") as f:
-            total += sum(anonymous_bytes(int(child)) for child in f.read().split())
-    except OSError:
-        pass
-    return total
-
-
 def timed(cmd, cpu, env=None):
     """Runs cmd pinned to cpu under /usr/bin/time (whose getrusage peak is the
     command's own: a child of this script would count the script's memory
@@ -98,10 +86,7 @@ def timed(cmd, cpu, env=None):
         start = time.monotonic()
         proc = subprocess.Popen(["/usr/bin/time", "-f", "%M", "-o", stats.name, "taskset", "-c",
                                  str(cpu)] + cmd, stdout=out, stderr=err, text=True, env=env)
-        peak_anon = 0
-        while proc.poll() is None:
-            peak_anon = max(peak_anon, anonymous_bytes(proc.pid))
-            time.sleep(0.05)
+        peak_anon = peak_anonymous_bytes(proc, 0.05)
         wall = time.monotonic() - start
         out.seek(0)
         err.seek(0)

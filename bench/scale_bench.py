@@ -22,7 +22,8 @@ import random
 import statistics
 import subprocess
 import sys
-import time
+
+from process_memory import peak_anonymous_bytes
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(HERE)
@@ -36,20 +37,10 @@ def run(args, env=None):
 
 
 def run_sampled(args):
-    """Runs a command, sampling its resident anonymous memory (RssAnon, which
-    getrusage's peak does not tell apart from mapped file pages) every 0.1 s;
+    """Runs a command, sampling its resident anonymous memory every 0.1 s;
     returns its output and the largest sample in bytes."""
     proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    peak = 0
-    while proc.poll() is None:
-        try:
-            with open(f"/proc/{proc.pid}/status") as f:
-                for line in f:
-                    if line.startswith("RssAnon:"):
-                        peak = max(peak, int(line.split()[1]) * 1024)
-        except OSError:
-            pass
-        time.sleep(0.1)
+    peak = peak_anonymous_bytes(proc, 0.1)
     out, err = proc.communicate()
     if proc.returncode != 0:
         sys.exit(f"{' '.join(args)} failed ({proc.returncode}):\n{err[-2000:]}")
