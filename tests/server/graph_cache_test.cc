@@ -253,6 +253,22 @@ class GraphCacheTest : public ::testing::Test {
     maker_ = std::make_shared<HeldMaker>();
     return Cache(persist, memory_limit, disk);
   }
+  // Whether, within 30 s, `cache`'s status of the graph comes to count both
+  // kinds of `engine`'s landmarks: its own, and exact ones of `exact_bytes`
+  // (0 for none). Both are made in the background.
+  static bool LandmarksCounted(GraphCache& cache, const GraphKey& key, const GeodesicEngine& engine,
+                               uint64_t exact_bytes) {
+    const absl::Time deadline = absl::Now() + absl::Seconds(30);
+    auto s = cache.Get(key);
+    auto counted = [&] {
+      return s.ok() && engine.landmark_bytes() > 0 &&
+             s->landmark_bytes == engine.landmark_bytes() + exact_bytes;
+    };
+    while (!counted() && absl::Now() < deadline) {
+      s = cache.WaitForChange(key, s->version, std::min(deadline, absl::Now() + absl::Seconds(1)));
+    }
+    return counted();
+  }
   // The state the graph comes to rest in (ready, failed, cancelled or
   // evicted: no worker holds it), or the last seen after 30 s.
   GraphState Settle(const GraphKey& key) {
@@ -631,17 +647,7 @@ TEST_F(GraphCacheTest, AGraphAskedForExactAnswersGetsItsExactLandmarks) {
     const uint64_t want = count == 0 ? 0
                                      : ExactLandmarks::ByteSize(mesh->mesh->num_vertices(),
                                                                 mesh->mesh->num_halfedges(), count);
-    // The graph's own landmarks come in the background too: wait for both.
-    const absl::Time deadline = absl::Now() + absl::Seconds(30);
-    auto s = cache.Get(key);
-    auto settled = [&] {
-      return s.ok() && (*engine)->landmark_bytes() > 0 &&
-             s->landmark_bytes == (*engine)->landmark_bytes() + want;
-    };
-    while (!settled() && absl::Now() < deadline) {
-      s = cache.WaitForChange(key, s->version, std::min(deadline, absl::Now() + absl::Seconds(1)));
-    }
-    ASSERT_TRUE(settled()) << (s.ok() ? s->landmark_bytes : 0);
+    ASSERT_TRUE(LandmarksCounted(cache, key, **engine, want)) << cache.Get(key)->landmark_bytes;
     EXPECT_EQ((*engine)->exact_landmark_bytes(), want);
   }
 }
@@ -760,6 +766,8 @@ TEST_F(GraphCacheTest, GraphsOfOneMeshShareItsExactLandmarksAndCountThemOnce) {
   const GraphKey coarse{"grid", Eps(0.1)}, fine{"grid", Eps(0.05)};
   exact_landmarks_ = 4;
   GraphCache& cache = Fresh(/*persist=*/false);
+  const uint64_t exact =
+      ExactLandmarks::ByteSize(mesh->mesh->num_vertices(), mesh->mesh->num_halfedges(), 4);
   // The graph's engine once both kinds of landmarks are counted in its
   // status (nullptr after 30 s).
   auto with_exact_landmarks = [&](const GraphKey& key) -> std::shared_ptr<const GeodesicEngine> {
@@ -769,25 +777,17 @@ TEST_F(GraphCacheTest, GraphsOfOneMeshShareItsExactLandmarksAndCountThemOnce) {
     EXPECT_TRUE(engine.ok()) << engine.status();
     if (!engine.ok()) return nullptr;
     cache.WantExactLandmarks(key);
-    const absl::Time deadline = absl::Now() + absl::Seconds(30);
-    auto s = cache.Get(key);
-    auto settled = [&] {
-      return s.ok() && (*engine)->landmark_bytes() > 0 && (*engine)->exact_landmarks() &&
-             s->landmark_bytes == (*engine)->landmark_bytes() + (*engine)->exact_landmark_bytes();
-    };
-    while (!settled() && absl::Now() < deadline) {
-      s = cache.WaitForChange(key, s->version, std::min(deadline, absl::Now() + absl::Seconds(1)));
-    }
-    EXPECT_TRUE(settled()) << key.params.epsilon;
-    return settled() ? *engine : nullptr;
+    const bool counted = LandmarksCounted(cache, key, **engine, exact);
+    EXPECT_TRUE(counted) << key.params.epsilon;
+    return counted ? *engine : nullptr;
   };
   auto first = with_exact_landmarks(coarse);
   auto second = with_exact_landmarks(fine);
   ASSERT_NE(first, nullptr);
   ASSERT_NE(second, nullptr);
+  ASSERT_NE(first->exact_landmarks(), nullptr);
   EXPECT_EQ(second->exact_landmarks(), first->exact_landmarks());
-  const uint64_t exact = first->exact_landmark_bytes();
-  ASSERT_GT(exact, 0u);
+  EXPECT_EQ(first->exact_landmark_bytes(), exact);
   auto a = cache.Get(coarse), b = cache.Get(fine);
   ASSERT_TRUE(a.ok() && b.ok());
   ASSERT_FALSE(a->mapped || b->mapped);
