@@ -93,6 +93,15 @@ class RadixHeap {
     return lowest.size() > kPeekScan ? nullptr : &Least(lowest).value;
   }
 
+  // The smallest key, as Pop would return it; the heap must not be empty.
+  // It scans the lowest bucket when the run is empty, and moves nothing: a
+  // refill here would let pushes below the new radix into the run, which
+  // could then hand them back to the buckets out of order.
+  double PeekKey() const {
+    if (!buckets_[0].empty()) return std::bit_cast<double>(buckets_[0].back().bits);
+    return std::bit_cast<double>(Least(buckets_[1 + std::countr_zero(occupied_)]).bits);
+  }
+
   // The smallest key and its value; the heap must not be empty.
   std::pair<double, Value> Pop() {
     if (buckets_[0].empty()) Refill();

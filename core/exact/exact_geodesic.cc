@@ -45,6 +45,10 @@ constexpr int kFilterSteps = 6;
 constexpr double kMinRelayCut = 0.2;
 // Scratch larger than this after a call is released (bytes).
 constexpr size_t kScratchKeepBytes = size_t{64} << 20;
+// Windows are queued in buckets this many mean edges wide
+// (core/base/wavefront_queue.h): wider buckets take more windows out of
+// order, which then trim less (bench/notes.md, "Exact engine").
+constexpr double kBucketEdges = 0.2;
 
 double Hypot(double x, double y) { return std::sqrt(x * x + y * y); }
 
@@ -273,7 +277,7 @@ void ExactGeodesic::Reset() {
   windows_.clear();
   rays_.clear();
   free_windows_.clear();
-  heap_.Clear();
+  queue_.Clear();
   stats_ = {};
 }
 
@@ -292,9 +296,18 @@ uint32_t ExactGeodesic::Allocate(const Draft& w) {
   return static_cast<uint32_t>(windows_.size() - 1);
 }
 
+double ExactGeodesic::MeanEdge() {
+  if (mean_edge_ == 0 && mesh_.num_halfedges() > 0) {
+    double sum = 0;
+    for (HalfedgeId h = 0; h < mesh_.num_halfedges(); ++h) sum += mesh_.length(h);
+    mean_edge_ = sum / mesh_.num_halfedges();
+  }
+  return mean_edge_;
+}
+
 void ExactGeodesic::Push(double key, uint32_t window, HalfedgeId h) {
-  heap_.Push(key, {window, h});
-  stats_.peak_queue = std::max<uint64_t>(stats_.peak_queue, heap_.size());
+  queue_.PushLoose(key, {window, h});
+  stats_.peak_queue = std::max<uint64_t>(stats_.peak_queue, queue_.size());
 }
 
 void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t via_vertex,
@@ -311,7 +324,7 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   } else if (!emitted_[v] && RadiatesFrom(mesh_, v) && !PastGoal(v, d)) {
     // A geodesic may bend here, or pass straight through: once this
     // distance is final, v radiates.
-    heap_.Push(d, {v, kNone});
+    queue_.PushExact(d, {v, kNone});
   }
 }
 
@@ -952,12 +965,13 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   max_distance_ = max_distance;
   source_ = CanonicalizeSurfacePoint(mesh_, raw_source);
   have_source_ = true;
+  queue_.Reset(kBucketEdges * MeanEdge());
   SeedSource(source_);
 
   uint64_t steps = 0;
   size_t settled_scan = 0;  // targets known to be settled, in order
-  while (!heap_.empty()) {
-    const auto [key, top] = heap_.Pop();
+  while (!queue_.empty()) {
+    const auto [key, top] = queue_.Pop();
     if (key > max_distance_) break;
     if (targets && !targets->empty()) {
       while (settled_scan < targets->size() && dist_[(*targets)[settled_scan]] <= key) {
@@ -969,7 +983,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       return absl::CancelledError("exact propagation cancelled");
     }
     if (max_window_bytes_ && WindowBytes() > max_window_bytes_) {
-      heap_.Clear();
+      queue_.Clear();
       return absl::ResourceExhaustedError(absl::StrFormat(
           "the exact propagation passed %u windows (%u MB), over its limit of %u MB",
           windows_.size(), WindowBytes() >> 20, max_window_bytes_ >> 20));
@@ -986,13 +1000,13 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
     // its frame are likely out of cache when popped: the next window's are
     // asked for now, to arrive while this one is propagated.
     Prefetch(top);
-    if (const QueueItem* next = heap_.PeekNext()) Prefetch(*next);
+    if (const QueueItem* next = queue_.PeekNext()) Prefetch(*next);
     Propagate(top.item);
     if (!keep_windows_) free_windows_.push_back(top.item);
   }
   // Windows past the limit stay unprocessed: vertices they would light are
   // beyond max_distance and reported as +inf by the callers.
-  heap_.Clear();
+  queue_.Clear();
   return absl::OkStatus();
 }
 
@@ -1028,7 +1042,7 @@ uint64_t ExactGeodesic::memory_bytes() const {
          bytes(angle_src_) + bytes(angle_vtx_) + bytes(emitted_) + bytes(route_) +
          bytes(excluded_) + bytes(touched_) + bytes(floor_at_) + bytes(floored_) +
          bytes(seen_slot_) + bytes(seen_slots_) + bytes(windows_) + bytes(rays_) +
-         bytes(free_windows_) + heap_.memory_bytes();
+         bytes(free_windows_) + queue_.memory_bytes();
 }
 
 absl::StatusOr<std::vector<double>> ExactGeodesic::Distances(const SurfacePoint& source,

@@ -57,7 +57,7 @@ TEST(RadixHeapTest, PopsMonotoneWorkloadInKeyOrder) {
 
 // PeekNext, when it answers, names the value the next Pop returns (keys are
 // distinct here, so that value is unique), and it answers often enough to be
-// worth asking.
+// worth asking. PeekKey always names the key.
 TEST(RadixHeapTest, PeekNextIsWhatPopReturnsNext) {
   std::mt19937_64 rng(11);
   std::uniform_real_distribution<double> step(0.0, 3.0);
@@ -68,7 +68,9 @@ TEST(RadixHeapTest, PeekNextIsWhatPopReturnsNext) {
   while (!heap.empty()) {
     const uint32_t* peeked = heap.PeekNext();
     const uint32_t expected = peeked ? *peeked : 0;
+    const double least = heap.PeekKey();
     const auto [key, id] = heap.Pop();
+    ASSERT_EQ(key, least);
     if (peeked) {
       ++answered;
       ASSERT_EQ(id, expected) << "after " << popped << " pops";
