@@ -996,9 +996,11 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       EmitFromVertex(v, dist_[v], v, angle_vtx_[v]);
       continue;
     }
-    // Windows are queued long before they are propagated, so a window and
-    // its frame are likely out of cache when popped: the next window's are
-    // asked for now, to arrive while this one is propagated.
+    // A window taken from the heap or from a bucket not yet reached was
+    // queued long before it is propagated, so it and its frame are likely
+    // out of cache (a child taken straight after its parent is not): the
+    // next window's are asked for now, to arrive while this one is
+    // propagated.
     Prefetch(top);
     if (const QueueItem* next = queue_.PeekNext()) Prefetch(*next);
     Propagate(top.item);

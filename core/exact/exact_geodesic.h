@@ -7,12 +7,14 @@
 // of their smallest distance (a Dijkstra sweep, as in MMP and ICH's
 // priority-queue variant, in buckets a fraction of an edge wide:
 // core/base/wavefront_queue.h; a saddle radiates only once every window
-// nearer than it has been propagated), and every new window is trimmed by the vertex-distance
-// filter of Xin & Wang 2009: a point x of a window on edge (P, Q) is useless when d(P) + |Px| (or
-// d(Q) + |Qx|) is already shorter, since every geodesic through x could take that route instead.
-// Because sigma + |I x| - |Px| is monotone along the edge, the useful part is one interval, found
-// in closed form. The third vertex R of the face the window came through filters the same way (|Rx|
-// is a segment in that face); that test removes a large share of a full solve's windows. In full
+// nearer than it has been propagated), and every new window is trimmed by
+// the vertex-distance filter of Xin & Wang 2009: a point x of a window on
+// edge (P, Q) is useless when d(P) + |Px| (or d(Q) + |Qx|) is already
+// shorter, since every geodesic through x could take that route instead.
+// Because sigma + |I x| - |Px| is monotone along the edge, the useful part is
+// one interval, found in closed form. The third vertex R of the face the
+// window came through filters the same way (|Rx| is a segment in that face);
+// that test removes a large share of a full solve's windows. In full
 // runs a window is also cut where the last window queued on its
 // half-edge reaches the same points shorter: the cheap part of MMP's window
 // intersection, needing no list per edge, which removes another large share
