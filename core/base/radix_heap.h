@@ -89,7 +89,7 @@ class RadixHeap {
     if (occupied_ == 0) return nullptr;
     // The next Refill takes the least entry of the lowest bucket; a few are
     // quickly scanned.
-    const std::vector<Entry>& lowest = buckets_[1 + std::countr_zero(occupied_)];
+    const std::vector<Entry>& lowest = buckets_[LowestBucket()];
     return lowest.size() > kPeekScan ? nullptr : &Least(lowest).value;
   }
 
@@ -99,7 +99,7 @@ class RadixHeap {
   // could then hand them back to the buckets out of order.
   double PeekKey() const {
     if (!buckets_[0].empty()) return std::bit_cast<double>(buckets_[0].back().bits);
-    return std::bit_cast<double>(Least(buckets_[1 + std::countr_zero(occupied_)]).bits);
+    return std::bit_cast<double>(Least(buckets_[LowestBucket()]).bits);
   }
 
   // The smallest key and its value; the heap must not be empty.
@@ -125,6 +125,9 @@ class RadixHeap {
                              [](const Entry& a, const Entry& b) { return a.bits < b.bits; });
   }
 
+  // The lowest non-empty bucket past the run; some bucket must hold items.
+  size_t LowestBucket() const { return 1 + std::countr_zero(occupied_); }
+
   size_t BucketOf(uint64_t bits) const {
     return bits == last_ ? 0 : 64 - std::countl_zero(bits ^ last_);
   }
@@ -148,7 +151,7 @@ class RadixHeap {
   }
 
   void Refill() {
-    const size_t i = 1 + std::countr_zero(occupied_);
+    const size_t i = LowestBucket();
     occupied_ &= ~(uint64_t{1} << (i - 1));
     std::vector<Entry>& from = buckets_[i];
     if (from.size() <= kSortedRun) {
