@@ -281,18 +281,19 @@ void ExactGeodesic::Reset() {
   stats_ = {};
 }
 
-uint32_t ExactGeodesic::Allocate(const Draft& w) {
+template <ExactGeodesic::Mode kMode>
+uint32_t ExactGeodesic::Allocate(const WindowOf<kMode>& w) {
   ++stats_.windows_created;
-  const bool direct = mode_ == Mode::kDirect;
+  constexpr bool direct = kMode == Mode::kDirect;
   if (!free_windows_.empty()) {
     uint32_t i = free_windows_.back();
     free_windows_.pop_back();
     windows_[i] = w;
-    if (direct) rays_[i] = w;
+    if constexpr (direct) rays_[i] = w;
     return i;
   }
   windows_.push_back(w);
-  if (direct) rays_.push_back(w);
+  if constexpr (direct) rays_.push_back(w);
   return static_cast<uint32_t>(windows_.size() - 1);
 }
 
@@ -305,11 +306,13 @@ double ExactGeodesic::MeanEdge() {
   return mean_edge_;
 }
 
-void ExactGeodesic::Push(double key, uint32_t window, HalfedgeId h) {
+ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::Push(double key, uint32_t window,
+                                                             HalfedgeId h) {
   queue_.PushLoose(key, {window, h});
   stats_.peak_queue = std::max<uint64_t>(stats_.peak_queue, queue_.size());
 }
 
+template <ExactGeodesic::Mode kMode>
 void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t via_vertex,
                                  double angle_src, double angle_vertex) {
   if (!(d < dist_[v])) return;
@@ -319,7 +322,7 @@ void ExactGeodesic::UpdateVertex(VertexId v, double d, uint32_t window, uint32_t
   via_window_[v] = window;
   via_vertex_[v] = via_vertex;
   angle_vtx_[v] = angle_vertex;
-  if (mode_ == Mode::kDirect) {
+  if constexpr (kMode == Mode::kDirect) {
     angle_src_[v] = angle_src;
   } else if (!emitted_[v] && RadiatesFrom(mesh_, v) && !PastGoal(v, d)) {
     // A geodesic may bend here, or pass straight through: once this
@@ -337,7 +340,8 @@ bool ExactGeodesic::PastGoal(VertexId v, double d) {
   return d + gap > max_distance_;
 }
 
-bool ExactGeodesic::Trim(Draft& w, const EdgeEnds& edge) const {
+template <ExactGeodesic::Mode kMode>
+bool ExactGeodesic::Trim(WindowOf<kMode>& w, const EdgeEnds& edge) const {
   const double L = edge.length;
   if (!(w.sy < -kMinHeight * L)) return false;
   const double width_floor = kMinWidth * L;
@@ -365,7 +369,14 @@ bool ExactGeodesic::Trim(Draft& w, const EdgeEnds& edge) const {
     }
   }
   if (w.b1 - w.b0 <= width_floor) return false;
-  if (relays_) KeepCornersOnBoundary(w, b0, b1);
+  if constexpr (kMode == Mode::kDirect) {
+    if (relays_) {
+      // R is then a corner of the window's shadow, whose cut (TrimByRelays)
+      // already covers TrimByFaceBehind's: that test would remove nothing.
+      KeepCornersOnBoundary(w, b0, b1);
+      return true;
+    }
+  }
   return TrimByFaceBehind(w, edge);
 }
 
@@ -392,9 +403,7 @@ void ExactGeodesic::KeepCornersOnBoundary(Draft& w, double b0, double b1) const 
 bool ExactGeodesic::TrimByFaceBehind(Window& w, const EdgeEnds& edge) const {
   // The third vertex R of the face the window came through: a point x of the
   // window is also reached by d(R) + |R x| (a segment inside that face).
-  // In direct mode with corners R is a corner of the window's shadow, whose
-  // cut (TrimByRelays) already covers this: the test would remove nothing.
-  if (relays_ || edge.behind == kNone) return true;
+  if (edge.behind == kNone) return true;
   const double dR = dist_[edge.behind];
   if (!(dR < kInf)) return true;
   return CutWhereShorter(w, edge.behind_at, dR, w.b0, w.b1, edge.length);
@@ -439,7 +448,7 @@ bool ExactGeodesic::CutWhereShorter(Window& w, const Vec2& R, double dR, double 
   return w.b1 - w.b0 > kMinWidth * L;
 }
 
-bool ExactGeodesic::TrimBySeenWindows(Window& w, const EdgeEnds& edge) const {
+inline bool ExactGeodesic::TrimBySeenWindows(Window& w, const EdgeEnds& edge) const {
   const uint32_t slot = seen_slot_[w.h];
   if (slot == kNone) return true;
   const SeenSlot& seen = seen_slots_[slot];
@@ -450,7 +459,7 @@ bool ExactGeodesic::TrimBySeenWindows(Window& w, const EdgeEnds& edge) const {
   return true;
 }
 
-void ExactGeodesic::RememberSeen(const Window& w) {
+inline void ExactGeodesic::RememberSeen(const Window& w) {
   uint32_t& slot = seen_slot_[w.h];
   if (slot == kNone) {
     slot = seen_slots_.size();
@@ -467,24 +476,27 @@ void ExactGeodesic::ClearSeen() {
   seen_slots_.clear();
 }
 
-double ExactGeodesic::Nearest(const Window& w) {
+inline double ExactGeodesic::Nearest(const Window& w) {
   if (w.sx < w.b0) return w.sigma + Hypot(w.b0 - w.sx, w.sy);
   if (w.sx > w.b1) return w.sigma + Hypot(w.b1 - w.sx, w.sy);
   return w.sigma - w.sy;
 }
 
-bool ExactGeodesic::TrimAndPush(Draft& w, const EdgeEnds& edge) {
+template <ExactGeodesic::Mode kMode>
+bool ExactGeodesic::TrimAndPush(WindowOf<kMode>& w, const EdgeEnds& edge) {
   // Rays the corners serve are cut before the window is queued, so windows
   // served whole are never stored (a window's own corners do not change
   // while it waits).
-  if (relays_ && !TrimByRelays(w)) return false;
-  if (!Trim(w, edge)) return false;
-  if (mode_ == Mode::kFull && !TrimBySeenWindows(w, edge)) return false;
+  if constexpr (kMode == Mode::kDirect) {
+    if (relays_ && !TrimByRelays(w)) return false;
+  }
+  if (!Trim<kMode>(w, edge)) return false;
+  if (kMode == Mode::kFull && !TrimBySeenWindows(w, edge)) return false;
   const double key = Nearest(w);
   if (key > max_distance_) return false;
   if (goal_ && PastGoal(w, edge, key)) return false;
-  if (mode_ == Mode::kFull) RememberSeen(w);
-  Push(key, Allocate(w), w.h);
+  if constexpr (kMode == Mode::kFull) RememberSeen(w);
+  Push(key, Allocate<kMode>(w), w.h);
   return true;
 }
 
@@ -552,6 +564,7 @@ double ExactGeodesic::FloorAt(VertexId v) {
   return f;
 }
 
+template <ExactGeodesic::Mode kMode>
 void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma,
                                      uint32_t pseudo_source, double angle_tail,
                                      double /*angle_head*/) {
@@ -564,7 +577,7 @@ void ExactGeodesic::EmitWindowAcross(HalfedgeId inner, const Vec3& point, double
   Vec2 s = PlaceFromDistances(L, d0, d1, /*above=*/false);
   Draft w{{g, kNone, pseudo_source, 0, L, s.x, s.y, sigma},
           {kInf, angle_tail, {0, 0}, {L, 0}, sigma + d0, sigma + d1}};
-  TrimAndPush(w, EndsOf(g));
+  TrimAndPush<kMode>(w, EndsOf(g));
 }
 
 namespace {
@@ -637,13 +650,14 @@ std::optional<ExitDirections> ExitDirectionsAt(const Mesh& mesh, VertexId v, dou
 
 }  // namespace
 
+template <ExactGeodesic::Mode kMode>
 void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, double back) {
   const HalfedgeId start = mesh_.vertex_halfedge(v);
   if (start == kNone) return;
   // Only full runs radiate from vertices past the source, so a window's
   // direct-mode ray angle need not follow its narrowed start.
   const std::optional<ExitDirections> exits =
-      mode_ == Mode::kFull ? ExitDirectionsAt(mesh_, v, back) : std::nullopt;
+      kMode == Mode::kFull ? ExitDirectionsAt(mesh_, v, back) : std::nullopt;
   HalfedgeId h = start;
   do {
     const HalfedgeId p = Mesh::prev(h);
@@ -652,12 +666,12 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, do
     const double at_b = back_b != kNone
                             ? mesh_.polar_angle(back_b)
                             : mesh_.polar_angle(Mesh::next(h)) + mesh_.corner_angle(Mesh::next(h));
-    UpdateVertex(b, sigma + mesh_.length(h), kNone, v, mesh_.polar_angle(h), at_b);
+    UpdateVertex<kMode>(b, sigma + mesh_.length(h), kNone, v, mesh_.polar_angle(h), at_b);
     route_[b] = std::min(route_[b], sigma + mesh_.length(h));
     if (mesh_.twin(p) == kNone) {
       // Last face of a boundary fan: its far edge is reached by no rotation.
-      UpdateVertex(c, sigma + mesh_.length(p), kNone, v,
-                   mesh_.polar_angle(h) + mesh_.corner_angle(h), mesh_.polar_angle(p));
+      UpdateVertex<kMode>(c, sigma + mesh_.length(p), kNone, v,
+                          mesh_.polar_angle(h) + mesh_.corner_angle(h), mesh_.polar_angle(p));
       route_[c] = std::min(route_[c], sigma + mesh_.length(p));
     }
     // Across the edge opposite v. The window's tail is c, where the ray's
@@ -678,7 +692,7 @@ void ExactGeodesic::EmitFromVertex(VertexId v, double sigma, uint32_t pseudo, do
                  {L, 0},
                  sigma + mesh_.length(p),
                  sigma + mesh_.length(h)}};
-        TrimAndPush(w, EndsOf(g));
+        TrimAndPush<kMode>(w, EndsOf(g));
       }
     }
     h = mesh_.rotate(h);
@@ -712,13 +726,14 @@ double CornerDirection(const Mesh& mesh, HalfedgeId corner, const Vec3& p) {
 
 }  // namespace
 
+template <ExactGeodesic::Mode kMode>
 void ExactGeodesic::SeedSource(const SurfacePoint& source) {
   if (source.kind == SurfacePoint::Kind::kVertex) {
     const VertexId v = source.id;
     touched_.push_back(v);
     dist_[v] = 0;
     emitted_[v] = 1;
-    EmitFromVertex(v, 0, v, std::numeric_limits<double>::quiet_NaN());
+    EmitFromVertex<kMode>(v, 0, v, std::numeric_limits<double>::quiet_NaN());
     return;
   }
   // A point on an edge or inside a face: the faces that contain it, and for
@@ -743,12 +758,12 @@ void ExactGeodesic::SeedSource(const SurfacePoint& source) {
       const VertexId x = mesh_.tail(h);
       const Vec3 xp = mesh_.position(x);
       const double a_src = FacePlaneAngle(mesh_, f, ref, xp - p);
-      UpdateVertex(x, Distance(p, xp), kNone, kNone, a_src, CornerDirection(mesh_, h, p));
+      UpdateVertex<kMode>(x, Distance(p, xp), kNone, kNone, a_src, CornerDirection(mesh_, h, p));
       route_[x] = std::min(route_[x], Distance(p, xp));
       if (k == skip) continue;
       // Window across h, whose tail (as seen from the twin) is head(h).
       const double a_tail = FacePlaneAngle(mesh_, f, ref, mesh_.position(mesh_.head(h)) - p);
-      EmitWindowAcross(h, p, 0, kNone, a_tail, 0);
+      EmitWindowAcross<kMode>(h, p, 0, kNone, a_tail, 0);
     }
   }
 }
@@ -810,23 +825,30 @@ inline double ExactGeodesic::RayAngle(const Draft& w, double x) {
 // The distance past which a direct-mode window's rays stop: its own limit,
 // and Theorem 2's d_max, past which every geodesic through the window is
 // within 1 + epsilon of a route through a vertex of its face sequence.
-ABSL_ATTRIBUTE_ALWAYS_INLINE inline double ExactGeodesic::DirectLimit(const Draft& w,
+template <ExactGeodesic::Mode kMode>
+ABSL_ATTRIBUTE_ALWAYS_INLINE inline double ExactGeodesic::DirectLimit(const WindowOf<kMode>& w,
                                                                       double L) const {
-  double dmax = w.dmax;
-  if (mode_ == Mode::kDirect && epsilon_ > 0) {
-    const double d0 = Hypot(w.sx, w.sy), d1 = Hypot(w.sx - L, w.sy);
-    const double dmin = std::min(d0, d1);
-    if (dmin > L / 2) {
-      dmax = std::min(dmax, L * L / (8 * epsilon_ * (dmin - L / 2)) + L / 2 + std::max(d0, d1));
+  if constexpr (kMode == Mode::kFull) {
+    return kInf;
+  } else {
+    double dmax = w.dmax;
+    if (epsilon_ > 0) {
+      const double d0 = Hypot(w.sx, w.sy), d1 = Hypot(w.sx - L, w.sy);
+      const double dmin = std::min(d0, d1);
+      if (dmin > L / 2) {
+        dmax = std::min(dmax, L * L / (8 * epsilon_ * (dmin - L / 2)) + L / 2 + std::max(d0, d1));
+      }
     }
+    return dmax;
   }
-  return dmax;
 }
 
 // The window lights its face's apex C, crossing its edge at xc: C's distance
 // (and in direct mode the directions at both ends), and whether a route
 // through a corner already serves it.
-ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index, const Draft& w,
+template <ExactGeodesic::Mode kMode>
+ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index,
+                                                                  const WindowOf<kMode>& w,
                                                                   const FaceFrame& face,
                                                                   double xc) {
   const Vec2 A{0, 0}, C = face.apex, I{w.sx, w.sy};
@@ -837,13 +859,14 @@ ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index
   // Full runs keep the one at the vertex: where the path arrived from is what
   // a saddle radiates away from (EmitFromVertex).
   if (d < dist_[vc]) {
-    if (mode_ == Mode::kDirect) a_src = RayAngle(w, std::clamp(xc, w.b0, w.b1));
+    if constexpr (kMode == Mode::kDirect) a_src = RayAngle(w, std::clamp(xc, w.b0, w.b1));
     const HalfedgeId hp = Mesh::prev(w.h);
     a_vtx =
         mesh_.polar_angle(hp) + std::clamp(SignedAngle(A - C, I - C), 0.0, mesh_.corner_angle(hp));
   }
-  UpdateVertex(vc, d, keep_windows_ ? index : kNone, w.pseudo, a_src, a_vtx);
-  if (relays_) {
+  UpdateVertex<kMode>(vc, d, keep_windows_ ? index : kNone, w.pseudo, a_src, a_vtx);
+  if constexpr (kMode == Mode::kDirect) {
+    if (!relays_) return;
     // A vertex the graph already reaches within 1 + epsilon through a
     // corner needs no edge from the source: only the route is recorded.
     // Most are needed, which takes no square root to tell.
@@ -856,19 +879,25 @@ ABSL_ATTRIBUTE_ALWAYS_INLINE inline void ExactGeodesic::ReachApex(uint32_t index
   }
 }
 
+template <ExactGeodesic::Mode kMode>
 void ExactGeodesic::Propagate(uint32_t index) {
   // A copy: children may reallocate windows_. The window is not trimmed again
   // by distances that improved while it was queued: that removed few windows
   // for a large share of the solve (bench/notes.md, "Exact engine").
-  static constexpr Rays kFullRun{kInf, 0, {}, {}, 0, 0};
-  const Draft w{windows_[index], mode_ == Mode::kDirect ? rays_[index] : kFullRun};
+  const WindowOf<kMode> w = [&] {
+    if constexpr (kMode == Mode::kDirect) {
+      return Draft{windows_[index], rays_[index]};
+    } else {
+      return windows_[index];
+    }
+  }();
   ++stats_.windows_propagated;
   const FaceFrame& face = FrameOf(w.h);
   // What the apex and the children read first, asked for together rather
   // than one miss after another: the apex's distance, and in full runs the
   // children's seen slots.
   __builtin_prefetch(&dist_[face.apex_vertex]);
-  if (mode_ == Mode::kFull) {
+  if constexpr (kMode == Mode::kFull) {
     if (face.twin_prev != kNone) __builtin_prefetch(&seen_slot_[face.twin_prev]);
     if (face.twin_next != kNone) __builtin_prefetch(&seen_slot_[face.twin_next]);
   }
@@ -880,15 +909,14 @@ void ExactGeodesic::Propagate(uint32_t index) {
   const Vec2 I{w.sx, w.sy};
   const VertexId vc = face.apex_vertex;
 
-  const double dmax = DirectLimit(w, L);
+  const double dmax = DirectLimit<kMode>(w, L);
   const double xc = CrossingX(w.sx, w.sy, C.x, C.y);
   const double tol = kMinWidth * L;
   const bool sees_c = xc >= w.b0 - tol && xc <= w.b1 + tol;
-  auto ray_angle = [&](double x) { return RayAngle(w, x); };
-  if (sees_c) ReachApex(index, w, face, xc);
+  if (sees_c) ReachApex<kMode>(index, w, face, xc);
 
   auto make_child = [&](HalfedgeId g, EdgeEnds edge, const Vec2& origin, const Vec2& toward,
-                        double t0, double t1, double angle0, bool c_is_left, bool c_is_right) {
+                        double t0, double t1, double ray_start, bool c_is_left, bool c_is_right) {
     const double len = edge.length;
     if (g == kNone || len <= 0) return;
     ++stats_.children_computed;
@@ -903,25 +931,31 @@ void ExactGeodesic::Propagate(uint32_t index) {
     };
     const Vec2 src = to_child(I);
     edge.behind_at = to_child(edge.behind == face.head ? B : A);
-    Draft c{{g, keep_windows_ ? index : kNone, w.pseudo, t0 * len, t1 * len, src.x, src.y, w.sigma},
-            {dmax, angle0, w.lc, w.rc, w.lg, w.rg}};
-    if (relays_) {
-      // The ray through C bounds the children it separates; C is its corner.
-      c.lc = c_is_left ? to_child(C) : to_child(w.lc);
-      c.rc = c_is_right ? to_child(C) : to_child(w.rc);
-      if (c_is_left) c.lg = route_[vc];
-      if (c_is_right) c.rg = route_[vc];
-    }
-    if (mode_ == Mode::kDirect && dmax < kInf) {
-      // The paper's rule: a child travels on only if both of its ends are
-      // still within the parent's limit.
-      const double reach = dmax - c.sigma;
-      if (!(reach > 0) || (c.b0 - c.sx) * (c.b0 - c.sx) + c.sy * c.sy >= reach * reach ||
-          (c.b1 - c.sx) * (c.b1 - c.sx) + c.sy * c.sy >= reach * reach) {
-        return;
+    WindowOf<kMode> c;
+    static_cast<Window&>(c) = {
+        g, keep_windows_ ? index : kNone, w.pseudo, t0 * len, t1 * len, src.x, src.y, w.sigma};
+    if constexpr (kMode == Mode::kDirect) {
+      // The child's rays start at ray_start on w's edge.
+      const double angle0 = ray_start == w.b0 ? w.angle0 : RayAngle(w, ray_start);
+      static_cast<Rays&>(c) = {dmax, angle0, w.lc, w.rc, w.lg, w.rg};
+      if (relays_) {
+        // The ray through C bounds the children it separates; C is its corner.
+        c.lc = c_is_left ? to_child(C) : to_child(w.lc);
+        c.rc = c_is_right ? to_child(C) : to_child(w.rc);
+        if (c_is_left) c.lg = route_[vc];
+        if (c_is_right) c.rg = route_[vc];
+      }
+      if (dmax < kInf) {
+        // The paper's rule: a child travels on only if both of its ends are
+        // still within the parent's limit.
+        const double reach = dmax - c.sigma;
+        if (!(reach > 0) || (c.b0 - c.sx) * (c.b0 - c.sx) + c.sy * c.sy >= reach * reach ||
+            (c.b1 - c.sx) * (c.b1 - c.sx) + c.sy * c.sy >= reach * reach) {
+          return;
+        }
       }
     }
-    TrimAndPush(c, edge);
+    TrimAndPush<kMode>(c, edge);
   };
 
   // Child on edge A -> C (the twin of prev(h) runs A -> C).
@@ -929,7 +963,7 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const double end = std::min(w.b1, xc);
     const double t0 = HitParameter(I, Vec2{w.b0, 0} - I, A, C, 0);
     const double t1 = sees_c || xc <= w.b1 ? 1.0 : HitParameter(I, Vec2{end, 0} - I, A, C, 1);
-    make_child(face.twin_prev, {lb, face.tail, vc, face.head, {}}, A, C, t0, t1, w.angle0, false,
+    make_child(face.twin_prev, {lb, face.tail, vc, face.head, {}}, A, C, t0, t1, w.b0, false,
                sees_c && route_[vc] < kInf);
   }
   // Child on edge C -> B (the twin of next(h) runs C -> B).
@@ -937,8 +971,8 @@ void ExactGeodesic::Propagate(uint32_t index) {
     const double begin = std::max(w.b0, xc);
     const double t0 = sees_c || xc >= w.b0 ? 0.0 : HitParameter(I, Vec2{begin, 0} - I, C, B, 0);
     const double t1 = HitParameter(I, Vec2{w.b1, 0} - I, C, B, 1);
-    make_child(face.twin_next, {la, vc, face.head, face.tail, {}}, C, B, t0, t1,
-               mode_ == Mode::kDirect ? ray_angle(begin) : 0.0, sees_c && route_[vc] < kInf, false);
+    make_child(face.twin_next, {la, vc, face.head, face.tail, {}}, C, B, t0, t1, begin,
+               sees_c && route_[vc] < kInf, false);
   }
 }
 
@@ -966,8 +1000,18 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   source_ = CanonicalizeSurfacePoint(mesh_, raw_source);
   have_source_ = true;
   queue_.Reset(kBucketEdges * MeanEdge());
-  SeedSource(source_);
+  const absl::Status status = mode == Mode::kDirect ? Solve<Mode::kDirect>(targets, cancelled)
+                                                    : Solve<Mode::kFull>(targets, cancelled);
+  // Windows past the limit stay unprocessed: vertices they would light are
+  // beyond max_distance and reported as +inf by the callers.
+  queue_.Clear();
+  return status;
+}
 
+template <ExactGeodesic::Mode kMode>
+absl::Status ExactGeodesic::Solve(const std::vector<VertexId>* targets,
+                                  const std::function<bool()>* cancelled) {
+  SeedSource<kMode>(source_);
   uint64_t steps = 0;
   size_t settled_scan = 0;  // targets known to be settled, in order
   while (!queue_.empty()) {
@@ -983,7 +1027,6 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       return absl::CancelledError("exact propagation cancelled");
     }
     if (max_window_bytes_ && WindowBytes() > max_window_bytes_) {
-      queue_.Clear();
       return absl::ResourceExhaustedError(absl::StrFormat(
           "the exact propagation passed %u windows (%u MB), over its limit of %u MB",
           windows_.size(), WindowBytes() >> 20, max_window_bytes_ >> 20));
@@ -993,7 +1036,7 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
       if (emitted_[v]) continue;  // an older, longer entry
       emitted_[v] = 1;
       ++stats_.pseudo_sources;
-      EmitFromVertex(v, dist_[v], v, angle_vtx_[v]);
+      EmitFromVertex<kMode>(v, dist_[v], v, angle_vtx_[v]);
       continue;
     }
     // A window taken from the heap or from a bucket not yet reached was
@@ -1001,21 +1044,19 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
     // out of cache (a child taken straight after its parent is not): the
     // next window's are asked for now, to arrive while this one is
     // propagated.
-    Prefetch(top);
-    if (const QueueItem* next = queue_.PeekNext()) Prefetch(*next);
-    Propagate(top.item);
+    Prefetch<kMode>(top);
+    if (const QueueItem* next = queue_.PeekNext()) Prefetch<kMode>(*next);
+    Propagate<kMode>(top.item);
     if (!keep_windows_) free_windows_.push_back(top.item);
   }
-  // Windows past the limit stay unprocessed: vertices they would light are
-  // beyond max_distance and reported as +inf by the callers.
-  queue_.Clear();
   return absl::OkStatus();
 }
 
+template <ExactGeodesic::Mode kMode>
 void ExactGeodesic::Prefetch(const QueueItem& item) const {
   if (item.h == kNone) return;
   __builtin_prefetch(&windows_[item.item]);
-  if (mode_ == Mode::kDirect) __builtin_prefetch(&rays_[item.item]);
+  if constexpr (kMode == Mode::kDirect) __builtin_prefetch(&rays_[item.item]);
   PrefetchFrame(item.h);
 }
 

@@ -53,6 +53,7 @@
 #include <functional>
 #include <limits>
 #include <optional>
+#include <type_traits>
 #include <vector>
 
 #include "absl/status/statusor.h"
@@ -222,22 +223,38 @@ class ExactGeodesic {
   struct Draft;
   struct Seed;
   enum class Mode { kFull, kDirect };
+  // What a run of the mode reads and writes of a window: full runs follow no
+  // rays, and copying those showed in their time.
+  template <Mode kMode>
+  using WindowOf = std::conditional_t<kMode == Mode::kDirect, Draft, Window>;
 
   absl::Status Run(const SurfacePoint& source, Mode mode, double max_distance,
                    const std::vector<VertexId>* targets, bool keep_windows,
                    const std::function<bool()>* cancelled, double epsilon,
                    bool stop_at_corners = false);
   void Reset();
+  // The run itself, with every test of the mode settled when compiled: the
+  // propagation's inner loop is most of a solve's time, and its branches on
+  // the mode showed in it (bench/notes.md, "Exact engine").
+  template <Mode kMode>
+  absl::Status Solve(const std::vector<VertexId>* targets, const std::function<bool()>* cancelled);
+  template <Mode kMode>
   void SeedSource(const SurfacePoint& source);
   // `back`: the polar angle at v back along the path that reached it (NaN:
   // unknown, or v is the source), which bounds where paths leave v.
+  template <Mode kMode>
   void EmitFromVertex(VertexId v, double sigma, uint32_t provenance_vertex, double back);
+  template <Mode kMode>
   void EmitWindowAcross(HalfedgeId inner, const Vec3& point, double sigma, uint32_t pseudo_source,
                         double angle_tail, double angle_head);
+  template <Mode kMode>
   void Propagate(uint32_t index);
   static double RayAngle(const Draft& w, double x);
-  double DirectLimit(const Draft& w, double L) const;
-  void ReachApex(uint32_t index, const Draft& w, const FaceFrame& face, double xc);
+  template <Mode kMode>
+  double DirectLimit(const WindowOf<kMode>& w, double L) const;
+  template <Mode kMode>
+  void ReachApex(uint32_t index, const WindowOf<kMode>& w, const FaceFrame& face, double xc);
+  template <Mode kMode>
   void UpdateVertex(VertexId v, double d, uint32_t window, uint32_t via_vertex, double angle_src,
                     double angle_vertex);
   // The edge a window lies on, as its creator knows it: a child's edge is a
@@ -270,7 +287,8 @@ class ExactGeodesic {
   // Whether no route through v, reached at d, can reach the goal within the
   // run's bound.
   bool PastGoal(VertexId v, double d);
-  bool Trim(Draft& w, const EdgeEnds& edge) const;
+  template <Mode kMode>
+  bool Trim(WindowOf<kMode>& w, const EdgeEnds& edge) const;
   bool TrimByRelays(Draft& w) const;
   void KeepCornersOnBoundary(Draft& w, double b0, double b1) const;
   bool TrimByFaceBehind(Window& w, const EdgeEnds& edge) const;
@@ -281,7 +299,8 @@ class ExactGeodesic {
   void RememberSeen(const Window& w);
   // Trims w in place (copying the window for each child showed in the DGG
   // candidates' time) and queues what is left.
-  bool TrimAndPush(Draft& w, const EdgeEnds& edge);
+  template <Mode kMode>
+  bool TrimAndPush(WindowOf<kMode>& w, const EdgeEnds& edge);
   // The distance from the source to the window's nearest point: its key.
   static double Nearest(const Window& w);
   // Whether every route from the source through the window (nearest at
@@ -291,7 +310,8 @@ class ExactGeodesic {
   // The goal floor at v, or v's straight line to the goal where that is
   // larger, asked once per run: every window on an edge of v reads it.
   double FloorAt(VertexId v);
-  uint32_t Allocate(const Draft& w);
+  template <Mode kMode>
+  uint32_t Allocate(const WindowOf<kMode>& w);
   // What the run's windows hold: the windows, their rays and the seen slots.
   uint64_t WindowBytes() const;
   void Push(double key, uint32_t window, HalfedgeId h);
@@ -359,6 +379,7 @@ class ExactGeodesic {
   WavefrontQueue<QueueItem> queue_;
   double MeanEdge();
   double mean_edge_ = 0;  // MeanEdge's answer, once asked
+  template <Mode kMode>
   void Prefetch(const QueueItem& item) const;
 };
 
