@@ -277,7 +277,7 @@ void ExactGeodesic::Reset() {
   windows_.clear();
   rays_.clear();
   free_windows_.clear();
-  queue_.Clear();
+  queue_.Reset(kBucketEdges * MeanEdge());
   stats_ = {};
 }
 
@@ -371,8 +371,9 @@ bool ExactGeodesic::Trim(WindowOf<kMode>& w, const EdgeEnds& edge) const {
   if (w.b1 - w.b0 <= width_floor) return false;
   if constexpr (kMode == Mode::kDirect) {
     if (relays_) {
-      // R is then a corner of the window's shadow, whose cut (TrimByRelays)
-      // already covers TrimByFaceBehind's: that test would remove nothing.
+      // The third vertex of the face behind is then a corner of the window's
+      // shadow, whose cut (TrimByRelays) already covers TrimByFaceBehind's:
+      // that test would remove nothing.
       KeepCornersOnBoundary(w, b0, b1);
       return true;
     }
@@ -999,7 +1000,6 @@ absl::Status ExactGeodesic::Run(const SurfacePoint& raw_source, Mode mode, doubl
   max_distance_ = max_distance;
   source_ = CanonicalizeSurfacePoint(mesh_, raw_source);
   have_source_ = true;
-  queue_.Reset(kBucketEdges * MeanEdge());
   const absl::Status status = mode == Mode::kDirect ? Solve<Mode::kDirect>(targets, cancelled)
                                                     : Solve<Mode::kFull>(targets, cancelled);
   // Windows past the limit stay unprocessed: vertices they would light are
