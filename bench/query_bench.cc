@@ -58,8 +58,8 @@ struct Load {
   v1::Geodesic::Stub* stub;
   Clock::time_point stop;
   std::atomic<int> issued{0}, failed{0};
-  std::mutex mu;
-  std::vector<double> latencies;  // seconds of each answered query
+  std::mutex mu{};
+  std::vector<double> latencies{};  // seconds of each answered query
 };
 
 void Worker(Load& load, int worker) {

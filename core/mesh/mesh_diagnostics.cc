@@ -164,18 +164,22 @@ uint64_t CountComponents(const TriangleSoup& soup, const std::vector<uint8_t>& u
 // form a single fan: count the vertices where they form more.
 uint64_t CountNonManifoldVertices(const TriangleSoup& soup, DisjointSets& corners) {
   const size_t nv = soup.positions.size(), nf = soup.triangles.size();
+  // A vertex's first fan root, or kPinched once a second fan has been seen:
+  // roots are corner ids, below 3 * nf, which the loop's uint32_t holds.
+  constexpr uint32_t kPinched = kNone - 1;
   std::vector<uint32_t> first_root(nv, kNone);
-  std::vector<uint8_t> pinched(nv, 0);
+  uint64_t pinched = 0;
   for (uint32_t c = 0; c < 3 * nf; ++c) {
     VertexId v = soup.triangles[c / 3][c % 3];
     uint32_t r = corners.Find(c);
     if (first_root[v] == kNone) {
       first_root[v] = r;
-    } else if (first_root[v] != r) {
-      pinched[v] = 1;
+    } else if (first_root[v] != r && first_root[v] != kPinched) {
+      first_root[v] = kPinched;
+      ++pinched;
     }
   }
-  return std::count(pinched.begin(), pinched.end(), 1);
+  return pinched;
 }
 
 // Interior vertices whose angle sum exceeds 2 pi.

@@ -148,8 +148,12 @@ TEST_F(DggPartFileTest, AFlippedHeaderByteIsRefused) {
     EXPECT_EQ(s.code(),
               format ? absl::StatusCode::kFailedPrecondition : absl::StatusCode::kDataLoss)
         << "byte " << at << ": " << s;
-    if (at < 8) EXPECT_THAT(std::string(s.message()), HasSubstr("is not a geodesicd part file"));
-    if (at >= 16) EXPECT_THAT(std::string(s.message()), HasSubstr("header checksum mismatch"));
+    if (at < 8) {
+      EXPECT_THAT(std::string(s.message()), HasSubstr("is not a geodesicd part file"));
+    }
+    if (at >= 16) {
+      EXPECT_THAT(std::string(s.message()), HasSubstr("header checksum mismatch"));
+    }
   }
 }
 

@@ -385,7 +385,7 @@ TEST(MeshIoTest, MalformedPlyHeadersAreRefusedNotHung) {
 // when a corner has no vertex index.
 TEST(MeshIoTest, MalformedObjFaceCornersAreRefused) {
   const std::string vertices = "v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n";
-  for (const std::string& face :
+  for (const char* face :
        {"f /1 2 3", "f 1 2 3 # comment", "f 1 2 x3", "f 1/1/1/1 2 3", "f 99999999999 2 3"}) {
     auto soup = ReadTriangleSoupFromMemory(vertices + face + "\n", "obj", "bad.obj");
     ASSERT_FALSE(soup.ok()) << face;
@@ -393,7 +393,7 @@ TEST(MeshIoTest, MalformedObjFaceCornersAreRefused) {
     EXPECT_NE(soup.status().message().find("bad.obj line 6: face corner"), std::string::npos)
         << soup.status();
   }
-  for (const std::string& face : {"f 1 2 3", "f 1/1 2/1 3/1", "f 1//1 2//1 3//1",
+  for (const char* face : {"f 1 2 3", "f 1/1 2/1 3/1", "f 1//1 2//1 3//1",
                                   "f 1/1/1 2/1/1 3/1/1", "f -3 -2 -1", "f 1 2 3 \r"}) {
     auto soup = ReadTriangleSoupFromMemory(vertices + face + "\n", "obj", "good.obj");
     ASSERT_TRUE(soup.ok()) << face << ": " << soup.status();
@@ -409,7 +409,7 @@ TEST(MeshIoTest, OffCommentsAnywhereReadAsWithoutThem) {
   const std::string plain = "OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n";
   auto want = ReadTriangleSoupFromMemory(plain, "off", "plain.off");
   ASSERT_OK(want);
-  for (const std::string& text :
+  for (const char* text :
        {"OFF\n# a comment\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n1 1 0\n3 0 1 2\n3 1 3 2\n",
         "OFF # keyword\n4 2 0 # counts\n# vertices\n0 0 0\n1 0 0 # second\n0 1 0\n1 1 "
         "0\n#faces\n3 0 1 2\n3 1 3 2 # last\n# end",
