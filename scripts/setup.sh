@@ -1,15 +1,17 @@
 #!/usr/bin/env bash
-# Installs every dependency from Debian 12 packages (idempotent, non-interactive),
-# then configures and builds geodesicd in Release mode into build/.
-#   scripts/setup.sh            install + build
-#   scripts/setup.sh --deps     install only
-#   scripts/setup.sh --deps --build-only   only what building the two binaries
-#     needs (the container's build stage: no test, browser or benchmark packages)
+# Installs what geodesicd needs from Debian 12 packages (idempotent,
+# non-interactive), then configures and builds it in Release mode into build/.
+#   scripts/setup.sh               test packages too; builds everything (binaries,
+#     tests, benchmarks): what scripts/test.sh runs
+#   scripts/setup.sh --build-only  only what the daemon and CLI need, and only
+#     those two binaries (the quick start, and the container's build stage)
+#   scripts/setup.sh --deps        install the packages, build nothing
 #   scripts/setup.sh --with-nginx  also nginx, for the deploy routing test
 #     (CI only: Debian's package starts a system nginx on port 80, which this
 #     stops again; a developer machine rarely wants that)
 #   scripts/setup.sh --with-fuzz   also clang-14 and its sanitizer/libFuzzer
-#     runtimes, for scripts/fuzz.sh (CI runs the fuzzers briefly)
+#     runtimes, for hunting with scripts/fuzz.sh (CI replays the corpus in
+#     its ASan build instead: scripts/sanitize.sh)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 deps_only=false
@@ -27,7 +29,7 @@ for arg in "$@"; do
 done
 
 BUILD_PACKAGES=(
-  build-essential cmake ninja-build pkg-config git
+  build-essential cmake ninja-build pkg-config git ccache
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libboost-dev libyaml-cpp-dev
   libssl-dev
@@ -53,7 +55,8 @@ SUDO=""
 if ((${#missing[@]})); then
   echo "setup: installing ${missing[*]}"
   $SUDO env DEBIAN_FRONTEND=noninteractive apt-get update -qq
-  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${missing[@]}"
+  $SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends \
+    "${missing[@]}" >/dev/null
 fi
 if $with_nginx && [[ " ${missing[*]} " == *" nginx-light "* ]]; then
   # The tests run their own nginx as this user on a free loopback port.
@@ -61,5 +64,14 @@ if $with_nginx && [[ " ${missing[*]} " == *" nginx-light "* ]]; then
 fi
 $deps_only && exit 0
 
-cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release
-cmake --build build -j"$(nproc)"
+# One build/ for both: the quick start configures it without tests, the test
+# command configures it again with them, and what both build is compiled once.
+if $build_only; then
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release \
+    -DGEODESIC_BUILD_TESTS=OFF -DGEODESIC_BUILD_BENCH=OFF
+  cmake --build build -j"$(nproc)" --target geodesicd geodesic
+else
+  cmake -S . -B build -G Ninja -DCMAKE_BUILD_TYPE=Release \
+    -DGEODESIC_BUILD_TESTS=ON -DGEODESIC_BUILD_BENCH=ON
+  cmake --build build -j"$(nproc)"
+fi
