@@ -97,6 +97,11 @@ with tempfile.TemporaryDirectory() as work:
           (one["peak_rss_bytes"], big["peak_rss_bytes"], matrix_bytes))
     same("float32 all pairs is the float64 matrix rounded", np.load(os.path.join(work, "big.npy")),
          full.astype(np.float32))
+    matrix("one-thread.npy", "--sources", "all", "--targets", "all", "--dtype", "float32",
+           "--threads", "1")
+    with open(os.path.join(work, "big.npy"), "rb") as a, \
+            open(os.path.join(work, "one-thread.npy"), "rb") as b:
+        check("the file is the same bytes on one thread", a.read() == b.read())
 
     # 3. The sparse matrix within a radius is the dense one thresholded.
     radius = float(np.quantile(full, 0.1))
