@@ -68,8 +68,13 @@ zip_source_t* SourceOf(zip_t* zip, const ZipMember& member) {
   // The archive reads the file through its own stream, and closes it. The
   // stream shares the writer's file position, and libzip reads a whole file
   // from wherever that is: back to the start.
-  FILE* file = ::fdopen(::dup(member.fd), "rb");
-  if (!file) return nullptr;
+  const int copy = ::dup(member.fd);
+  if (copy < 0) return nullptr;
+  FILE* file = ::fdopen(copy, "rb");
+  if (!file) {
+    ::close(copy);
+    return nullptr;
+  }
   std::rewind(file);
   zip_source_t* source = zip_source_filep(zip, file, 0, -1);
   if (!source) std::fclose(file);
