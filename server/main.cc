@@ -22,6 +22,7 @@ constexpr char kUsage[] =
     "  merge MESH PART...    join the parts of a distributed build into the graph\n"
     "  field                 distance field on a graph\n"
     "  distance              point-to-point distance (and path) on a graph\n"
+    "  matrix                distance matrix between point lists, as .npy or sparse .npz\n"
     "  check                 a graph's error on its own mesh, against exact distances\n"
     "\n"
     "Run 'geodesicd <command> --help' for a command's options, 'geodesicd --version' for\n"
@@ -47,6 +48,7 @@ int main(int argc, char** argv) {
   if (command == "merge") return RunMerge(argc - 1, argv + 1);
   if (command == "field") return RunField(argc - 1, argv + 1);
   if (command == "distance") return RunDistance(argc - 1, argv + 1);
+  if (command == "matrix") return RunMatrix(argc - 1, argv + 1);
   if (command == "check") return RunCheck(argc - 1, argv + 1);
   std::fprintf(stderr, "geodesicd: unknown command '%s'\n\n%s", argv[1], kUsage);
   return 2;

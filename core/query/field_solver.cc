@@ -203,6 +203,20 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
 absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
     absl::Span<const SurfacePoint> sources, absl::Span<const SurfacePoint> targets,
     const MatrixOptions& matrix_options) const {
+  std::vector<double> out(sources.size() * targets.size(), kInfinity);
+  MatrixRowSink sink;
+  sink.row = [&](size_t i, absl::Span<const double> row) {
+    std::copy(row.begin(), row.end(), out.begin() + i * targets.size());
+    return absl::OkStatus();
+  };
+  RETURN_IF_ERROR(StreamMatrix(sources, targets, matrix_options, sink));
+  return out;
+}
+
+absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources,
+                                          absl::Span<const SurfacePoint> targets,
+                                          const MatrixOptions& matrix_options,
+                                          const MatrixRowSink& sink) const {
   const Mesh& mesh = *mesh_;
   for (size_t i = 0; i < sources.size(); ++i) {
     RETURN_IF_ERROR(CheckPoint(mesh, sources[i], absl::StrFormat("source %u", i)));
@@ -222,13 +236,12 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
       ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
     }
   }
-  std::vector<double> out(sources.size() * targets.size(), kInfinity);
   FieldOptions options;
   options.cancelled = matrix_options.cancelled;
   auto solve_row = [&](size_t i) -> absl::Status {
+    std::vector<double> row(target_ends.size(), kInfinity);
     ScratchPool::Lease row_sc = AcquireScratch();
     ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *row_sc, sources[i], true));
-    double* row = out.data() + i * target_ends.size();
     for (size_t j = 0; j < target_ends.size(); ++j) {
       if (!source.is_node) {
         auto d = row_sc->Exact(mesh).DistanceTo(target_ends[j].point);
@@ -240,12 +253,19 @@ absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(
     for (size_t j = 0; j < target_ends.size(); ++j) {
       row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
     }
-    if (!matrix_options.exact) return absl::OkStatus();
-    return MakeRowExact(row_sc->Exact(mesh), exact_landmarks_.get(), source.point, target_ends,
-                        matrix_options, absl::MakeSpan(row, target_ends.size()));
+    if (matrix_options.exact) {
+      RETURN_IF_ERROR(MakeRowExact(row_sc->Exact(mesh), exact_landmarks_.get(), source.point,
+                                   target_ends, matrix_options, absl::MakeSpan(row)));
+    }
+    return sink.row(i, row);
   };
-  RETURN_IF_ERROR(ForEachInParallel(sources.size(), solve_row));
-  return out;
+  const size_t batch = sink.batch_rows > 0 ? sink.batch_rows : std::max<size_t>(sources.size(), 1);
+  for (size_t begin = 0; begin < sources.size(); begin += batch) {
+    const size_t end = std::min(sources.size(), begin + batch);
+    RETURN_IF_ERROR(ForEachInParallel(end - begin, [&](size_t k) { return solve_row(begin + k); }));
+    if (sink.batch_done) RETURN_IF_ERROR(sink.batch_done(end));
+  }
+  return absl::OkStatus();
 }
 
 }  // namespace geodesic

@@ -135,6 +135,20 @@ struct MatrixOptions {
   uint64_t exact_max_bytes = 0;  // per row, as PairOptions::exact_max_bytes
 };
 
+// Where GeodesicEngine::StreamMatrix delivers a matrix's rows, so that a
+// matrix larger than memory can go to a file row by row.
+struct MatrixRowSink {
+  // Row i (one entry per target), called from the thread that computed it,
+  // rows of a batch in no particular order. The span lives for the call only.
+  std::function<absl::Status(size_t i, absl::Span<const double> row)> row;
+  // Sources are solved in batches of this many rows (0: one batch of all),
+  // and batch_done(end) runs on the calling thread once every row before
+  // `end` has been delivered: a sink that must append rows in order then
+  // holds one batch, never the matrix.
+  size_t batch_rows = 0;
+  std::function<absl::Status(size_t end)> batch_done;
+};
+
 struct SampleOptions {
   // The first point is a vertex drawn with this seed; the rest follow from
   // it, so one seed gives one sampling.
@@ -240,6 +254,11 @@ class GeodesicEngine {
   absl::StatusOr<std::vector<double>> Matrix(absl::Span<const SurfacePoint> sources,
                                              absl::Span<const SurfacePoint> targets,
                                              const MatrixOptions& options) const;
+  // Matrix's rows, each handed to `sink` as soon as it is computed (the
+  // same numbers, bit for bit), instead of the whole matrix returned.
+  absl::Status StreamMatrix(absl::Span<const SurfacePoint> sources,
+                            absl::Span<const SurfacePoint> targets, const MatrixOptions& options,
+                            const MatrixRowSink& sink) const;
 
  private:
   // A scratch for one query, its exact engine reading the exact landmarks'

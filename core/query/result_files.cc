@@ -44,23 +44,11 @@ absl::Status WriteText(const std::string& path, const std::string& text) {
   return std::move(out).Commit();
 }
 
-// NumPy format 1.0: magic, header length, a Python dict literal padded with
-// spaces and ended by a newline so the data starts 64-byte aligned.
 template <typename T>
 absl::Status WriteNpy(const std::string& path, std::string_view dtype, absl::Span<const T> values) {
-  std::string header = absl::StrFormat("{'descr': '%s', 'fortran_order': False, 'shape': (%u,), }",
-                                       dtype, values.size());
-  const size_t preamble = 10;  // magic (6), version (2), header length (2)
-  header.append(63 - (preamble + header.size()) % 64, ' ');
-  header.push_back('\n');
-  std::string bytes = "\x93NUMPY";
-  bytes.push_back(1);
-  bytes.push_back(0);
-  bytes.push_back(static_cast<char>(header.size() & 0xff));
-  bytes.push_back(static_cast<char>(header.size() >> 8));
-  bytes += header;
+  const std::string preamble = NpyPreamble(dtype, {values.size()});
   ASSIGN_OR_RETURN(AtomicFileWriter out, AtomicFileWriter::Create(path));
-  RETURN_IF_ERROR(out.Append(bytes.data(), bytes.size()));
+  RETURN_IF_ERROR(out.Append(preamble.data(), preamble.size()));
   RETURN_IF_ERROR(out.Append(values.data(), values.size() * sizeof(T)));
   return std::move(out).Commit();
 }
@@ -113,6 +101,23 @@ absl::Status WriteColouredPly(const std::string& path, absl::Span<const double> 
 
 }  // namespace
 
+std::string NpyPreamble(std::string_view dtype, std::initializer_list<uint64_t> shape) {
+  // The shape as Python writes a tuple: (), (n,) or (a, b).
+  std::string dims = absl::StrJoin(shape, ", ");
+  if (shape.size() == 1) dims += ",";
+  std::string header =
+      absl::StrFormat("{'descr': '%s', 'fortran_order': False, 'shape': (%s), }", dtype, dims);
+  const size_t fixed = 10;  // magic (6), version (2), header length (2)
+  header.append(63 - (fixed + header.size()) % 64, ' ');
+  header.push_back('\n');
+  std::string bytes = "\x93NUMPY";
+  bytes.push_back(1);
+  bytes.push_back(0);
+  bytes.push_back(static_cast<char>(header.size() & 0xff));
+  bytes.push_back(static_cast<char>(header.size() >> 8));
+  return bytes + header;
+}
+
 absl::Status CheckFieldPath(const std::string& path, bool have_geometry) {
   RETURN_IF_ERROR(CheckExtension(path, "a distance field", {".f64", ".npy", ".csv", ".ply"}));
   if (ExtensionOf(path) == ".ply" && !have_geometry) {
@@ -128,6 +133,11 @@ absl::Status CheckLabelPath(const std::string& path) {
 
 absl::Status CheckPolylinePath(const std::string& path) {
   return CheckExtension(path, "a path", {".csv", ".ply", ".obj"});
+}
+
+absl::Status CheckMatrixPath(const std::string& path, bool sparse) {
+  return sparse ? CheckExtension(path, "a sparse matrix", {".npz"})
+                : CheckExtension(path, "a dense matrix", {".npy"});
 }
 
 absl::Status WriteField(const std::string& path, absl::Span<const double> values,

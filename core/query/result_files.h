@@ -9,6 +9,8 @@
 //    (raw little-endian uint32), 4294967295 where unreached;
 //  - paths as polylines: .csv (x,y,z), .ply (vertices and edges), .obj
 //    (v lines and one l line).
+//  - distance matrices (core/query/matrix_files.h): dense .npy, sparse
+//    .npz (scipy.sparse's CSR layout).
 //
 // An extension not listed is refused with INVALID_ARGUMENT naming it and
 // the ones accepted, before anything is written. Files are written
@@ -17,7 +19,9 @@
 #define GEODESIC_CORE_QUERY_RESULT_FILES_H_
 
 #include <cstdint>
+#include <initializer_list>
 #include <string>
+#include <string_view>
 
 #include "absl/status/status.h"
 #include "absl/types/span.h"
@@ -31,6 +35,13 @@ namespace geodesic {
 absl::Status CheckFieldPath(const std::string& path, bool have_geometry);
 absl::Status CheckLabelPath(const std::string& path);
 absl::Status CheckPolylinePath(const std::string& path);
+absl::Status CheckMatrixPath(const std::string& path, bool sparse);
+
+// The start of a NumPy format 1.0 file (magic, version, header length and the
+// header dict, padded so that the data starts 64 bytes in or at a multiple
+// of 64) for a little-endian C-order array of `dtype` ('<f8', '|S3') and
+// `shape` ({} for a 0-d array).
+std::string NpyPreamble(std::string_view dtype, std::initializer_list<uint64_t> shape);
 
 // `geometry` is needed for .ply only, with one position per value.
 absl::Status WriteField(const std::string& path, absl::Span<const double> values,

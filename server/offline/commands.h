@@ -15,7 +15,9 @@ int RunBuild(int argc, char** argv);     // geodesicd build MESH --eps E --out G
 int RunMerge(int argc, char** argv);     // geodesicd merge MESH PART... --out G.dgg
 int RunField(int argc, char** argv);     // geodesicd field --mesh M --graph G --source SPEC
 int RunDistance(int argc, char** argv);  // geodesicd distance --mesh M --graph G --from A --to B
-int RunCheck(int argc, char** argv);     // geodesicd check --mesh M --graph G [--sources N]
+int RunMatrix(int argc,
+              char** argv);  // geodesicd matrix --mesh M --graph G --sources ... --out D.npy
+int RunCheck(int argc, char** argv);  // geodesicd check --mesh M --graph G [--sources N]
 
 }  // namespace geodesic::offline
 

@@ -4,9 +4,12 @@
 #include <cmath>
 #include <cstdio>
 #include <fstream>
+#include <utility>
 
 #include "absl/status/status.h"
+#include "absl/strings/ascii.h"
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/base/status.h"
 #include "core/mesh/mesh_io.h"
@@ -48,6 +51,52 @@ absl::StatusOr<PointResolver::Resolved> PointResolver::Resolve(const std::string
   absl::Status s = ValidateSurfacePoint(mesh_, r.point);
   if (!s.ok()) return absl::Status(s.code(), absl::StrFormat("%s: %s", spec, s.message()));
   return r;
+}
+
+namespace {
+
+// The specs of a points file, each with its line number.
+absl::StatusOr<std::vector<std::pair<size_t, std::string>>> ReadSpecLines(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return absl::NotFoundError(absl::StrFormat("cannot read %s", path));
+  std::vector<std::pair<size_t, std::string>> specs;
+  std::string line;
+  for (size_t number = 1; std::getline(in, line); ++number) {
+    const absl::string_view spec = absl::StripAsciiWhitespace(line);
+    if (spec.empty() || spec.front() == '#') continue;
+    specs.emplace_back(number, std::string(spec));
+  }
+  if (in.bad()) return absl::DataLossError(absl::StrFormat("error reading %s", path));
+  return specs;
+}
+
+}  // namespace
+
+absl::StatusOr<std::vector<SurfacePoint>> ResolvePointList(PointResolver& resolver,
+                                                           const Mesh& mesh,
+                                                           const std::vector<std::string>& args,
+                                                           const std::string& flag) {
+  std::vector<SurfacePoint> points;
+  auto resolve = [&](const std::string& spec, const std::string& where) -> absl::Status {
+    auto p = resolver.Resolve(spec);
+    if (!p.ok()) return absl::Status(p.status().code(), absl::StrCat(where, p.status().message()));
+    points.push_back(p->point);
+    return absl::OkStatus();
+  };
+  for (const std::string& arg : args) {
+    if (arg == "all") {
+      for (VertexId v = 0; v < mesh.num_vertices(); ++v) points.push_back(SurfacePoint::Vertex(v));
+    } else if (absl::StartsWith(arg, "@")) {
+      const std::string path = arg.substr(1);
+      ASSIGN_OR_RETURN(auto specs, ReadSpecLines(path));
+      for (const auto& [line, spec] : specs) {
+        RETURN_IF_ERROR(resolve(spec, absl::StrFormat("%s: %s line %u: ", flag, path, line)));
+      }
+    } else {
+      RETURN_IF_ERROR(resolve(arg, flag + ": "));
+    }
+  }
+  return points;
 }
 
 absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& spec) {

@@ -58,6 +58,15 @@ class PointResolver {
   std::optional<SurfaceLocator> locator_;
 };
 
+// A list of points as matrix-like commands take it: each argument is a
+// spec, `all` (every mesh vertex in file order) or `@FILE` (one spec per
+// line; blank lines and lines starting with # skipped). Errors name `flag`
+// and, for a file, its path and line.
+absl::StatusOr<std::vector<SurfacePoint>> ResolvePointList(PointResolver& resolver,
+                                                           const Mesh& mesh,
+                                                           const std::vector<std::string>& args,
+                                                           const std::string& flag);
+
 // One spec, for commands that resolve a single point.
 absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& spec);
 

@@ -632,6 +632,48 @@ TEST(QueriesTest, MatrixEqualsPairsOnSpot) {
   EXPECT_NEAR((*m)[1], straight, 1e-12 * straight);  // one face: a straight segment
 }
 
+// StreamMatrix hands over Matrix's rows, bit for bit, each once, and in
+// batches: when batch_done(end) runs, every row before `end` has arrived and
+// none after it, so a sink can append rows in order holding one batch.
+TEST(QueriesTest, StreamMatrixDeliversMatrixRowsInBatches) {
+  auto [mesh, graph] = GridAndGraph(12, 12, 0.2);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
+  const std::vector<SurfacePoint> points = MixedPoints(*mesh, 7);
+  auto m = engine.Matrix(points, points);
+  ASSERT_OK(m);
+  const size_t n = points.size();
+  ASSERT_GT(n, 5u);
+  std::vector<double> streamed(n * n, -1);
+  std::vector<std::atomic<int>> deliveries(n);
+  std::vector<size_t> batch_ends;
+  MatrixRowSink sink;
+  sink.batch_rows = 3;
+  sink.row = [&](size_t i, absl::Span<const double> row) {
+    EXPECT_EQ(row.size(), n);
+    std::copy(row.begin(), row.end(), streamed.begin() + i * n);
+    ++deliveries[i];
+    return absl::OkStatus();
+  };
+  sink.batch_done = [&](size_t end) {
+    for (size_t i = 0; i < n; ++i) EXPECT_EQ(deliveries[i], i < end ? 1 : 0) << i << " " << end;
+    batch_ends.push_back(end);
+    return absl::OkStatus();
+  };
+  ASSERT_OK(engine.StreamMatrix(points, points, MatrixOptions{}, sink));
+  EXPECT_EQ(streamed, *m);
+  std::vector<size_t> expected_ends;
+  for (size_t end = 3; end < n + 3; end += 3) expected_ends.push_back(std::min(end, n));
+  EXPECT_EQ(batch_ends, expected_ends);
+  // A sink's error stops the stream and is returned.
+  sink.row = [](size_t i, absl::Span<const double>) {
+    return i == 4 ? absl::DataLossError("disk gone") : absl::OkStatus();
+  };
+  sink.batch_done = nullptr;
+  EXPECT_EQ(engine.StreamMatrix(points, points, MatrixOptions{}, sink).code(),
+            absl::StatusCode::kDataLoss);
+}
+
 // Exact rows equal exact pairs and our exact engine's whole field, and are
 // never above the graph's entries.
 TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {

@@ -4,7 +4,6 @@ path polylines and snap distances, checked against each other and against
 the raw fields. Usage: offline_outputs_test.py BUILD_BIN_DIR SOURCE_DIR"""
 import json
 import os
-import subprocess
 import sys
 import tempfile
 
@@ -12,18 +11,12 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from checklist import Checklist  # noqa: E402
+from geodesicd_runner import geodesicd_runner  # noqa: E402
 
 bin_dir, src = sys.argv[1], sys.argv[2]
 mesh = os.path.join(src, "data", "spot.obj")
 check = Checklist()
-
-
-def run(*args, expect_ok=True):
-    r = subprocess.run([os.path.join(bin_dir, "geodesicd"), *args], capture_output=True,
-                       text=True, timeout=120)
-    if expect_ok and r.returncode != 0:
-        sys.exit(f"geodesicd {' '.join(args)} failed: {r.stderr}")
-    return r
+run = geodesicd_runner(bin_dir)
 
 
 with tempfile.TemporaryDirectory() as work:

@@ -1,0 +1,229 @@
+// geodesicd matrix: a sources x targets distance matrix on a DGG, streamed
+// to a dense .npy or, within a radius, a sparse .npz.
+#include <sys/resource.h>
+#include <tbb/info.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <optional>
+
+#include "CLI/CLI.hpp"
+#include "absl/strings/str_format.h"
+#include "core/base/status.h"
+#include "core/base/thread_arena.h"
+#include "core/dgg/graph_file.h"
+#include "core/query/geodesic_engine.h"
+#include "core/query/matrix_files.h"
+#include "core/query/result_files.h"
+#include "server/offline/commands.h"
+#include "server/offline/common.h"
+
+namespace geodesic::offline {
+namespace {
+
+struct MatrixFlags {
+  std::string mesh_path, graph_path, out_path, dtype;
+  std::vector<std::string> sources, targets;
+  std::optional<double> radius;
+  int threads = 0;
+  bool json = false, repair = false;
+};
+
+// A radius for the sparse output: finite, above zero.
+const CLI::Validator kFiniteRadius(
+    [](std::string& text) -> std::string {
+      try {
+        const double v = std::stod(text);
+        if (v > 0 && std::isfinite(v)) return "";
+      } catch (const std::exception&) {
+      }
+      return "must be a finite distance above 0, got '" + text + "'";
+    },
+    "DISTANCE > 0");
+
+void AddMatrixFlags(CLI::App& app, MatrixFlags& f) {
+  constexpr char kPoints[] =
+      "all (every mesh vertex, in file order), point specs (v:ID, e:EDGE:T, f:FACE:B0,B1,B2, "
+      "xyz:X,Y,Z) or @FILE (one spec per line, # comments)";
+  app.add_option("--mesh", f.mesh_path, "mesh file the graph was built for")->required();
+  app.add_option("--graph", f.graph_path, "graph file (geodesicd build)")->required();
+  app.add_option("--sources", f.sources, std::string("the rows: ") + kPoints)->required();
+  app.add_option("--targets", f.targets, std::string("the columns: ") + kPoints)->required();
+  app.add_option("--dtype", f.dtype, "entry type (float32: the float64 distance rounded)")
+      ->required()
+      ->check(CLI::IsMember({"float32", "float64"}));
+  app.add_option("--out", f.out_path,
+                 "the matrix: .npy (dense, +inf where unreachable) or, with --radius, .npz "
+                 "(scipy.sparse CSR, scipy.sparse.load_npz reads it)")
+      ->required();
+  app.add_option("--radius", f.radius,
+                 "keep only the entries within this distance (the diagonal's zeros included), "
+                 "as a sparse .npz")
+      ->check(kFiniteRadius);
+  app.add_option("--threads", f.threads, "threads, each computing whole rows (0: all cores)")
+      ->check(CLI::NonNegativeNumber);
+  app.add_flag("--json", f.json, "print a JSON object");
+  AddRepairFlag(app, &f.repair);
+}
+
+// A bad output name or a missing directory is refused before any work.
+absl::Status CheckOutput(const MatrixFlags& f) {
+  const bool sparse = f.radius.has_value();
+  if (absl::Status s = CheckMatrixPath(f.out_path, sparse); !s.ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s (%s)", s.message(),
+                        sparse ? "--radius writes a sparse .npz"
+                               : "a dense matrix is a .npy; .npz needs --radius"));
+  }
+  const std::filesystem::path parent = std::filesystem::path(f.out_path).parent_path();
+  const std::filesystem::path dir = parent.empty() ? "." : parent;
+  std::error_code ec;
+  if (!std::filesystem::is_directory(dir, ec)) {
+    return absl::NotFoundError(
+        absl::StrFormat("cannot write %s: %s is not a directory", f.out_path, dir.string()));
+  }
+  return absl::OkStatus();
+}
+
+struct Written {
+  uint64_t bytes = 0;
+  uint64_t nonzeros = 0;  // sparse only
+};
+
+// Each row goes to its place in the file from the thread that computed it.
+absl::StatusOr<Written> WriteDense(const GeodesicEngine& engine,
+                                   absl::Span<const SurfacePoint> sources,
+                                   absl::Span<const SurfacePoint> targets, const std::string& path,
+                                   MatrixDtype dtype) {
+  ASSIGN_OR_RETURN(DenseMatrixFile file,
+                   DenseMatrixFile::Create(path, sources.size(), targets.size(), dtype));
+  MatrixRowSink sink;
+  sink.row = [&](size_t i, absl::Span<const double> row) { return file.WriteRow(i, row); };
+  RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, MatrixOptions{}, sink));
+  ASSIGN_OR_RETURN(const uint64_t bytes, std::move(file).Commit());
+  return Written{bytes, 0};
+}
+
+struct SparseRow {
+  std::vector<int32_t> columns;
+  std::vector<double> values;
+};
+
+SparseRow WithinRadius(absl::Span<const double> row, double radius) {
+  SparseRow kept;
+  for (size_t j = 0; j < row.size(); ++j) {
+    if (row[j] <= radius) {
+      kept.columns.push_back(static_cast<int32_t>(j));
+      kept.values.push_back(row[j]);
+    }
+  }
+  return kept;
+}
+
+// The .npz's rows must be appended in order, so rows are computed in
+// batches: each batch's rows, kept within the radius, wait in memory until
+// the batch is done, then go to the file in order.
+absl::StatusOr<Written> WriteSparse(const GeodesicEngine& engine,
+                                    absl::Span<const SurfacePoint> sources,
+                                    absl::Span<const SurfacePoint> targets, const std::string& path,
+                                    MatrixDtype dtype, double radius, size_t batch_rows) {
+  ASSIGN_OR_RETURN(SparseMatrixFile file,
+                   SparseMatrixFile::Create(path, sources.size(), targets.size(), dtype));
+  std::vector<SparseRow> batch(batch_rows);
+  size_t appended = 0;
+  MatrixRowSink sink;
+  sink.batch_rows = batch_rows;
+  sink.row = [&](size_t i, absl::Span<const double> row) {
+    batch[i % batch_rows] = WithinRadius(row, radius);
+    return absl::OkStatus();
+  };
+  sink.batch_done = [&](size_t end) -> absl::Status {
+    for (; appended < end; ++appended) {
+      SparseRow& row = batch[appended % batch_rows];
+      RETURN_IF_ERROR(file.AppendRow(row.columns, row.values));
+      row = SparseRow();
+    }
+    return absl::OkStatus();
+  };
+  RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, MatrixOptions{}, sink));
+  const uint64_t nonzeros = file.nonzeros();
+  ASSIGN_OR_RETURN(const uint64_t bytes, std::move(file).Commit());
+  return Written{bytes, nonzeros};
+}
+
+uint64_t PeakRssBytes() {
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return uint64_t(usage.ru_maxrss) * 1024;  // Linux reports kilobytes
+}
+
+// The matrix of the flags' points, written in the arena of --threads.
+absl::StatusOr<Written> ComputeAndWrite(const MatrixFlags& f, const GeodesicEngine& engine,
+                                        absl::Span<const SurfacePoint> sources,
+                                        absl::Span<const SurfacePoint> targets) {
+  const MatrixDtype dtype = f.dtype == "float32" ? MatrixDtype::kFloat32 : MatrixDtype::kFloat64;
+  const int threads = f.threads > 0 ? f.threads : tbb::info::default_concurrency();
+  // A few rows per thread per batch: rows take about as long as each
+  // other, so a batch's last rows leave threads idle for about a row's
+  // time, a small share of a batch.
+  const size_t batch_rows = 8 * size_t(threads);
+  absl::StatusOr<Written> written;
+  ThreadArena(threads).execute([&] {
+    written = f.radius
+                  ? WriteSparse(engine, sources, targets, f.out_path, dtype, *f.radius, batch_rows)
+                  : WriteDense(engine, sources, targets, f.out_path, dtype);
+  });
+  return written;
+}
+
+void Report(const MatrixFlags& f, size_t rows, size_t columns, const Written& written,
+            double seconds) {
+  if (!f.json) {
+    const std::string kept =
+        f.radius ? absl::StrFormat(", %u entries within %g", written.nonzeros, *f.radius) : "";
+    std::printf("%s", absl::StrFormat("matrix %u x %u %s%s to %s: %u bytes in %.3f s\n", rows,
+                                      columns, f.dtype, kept, f.out_path, written.bytes, seconds)
+                          .c_str());
+    return;
+  }
+  Json out = {{"rows", rows},       {"columns", columns},     {"dtype", f.dtype},
+              {"seconds", seconds}, {"bytes", written.bytes}, {"peak_rss_bytes", PeakRssBytes()}};
+  if (f.radius) {
+    out["radius"] = *f.radius;
+    out["nonzeros"] = written.nonzeros;
+  }
+  PrintJson(out);
+}
+
+}  // namespace
+
+int RunMatrix(int argc, char** argv) {
+  CLI::App app{"Distance matrix between two point lists on a discrete geodesic graph",
+               "geodesicd matrix"};
+  app.option_defaults()->always_capture_default();  // --help shows defaults
+  MatrixFlags f;
+  AddMatrixFlags(app, f);
+  CLI11_PARSE(app, argc, argv);
+  if (absl::Status s = CheckOutput(f); !s.ok()) return Fail("matrix", s);
+  auto mesh = LoadMeshOrError(f.mesh_path, f.repair);
+  if (!mesh.ok()) return Fail("matrix", mesh.status());
+  auto graph = GraphFile::Open(f.graph_path, **mesh, GraphFile::Check::kFull);
+  if (!graph.ok()) return Fail("matrix", graph.status());
+  PointResolver resolver(**mesh);
+  auto sources = ResolvePointList(resolver, **mesh, f.sources, "--sources");
+  if (!sources.ok()) return Fail("matrix", sources.status());
+  auto targets = ResolvePointList(resolver, **mesh, f.targets, "--targets");
+  if (!targets.ok()) return Fail("matrix", targets.status());
+  GeodesicEngine engine(*mesh, *graph);
+  const auto t0 = std::chrono::steady_clock::now();
+  auto written = ComputeAndWrite(f, engine, *sources, *targets);
+  if (!written.ok()) return Fail("matrix", written.status());
+  const double seconds =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  Report(f, sources->size(), targets->size(), *written, seconds);
+  return 0;
+}
+
+}  // namespace geodesic::offline

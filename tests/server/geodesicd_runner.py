@@ -1,0 +1,17 @@
+"""Runs the geodesicd binary for the offline commands' Python tests."""
+import os
+import subprocess
+import sys
+
+
+def geodesicd_runner(bin_dir):
+    """run(*args, expect_ok=True) runs `geodesicd ARGS` and returns its
+    CompletedProcess (text); with expect_ok a non-zero exit ends the test,
+    naming the command and its stderr."""
+    def run(*args, expect_ok=True):
+        r = subprocess.run([os.path.join(bin_dir, "geodesicd"), *args], capture_output=True,
+                           text=True, timeout=120)
+        if expect_ok and r.returncode != 0:
+            sys.exit(f"geodesicd {' '.join(args)} failed: {r.stderr}")
+        return r
+    return run
