@@ -14,6 +14,7 @@
 #include "core/base/for_each_in_parallel.h"
 #include "core/base/status.h"
 #include "core/exact/exact_geodesic.h"
+#include "core/query/field_lanes.h"
 
 namespace geodesic::query_internal {
 namespace {
@@ -182,7 +183,9 @@ using query_internal::CheckPoint;
 using query_internal::Endpoint;
 using query_internal::FieldDistanceTo;
 using query_internal::JoinToGraph;
+using query_internal::LaneDistanceTo;
 using query_internal::SolveField;
+using query_internal::SolveFieldLanes;
 
 absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint> sources,
                                                   const FieldOptions& options) const {
@@ -236,33 +239,68 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
       ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
     }
   }
-  FieldOptions options;
-  options.cancelled = matrix_options.cancelled;
-  auto solve_row = [&](size_t i) -> absl::Status {
-    std::vector<double> row(target_ends.size(), kInfinity);
-    ScratchPool::Lease row_sc = AcquireScratch();
-    ASSIGN_OR_RETURN(Endpoint source, JoinToGraph(mesh, *graph_, *row_sc, sources[i], true));
-    for (size_t j = 0; j < target_ends.size(); ++j) {
-      if (!source.is_node) {
-        auto d = row_sc->Exact(mesh).DistanceTo(target_ends[j].point);
-        if (d.ok()) row[j] = *d;
+  // Sources go in lanes of one sweep (core/query/field_lanes.h), grouped
+  // by graph node: node order follows the surface, so a group's wavefronts
+  // move together.
+  auto solve_group = [&](absl::Span<const size_t> group) -> absl::Status {
+    ScratchPool::Lease sc = AcquireScratch();
+    std::vector<Endpoint> ends;
+    std::vector<std::vector<double>> rows(group.size(),
+                                          std::vector<double>(target_ends.size(), kInfinity));
+    for (size_t k = 0; k < group.size(); ++k) {
+      ASSIGN_OR_RETURN(ends.emplace_back(),
+                       JoinToGraph(mesh, *graph_, *sc, sources[group[k]], true));
+      // The direct geodesics of a source that is not a vertex, while the
+      // scratch's exact engine still holds its propagation.
+      if (ends.back().is_node) continue;
+      for (size_t j = 0; j < target_ends.size(); ++j) {
+        auto d = sc->Exact(mesh).DistanceTo(target_ends[j].point);
+        if (d.ok()) rows[k][j] = *d;
       }
     }
-    ASSIGN_OR_RETURN(FieldResult field, SolveField(mesh, *graph_, buckets_, *row_sc,
-                                                   absl::MakeConstSpan(&source, 1), options));
-    for (size_t j = 0; j < target_ends.size(); ++j) {
-      row[j] = std::min(row[j], FieldDistanceTo(target_ends[j], field.distance));
+    RETURN_IF_ERROR(
+        SolveFieldLanes(*graph_, *sc, ends, matrix_options.max_distance, matrix_options.cancelled)
+            .status());
+    for (size_t k = 0; k < group.size(); ++k) {
+      std::vector<double>& row = rows[k];
+      for (size_t j = 0; j < target_ends.size(); ++j) {
+        row[j] = std::min(
+            row[j], LaneDistanceTo(*graph_, *sc, target_ends[j], k, matrix_options.max_distance));
+        if (row[j] > matrix_options.max_distance) row[j] = kInfinity;
+      }
+      if (matrix_options.exact) {
+        RETURN_IF_ERROR(MakeRowExact(sc->Exact(mesh), exact_landmarks_.get(), ends[k].point,
+                                     target_ends, matrix_options, absl::MakeSpan(row)));
+      }
+      RETURN_IF_ERROR(sink.row(group[k], row));
     }
-    if (matrix_options.exact) {
-      RETURN_IF_ERROR(MakeRowExact(row_sc->Exact(mesh), exact_landmarks_.get(), source.point,
-                                   target_ends, matrix_options, absl::MakeSpan(row)));
+    return absl::OkStatus();
+  };
+  auto node_near = [&](const SurfacePoint& p) {
+    switch (p.kind) {
+      case SurfacePoint::Kind::kVertex:
+        return graph_->node_of_vertex(p.id);
+      case SurfacePoint::Kind::kEdge:
+        return graph_->node_of_vertex(mesh.tail(mesh.edge_halfedge(p.id)));
+      case SurfacePoint::Kind::kFace:
+        break;
     }
-    return sink.row(i, row);
+    return graph_->node_of_vertex(mesh.face_vertex(p.id, 0));
   };
   const size_t batch = sink.batch_rows > 0 ? sink.batch_rows : std::max<size_t>(sources.size(), 1);
+  std::vector<size_t> order;
   for (size_t begin = 0; begin < sources.size(); begin += batch) {
     const size_t end = std::min(sources.size(), begin + batch);
-    RETURN_IF_ERROR(ForEachInParallel(end - begin, [&](size_t k) { return solve_row(begin + k); }));
+    order.resize(end - begin);
+    std::iota(order.begin(), order.end(), begin);
+    std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
+      return node_near(sources[a]) < node_near(sources[b]);
+    });
+    const size_t groups = (order.size() + kFieldLanes - 1) / kFieldLanes;
+    RETURN_IF_ERROR(ForEachInParallel(groups, [&](size_t i) {
+      const size_t first = i * kFieldLanes;
+      return solve_group(absl::MakeConstSpan(order).subspan(first, kFieldLanes));
+    }));
     if (sink.batch_done) RETURN_IF_ERROR(sink.batch_done(end));
   }
   return absl::OkStatus();

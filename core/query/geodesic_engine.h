@@ -133,6 +133,9 @@ struct MatrixOptions {
   // Exact polyhedral distances instead of the graph's (PairOptions::exact).
   bool exact = false;
   uint64_t exact_max_bytes = 0;  // per row, as PairOptions::exact_max_bytes
+  // Entries farther than this are +inf, and the search stops there: a
+  // neighbourhood matrix costs what its neighbourhoods hold.
+  double max_distance = kInfinity;
 };
 
 // Where GeodesicEngine::StreamMatrix delivers a matrix's rows, so that a

@@ -33,10 +33,20 @@ void QueryScratch::PrepareField(size_t nodes) {
   }
 }
 
+void QueryScratch::PrepareLanes(size_t nodes) {
+  if (lane_dist.size() < nodes) {
+    lane_dist.resize(nodes);
+    lane_fan.resize(nodes);
+    lane_dirty.resize(nodes);
+  }
+}
+
 uint64_t QueryScratch::bytes() const {
   uint64_t total = sizeof(*this) + pairs.bytes();
   total += dist.capacity() * sizeof(double) + fan.capacity() * sizeof(FanRange) +
            label.capacity() * sizeof(uint32_t);
+  total += lane_dist.capacity() * sizeof(LaneLabels) + lane_fan.capacity() * sizeof(LaneFans) +
+           lane_dirty.capacity();
   if (exact) total += exact->memory_bytes();
   return total;
 }

@@ -19,11 +19,22 @@
 
 #include "core/base/bucket_queue.h"
 #include "core/base/node_heap.h"
+#include "core/base/radix_heap.h"
 #include "core/dgg/dgg_graph.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh.h"
 
 namespace geodesic {
+
+// Sources one field sweep serves at once (core/query/field_lanes.h): eight
+// doubles, one cache line of labels per node.
+inline constexpr int kFieldLanes = 8;
+struct alignas(64) LaneLabels {
+  double dist[kFieldLanes];
+};
+struct LaneFans {
+  FanRange fan[kFieldLanes];
+};
 
 // The records of the nodes one point-to-point query touches, kept in the
 // order they were first touched, and a per-node index into them. The index
@@ -90,6 +101,15 @@ struct QueryScratch {
   std::vector<uint32_t> label;  // index of the nearest source
   NodeHeap heap;                // Dijkstra's queue, for searches that stop at targets
   BucketQueue buckets;
+  // Fields of several sources in one sweep (core/query/field_lanes.h): per
+  // node, each lane's label and fan, and the lanes improved since the node
+  // was last taken out.
+  std::vector<LaneLabels> lane_dist;
+  std::vector<LaneFans> lane_fan;
+  std::vector<uint8_t> lane_dirty;
+  // Their queue: lanes' labels at one node may lie far apart (sources a
+  // distance apart), beyond what a bucket ring spans.
+  RadixHeap<uint32_t> lane_queue;
 
   PairTable pairs;
   // The forward (0) and backward (1) searches' queues, with their slots in
@@ -110,6 +130,7 @@ struct QueryScratch {
   const FaceFrames* frames = nullptr;
 
   void PrepareField(size_t nodes);
+  void PrepareLanes(size_t nodes);
   ExactGeodesic& Exact(const Mesh& mesh) {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);
     exact->set_frames(frames);

@@ -674,6 +674,70 @@ TEST(QueriesTest, StreamMatrixDeliversMatrixRowsInBatches) {
             absl::StatusCode::kDataLoss);
 }
 
+// Rows come from several sources per sweep of the graph (core/query/field_lanes.h);
+// each still equals that source's own field, to the last bit, and the graph
+// is symmetric, so the all-vertices matrix is too.
+TEST(QueriesTest, MatrixRowsEqualSingleSourceFieldsOnSpot) {
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
+  const size_t n = mesh->num_vertices();
+  std::vector<SurfacePoint> all;
+  for (VertexId v = 0; v < n; ++v) all.push_back(SurfacePoint::Vertex(v));
+  auto m = engine.Matrix(all, all);
+  ASSERT_OK(m);
+  ASSERT_EQ(m->size(), n * n);
+  size_t finite = 0;
+  for (VertexId s = 0; s < n; s += 7) {
+    const std::vector<SurfacePoint> source = {SurfacePoint::Vertex(s)};
+    auto field = engine.Field(source, {});
+    ASSERT_OK(field);
+    ASSERT_EQ(field->distance.size(), n);
+    for (VertexId t = 0; t < n; ++t) {
+      ASSERT_EQ((*m)[s * n + t], field->distance[t]) << s << " -> " << t;
+      finite += std::isfinite(field->distance[t]);
+    }
+  }
+  EXPECT_GT(finite, n);
+  for (size_t i = 0; i < n; ++i) {
+    for (size_t j = 0; j < i; ++j) ASSERT_EQ((*m)[i * n + j], (*m)[j * n + i]) << i << " " << j;
+  }
+}
+
+// A radius keeps the entries within it, the same numbers as without one,
+// and makes the rest +inf.
+TEST(QueriesTest, MatrixWithinARadiusIsTheMatrixThresholded) {
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
+  std::vector<SurfacePoint> points = MixedPoints(*mesh, 11);
+  for (VertexId v = 0; v < mesh->num_vertices(); v += 97) points.push_back(SurfacePoint::Vertex(v));
+  auto dense = engine.Matrix(points, points);
+  ASSERT_OK(dense);
+  std::vector<double> finite;
+  for (double d : *dense) {
+    if (std::isfinite(d)) finite.push_back(d);
+  }
+  ASSERT_FALSE(finite.empty());
+  std::nth_element(finite.begin(), finite.begin() + finite.size() / 3, finite.end());
+  MatrixOptions within;
+  within.max_distance = finite[finite.size() / 3];
+  auto near = engine.Matrix(points, points, within);
+  ASSERT_OK(near);
+  ASSERT_EQ(near->size(), dense->size());
+  size_t kept = 0;
+  for (size_t i = 0; i < dense->size(); ++i) {
+    if ((*dense)[i] <= within.max_distance) {
+      ++kept;
+      EXPECT_EQ((*near)[i], (*dense)[i]) << i;
+    } else {
+      EXPECT_EQ((*near)[i], kInfinity) << i;
+    }
+  }
+  EXPECT_GT(kept, points.size());
+  EXPECT_LT(kept, dense->size());
+}
+
 // Exact rows equal exact pairs and our exact engine's whole field, and are
 // never above the graph's entries.
 TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {

@@ -1,0 +1,168 @@
+#include "core/query/field_lanes.h"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cstring>
+
+#include "absl/status/statusor.h"
+#include "core/query/geodesic_engine.h"
+
+namespace geodesic::query_internal {
+namespace {
+
+// A node's labels as one value: GCC lowers the arithmetic to the widest
+// SIMD the target has.
+typedef double Lanes __attribute__((vector_size(sizeof(LaneLabels))));
+typedef int64_t LaneBits __attribute__((vector_size(sizeof(LaneLabels))));
+static_assert(sizeof(Lanes) == sizeof(LaneLabels) && alignof(LaneLabels) >= alignof(Lanes));
+
+Lanes& AsLanes(LaneLabels& l) { return *reinterpret_cast<Lanes*>(l.dist); }
+
+uint32_t MaskOf(const LaneBits& bits) {
+  uint32_t m = 0;
+  for (int k = 0; k < kFieldLanes; ++k) m |= uint32_t(bits[k] & 1) << k;
+  return m;
+}
+
+// The smallest label among the lanes of `mask`: a queued node's key.
+double LowestOf(const LaneLabels& l, uint32_t mask) {
+  double low = kInfinity;
+  for (; mask; mask &= mask - 1) low = std::min(low, l.dist[std::countr_zero(mask)]);
+  return low;
+}
+
+// The shortest run of a node's `degree` angle-sorted edges that holds the
+// fans of the lanes of `mask` (each a run that may wrap past the end): the
+// complement of the largest gap between them.
+FanRange CoverFans(const LaneFans& fans, uint32_t mask, uint32_t degree) {
+  if (std::has_single_bit(mask)) return fans.fan[std::countr_zero(mask)];
+  std::array<std::pair<uint32_t, uint32_t>, 2 * kFieldLanes> spans;  // [begin, end)
+  size_t n = 0;
+  for (; mask; mask &= mask - 1) {
+    const FanRange f = fans.fan[std::countr_zero(mask)];
+    if (f.count >= degree) return {0, degree};
+    if (f.count == 0) continue;
+    const uint32_t end = f.begin + f.count;
+    if (end <= degree) {
+      spans[n++] = {f.begin, end};
+    } else {
+      spans[n++] = {f.begin, degree};
+      spans[n++] = {0, end - degree};
+    }
+  }
+  if (n == 0) return {0, 0};
+  std::sort(spans.begin(), spans.begin() + n);
+  // Gaps between the merged spans, the one across the wrap included.
+  uint32_t covered_to = spans[0].second, best_gap = 0, gap_end = spans[0].first;
+  for (size_t i = 1; i < n; ++i) {
+    if (spans[i].first > covered_to && spans[i].first - covered_to > best_gap) {
+      best_gap = spans[i].first - covered_to;
+      gap_end = spans[i].first;
+    }
+    covered_to = std::max(covered_to, spans[i].second);
+  }
+  const uint32_t wrap_gap = degree - covered_to + spans[0].first;
+  if (wrap_gap >= best_gap) return {spans[0].first, degree - wrap_gap};
+  return {gap_end % degree, degree - best_gap};
+}
+
+}  // namespace
+
+absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
+                                          absl::Span<const Endpoint> sources, double max_distance,
+                                          const std::function<bool()>& cancelled) {
+  const uint32_t nodes = g.num_nodes();
+  sc.PrepareLanes(nodes);
+  LaneLabels* dist = sc.lane_dist.data();
+  LaneFans* fan = sc.lane_fan.data();
+  uint8_t* dirty = sc.lane_dirty.data();
+  const Lanes unreached = Lanes{} + kInfinity;
+  for (uint32_t u = 0; u < nodes; ++u) AsLanes(dist[u]) = unreached;
+  std::memset(dirty, 0, nodes);
+
+  // Vertex sources at 0, other points through their temporary edges; a
+  // seed relaxes all its edges, as in SolveField.
+  std::vector<uint32_t> seeds;
+  auto seed = [&](uint32_t u, double d, int lane) {
+    if (!(d < dist[u].dist[lane])) return;
+    dist[u].dist[lane] = d;
+    fan[u].fan[lane] = AllEdges(g, u);
+    if (!dirty[u]) seeds.push_back(u);
+    dirty[u] |= 1u << lane;
+  };
+  for (size_t k = 0; k < sources.size() && k < kFieldLanes; ++k) {
+    if (sources[k].is_node) seed(sources[k].node, 0, k);
+    for (const TemporaryEdge& e : sources[k].edges) seed(e.node, e.weight, k);
+  }
+  RadixHeap<uint32_t>& queue = sc.lane_queue;
+  queue.Clear();
+  for (uint32_t u : seeds) queue.Push(LowestOf(dist[u], dirty[u]), u);
+
+  const auto offsets = g.offsets();
+  const DggEdge* edges = g.edges().data();
+  const Lanes limit = Lanes{} + max_distance;
+  LaneStats stats;
+  while (!queue.empty()) {
+    const uint32_t u = queue.Pop().second;
+    const uint32_t mask = dirty[u];
+    if (!mask) continue;  // an entry left behind by a lower key's
+    dirty[u] = 0;
+    if (cancelled && (stats.queue_pops & 4095) == 0 && cancelled()) {
+      return absl::CancelledError("field cancelled");
+    }
+    ++stats.queue_pops;
+    // Only the lanes that improved relax: the others did so with these
+    // labels already. Labels past the limit stop there.
+    Lanes du = AsLanes(dist[u]);
+    LaneBits keep = du <= limit;
+    for (int k = 0; k < kFieldLanes; ++k) keep[k] &= -int64_t(mask >> k & 1);
+    du = keep ? du : unreached;
+    const uint32_t active = MaskOf(keep);
+    if (!active) continue;
+    const uint64_t begin = offsets[u], end = offsets[u + 1];
+    const FanRange run = CoverFans(fan[u], active, end - begin);
+    if (const uint32_t* next_entry = queue.PeekNext(); next_entry && dirty[*next_entry]) {
+      const uint32_t next = *next_entry;
+      const FanRange r = fan[next].fan[std::countr_zero(uint32_t(dirty[next]))];
+      const uint64_t list = offsets[next], list_end = offsets[next + 1];
+      const uint64_t first = list + r.begin, last = first + r.count;
+      if (r.count > 0 && first < list_end) PrefetchEdges(edges, first, std::min(last, list_end));
+      __builtin_prefetch(&dist[next]);
+    }
+    stats.relaxed += run.count;
+    for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
+      const DggEdge& e = edges[i];
+      const Lanes nd = du + e.weight;
+      Lanes& dv = AsLanes(dist[e.target]);
+      const LaneBits better = nd < dv;
+      const uint32_t improved = MaskOf(better);
+      if (improved) {
+        const uint32_t v = e.target, was = dirty[v];
+        const double queued_at = was ? LowestOf(dist[v], was) : kInfinity;
+        dv = better ? nd : dv;
+        for (uint32_t m = improved; m; m &= m - 1) fan[v].fan[std::countr_zero(m)] = e.fan;
+        dirty[v] = was | improved;
+        // Queued again only below its entry: an entry at the same key
+        // already takes it out.
+        if (const double key = LowestOf(dist[v], dirty[v]); key < queued_at) queue.Push(key, v);
+      }
+      if (++i == end) i = begin;  // runs wrap past u's last edge
+    }
+  }
+  return stats;
+}
+
+double LaneDistanceTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end, int lane,
+                      double max_distance) {
+  auto at = [&](VertexId v) {
+    const double d = sc.lane_dist[g.node_of_vertex(v)].dist[lane];
+    return d > max_distance ? kInfinity : d;
+  };
+  if (end.is_node) return at(end.point.id);
+  double d = kInfinity;
+  for (const TemporaryEdge& e : end.edges) d = std::min(d, at(e.vertex) + e.weight);
+  return d;
+}
+
+}  // namespace geodesic::query_internal

@@ -1,0 +1,51 @@
+// Fields of up to kFieldLanes sources in one sweep of the graph: what a
+// matrix's rows are made of. A node's labels for all lanes share a cache
+// line and are relaxed together, so each edge is read once for the batch
+// and its weight added to every lane at once (SIMD), where one field per
+// source reads the whole graph per row.
+//
+// The search is SolveField's label-correcting one with a lane per source.
+// A node is queued while any lane improved since it was taken out, keyed by
+// the smallest such label (in order of keys: a radix heap), and then relaxes, for the lanes that
+// improved, one run of its edges covering each lane's fan. Relaxing more than a lane's fan only
+// tries more real paths, so every label still ends as the graph distance: the same number as
+// SolveField's, since both are the least sum of the same float weights added in double (exact for
+// any mesh whose shortest edge is above 2^-29 of its longest path). Sources close together on the
+// surface keep their wavefronts together, so a node is taken out about once for the whole batch:
+// callers group sources by node order (nearby nodes, core/dgg/dgg_graph.h).
+#ifndef GEODESIC_CORE_QUERY_FIELD_LANES_H_
+#define GEODESIC_CORE_QUERY_FIELD_LANES_H_
+
+#include <functional>
+
+#include "absl/status/status.h"
+#include "absl/types/span.h"
+#include "core/dgg/dgg_graph.h"
+#include "core/query/augmented_graph.h"
+#include "core/query/query_scratch.h"
+
+namespace geodesic::query_internal {
+
+struct LaneStats {
+  uint64_t queue_pops = 0;
+  uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
+};
+
+// Lane k of sc.lane_dist[node] becomes the graph distance from sources[k]
+// (already joined to the graph); lanes past sources.size() stay +inf.
+// Labels above `max_distance` are not relaxed further, so they are upper
+// bounds only: LaneDistanceTo reads them as +inf. CANCELLED when
+// `cancelled` says so.
+absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
+                                          absl::Span<const Endpoint> sources, double max_distance,
+                                          const std::function<bool()>& cancelled);
+
+// Lane `lane`'s distance to an end point, as FieldDistanceTo reads a field:
+// at its node, or the best of its temporary edges; +inf beyond
+// `max_distance`.
+double LaneDistanceTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end, int lane,
+                      double max_distance);
+
+}  // namespace geodesic::query_internal
+
+#endif  // GEODESIC_CORE_QUERY_FIELD_LANES_H_
