@@ -55,6 +55,23 @@ class BucketQueue {
     buckets_[k & mask_].push_back(node);
   }
 
+  // Queues `node` at `key` unless it is queued at that key's bucket or a
+  // lower one: for searches whose node keys are the least of several labels
+  // (core/query/field_lanes.h), where a later improvement may be of a higher
+  // label. Such keys may lie beyond the ring: they are taken out at its far
+  // end, early, which a label-correcting search corrects like any early pop.
+  void Lower(uint32_t node, double key) {
+    const uint64_t k = std::min(std::max(Bucket(key), current_), current_ + mask_);
+    uint32_t& at = bucket_of_[node];
+    if (at != kOut && static_cast<uint32_t>(at - static_cast<uint32_t>(current_)) <=
+                          static_cast<uint32_t>(k - current_)) {
+      return;
+    }
+    if (at == kOut) ++live_;
+    at = static_cast<uint32_t>(k);
+    buckets_[k & mask_].push_back(node);
+  }
+
   // Takes out a node of the lowest bucket that holds any. Not when empty.
   uint32_t Pop() {
     while (true) {

@@ -18,6 +18,21 @@ typedef int64_t LaneBits __attribute__((vector_size(sizeof(LaneLabels))));
 static_assert(sizeof(Lanes) == sizeof(LaneLabels) && alignof(LaneLabels) >= alignof(Lanes));
 
 Lanes& AsLanes(LaneLabels& l) { return *reinterpret_cast<Lanes*>(l.dist); }
+static_assert(sizeof(LaneFans) == sizeof(LaneBits));
+
+// Sets the fans of the lanes of `which` to `f`, all in one write.
+void SetFans(LaneFans& fans, const LaneBits& which, FanRange f) {
+  LaneBits bits;
+  std::memcpy(&bits, static_cast<void*>(fans.fan), sizeof(bits));
+  bits = which ? LaneBits{} + std::bit_cast<int64_t>(f) : bits;
+  std::memcpy(static_cast<void*>(fans.fan), &bits, sizeof(bits));
+}
+
+double Lowest(const Lanes& l) {
+  double low = l[0];
+  for (int k = 1; k < kFieldLanes; ++k) low = std::min(low, l[k]);
+  return low;
+}
 
 uint32_t MaskOf(const LaneBits& bits) {
   uint32_t m = 0;
@@ -69,8 +84,9 @@ FanRange CoverFans(const LaneFans& fans, uint32_t mask, uint32_t degree) {
 
 }  // namespace
 
-absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
-                                          absl::Span<const Endpoint> sources, double max_distance,
+absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
+                                          QueryScratch& sc, absl::Span<const Endpoint> sources,
+                                          double max_distance,
                                           const std::function<bool()>& cancelled) {
   const uint32_t nodes = g.num_nodes();
   sc.PrepareLanes(nodes);
@@ -84,29 +100,32 @@ absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
   // Vertex sources at 0, other points through their temporary edges; a
   // seed relaxes all its edges, as in SolveField.
   std::vector<uint32_t> seeds;
+  double max_seed = 0;
   auto seed = [&](uint32_t u, double d, int lane) {
     if (!(d < dist[u].dist[lane])) return;
     dist[u].dist[lane] = d;
     fan[u].fan[lane] = AllEdges(g, u);
     if (!dirty[u]) seeds.push_back(u);
     dirty[u] |= 1u << lane;
+    max_seed = std::max(max_seed, d);
   };
   for (size_t k = 0; k < sources.size() && k < kFieldLanes; ++k) {
     if (sources[k].is_node) seed(sources[k].node, 0, k);
     for (const TemporaryEdge& e : sources[k].edges) seed(e.node, e.weight, k);
   }
-  RadixHeap<uint32_t>& queue = sc.lane_queue;
-  queue.Clear();
-  for (uint32_t u : seeds) queue.Push(LowestOf(dist[u], dirty[u]), u);
+  // Buckets half as wide as a single field's: the lanes' wavefronts are
+  // a little apart, and narrower buckets take fewer nodes out twice.
+  BucketQueue& queue = sc.buckets;
+  queue.Reset(nodes, bucket_shape.width / 2, std::max(bucket_shape.max_step, max_seed));
+  for (uint32_t u : seeds) queue.Lower(u, LowestOf(dist[u], dirty[u]));
 
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
   const Lanes limit = Lanes{} + max_distance;
   LaneStats stats;
   while (!queue.empty()) {
-    const uint32_t u = queue.Pop().second;
+    const uint32_t u = queue.Pop();
     const uint32_t mask = dirty[u];
-    if (!mask) continue;  // an entry left behind by a lower key's
     dirty[u] = 0;
     if (cancelled && (stats.queue_pops & 4095) == 0 && cancelled()) {
       return absl::CancelledError("field cancelled");
@@ -122,8 +141,7 @@ absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
     if (!active) continue;
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = CoverFans(fan[u], active, end - begin);
-    if (const uint32_t* next_entry = queue.PeekNext(); next_entry && dirty[*next_entry]) {
-      const uint32_t next = *next_entry;
+    if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
       const FanRange r = fan[next].fan[std::countr_zero(uint32_t(dirty[next]))];
       const uint64_t list = offsets[next], list_end = offsets[next + 1];
       const uint64_t first = list + r.begin, last = first + r.count;
@@ -133,19 +151,17 @@ absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
     stats.relaxed += run.count;
     for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
       const DggEdge& e = edges[i];
+
       const Lanes nd = du + e.weight;
       Lanes& dv = AsLanes(dist[e.target]);
       const LaneBits better = nd < dv;
       const uint32_t improved = MaskOf(better);
       if (improved) {
-        const uint32_t v = e.target, was = dirty[v];
-        const double queued_at = was ? LowestOf(dist[v], was) : kInfinity;
+        const uint32_t v = e.target;
         dv = better ? nd : dv;
-        for (uint32_t m = improved; m; m &= m - 1) fan[v].fan[std::countr_zero(m)] = e.fan;
-        dirty[v] = was | improved;
-        // Queued again only below its entry: an entry at the same key
-        // already takes it out.
-        if (const double key = LowestOf(dist[v], dirty[v]); key < queued_at) queue.Push(key, v);
+        SetFans(fan[v], better, e.fan);
+        dirty[v] |= improved;
+        queue.Lower(v, Lowest(better ? nd : unreached));
       }
       if (++i == end) i = begin;  // runs wrap past u's last edge
     }
@@ -153,16 +169,22 @@ absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
   return stats;
 }
 
-double LaneDistanceTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end, int lane,
-                      double max_distance) {
+LaneLabels LaneDistancesTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end,
+                           double max_distance) {
   auto at = [&](VertexId v) {
-    const double d = sc.lane_dist[g.node_of_vertex(v)].dist[lane];
-    return d > max_distance ? kInfinity : d;
+    LaneLabels l = sc.lane_dist[g.node_of_vertex(v)];
+    for (double& d : l.dist) d = d > max_distance ? kInfinity : d;
+    return l;
   };
   if (end.is_node) return at(end.point.id);
-  double d = kInfinity;
-  for (const TemporaryEdge& e : end.edges) d = std::min(d, at(e.vertex) + e.weight);
-  return d;
+  LaneLabels best;
+  std::fill(std::begin(best.dist), std::end(best.dist), kInfinity);
+  for (const TemporaryEdge& e : end.edges) {
+    const LaneLabels l = at(e.vertex);
+    for (int k = 0; k < kFieldLanes; ++k)
+      best.dist[k] = std::min(best.dist[k], l.dist[k] + e.weight);
+  }
+  return best;
 }
 
 }  // namespace geodesic::query_internal

@@ -6,7 +6,7 @@
 //
 // The search is SolveField's label-correcting one with a lane per source.
 // A node is queued while any lane improved since it was taken out, keyed by
-// the smallest such label (in order of keys: a radix heap), and then relaxes, for the lanes that
+// the smallest such label, and then relaxes, for the lanes that
 // improved, one run of its edges covering each lane's fan. Relaxing more than a lane's fan only
 // tries more real paths, so every label still ends as the graph distance: the same number as
 // SolveField's, since both are the least sum of the same float weights added in double (exact for
@@ -22,6 +22,7 @@
 #include "absl/types/span.h"
 #include "core/dgg/dgg_graph.h"
 #include "core/query/augmented_graph.h"
+#include "core/query/graph_search.h"
 #include "core/query/query_scratch.h"
 
 namespace geodesic::query_internal {
@@ -36,15 +37,16 @@ struct LaneStats {
 // Labels above `max_distance` are not relaxed further, so they are upper
 // bounds only: LaneDistanceTo reads them as +inf. CANCELLED when
 // `cancelled` says so.
-absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, QueryScratch& sc,
-                                          absl::Span<const Endpoint> sources, double max_distance,
+absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
+                                          QueryScratch& sc, absl::Span<const Endpoint> sources,
+                                          double max_distance,
                                           const std::function<bool()>& cancelled);
 
-// Lane `lane`'s distance to an end point, as FieldDistanceTo reads a field:
+// Every lane's distance to an end point, as FieldDistanceTo reads a field:
 // at its node, or the best of its temporary edges; +inf beyond
 // `max_distance`.
-double LaneDistanceTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end, int lane,
-                      double max_distance);
+LaneLabels LaneDistancesTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end,
+                           double max_distance);
 
 }  // namespace geodesic::query_internal
 

@@ -183,7 +183,7 @@ using query_internal::CheckPoint;
 using query_internal::Endpoint;
 using query_internal::FieldDistanceTo;
 using query_internal::JoinToGraph;
-using query_internal::LaneDistanceTo;
+using query_internal::LaneDistancesTo;
 using query_internal::SolveField;
 using query_internal::SolveFieldLanes;
 
@@ -258,16 +258,20 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
         if (d.ok()) rows[k][j] = *d;
       }
     }
-    RETURN_IF_ERROR(
-        SolveFieldLanes(*graph_, *sc, ends, matrix_options.max_distance, matrix_options.cancelled)
-            .status());
+    RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, *sc, ends, matrix_options.max_distance,
+                                    matrix_options.cancelled)
+                        .status());
+    // Target by target: a target's lanes share a cache line.
+    for (size_t j = 0; j < target_ends.size(); ++j) {
+      const LaneLabels d =
+          LaneDistancesTo(*graph_, *sc, target_ends[j], matrix_options.max_distance);
+      for (size_t k = 0; k < group.size(); ++k) {
+        rows[k][j] = std::min(rows[k][j], d.dist[k]);
+        if (rows[k][j] > matrix_options.max_distance) rows[k][j] = kInfinity;
+      }
+    }
     for (size_t k = 0; k < group.size(); ++k) {
       std::vector<double>& row = rows[k];
-      for (size_t j = 0; j < target_ends.size(); ++j) {
-        row[j] = std::min(
-            row[j], LaneDistanceTo(*graph_, *sc, target_ends[j], k, matrix_options.max_distance));
-        if (row[j] > matrix_options.max_distance) row[j] = kInfinity;
-      }
       if (matrix_options.exact) {
         RETURN_IF_ERROR(MakeRowExact(sc->Exact(mesh), exact_landmarks_.get(), ends[k].point,
                                      target_ends, matrix_options, absl::MakeSpan(row)));

@@ -19,7 +19,6 @@
 
 #include "core/base/bucket_queue.h"
 #include "core/base/node_heap.h"
-#include "core/base/radix_heap.h"
 #include "core/dgg/dgg_graph.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh.h"
@@ -32,7 +31,7 @@ inline constexpr int kFieldLanes = 8;
 struct alignas(64) LaneLabels {
   double dist[kFieldLanes];
 };
-struct LaneFans {
+struct alignas(64) LaneFans {
   FanRange fan[kFieldLanes];
 };
 
@@ -107,9 +106,6 @@ struct QueryScratch {
   std::vector<LaneLabels> lane_dist;
   std::vector<LaneFans> lane_fan;
   std::vector<uint8_t> lane_dirty;
-  // Their queue: lanes' labels at one node may lie far apart (sources a
-  // distance apart), beyond what a bucket ring spans.
-  RadixHeap<uint32_t> lane_queue;
 
   PairTable pairs;
   // The forward (0) and backward (1) searches' queues, with their slots in
