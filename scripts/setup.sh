@@ -32,6 +32,7 @@ BUILD_PACKAGES=(
   build-essential cmake ninja-build pkg-config git ccache
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libboost-dev libyaml-cpp-dev libzip-dev
+  libgiftiio-dev libexpat1-dev zlib1g-dev
   libssl-dev
 )
 # Tests, benchmarks, the viewer's browser test and the Python package's.

@@ -1,0 +1,31 @@
+// GIFTI files (the XML format of FreeSurfer, HCP and Connectome Workbench):
+// surfaces read as a TriangleSoup.
+//
+// A surface (x.surf.gii) is one NIFTI_INTENT_POINTSET array (float32 or
+// float64, N x 3) and one NIFTI_INTENT_TRIANGLE array (int32, M x 3), row-
+// or column-major, in ASCII, Base64Binary or GZipBase64Binary encoding.
+// Reading goes through Debian's libgiftiio; external-file data is refused
+// (a file naming another file on the server's disk must not make it read
+// that file).
+#ifndef GEODESIC_CORE_MESH_GIFTI_FILES_H_
+#define GEODESIC_CORE_MESH_GIFTI_FILES_H_
+
+#include <string>
+#include <string_view>
+
+#include "absl/status/statusor.h"
+#include "core/mesh/mesh.h"
+
+namespace geodesic {
+
+// The vertices and triangles of the GIFTI surface at `path`, in the file's
+// order; `name` is used in messages. INVALID_ARGUMENT naming `name` and the
+// problem for a file libgiftiio cannot parse (malformed, truncated, not
+// GIFTI), a missing or misshapen pointset or triangle array, a data type
+// other than those above, or external-file data. Coordinates and indices
+// are not checked here: the mesh reader checks them for every format.
+absl::StatusOr<TriangleSoup> ReadGiftiSurface(const std::string& path, std::string_view name);
+
+}  // namespace geodesic
+
+#endif  // GEODESIC_CORE_MESH_GIFTI_FILES_H_
