@@ -5,8 +5,10 @@ extern "C" {
 #include <gifti_io.h>
 }
 #include <expat.h>
+#include <zlib.h>
 
 #include <algorithm>
+#include <bit>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
@@ -24,6 +26,9 @@ extern "C" {
 
 namespace geodesic {
 namespace {
+
+static_assert(std::endian::native == std::endian::little,
+              "GIFTI metrics are written as little-endian memory images");
 
 // libgiftiio keeps its verbosity and its XML parser's state in globals: two
 // reads at once (the daemon loads meshes on several threads) would share one
@@ -210,6 +215,37 @@ absl::StatusOr<TriangleSoup> ReadGiftiSurface(const std::string& path, std::stri
     if (read_data) return GiftiToSoup(*points, *triangles, name);
   }
   return absl::InternalError("unreachable");
+}
+
+absl::StatusOr<std::string> GiftiMetricBytes(absl::Span<const double> values) {
+  // A double beyond float32's range becomes inf, as +inf (unreached) stays.
+  const std::vector<float> data(values.begin(), values.end());
+  const uLong raw_bytes = data.size() * sizeof(float);
+  uLongf packed_bytes = compressBound(raw_bytes);
+  std::string packed(packed_bytes, '\0');
+  if (compress2(reinterpret_cast<Bytef*>(packed.data()), &packed_bytes,
+                reinterpret_cast<const Bytef*>(data.data()), raw_bytes,
+                Z_DEFAULT_COMPRESSION) != Z_OK) {
+    return absl::ResourceExhaustedError("cannot compress the GIFTI metric (zlib)");
+  }
+  packed.resize(packed_bytes);
+  return absl::StrFormat(
+      "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+      "<!DOCTYPE GIFTI SYSTEM \"http://www.nitrc.org/frs/download.php/115/gifti.dtd\">\n"
+      "<GIFTI Version=\"1.0\" NumberOfDataArrays=\"1\">\n"
+      "  <MetaData/>\n"
+      "  <LabelTable/>\n"
+      "  <DataArray Intent=\"NIFTI_INTENT_SHAPE\" DataType=\"NIFTI_TYPE_FLOAT32\" "
+      "ArrayIndexingOrder=\"RowMajorOrder\" Dimensionality=\"1\" Dim0=\"%u\" "
+      "Encoding=\"GZipBase64Binary\" Endian=\"LittleEndian\" ExternalFileName=\"\" "
+      "ExternalFileOffset=\"\">\n"
+      "    <MetaData>\n"
+      "      <MD><Name><![CDATA[Name]]></Name><Value><![CDATA[geodesic distance]]></Value></MD>\n"
+      "    </MetaData>\n"
+      "    <Data>%s</Data>\n"
+      "  </DataArray>\n"
+      "</GIFTI>\n",
+      data.size(), absl::Base64Escape(packed));
 }
 
 }  // namespace geodesic

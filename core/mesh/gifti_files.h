@@ -1,5 +1,5 @@
 // GIFTI files (the XML format of FreeSurfer, HCP and Connectome Workbench):
-// surfaces read as a TriangleSoup.
+// surfaces read as a TriangleSoup, and per-vertex values written as a metric.
 //
 // A surface (x.surf.gii) is one NIFTI_INTENT_POINTSET array (float32 or
 // float64, N x 3) and one NIFTI_INTENT_TRIANGLE array (int32, M x 3), row-
@@ -14,6 +14,7 @@
 #include <string_view>
 
 #include "absl/status/statusor.h"
+#include "absl/types/span.h"
 #include "core/mesh/mesh.h"
 
 namespace geodesic {
@@ -25,6 +26,13 @@ namespace geodesic {
 // other than those above, or external-file data. Coordinates and indices
 // are not checked here: the mesh reader checks them for every format.
 absl::StatusOr<TriangleSoup> ReadGiftiSurface(const std::string& path, std::string_view name);
+
+// A GIFTI metric (x.func.gii) holding `values` as one NIFTI_INTENT_SHAPE
+// float32 array, GZipBase64Binary, little-endian: the file's bytes
+// (RESOURCE_EXHAUSTED if zlib cannot allocate).
+// +inf stays +inf (IEEE float32 holds it, and FreeSurfer, Workbench and
+// nibabel read it back as inf).
+absl::StatusOr<std::string> GiftiMetricBytes(absl::Span<const double> values);
 
 }  // namespace geodesic
 

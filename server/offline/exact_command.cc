@@ -24,7 +24,8 @@ int RunExact(int argc, char** argv) {
       ->required();
   app.add_option("--out", out_path,
                  "write the field, one value per vertex in file order: .f64 (little-endian "
-                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
+                 "float64, +inf unreached), .npy, .csv, .ply (the mesh coloured by distance), "
+                 "or .func.gii (a GIFTI metric: float32, +inf unreached)");
   app.add_option("--max-distance", max_distance, "stop the wavefront at this distance")
       ->check(kPositiveDistance);
   app.add_flag("--json", json, "print a JSON object");

@@ -1,7 +1,8 @@
-// GIFTI surfaces: surfaces written by libgiftiio in every
+// GIFTI surfaces and metrics: surfaces written by libgiftiio in every
 // encoding, order and coordinate type read back bit for bit, from a path and
 // from memory; malformed, truncated, misshapen and external-data files give
-// errors naming the file.
+// errors naming the file; a field written as .func.gii reads back as float32
+// with +inf kept.
 #include "core/mesh/gifti_files.h"
 
 // C without extern "C" guards of its own.
@@ -21,6 +22,7 @@ extern "C" {
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/result_files.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -315,6 +317,38 @@ TEST(GiftiErrors, EmptyFileAndUnknownExtension) {
   EXPECT_THAT(ReadTriangleSoup(dir.File("empty.surf.gii")).status().message(), HasSubstr("empty"));
   EXPECT_TRUE(IsMeshFormat("gii"));
   EXPECT_THAT(MeshFormatList(), HasSubstr("gii"));
+}
+
+TEST(GiftiMetric, FieldReadsBackAsFloat32WithInf) {
+  TempDir dir;
+  const std::string path = dir.File("d.func.gii");
+  const double inf = std::numeric_limits<double>::infinity();
+  const std::vector<double> field = {0.0, 1.0 / 3.0, 2.5, inf, 1e-3, 12345.678901234};
+  ASSERT_OK(WriteField(path, field));
+
+  gifti_set_verb(0);
+  gifti_image* image = gifti_read_image(path.c_str(), 1);
+  ASSERT_NE(image, nullptr);
+  ASSERT_EQ(image->numDA, 1);
+  const giiDataArray* da = image->darray[0];
+  EXPECT_EQ(da->intent, NIFTI_INTENT_SHAPE);
+  EXPECT_EQ(da->datatype, NIFTI_TYPE_FLOAT32);
+  EXPECT_EQ(da->encoding, GIFTI_ENCODING_B64GZ);
+  EXPECT_EQ(da->num_dim, 1);
+  ASSERT_EQ(da->nvals, static_cast<int64_t>(field.size()));
+  const float* got = static_cast<const float*>(da->data);
+  for (size_t i = 0; i < field.size(); ++i) {
+    EXPECT_EQ(got[i], static_cast<float>(field[i])) << "vertex " << i;
+  }
+  EXPECT_TRUE(std::isinf(got[3]) && got[3] > 0);
+  gifti_free_image(image);
+}
+
+TEST(GiftiMetric, ExtensionIsFuncGii) {
+  EXPECT_OK(CheckFieldPath("out/D.FUNC.GII", false));
+  EXPECT_THAT(CheckFieldPath("d.gii", false).message(), HasSubstr(".func.gii"));
+  EXPECT_THAT(CheckFieldPath("d.surf.gii", false).message(), HasSubstr("cannot write"));
+  EXPECT_FALSE(CheckFieldPath("dir.func.gii/", false).ok());
 }
 
 }  // namespace
