@@ -230,8 +230,9 @@ class Client:
     def upload_mesh(self, name: str, filename: Optional[str] = None, chunk_bytes: int = 1 << 20,
                     *, vertices: Any = None, faces: Any = None,
                     repair_non_manifold: bool = False) -> Mesh:
-        """Uploads a mesh and registers it under name: a local .obj/.off/.ply/.stl/.surf.gii file, or
-        arrays (vertices: (N, 3) floats, faces: (M, 3) vertex ids, in place of filename).
+        """Uploads a mesh and registers it under name: a local .obj/.off/.ply/.stl/.surf.gii
+        file, or arrays (vertices: (N, 3) floats, faces: (M, 3) vertex ids, in place of
+        filename).
 
         The upload declares its size and SHA-256 first, and the server registers it only if
         exactly those bytes arrive: an upload that fails or is interrupted leaves nothing
