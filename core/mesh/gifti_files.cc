@@ -9,11 +9,14 @@ extern "C" {
 
 #include <algorithm>
 #include <bit>
+#include <cctype>
 #include <cstdint>
+#include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <sstream>
 #include <vector>
 
 #include "absl/base/const_init.h"
@@ -45,14 +48,62 @@ using GiftiImage = std::unique_ptr<gifti_image, GiftiImageFree>;
 // holds more than zlib's best ratio (about 1032:1) of data per file byte.
 constexpr uint64_t kMaxGiftiBytesPerFileByte = 1100;
 
+// The Data text of each DataArray, in document order (libgiftiio's darray
+// order), as expat reads it, and whether any array's data is elsewhere.
+struct GiftiXmlScan {
+  std::vector<std::string> data;
+  // The first DataArray whose data is in another file: its index and name.
+  int external_array = -1;
+  std::string external_name;
+  int in_array = 0;  // DataArray elements open
+  bool in_data = false;
+};
+
+void ScanStart(void* user, const XML_Char* element, const XML_Char** attributes) {
+  auto* scan = static_cast<GiftiXmlScan*>(user);
+  if (std::strcmp(element, "DataArray") == 0) {
+    ++scan->in_array;
+    scan->data.emplace_back();
+    bool external = false;
+    std::string_view file;
+    for (int k = 0; attributes[k] != nullptr && attributes[k + 1] != nullptr; k += 2) {
+      const std::string_view key = attributes[k], value = attributes[k + 1];
+      external |= (key == "Encoding" && value == "ExternalFileBinary") ||
+                  (key == "ExternalFileName" && !value.empty());
+      if (key == "ExternalFileName") file = value;
+    }
+    if (external && scan->external_array < 0) {
+      scan->external_array = static_cast<int>(scan->data.size()) - 1;
+      scan->external_name = file;
+    }
+  } else if (std::strcmp(element, "Data") == 0 && scan->in_array > 0) {
+    scan->in_data = true;
+  }
+}
+
+void ScanEnd(void* user, const XML_Char* element) {
+  auto* scan = static_cast<GiftiXmlScan*>(user);
+  if (std::strcmp(element, "DataArray") == 0) --scan->in_array;
+  if (std::strcmp(element, "Data") == 0) scan->in_data = false;
+}
+
+void ScanText(void* user, const XML_Char* text, int length) {
+  auto* scan = static_cast<GiftiXmlScan*>(user);
+  if (scan->in_data) scan->data.back().append(text, length);
+}
+
 // libgiftiio prints expat's complaint about malformed XML to stderr whatever
 // its verbosity, and says nothing else about it; checked here first, the
 // daemon's log stays quiet and the message says where the file breaks.
-absl::Status CheckWellFormedXml(const std::string& path, std::string_view name) {
+absl::StatusOr<GiftiXmlScan> ScanGiftiXml(const std::string& path, std::string_view name) {
   std::ifstream in(path, std::ios::binary);
   XML_Parser parser = XML_ParserCreate(nullptr);
   if (parser == nullptr) return absl::ResourceExhaustedError("cannot create an XML parser");
   absl::Cleanup free_parser = [parser] { XML_ParserFree(parser); };
+  GiftiXmlScan scan;
+  XML_SetUserData(parser, &scan);
+  XML_SetElementHandler(parser, ScanStart, ScanEnd);
+  XML_SetCharacterDataHandler(parser, ScanText);
   std::vector<char> buffer(1 << 16);
   bool done = false;
   while (!done) {
@@ -65,7 +116,14 @@ absl::Status CheckWellFormedXml(const std::string& path, std::string_view name) 
         "%s: not a readable GIFTI file (malformed or truncated XML: %s at line %u)", name,
         XML_ErrorString(XML_GetErrorCode(parser)), XML_GetCurrentLineNumber(parser)));
   }
-  return absl::OkStatus();
+  // libgiftiio opens an array's external file even when asked not to read
+  // data: refused before it sees the file.
+  if (scan.external_array >= 0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: DataArray %d's data is in an external file ('%s'), which is not read",
+                        name, scan.external_array, absl::CHexEscape(scan.external_name)));
+  }
+  return scan;
 }
 
 // Verbosity 0: the daemon's stderr is its log, and libgiftiio otherwise
@@ -76,12 +134,13 @@ GiftiImage ParseGifti(const std::string& path, bool read_data)
   return GiftiImage(gifti_read_image(path.c_str(), read_data ? 1 : 0));
 }
 
-const giiDataArray* FindGiftiArray(const gifti_image& image, int intent) {
-  if (image.darray == nullptr) return nullptr;
+// The index of the first array with `intent`, or -1.
+int FindGiftiArray(const gifti_image& image, int intent) {
+  if (image.darray == nullptr) return -1;
   for (int k = 0; k < image.numDA; ++k) {
-    if (image.darray[k] != nullptr && image.darray[k]->intent == intent) return image.darray[k];
+    if (image.darray[k] != nullptr && image.darray[k]->intent == intent) return k;
   }
-  return nullptr;
+  return -1;
 }
 
 struct GiftiArrayKind {
@@ -102,14 +161,14 @@ const GiftiArrayKind kGiftiTriangles = {
 
 // What can be checked before the data is read: present, N x 3, a known type
 // and order, its data in this file, and no more of it than the file can hold.
-absl::StatusOr<const giiDataArray*> CheckGiftiArray(const gifti_image& image,
-                                                    const GiftiArrayKind& kind,
-                                                    std::string_view name, uint64_t file_bytes) {
-  const giiDataArray* da = FindGiftiArray(image, kind.intent);
-  if (da == nullptr) {
+absl::StatusOr<int> CheckGiftiArray(const gifti_image& image, const GiftiArrayKind& kind,
+                                    std::string_view name, uint64_t file_bytes) {
+  const int index = FindGiftiArray(image, kind.intent);
+  if (index < 0) {
     return absl::InvalidArgumentError(absl::StrFormat(
         "%s: no %s array (Intent=\"%s\"): not a GIFTI surface", name, kind.what, kind.intent_name));
   }
+  const giiDataArray* da = image.darray[index];
   if (da->encoding == GIFTI_ENCODING_EXTBIN || (da->ext_fname && da->ext_fname[0] != '\0')) {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: the %s array's data is in an external file ('%s'), which is not read",
@@ -140,7 +199,69 @@ absl::StatusOr<const giiDataArray*> CheckGiftiArray(const gifti_image& image,
         absl::StrFormat("%s: the %s array declares %d rows, more than its %u bytes can hold", name,
                         kind.what, da->dims[0], file_bytes));
   }
-  return da;
+  return index;
+}
+
+// The number of values `text` holds in `da`'s encoding, or an error saying
+// why it holds none.
+absl::StatusOr<int64_t> CountGiftiValues(const giiDataArray& da, const std::string& text,
+                                         size_t value_bytes, int64_t expected) {
+  if (da.encoding == GIFTI_ENCODING_ASCII) {
+    int64_t count = 0;
+    std::istringstream words(text);
+    for (std::string word; words >> word; ++count) {
+      char* end = nullptr;
+      std::strtod(word.c_str(), &end);
+      if (end != word.c_str() + word.size()) {
+        return absl::InvalidArgumentError(
+            absl::StrFormat("value %d is '%s', not a number", count, absl::CHexEscape(word)));
+      }
+    }
+    return count;
+  }
+  std::string base64 = text;
+  std::erase_if(base64, [](char c) { return std::isspace(static_cast<unsigned char>(c)); });
+  std::string bytes;
+  if (!absl::Base64Unescape(base64, &bytes)) return absl::InvalidArgumentError("not base64");
+  if (da.encoding == GIFTI_ENCODING_B64GZ) {
+    // One byte more than expected: room to notice more data than declared.
+    std::string raw(expected * value_bytes + 1, '\0');
+    uLongf size = raw.size();
+    if (uncompress(reinterpret_cast<Bytef*>(raw.data()), &size,
+                   reinterpret_cast<const Bytef*>(bytes.data()), bytes.size()) != Z_OK) {
+      return absl::InvalidArgumentError("not zlib-compressed, or more data than declared");
+    }
+    return static_cast<int64_t>(size / value_bytes);
+  }
+  return static_cast<int64_t>(bytes.size() / value_bytes);
+}
+
+// libgiftiio fills data that is short of the declared size with zeros (a
+// torn array would read as vertices at the origin) and decodes garbage with
+// a complaint on stderr only; each array's data is measured here first.
+absl::Status CheckGiftiDataText(const giiDataArray& da, const GiftiArrayKind& kind,
+                                const std::string& text, std::string_view name) {
+  if (da.encoding != GIFTI_ENCODING_ASCII && da.endian != GIFTI_ENDIAN_LITTLE &&
+      da.endian != GIFTI_ENDIAN_BIG) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: the %s array's Endian is missing, or neither LittleEndian nor BigEndian", name,
+        kind.what));
+  }
+  int value_bytes = 0, swapsize = 0;
+  gifti_datatype_sizes(da.datatype, &value_bytes, &swapsize);
+  const int64_t expected = int64_t{3} * da.dims[0];
+  auto count = CountGiftiValues(da, text, value_bytes, expected);
+  if (!count.ok()) {
+    return absl::InvalidArgumentError(absl::StrFormat("%s: the %s array's data is unreadable: %s",
+                                                      name, kind.what, count.status().message()));
+  }
+  if (*count != expected) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: the %s array declares %d values but its data holds %d (truncated or "
+                        "malformed)",
+                        name, kind.what, expected, *count));
+  }
+  return absl::OkStatus();
 }
 
 // Element (row, col) of an N x 3 array, in either indexing order.
@@ -198,23 +319,29 @@ absl::StatusOr<TriangleSoup> ReadGiftiSurface(const std::string& path, std::stri
   if (ec) {
     return absl::InvalidArgumentError(absl::StrFormat("%s: cannot read (%s)", name, ec.message()));
   }
-  RETURN_IF_ERROR(CheckWellFormedXml(path, name));
+  ASSIGN_OR_RETURN(GiftiXmlScan scan, ScanGiftiXml(path, name));
+  const auto unreadable = [name] {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: not a readable GIFTI file (malformed, truncated or not GIFTI XML)", name));
+  };
   absl::MutexLock lock(&gifti_mu);
-  // First without the data: external files, shapes and sizes are refused
-  // before libgiftiio reads or allocates anything for them.
-  for (bool read_data : {false, true}) {
-    GiftiImage image = ParseGifti(path, read_data);
-    if (image == nullptr) {
-      return absl::InvalidArgumentError(absl::StrFormat(
-          "%s: not a readable GIFTI file (malformed, truncated or not GIFTI XML)", name));
-    }
-    ASSIGN_OR_RETURN(const giiDataArray* points,
-                     CheckGiftiArray(*image, kGiftiPoints, name, file_bytes));
-    ASSIGN_OR_RETURN(const giiDataArray* triangles,
-                     CheckGiftiArray(*image, kGiftiTriangles, name, file_bytes));
-    if (read_data) return GiftiToSoup(*points, *triangles, name);
-  }
-  return absl::InternalError("unreachable");
+  // First without the data: shapes and sizes are checked, and each array's
+  // data measured against them, before libgiftiio decodes or allocates.
+  GiftiImage header = ParseGifti(path, /*read_data=*/false);
+  if (header == nullptr) return unreadable();
+  ASSIGN_OR_RETURN(int points, CheckGiftiArray(*header, kGiftiPoints, name, file_bytes));
+  ASSIGN_OR_RETURN(int triangles, CheckGiftiArray(*header, kGiftiTriangles, name, file_bytes));
+  if (scan.data.size() != static_cast<size_t>(header->numDA)) return unreadable();
+  RETURN_IF_ERROR(
+      CheckGiftiDataText(*header->darray[points], kGiftiPoints, scan.data[points], name));
+  RETURN_IF_ERROR(
+      CheckGiftiDataText(*header->darray[triangles], kGiftiTriangles, scan.data[triangles], name));
+  std::vector<std::string>().swap(scan.data);
+  GiftiImage image = ParseGifti(path, /*read_data=*/true);
+  if (image == nullptr || image->numDA != header->numDA) return unreadable();
+  ASSIGN_OR_RETURN(points, CheckGiftiArray(*image, kGiftiPoints, name, file_bytes));
+  ASSIGN_OR_RETURN(triangles, CheckGiftiArray(*image, kGiftiTriangles, name, file_bytes));
+  return GiftiToSoup(*image->darray[points], *image->darray[triangles], name);
 }
 
 absl::StatusOr<std::string> GiftiMetricBytes(absl::Span<const double> values) {

@@ -1,8 +1,8 @@
 // GIFTI surfaces and metrics: surfaces written by libgiftiio in every
 // encoding, order and coordinate type read back bit for bit, from a path and
 // from memory; malformed, truncated, misshapen and external-data files give
-// errors naming the file; a field written as .func.gii reads back as float32
-// with +inf kept.
+// errors naming the file, and nothing on stderr; a field written as .func.gii
+// reads back as float32 with +inf kept.
 #include "core/mesh/gifti_files.h"
 
 // C without extern "C" guards of its own.
@@ -226,13 +226,23 @@ std::string AsciiSurface(const std::string& point_text, const std::string& trian
       "Encoding=\"ASCII\" Endian=\"LittleEndian\" ExternalFileName=\"\" ExternalFileOffset=\"\">\n"
       "<Data>%s</Data></DataArray>\n"
       "<DataArray Intent=\"NIFTI_INTENT_TRIANGLE\" DataType=\"NIFTI_TYPE_INT32\" "
-      "ArrayIndexingOrder=\"RowMajorOrder\" %s Endian=\"LittleEndian\">\n"
+      "ArrayIndexingOrder=\"RowMajorOrder\" %s>\n"
       "<Data>%s</Data></DataArray>\n"
       "</GIFTI>\n",
       point_text, triangle_attributes, triangle_text);
 }
 
 const char kPoints[] = "0 0 0 1 0 0 0 1 0";
+
+// AsciiSurface with one triangle as binary data (`base64`) in `encoding`.
+std::string Binary(const std::string& endian, const std::string& encoding,
+                   const std::string& base64) {
+  return AsciiSurface(kPoints,
+                      absl::StrFormat("Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" "
+                                      "Encoding=\"%s\"%s",
+                                      encoding, endian),
+                      base64);
+}
 const char kTriangleAttributes[] =
     "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" Encoding=\"ASCII\" ExternalFileName=\"\" "
     "ExternalFileOffset=\"\"";
@@ -251,6 +261,8 @@ struct BadFile {
   std::string bytes;
   const char* says;
 };
+
+const char kLittle[] = " Endian=\"LittleEndian\"";
 
 std::vector<BadFile> BadFiles() {
   TempDir dir;
@@ -278,13 +290,25 @@ std::vector<BadFile> BadFiles() {
                     "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" Encoding=\"ExternalFileBinary\" "
                     "ExternalFileName=\"/etc/passwd\" ExternalFileOffset=\"0\"",
                     ""),
-       "external file"},
+       "external file ('/etc/passwd')"},
       {"index out of range", AsciiSurface(kPoints, kTriangleAttributes, "0 1 3"),
        "refers to vertex 3"},
       {"negative index", AsciiSurface(kPoints, kTriangleAttributes, "0 -1 2"),
        "refers to vertex -1"},
       {"nan coordinate", AsciiSurface("0 0 0 1 nan 0 0 1 0", kTriangleAttributes, "0 1 2"),
        "non-finite coordinate"},
+      {"ASCII data short of Dim0", AsciiSurface(kPoints, kTriangleAttributes, "0 1"),
+       "declares 3 values but its data holds 2"},
+      {"ASCII data beyond Dim0", AsciiSurface(kPoints, kTriangleAttributes, "0 1 2 0"),
+       "declares 3 values but its data holds 4"},
+      {"ASCII word", AsciiSurface(kPoints, kTriangleAttributes, "0 one 2"), "'one', not a number"},
+      {"binary data short of Dim0", Binary(kLittle, "Base64Binary", "AAAAAAEAAAA="),
+       "declares 3 values but its data holds 2"},
+      {"gzip data short of Dim0", Binary(kLittle, "GZipBase64Binary", "eJxjYGBgYARiAAAMAAI="),
+       "declares 3 values but its data holds 2"},
+      {"not base64", Binary(kLittle, "Base64Binary", "!!!!"), "not base64"},
+      {"base64 but not zlib", Binary(kLittle, "GZipBase64Binary", "AAAAAAEAAAA="), "not zlib"},
+      {"no Endian", Binary("", "Base64Binary", "AAAAAAEAAAACAAAA"), "Endian is missing"},
       {"huge declared size",
        AsciiSurface(kPoints,
                     "Dimensionality=\"2\" Dim0=\"2000000000\" Dim1=\"3\" Encoding=\"ASCII\"",
@@ -295,7 +319,10 @@ std::vector<BadFile> BadFiles() {
 
 TEST(GiftiErrors, MalformedFilesAreRefusedNamingTheFile) {
   TempDir dir;
-  for (const BadFile& bad : BadFiles()) {
+  const std::vector<BadFile> bad_files = BadFiles();
+  // The daemon's stderr is its log: libgiftiio must not get to complain there.
+  ::testing::internal::CaptureStderr();
+  for (const BadFile& bad : bad_files) {
     SCOPED_TRACE(bad.label);
     const std::string path = dir.File("bad.surf.gii");
     WriteBytes(path, bad.bytes);
@@ -309,6 +336,7 @@ TEST(GiftiErrors, MalformedFilesAreRefusedNamingTheFile) {
     EXPECT_THAT(uploaded.status().message(), HasSubstr("sent.surf.gii"));
     EXPECT_THAT(uploaded.status().message(), HasSubstr(bad.says));
   }
+  EXPECT_EQ(::testing::internal::GetCapturedStderr(), "");
 }
 
 TEST(GiftiErrors, EmptyFileAndUnknownExtension) {
