@@ -15,6 +15,8 @@ extern "C" {
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <limits>
+#include <map>
 #include <memory>
 #include <sstream>
 #include <vector>
@@ -23,6 +25,8 @@ extern "C" {
 #include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
 #include "absl/strings/escaping.h"
+#include "absl/strings/numbers.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/synchronization/mutex.h"
 #include "core/base/status.h"
@@ -52,29 +56,65 @@ constexpr uint64_t kMaxGiftiBytesPerFileByte = 1100;
 // order), as expat reads it, and whether any array's data is elsewhere.
 struct GiftiXmlScan {
   std::vector<std::string> data;
-  // The first DataArray whose data is in another file: its index and name.
-  int external_array = -1;
-  std::string external_name;
-  int in_array = 0;  // DataArray elements open
+  int declared_arrays = -1;  // the GIFTI element's NumberOfDataArrays
+  std::string problem;       // the first array libgiftiio must not see
+  int in_array = 0;          // DataArray elements open
   bool in_data = false;
 };
 
+// What libgiftiio would refuse only with a complaint on stderr (or, for
+// external data, not refuse at all: it opens an array's ExternalFileName
+// even when told not to read data) in a DataArray's attributes, or "".
+std::string DataArrayProblem(const XML_Char** attributes) {
+  std::map<std::string, std::string> a;
+  for (int k = 0; attributes[k] != nullptr && attributes[k + 1] != nullptr; k += 2) {
+    a[attributes[k]] = attributes[k + 1];
+  }
+  if (a["Encoding"] == "ExternalFileBinary" || !a["ExternalFileName"].empty()) {
+    return absl::StrFormat("its data is in an external file ('%s'), which is not read",
+                           absl::CHexEscape(a["ExternalFileName"]));
+  }
+  if (a["Encoding"] != "ASCII" && a["Encoding"] != "Base64Binary" &&
+      a["Encoding"] != "GZipBase64Binary") {
+    return absl::StrFormat("its Encoding '%s' is not ASCII, Base64Binary or GZipBase64Binary",
+                           absl::CHexEscape(a["Encoding"]));
+  }
+  int dimensions = 0;
+  if (!absl::SimpleAtoi(a["Dimensionality"], &dimensions) || dimensions < 1 || dimensions > 6) {
+    return absl::StrFormat("its Dimensionality '%s' is not 1 to 6",
+                           absl::CHexEscape(a["Dimensionality"]));
+  }
+  int64_t values = 1;
+  for (int k = 0; k < dimensions; ++k) {
+    const std::string key = absl::StrCat("Dim", k);
+    int size = 0;
+    if (!absl::SimpleAtoi(a[key], &size) || size < 1) {
+      return absl::StrFormat("its %s '%s' is not a positive integer", key,
+                             absl::CHexEscape(a[key]));
+    }
+    values *= size;
+    if (values > std::numeric_limits<int32_t>::max()) {
+      return "its dimensions multiply to more than 2^31 - 1 values";
+    }
+  }
+  return "";
+}
+
 void ScanStart(void* user, const XML_Char* element, const XML_Char** attributes) {
   auto* scan = static_cast<GiftiXmlScan*>(user);
-  if (std::strcmp(element, "DataArray") == 0) {
+  if (std::strcmp(element, "GIFTI") == 0) {
+    for (int k = 0; attributes[k] != nullptr && attributes[k + 1] != nullptr; k += 2) {
+      if (std::strcmp(attributes[k], "NumberOfDataArrays") == 0 &&
+          !absl::SimpleAtoi(attributes[k + 1], &scan->declared_arrays)) {
+        scan->declared_arrays = -2;
+      }
+    }
+  } else if (std::strcmp(element, "DataArray") == 0) {
     ++scan->in_array;
     scan->data.emplace_back();
-    bool external = false;
-    std::string_view file;
-    for (int k = 0; attributes[k] != nullptr && attributes[k + 1] != nullptr; k += 2) {
-      const std::string_view key = attributes[k], value = attributes[k + 1];
-      external |= (key == "Encoding" && value == "ExternalFileBinary") ||
-                  (key == "ExternalFileName" && !value.empty());
-      if (key == "ExternalFileName") file = value;
-    }
-    if (external && scan->external_array < 0) {
-      scan->external_array = static_cast<int>(scan->data.size()) - 1;
-      scan->external_name = file;
+    if (std::string problem = DataArrayProblem(attributes);
+        !problem.empty() && scan->problem.empty()) {
+      scan->problem = absl::StrFormat("DataArray %u: %s", scan->data.size() - 1, problem);
     }
   } else if (std::strcmp(element, "Data") == 0 && scan->in_array > 0) {
     scan->in_data = true;
@@ -116,12 +156,17 @@ absl::StatusOr<GiftiXmlScan> ScanGiftiXml(const std::string& path, std::string_v
         "%s: not a readable GIFTI file (malformed or truncated XML: %s at line %u)", name,
         XML_ErrorString(XML_GetErrorCode(parser)), XML_GetCurrentLineNumber(parser)));
   }
-  // libgiftiio opens an array's external file even when asked not to read
-  // data: refused before it sees the file.
-  if (scan.external_array >= 0) {
+  if (!scan.problem.empty()) {
+    return absl::InvalidArgumentError(absl::StrFormat("%s: %s", name, scan.problem));
+  }
+  if (scan.declared_arrays == -1) {
     return absl::InvalidArgumentError(
-        absl::StrFormat("%s: DataArray %d's data is in an external file ('%s'), which is not read",
-                        name, scan.external_array, absl::CHexEscape(scan.external_name)));
+        absl::StrFormat("%s: not a GIFTI file (no GIFTI element with NumberOfDataArrays)", name));
+  }
+  if (scan.declared_arrays != static_cast<int>(scan.data.size())) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: NumberOfDataArrays says %d, but the file has %u DataArray elements",
+                        name, scan.declared_arrays, scan.data.size()));
   }
   return scan;
 }
@@ -222,7 +267,10 @@ absl::StatusOr<int64_t> CountGiftiValues(const giiDataArray& da, const std::stri
   std::string base64 = text;
   std::erase_if(base64, [](char c) { return std::isspace(static_cast<unsigned char>(c)); });
   std::string bytes;
-  if (!absl::Base64Unescape(base64, &bytes)) return absl::InvalidArgumentError("not base64");
+  // Unpadded base64 absl accepts, but libgiftiio drops its last bytes.
+  if (base64.size() % 4 != 0 || !absl::Base64Unescape(base64, &bytes)) {
+    return absl::InvalidArgumentError("not base64 (padded to a multiple of 4 characters)");
+  }
   if (da.encoding == GIFTI_ENCODING_B64GZ) {
     // One byte more than expected: room to notice more data than declared.
     std::string raw(expected * value_bytes + 1, '\0');

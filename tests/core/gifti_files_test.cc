@@ -16,6 +16,7 @@ extern "C" {
 #include <fstream>
 #include <limits>
 #include <numbers>
+#include <regex>
 #include <sstream>
 #include <vector>
 
@@ -279,7 +280,7 @@ std::vector<BadFile> BadFiles() {
       {"truncated in the data", bytes.substr(0, bytes.rfind("</Data>") - 8),
        "not a readable GIFTI file"},
       {"garbage", garbage, "not a readable GIFTI file"},
-      {"xml but not gifti", "<?xml version=\"1.0\"?>\n<svg></svg>\n", "no pointset array"},
+      {"xml but not gifti", "<?xml version=\"1.0\"?>\n<svg></svg>\n", "not a GIFTI file"},
       {"no triangle array", ReadBytes(no_triangles), "no triangle array"},
       {"N x 2 triangles",
        AsciiSurface(kPoints, "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"2\" Encoding=\"ASCII\"",
@@ -307,13 +308,35 @@ std::vector<BadFile> BadFiles() {
       {"gzip data short of Dim0", Binary(kLittle, "GZipBase64Binary", "eJxjYGBgYARiAAAMAAI="),
        "declares 3 values but its data holds 2"},
       {"not base64", Binary(kLittle, "Base64Binary", "!!!!"), "not base64"},
+      {"unpadded base64", Binary(kLittle, "Base64Binary", "AAAAAAEAAAACAAA"), "not base64"},
       {"base64 but not zlib", Binary(kLittle, "GZipBase64Binary", "AAAAAAEAAAA="), "not zlib"},
       {"no Endian", Binary("", "Base64Binary", "AAAAAAEAAAACAAAA"), "Endian is missing"},
       {"huge declared size",
        AsciiSurface(kPoints,
-                    "Dimensionality=\"2\" Dim0=\"2000000000\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "Dimensionality=\"2\" Dim0=\"700000000\" Dim1=\"3\" Encoding=\"ASCII\"",
                     "0 1 2"),
        "more than its"},
+      {"dimensions beyond 32 bits",
+       AsciiSurface(kPoints,
+                    "Dimensionality=\"2\" Dim0=\"2000000000\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "more than 2^31 - 1 values"},
+      {"negative Dim0",
+       AsciiSurface(kPoints, "Dimensionality=\"2\" Dim0=\"-1\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "Dim0 '-1' is not a positive integer"},
+      {"Dimensionality 7",
+       AsciiSurface(kPoints, "Dimensionality=\"7\" Dim0=\"1\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "Dimensionality '7' is not 1 to 6"},
+      {"unknown encoding",
+       AsciiSurface(kPoints, "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" Encoding=\"Hex\"",
+                    "0 1 2"),
+       "Encoding 'Hex'"},
+      {"miscounted arrays",
+       std::regex_replace(AsciiSurface(kPoints, kTriangleAttributes, "0 1 2"),
+                          std::regex("NumberOfDataArrays=\"2\""), "NumberOfDataArrays=\"3\""),
+       "NumberOfDataArrays says 3"},
   };
 }
 
