@@ -32,12 +32,13 @@ BUILD_PACKAGES=(
   build-essential cmake ninja-build pkg-config git ccache
   libgrpc++-dev libgrpc-dev protobuf-compiler-grpc libprotobuf-dev protobuf-compiler
   libabsl-dev libopenmesh-dev libtbb-dev libxxhash-dev libnanoflann-dev libcli11-dev nlohmann-json3-dev libboost-dev libyaml-cpp-dev libzip-dev
+  libgiftiio-dev libexpat1-dev zlib1g-dev
   libssl-dev
 )
 # Tests, benchmarks, the viewer's browser test and the Python package's.
 TEST_PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev libcgal-dev libeigen3-dev
-  python3 python3-grpcio python3-protobuf python3-numpy python3-scipy python3-yaml python3-matplotlib openssl
+  python3 python3-grpcio python3-protobuf python3-numpy python3-scipy python3-yaml python3-matplotlib python3-nibabel openssl
   libjs-three chromium chromium-driver python3-selenium curl universal-ctags
   python3-venv python3-pip python3-setuptools python3-wheel
 )

@@ -29,7 +29,7 @@ struct CatalogMesh {
   // Where it came from: a path the daemon may read again (under the mesh
   // root, or the operator's own), or "upload".
   std::string source;
-  std::string format;        // "obj", "off", "ply" or "stl"
+  std::string format;        // one of MeshFormats() (core/mesh/mesh_io.h)
   uint64_t source_hash = 0;  // the mesh snapshot's key (core/mesh/mesh_snapshot.h)
   uint64_t fingerprint = 0;  // of the built mesh: graphs are keyed by it
   bool repair_non_manifold = false;

@@ -19,6 +19,7 @@
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
+#include "core/mesh/mesh_io.h"
 #include "core/mesh/surface_point.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "google/protobuf/util/json_util.h"
@@ -484,7 +485,7 @@ struct HttpGateway::Impl {
   // POST /v1/meshes registers a mesh, as the gRPC calls do: JSON naming a
   // file under --mesh-root ({"name", "path"}) or holding the mesh as arrays
   // ({"name", "vertices": [[x, y, z], ...], "faces": [[i, j, k], ...]}), or
-  // the file's own bytes with ?name=NAME&format=obj|off|ply|stl (any
+  // the file's own bytes with ?name=NAME&format=obj|off|ply|stl|gii (any
   // content type but JSON). Arrays and bytes go through UploadMesh, whose
   // declared size and SHA-256 the gateway computes.
   grpc::Status RegisterMesh(const Call& call, const ApiRequest& r, json* out) {
@@ -493,10 +494,11 @@ struct HttpGateway::Impl {
     grpc::Status s;
     if (!http.header("Content-Type").starts_with("application/json")) {
       if (!http.has_param("name") || !http.has_param("format")) {
-        return Invalid(
-            "a mesh file as the body needs ?name=NAME&format=obj|off|ply|stl (or send JSON "
+        return Invalid(absl::StrFormat(
+            "a mesh file as the body needs ?name=NAME&format=FORMAT, one of %s (or send JSON "
             "with \"path\", or \"vertices\" and \"faces\", and Content-Type: "
-            "application/json)");
+            "application/json)",
+            MeshFormatList()));
       }
       v1::UploadMeshRequest first;
       first.set_name(http.param("name"));

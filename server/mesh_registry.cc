@@ -23,6 +23,7 @@
 #include "absl/strings/str_format.h"
 #include "core/base/status.h"
 #include "core/dgg/dgg_graph.h"
+#include "core/mesh/mesh_io.h"
 #include "core/mesh/mesh_snapshot.h"
 #include "server/convert.h"
 #include "server/log.h"
@@ -168,10 +169,6 @@ absl::StatusOr<std::string> ReadRegularFile(const std::string& path, const std::
   return bytes;
 }
 
-bool KnownFormat(const std::string& format) {
-  return format == "obj" || format == "off" || format == "ply" || format == "stl";
-}
-
 }  // namespace
 
 absl::StatusOr<SurfacePoint> LazySurfaceLocator::Snap(const Vec3& position) const {
@@ -247,9 +244,9 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterByte
     const std::string& name, const std::string& format, const std::string& bytes, bool repair) {
   RETURN_IF_ERROR(ValidateName(name));
   const std::string lower = absl::AsciiStrToLower(format);
-  if (!KnownFormat(lower)) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("unknown mesh format '%s' (supported: obj, off, ply, stl)", Echo(format)));
+  if (!IsMeshFormat(lower)) {
+    return absl::InvalidArgumentError(absl::StrFormat("unknown mesh format '%s' (supported: %s)",
+                                                      Echo(format), MeshFormatList()));
   }
   const uint64_t key = SnapshotKey(SourceHash(bytes, lower), repair);
   if (auto m = Restore(key, name, "upload", repair)) {
@@ -340,9 +337,10 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(
   // key.
   ASSIGN_OR_RETURN(std::string bytes, ReadRegularFile(path, display, root));
   const std::string format = MeshFormatOfPath(path);
-  if (!KnownFormat(format)) {
+  if (!IsMeshFormat(format)) {
     return absl::InvalidArgumentError(absl::StrFormat(
-        "'%s': unknown mesh format (the extension must be .obj, .off, .ply or .stl)", display));
+        "'%s': unknown mesh format (the extension names one of %s; x.surf.gii is gii)", display,
+        MeshFormatList()));
   }
   const uint64_t key = SnapshotKey(SourceHash(bytes, format), repair);
   if (auto m = Restore(key, name, source, repair)) {

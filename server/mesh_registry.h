@@ -37,7 +37,7 @@ class LazySurfaceLocator {
 struct RegisteredMesh {
   std::string name;
   std::string source;  // path, or "upload"
-  std::string format;  // "obj", "off", "ply" or "stl"
+  std::string format;  // one of MeshFormats() (core/mesh/mesh_io.h), or "arrays"
   // The key of its snapshot (core/mesh/mesh_snapshot.h): the source bytes' hash.
   uint64_t source_hash = 0;
   uint64_t fingerprint = 0;

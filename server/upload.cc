@@ -10,6 +10,7 @@
 #include "absl/strings/escaping.h"
 #include "absl/strings/str_format.h"
 #include "core/base/status.h"
+#include "core/mesh/mesh_io.h"
 #include "server/convert.h"
 #include "server/mesh_registry.h"
 
@@ -78,11 +79,10 @@ absl::Status UploadAssembler::First(const v1::UploadMeshRequest& message) {
                         message.total_bytes(), max_bytes_));
   }
   format_ = absl::AsciiStrToLower(message.format());
-  if (!format_.empty() && format_ != "obj" && format_ != "off" && format_ != "ply" &&
-      format_ != "stl") {
-    return absl::InvalidArgumentError(absl::StrFormat(
-        "unknown mesh format '%s' (supported: obj, off, ply, stl; empty for arrays)",
-        Echo(message.format())));
+  if (!format_.empty() && !IsMeshFormat(format_)) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("unknown mesh format '%s' (supported: %s; empty for arrays)",
+                        Echo(message.format()), MeshFormatList()));
   }
   total_bytes_ = message.total_bytes();
   sha256_ = absl::AsciiStrToLower(message.sha256());
@@ -108,7 +108,7 @@ absl::Status UploadAssembler::Add(v1::UploadMeshRequest& message) {
   }
   if (has_bytes_ && format_.empty()) {
     return absl::InvalidArgumentError(
-        "an upload of a file's bytes names its format (obj, off, ply or stl)");
+        absl::StrFormat("an upload of a file's bytes names its format (%s)", MeshFormatList()));
   }
   if (arrays_ && !format_.empty()) {
     return absl::InvalidArgumentError(

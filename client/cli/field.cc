@@ -109,8 +109,8 @@ Command AddField(CLI::App& app, Common& c) {
   auto a = std::make_shared<Args>();
   sub->add_option("--source", a->sources, "source point(s)")->required();
   sub->add_option("--out", a->out,
-                  "write the field as .f64 (float64 per vertex), .npy, .csv, or .ply (colours; "
-                  "needs --mesh-file)");
+                  "write the field as .f64 (float64 per vertex), .npy, .csv, .ply (colours; "
+                  "needs --mesh-file), or .func.gii (GIFTI metric, float32)");
   sub->add_option("--labels-out", a->labels_out,
                   "write each vertex's nearest source (geodesic Voronoi regions) as .npy, .csv "
                   "or .u32");

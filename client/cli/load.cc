@@ -48,7 +48,8 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
     // whole path as a format.
     const std::string ext = std::filesystem::path(upload).extension().string();
     if (ext.size() < 2) {
-      return FailText(upload + " has no extension naming its format (.obj, .off, .ply or .stl)");
+      return FailText(upload +
+                      " has no extension naming its format (.obj, .off, .ply, .stl or .surf.gii)");
     }
     // The server registers the upload only if exactly these bytes arrive:
     // a file changed while it is sent is refused, not half registered.

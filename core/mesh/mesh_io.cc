@@ -29,6 +29,7 @@
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_split.h"
 #include "core/base/status.h"
+#include "core/mesh/gifti_files.h"
 
 namespace geodesic {
 namespace {
@@ -560,9 +561,6 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
         "read",
         name, declared.vertices, declared.faces, soup.positions.size(), importer.input_faces()));
   }
-  if (soup.positions.empty() && soup.triangles.empty()) {
-    return absl::InvalidArgumentError(absl::StrFormat("%s: no vertices or faces", name));
-  }
   if (ascii.available) {
     if (ascii.positions.size() != soup.positions.size()) {
       return absl::InvalidArgumentError(
@@ -571,6 +569,18 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
     }
     soup.positions = std::move(ascii.positions);
   }
+  if (diagnostics) diagnostics->polygons_triangulated = importer.polygons();
+  return soup;
+}
+
+// What every reader's output must satisfy before diagnostics are computed
+// on it: finite coordinates, and corners that name a vertex of the file
+// (OpenMesh's importer checks those as it reads; GIFTI's arrays are
+// checked here).
+absl::Status CheckReadSoup(const TriangleSoup& soup, const std::string& name) {
+  if (soup.positions.empty() && soup.triangles.empty()) {
+    return absl::InvalidArgumentError(absl::StrFormat("%s: no vertices or faces", name));
+  }
   for (size_t v = 0; v < soup.positions.size(); ++v) {
     const Vec3& p = soup.positions[v];
     if (!std::isfinite(p.x) || !std::isfinite(p.y) || !std::isfinite(p.z)) {
@@ -578,10 +588,30 @@ absl::StatusOr<TriangleSoup> ReadWithOpenMesh(const std::string& path, const std
           "%s: vertex %u has a non-finite coordinate (%g, %g, %g)", name, v, p.x, p.y, p.z));
     }
   }
+  for (size_t f = 0; f < soup.triangles.size(); ++f) {
+    for (VertexId corner : soup.triangles[f]) {
+      if (corner >= soup.positions.size()) {
+        return absl::InvalidArgumentError(
+            absl::StrFormat("%s: face %u refers to vertex %u, but the file has %u vertices", name,
+                            f, corner, soup.positions.size()));
+      }
+    }
+  }
+  return absl::OkStatus();
+}
+
+// Reads `path` (a file of `format`, named `name` in messages) with the
+// reader of its format.
+absl::StatusOr<TriangleSoup> ReadFormat(const std::string& path, const std::string& name,
+                                        const std::string& format, MeshDiagnostics* diagnostics) {
+  absl::StatusOr<TriangleSoup> soup = format == "gii"
+                                          ? ReadGiftiSurface(path, name)
+                                          : ReadWithOpenMesh(path, name, format, diagnostics);
+  if (!soup.ok()) return soup;
+  RETURN_IF_ERROR(CheckReadSoup(*soup, name));
   if (diagnostics) {
     diagnostics->path = name;
     diagnostics->format = format;
-    diagnostics->polygons_triangulated = importer.polygons();
   }
   return soup;
 }
@@ -604,14 +634,30 @@ absl::Status CheckReadable(const std::string& path) {
 }
 
 absl::Status CheckFormat(const std::string& format, std::string_view name) {
-  if (format == "obj" || format == "off" || format == "ply" || format == "stl") {
-    return absl::OkStatus();
-  }
-  return absl::InvalidArgumentError(absl::StrFormat(
-      "%s: unknown mesh format '%s' (supported: obj, off, ply, stl)", name, format));
+  if (IsMeshFormat(format)) return absl::OkStatus();
+  return absl::InvalidArgumentError(absl::StrFormat("%s: unknown mesh format '%s' (supported: %s)",
+                                                    name, format, MeshFormatList()));
 }
 
 }  // namespace
+
+absl::Span<const std::string_view> MeshFormats() {
+  static constexpr std::string_view kFormats[] = {"obj", "off", "ply", "stl", "gii"};
+  return kFormats;
+}
+
+bool IsMeshFormat(std::string_view format) {
+  return std::find(MeshFormats().begin(), MeshFormats().end(), format) != MeshFormats().end();
+}
+
+std::string MeshFormatList() {
+  std::string list;
+  for (std::string_view format : MeshFormats()) {
+    if (!list.empty()) list += ", ";
+    list += format;
+  }
+  return list;
+}
 
 std::string MeshFormatOfPath(const std::string& path) {
   std::string ext = std::filesystem::path(path).extension().string();
@@ -625,7 +671,7 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
   RETURN_IF_ERROR(CheckReadable(path));
   const std::string format = MeshFormatOfPath(path);
   RETURN_IF_ERROR(CheckFormat(format, path));
-  ASSIGN_OR_RETURN(TriangleSoup soup, ReadWithOpenMesh(path, path, format, diagnostics));
+  ASSIGN_OR_RETURN(TriangleSoup soup, ReadFormat(path, path, format, diagnostics));
   if (diagnostics) {
     diagnostics->load_seconds =
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -641,7 +687,7 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
   RETURN_IF_ERROR(CheckFormat(fmt, name));
   if (bytes.empty()) return absl::InvalidArgumentError(absl::StrFormat("%s is empty", name));
   ASSIGN_OR_RETURN(const std::string path, WriteTemporaryMeshFile(bytes, fmt));
-  auto soup = ReadWithOpenMesh(path, std::string(name), fmt, diagnostics);
+  auto soup = ReadFormat(path, std::string(name), fmt, diagnostics);
   ::unlink(path.c_str());
   return soup;
 }

@@ -1,4 +1,4 @@
-// Reading meshes (OBJ, OFF, PLY ascii/binary, STL) into a TriangleSoup with
+// Reading meshes (OBJ, OFF, PLY ascii/binary, STL, GIFTI surfaces) into a TriangleSoup with
 // the file's own vertex and face order, diagnostics of what was read, and the
 // conversion to a Mesh.
 #ifndef GEODESIC_CORE_MESH_MESH_IO_H_
@@ -9,6 +9,7 @@
 #include <string_view>
 
 #include "absl/status/statusor.h"
+#include "absl/types/span.h"
 #include "core/mesh/corner_fans.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_diagnostics.h"
@@ -21,8 +22,18 @@ struct LoadOptions {
   bool repair_non_manifold = false;
 };
 
-// The format a path names by its extension, lower case ("ply" for a.PLY).
+// The format a path names by its extension, lower case ("ply" for a.PLY,
+// "gii" for a.surf.gii).
 std::string MeshFormatOfPath(const std::string& path);
+
+// The formats the readers below take, as MeshFormatOfPath names them: obj,
+// off, ply, stl and gii. The one list every command, RPC and help text
+// names, so that a new reader is offered everywhere at once.
+absl::Span<const std::string_view> MeshFormats();
+// Whether `format` (lower case) is one of MeshFormats().
+bool IsMeshFormat(std::string_view format);
+// MeshFormats() for messages and help text: "obj, off, ply, stl, gii".
+std::string MeshFormatList();
 
 // Reads the file as it is. NOT_FOUND / PERMISSION_DENIED for a missing or
 // unreadable file; INVALID_ARGUMENT for an unknown format, an empty or
@@ -31,8 +42,8 @@ std::string MeshFormatOfPath(const std::string& path);
 absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
                                               MeshDiagnostics* diagnostics = nullptr);
 
-// The same from bytes in memory (uploads); `format` is "obj", "off", "ply" or
-// "stl", and `name` is used in messages.
+// The same from bytes in memory (uploads); `format` is one of MeshFormats(),
+// and `name` is used in messages.
 absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
                                                         std::string_view format,
                                                         std::string_view name,

@@ -12,6 +12,7 @@
 #include "absl/strings/str_join.h"
 #include "core/base/atomic_file.h"
 #include "core/base/status.h"
+#include "core/mesh/gifti_files.h"
 
 namespace geodesic {
 namespace {
@@ -19,12 +20,18 @@ namespace {
 static_assert(std::endian::native == std::endian::little,
               "raw and .npy outputs are written as little-endian memory images");
 
-// The extension of `path`, lower case, with its dot ("" if none).
+// The extension of `path`, lower case, with its dot ("" if none). GIFTI
+// names its kind before ".gii", so a metric's extension is ".func.gii".
 std::string ExtensionOf(const std::string& path) {
   const size_t slash = path.find_last_of('/');
   const size_t dot = path.find_last_of('.');
   if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return "";
-  return absl::AsciiStrToLower(path.substr(dot));
+  const std::string lower = absl::AsciiStrToLower(path);
+  constexpr std::string_view kMetric = ".func.gii";
+  if (lower.ends_with(kMetric) && lower.size() - kMetric.size() > slash + 1) {
+    return std::string(kMetric);
+  }
+  return lower.substr(dot);
 }
 
 absl::Status CheckExtension(const std::string& path, std::string_view what,
@@ -119,7 +126,8 @@ std::string NpyPreamble(std::string_view dtype, std::initializer_list<uint64_t> 
 }
 
 absl::Status CheckFieldPath(const std::string& path, bool have_geometry) {
-  RETURN_IF_ERROR(CheckExtension(path, "a distance field", {".f64", ".npy", ".csv", ".ply"}));
+  RETURN_IF_ERROR(
+      CheckExtension(path, "a distance field", {".f64", ".npy", ".csv", ".ply", ".func.gii"}));
   if (ExtensionOf(path) == ".ply" && !have_geometry) {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s: a .ply field needs the mesh's geometry", path));
@@ -147,6 +155,10 @@ absl::Status WriteField(const std::string& path, absl::Span<const double> values
   if (ext == ".f64") return WriteRaw(path, values);
   if (ext == ".npy") return WriteNpy(path, "<f8", values);
   if (ext == ".ply") return WriteColouredPly(path, values, *geometry);
+  if (ext == ".func.gii") {
+    ASSIGN_OR_RETURN(const std::string bytes, GiftiMetricBytes(values));
+    return WriteText(path, bytes);
+  }
   std::string text = "vertex,distance\n";
   for (size_t i = 0; i < values.size(); ++i)
     absl::StrAppendFormat(&text, "%u,%.17g\n", i, values[i]);

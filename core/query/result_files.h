@@ -4,7 +4,8 @@
 //  - distance fields, one value per vertex in the mesh file's order: .f64
 //    (raw little-endian float64, +inf where unreached), .npy (NumPy '<f8'),
 //    .csv (vertex,distance), .ply (the mesh coloured by distance, blue near
-//    to red far with isolines, grey unreached, the value as a property);
+//    to red far with isolines, grey unreached, the value as a property),
+//    .func.gii (a GIFTI metric: float32, +inf where unreached);
 //  - labels (the nearest source of each vertex): .npy ('<u4'), .csv, .u32
 //    (raw little-endian uint32), 4294967295 where unreached;
 //  - paths as polylines: .csv (x,y,z), .ply (vertices and edges), .obj

@@ -20,6 +20,7 @@
 #include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_part_file.h"
 #include "core/dgg/graph_file.h"
+#include "core/mesh/mesh_io.h"
 #include "core/query/certified_graph.h"
 #include "server/byte_size.h"
 #include "server/offline/certificate_file.h"
@@ -199,7 +200,8 @@ struct BuildFlags {
 };
 
 void AddBuildFlags(CLI::App& app, BuildFlags& f) {
-  app.add_option("mesh", f.mesh_path, "mesh file (obj, off, ply, stl)")->required();
+  app.add_option("mesh", f.mesh_path, "mesh file (" + MeshFormatList() + ": x.surf.gii)")
+      ->required();
   auto* eps =
       app.add_option("--eps", f.epsilon, "accuracy: relative error of graph distances, in (0, 1)");
   auto* max_error =

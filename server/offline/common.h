@@ -74,7 +74,8 @@ absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& s
 nlohmann::ordered_json SnapJson(const PointResolver::Resolved& r);
 
 // Writes a field in the format the path's extension names
-// (core/query/result_files.h: .f64, .npy, .csv, or .ply coloured on `mesh`).
+// (core/query/result_files.h: .f64, .npy, .csv, .func.gii, or .ply coloured
+// on `mesh`).
 absl::Status WriteFieldFile(const std::string& path, const std::vector<double>& values,
                             const Mesh& mesh);
 

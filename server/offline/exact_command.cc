@@ -4,6 +4,7 @@
 
 #include "CLI/CLI.hpp"
 #include "core/exact/exact_geodesic.h"
+#include "core/mesh/mesh_io.h"
 #include "core/query/result_files.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"
@@ -17,14 +18,16 @@ int RunExact(int argc, char** argv) {
   std::string mesh_path, source_spec, out_path;
   double max_distance = std::numeric_limits<double>::infinity();
   bool json = false;
-  app.add_option("--mesh", mesh_path, "mesh file (obj, off, ply, stl)")->required();
+  app.add_option("--mesh", mesh_path, "mesh file (" + MeshFormatList() + ": x.surf.gii)")
+      ->required();
   app.add_option("--source", source_spec,
                  "source point: v:ID, e:EDGE:T, f:FACE:B0,B1,B2 (barycentrics in the file's "
                  "vertex order of that face) or xyz:X,Y,Z")
       ->required();
   app.add_option("--out", out_path,
                  "write the field, one value per vertex in file order: .f64 (little-endian "
-                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
+                 "float64, +inf unreached), .npy, .csv, .ply (the mesh coloured by distance), "
+                 "or .func.gii (a GIFTI metric: float32, +inf unreached)");
   app.add_option("--max-distance", max_distance, "stop the wavefront at this distance")
       ->check(kPositiveDistance);
   app.add_flag("--json", json, "print a JSON object");

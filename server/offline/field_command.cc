@@ -31,7 +31,8 @@ void AddFieldFlags(CLI::App& app, FieldFlags& f) {
       ->required();
   app.add_option("--out", f.out_path,
                  "write the field, one value per vertex in file order: .f64 (little-endian "
-                 "float64, +inf unreached), .npy, .csv, or .ply (the mesh coloured by distance)");
+                 "float64, +inf unreached), .npy, .csv, .ply (the mesh coloured by distance), "
+                 "or .func.gii (a GIFTI metric: float32, +inf unreached)");
   app.add_option("--labels-out", f.labels_path,
                  "write each vertex's nearest source (geodesic Voronoi regions: the index of its "
                  "--source, 4294967295 unreached) as .npy, .csv or .u32");

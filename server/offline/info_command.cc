@@ -9,10 +9,9 @@
 namespace geodesic::offline {
 
 int RunInfo(int argc, char** argv) {
-  CLI::App app{
-      "Diagnostics of a mesh file (obj, off, ply, stl), or describe and validate a "
-      "graph file (.dgg)",
-      "geodesicd info"};
+  CLI::App app{"Diagnostics of a mesh file (" + MeshFormatList() +
+                   ": x.surf.gii), or describe and validate a graph file (.dgg)",
+               "geodesicd info"};
   app.option_defaults()->always_capture_default();  // --help shows defaults
   std::string path;
   bool json = false, repair = false;

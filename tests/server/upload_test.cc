@@ -12,6 +12,7 @@
 #include <string>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
 #include "server/convert.h"
@@ -210,6 +211,36 @@ TEST_F(RegistryFilesTest, AMeshWithNoFacesIsRefused) {
   auto arrays = registry.RegisterArrays("points", {0, 0, 0}, {});
   EXPECT_THAT(arrays.status().message(), HasSubstr("no faces"));
   EXPECT_TRUE(registry.List().empty());
+}
+
+// The triangle of kTriangle as a GIFTI surface (ASCII, to be readable here).
+std::string TriangleGifti() {
+  const char* array =
+      "<DataArray Intent=\"NIFTI_INTENT_%s\" DataType=\"NIFTI_TYPE_%s\" "
+      "ArrayIndexingOrder=\"RowMajorOrder\" Dimensionality=\"2\" Dim0=\"%d\" Dim1=\"3\" "
+      "Encoding=\"ASCII\"><Data>%s</Data></DataArray>\n";
+  return "<?xml version=\"1.0\"?>\n<GIFTI Version=\"1.0\" NumberOfDataArrays=\"2\">\n" +
+         absl::StrFormat(array, "POINTSET", "FLOAT32", 3, "0 0 0 1 0 0 0 1 0") +
+         absl::StrFormat(array, "TRIANGLE", "INT32", 1, "0 1 2") + "</GIFTI>\n";
+}
+
+// gii is a mesh format like the others: by path under the root (x.surf.gii)
+// and as uploaded bytes, giving the mesh the OBJ of the same triangle gives.
+TEST_F(RegistryFilesTest, GiftiSurfacesRegisterByPathAndBytes) {
+  MeshRegistry registry(root_.string());
+  std::ofstream(root_ / "tri.surf.gii") << TriangleGifti();
+  auto by_path = registry.RegisterPath("tri-path", "tri.surf.gii");
+  ASSERT_TRUE(by_path.ok()) << by_path.status();
+  EXPECT_EQ((*by_path)->format, "gii");
+  auto by_bytes = registry.RegisterBytes("tri-bytes", "gii", TriangleGifti());
+  ASSERT_TRUE(by_bytes.ok()) << by_bytes.status();
+  auto obj = registry.RegisterBytes("tri-obj", "obj", kTriangle);
+  ASSERT_TRUE(obj.ok()) << obj.status();
+  EXPECT_EQ((*by_path)->fingerprint, (*obj)->fingerprint);
+  EXPECT_EQ((*by_bytes)->fingerprint, (*obj)->fingerprint);
+  auto torn = registry.RegisterBytes("torn", "gii", TriangleGifti().substr(0, 120));
+  EXPECT_EQ(torn.status().code(), absl::StatusCode::kInvalidArgument);
+  EXPECT_THAT(torn.status().message(), HasSubstr("not a readable GIFTI file"));
 }
 
 TEST_F(RegistryFilesTest, ErrorsRepeatAtMost80CharactersOfTheInput) {

@@ -230,8 +230,9 @@ class Client:
     def upload_mesh(self, name: str, filename: Optional[str] = None, chunk_bytes: int = 1 << 20,
                     *, vertices: Any = None, faces: Any = None,
                     repair_non_manifold: bool = False) -> Mesh:
-        """Uploads a mesh and registers it under name: a local .obj/.off/.ply/.stl file, or
-        arrays (vertices: (N, 3) floats, faces: (M, 3) vertex ids, in place of filename).
+        """Uploads a mesh and registers it under name: a local .obj/.off/.ply/.stl/.surf.gii
+        file, or arrays (vertices: (N, 3) floats, faces: (M, 3) vertex ids, in place of
+        filename).
 
         The upload declares its size and SHA-256 first, and the server registers it only if
         exactly those bytes arrive: an upload that fails or is interrupted leaves nothing
@@ -245,7 +246,7 @@ class Client:
         fmt = os.path.splitext(filename)[1][1:].lower()
         if not fmt:
             raise ValueError(f"upload_mesh: {filename} has no extension naming its format "
-                             "(.obj, .off, .ply or .stl)")
+                             "(.obj, .off, .ply, .stl or .surf.gii)")
         # Read before the call, so a missing file raises here by name instead
         # of inside gRPC's request iterator ("Exception iterating requests!").
         digest = hashlib.sha256()

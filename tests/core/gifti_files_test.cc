@@ -1,0 +1,406 @@
+// GIFTI surfaces and metrics: surfaces written by libgiftiio in every
+// encoding, order and coordinate type read back bit for bit, from a path and
+// from memory; malformed, truncated, misshapen and external-data files give
+// errors naming the file, and nothing on stderr; a field written as .func.gii
+// reads back as float32 with +inf kept.
+#include "core/mesh/gifti_files.h"
+
+// C without extern "C" guards of its own.
+extern "C" {
+#include <gifti_io.h>
+}
+
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <numbers>
+#include <regex>
+#include <sstream>
+#include <vector>
+
+#include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
+#include "core/mesh/mesh_io.h"
+#include "core/query/result_files.h"
+#include "tests/core/test_util.h"
+
+namespace geodesic {
+namespace {
+
+using ::testing::HasSubstr;
+using testing::TempDir;
+
+// An open box (a cube without its top): 8 vertices, 10 triangles, with
+// coordinates no short decimal holds, so that any rounding on the way shows.
+struct SmallSurface {
+  std::vector<float> xyz;      // row-major N x 3
+  std::vector<int32_t> faces;  // row-major M x 3
+};
+
+SmallSurface OpenBox() {
+  SmallSurface s;
+  for (int k = 0; k < 8; ++k) {
+    s.xyz.push_back(static_cast<float>((k & 1) / 3.0 + 0.1 * k));
+    s.xyz.push_back(static_cast<float>(((k >> 1) & 1) * std::sqrt(2.0) - 1e-7 * k));
+    s.xyz.push_back(static_cast<float>(((k >> 2) & 1) * std::numbers::pi + 1e5));
+  }
+  s.faces = {0, 2, 1, 1, 2, 3, 0, 1, 5, 0, 5, 4, 1, 3, 7,
+             1, 7, 5, 3, 2, 6, 3, 6, 7, 2, 0, 4, 2, 4, 6};
+  return s;
+}
+
+std::string ReadBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::stringstream ss;
+  ss << in.rdbuf();
+  return ss.str();
+}
+
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream(path, std::ios::binary) << bytes;
+}
+
+struct Layout {
+  int encoding;
+  bool column_major;
+  bool float64;
+};
+
+// `rows` x 3 values of `data` (row-major) stored into `da`'s own buffer in its
+// indexing order, as type T.
+template <typename T, typename S>
+void Fill(giiDataArray* da, const std::vector<S>& data, int rows) {
+  da->data = std::malloc(data.size() * sizeof(T));
+  T* out = static_cast<T*>(da->data);
+  for (int r = 0; r < rows; ++r) {
+    for (int c = 0; c < 3; ++c) {
+      const int i = da->ind_ord == GIFTI_IND_ORD_COL_MAJOR ? c * rows + r : r * 3 + c;
+      out[i] = static_cast<T>(data[r * 3 + c]);
+    }
+  }
+}
+
+void SetArray(giiDataArray* da, int intent, int datatype, int rows, const Layout& layout) {
+  da->intent = intent;
+  da->datatype = datatype;
+  da->num_dim = 2;
+  da->dims[0] = rows;
+  da->dims[1] = 3;
+  da->encoding = layout.encoding;
+  da->endian = gifti_get_this_endian();
+  da->ind_ord = layout.column_major ? GIFTI_IND_ORD_COL_MAJOR : GIFTI_IND_ORD_ROW_MAJOR;
+  int swapsize = 0;
+  gifti_datatype_sizes(datatype, &da->nbyper, &swapsize);
+  da->nvals = int64_t{3} * rows;
+}
+
+// ASCII by hand: libgiftiio writes ASCII floats with six decimals, which
+// would test its writer's rounding rather than the reader. Nine significant
+// digits hold any float32.
+void WriteAsciiSurface(const std::string& path, const SmallSurface& s, bool column_major) {
+  const size_t nv = s.xyz.size() / 3, nf = s.faces.size() / 3;
+  auto array = [&](const char* intent, const char* type, size_t rows, auto&& value) {
+    std::string text = absl::StrFormat(
+        "<DataArray Intent=\"%s\" DataType=\"%s\" ArrayIndexingOrder=\"%s\" "
+        "Dimensionality=\"2\" Dim0=\"%u\" Dim1=\"3\" Encoding=\"ASCII\" "
+        "Endian=\"LittleEndian\" ExternalFileName=\"\" ExternalFileOffset=\"\">\n<Data>",
+        intent, type, column_major ? "ColumnMajorOrder" : "RowMajorOrder", rows);
+    for (size_t i = 0; i < 3 * rows; ++i) {
+      const size_t r = column_major ? i % rows : i / 3, c = column_major ? i / rows : i % 3;
+      absl::StrAppend(&text, value(r * 3 + c), i + 1 < 3 * rows ? " " : "");
+    }
+    return text + "</Data>\n</DataArray>\n";
+  };
+  WriteBytes(path,
+             "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+             "<GIFTI Version=\"1.0\" NumberOfDataArrays=\"2\">\n" +
+                 array("NIFTI_INTENT_POINTSET", "NIFTI_TYPE_FLOAT32", nv,
+                       [&](size_t i) { return absl::StrFormat("%.9g", s.xyz[i]); }) +
+                 array("NIFTI_INTENT_TRIANGLE", "NIFTI_TYPE_INT32", nf,
+                       [&](size_t i) { return absl::StrCat(s.faces[i]); }) +
+                 "</GIFTI>\n");
+}
+
+// Writes `s` as a GIFTI surface with libgiftiio itself (ASCII by hand, as
+// above); `with_triangles` false leaves the triangle array out.
+void WriteSurface(const std::string& path, const SmallSurface& s, const Layout& layout,
+                  bool with_triangles = true) {
+  if (layout.encoding == GIFTI_ENCODING_ASCII && !layout.float64 && with_triangles) {
+    WriteAsciiSurface(path, s, layout.column_major);
+    return;
+  }
+  gifti_set_verb(0);
+  const int num_da = with_triangles ? 2 : 1;
+  const int dims[2] = {static_cast<int>(s.xyz.size() / 3), 3};
+  gifti_image* image = gifti_create_image(num_da, NIFTI_INTENT_POINTSET, NIFTI_TYPE_FLOAT32, 2,
+                                          dims, /*alloc_data=*/0);
+  ASSERT_NE(image, nullptr);
+  const int nv = dims[0], nf = static_cast<int>(s.faces.size() / 3);
+  giiDataArray* points = image->darray[0];
+  SetArray(points, NIFTI_INTENT_POINTSET, layout.float64 ? NIFTI_TYPE_FLOAT64 : NIFTI_TYPE_FLOAT32,
+           nv, layout);
+  if (layout.float64) {
+    Fill<double>(points, s.xyz, nv);
+  } else {
+    Fill<float>(points, s.xyz, nv);
+  }
+  if (with_triangles) {
+    giiDataArray* triangles = image->darray[1];
+    SetArray(triangles, NIFTI_INTENT_TRIANGLE, NIFTI_TYPE_INT32, nf, layout);
+    Fill<int32_t>(triangles, s.faces, nf);
+  }
+  ASSERT_EQ(gifti_write_image(image, path.c_str(), 1), 0) << path;
+  gifti_free_image(image);
+}
+
+void ExpectSameSurface(const TriangleSoup& soup, const SmallSurface& s) {
+  ASSERT_EQ(soup.positions.size() * 3, s.xyz.size());
+  for (size_t v = 0; v < soup.positions.size(); ++v) {
+    const Vec3& p = soup.positions[v];
+    // Bit for bit: the double holds the file's float exactly.
+    EXPECT_EQ(p.x, static_cast<double>(s.xyz[3 * v])) << "vertex " << v;
+    EXPECT_EQ(p.y, static_cast<double>(s.xyz[3 * v + 1])) << "vertex " << v;
+    EXPECT_EQ(p.z, static_cast<double>(s.xyz[3 * v + 2])) << "vertex " << v;
+  }
+  ASSERT_EQ(soup.triangles.size() * 3, s.faces.size());
+  for (size_t f = 0; f < soup.triangles.size(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      EXPECT_EQ(soup.triangles[f][k], static_cast<VertexId>(s.faces[3 * f + k])) << "face " << f;
+    }
+  }
+}
+
+class GiftiLayoutTest : public ::testing::TestWithParam<Layout> {};
+
+TEST_P(GiftiLayoutTest, ReadsBackBitForBitFromPathAndMemory) {
+  TempDir dir;
+  const std::string path = dir.File("box.surf.gii");
+  const SmallSurface box = OpenBox();
+  WriteSurface(path, box, GetParam());
+  ASSERT_EQ(MeshFormatOfPath(path), "gii");
+
+  MeshDiagnostics d;
+  auto soup = ReadTriangleSoup(path, &d);
+  ASSERT_OK(soup);
+  ExpectSameSurface(*soup, box);
+  EXPECT_EQ(d.format, "gii");
+
+  auto uploaded = ReadTriangleSoupFromMemory(ReadBytes(path), "gii", "upload.surf.gii");
+  ASSERT_OK(uploaded);
+  ExpectSameSurface(*uploaded, box);
+
+  auto mesh = LoadMesh(path);
+  ASSERT_OK(mesh);
+  EXPECT_EQ(mesh->num_vertices(), 8u);
+  EXPECT_EQ(mesh->num_faces(), 10u);
+}
+
+std::string LayoutName(const ::testing::TestParamInfo<Layout>& info) {
+  const char* names[] = {"Undef", "Ascii", "Base64", "GzipBase64", "External"};
+  return absl::StrFormat("%s%s%s", names[info.param.encoding],
+                         info.param.column_major ? "ColumnMajor" : "RowMajor",
+                         info.param.float64 ? "Float64" : "Float32");
+}
+
+INSTANTIATE_TEST_SUITE_P(Encodings, GiftiLayoutTest,
+                         ::testing::Values(Layout{GIFTI_ENCODING_ASCII, false, false},
+                                           Layout{GIFTI_ENCODING_B64BIN, false, false},
+                                           Layout{GIFTI_ENCODING_B64GZ, false, false},
+                                           Layout{GIFTI_ENCODING_B64GZ, true, false},
+                                           Layout{GIFTI_ENCODING_B64BIN, true, false},
+                                           Layout{GIFTI_ENCODING_ASCII, true, false},
+                                           Layout{GIFTI_ENCODING_B64GZ, false, true},
+                                           Layout{GIFTI_ENCODING_B64BIN, true, true}),
+                         LayoutName);
+
+// A hand-written surface, ASCII: the triangle array's attributes and values
+// are `triangle_attributes` and `triangle_text`.
+std::string AsciiSurface(const std::string& point_text, const std::string& triangle_attributes,
+                         const std::string& triangle_text) {
+  return absl::StrFormat(
+      "<?xml version=\"1.0\" encoding=\"UTF-8\"?>\n"
+      "<GIFTI Version=\"1.0\" NumberOfDataArrays=\"2\">\n"
+      "<DataArray Intent=\"NIFTI_INTENT_POINTSET\" DataType=\"NIFTI_TYPE_FLOAT32\" "
+      "ArrayIndexingOrder=\"RowMajorOrder\" Dimensionality=\"2\" Dim0=\"3\" Dim1=\"3\" "
+      "Encoding=\"ASCII\" Endian=\"LittleEndian\" ExternalFileName=\"\" ExternalFileOffset=\"\">\n"
+      "<Data>%s</Data></DataArray>\n"
+      "<DataArray Intent=\"NIFTI_INTENT_TRIANGLE\" DataType=\"NIFTI_TYPE_INT32\" "
+      "ArrayIndexingOrder=\"RowMajorOrder\" %s>\n"
+      "<Data>%s</Data></DataArray>\n"
+      "</GIFTI>\n",
+      point_text, triangle_attributes, triangle_text);
+}
+
+const char kPoints[] = "0 0 0 1 0 0 0 1 0";
+
+// AsciiSurface with one triangle as binary data (`base64`) in `encoding`.
+std::string Binary(const std::string& endian, const std::string& encoding,
+                   const std::string& base64) {
+  return AsciiSurface(kPoints,
+                      absl::StrFormat("Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" "
+                                      "Encoding=\"%s\"%s",
+                                      encoding, endian),
+                      base64);
+}
+const char kTriangleAttributes[] =
+    "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" Encoding=\"ASCII\" ExternalFileName=\"\" "
+    "ExternalFileOffset=\"\"";
+
+TEST(GiftiErrors, HandWrittenAsciiSurfaceReads) {
+  auto soup = ReadTriangleSoupFromMemory(AsciiSurface(kPoints, kTriangleAttributes, "0 1 2"), "gii",
+                                         "tri.surf.gii");
+  ASSERT_OK(soup);
+  EXPECT_EQ(soup->positions.size(), 3u);
+  EXPECT_EQ(soup->triangles.size(), 1u);
+}
+
+// Each case: bytes, and what the message must say besides the file's name.
+struct BadFile {
+  const char* label;
+  std::string bytes;
+  const char* says;
+};
+
+const char kLittle[] = " Endian=\"LittleEndian\"";
+
+std::vector<BadFile> BadFiles() {
+  TempDir dir;
+  const std::string good = dir.File("good.surf.gii");
+  WriteSurface(good, OpenBox(), {GIFTI_ENCODING_B64GZ, false, false});
+  const std::string bytes = ReadBytes(good);
+  std::string garbage(4096, '\0');
+  uint32_t x = 12345;
+  for (char& c : garbage) c = static_cast<char>((x = x * 1103515245u + 12345u) >> 16);
+  const std::string no_triangles = dir.File("points.surf.gii");
+  WriteSurface(no_triangles, OpenBox(), {GIFTI_ENCODING_B64BIN, false, false}, false);
+  return {
+      {"truncated", bytes.substr(0, bytes.size() / 2), "not a readable GIFTI file"},
+      {"truncated in the data", bytes.substr(0, bytes.rfind("</Data>") - 8),
+       "not a readable GIFTI file"},
+      {"garbage", garbage, "not a readable GIFTI file"},
+      {"xml but not gifti", "<?xml version=\"1.0\"?>\n<svg></svg>\n", "not a GIFTI file"},
+      {"no triangle array", ReadBytes(no_triangles), "no triangle array"},
+      {"N x 2 triangles",
+       AsciiSurface(kPoints, "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"2\" Encoding=\"ASCII\"",
+                    "0 1"),
+       "not N x 3"},
+      {"external data",
+       AsciiSurface(kPoints,
+                    "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" Encoding=\"ExternalFileBinary\" "
+                    "ExternalFileName=\"/etc/passwd\" ExternalFileOffset=\"0\"",
+                    ""),
+       "external file ('/etc/passwd')"},
+      {"index out of range", AsciiSurface(kPoints, kTriangleAttributes, "0 1 3"),
+       "refers to vertex 3"},
+      {"negative index", AsciiSurface(kPoints, kTriangleAttributes, "0 -1 2"),
+       "refers to vertex -1"},
+      {"nan coordinate", AsciiSurface("0 0 0 1 nan 0 0 1 0", kTriangleAttributes, "0 1 2"),
+       "non-finite coordinate"},
+      {"ASCII data short of Dim0", AsciiSurface(kPoints, kTriangleAttributes, "0 1"),
+       "declares 3 values but its data holds 2"},
+      {"ASCII data beyond Dim0", AsciiSurface(kPoints, kTriangleAttributes, "0 1 2 0"),
+       "declares 3 values but its data holds 4"},
+      {"ASCII word", AsciiSurface(kPoints, kTriangleAttributes, "0 one 2"), "'one', not a number"},
+      {"binary data short of Dim0", Binary(kLittle, "Base64Binary", "AAAAAAEAAAA="),
+       "declares 3 values but its data holds 2"},
+      {"gzip data short of Dim0", Binary(kLittle, "GZipBase64Binary", "eJxjYGBgYARiAAAMAAI="),
+       "declares 3 values but its data holds 2"},
+      {"not base64", Binary(kLittle, "Base64Binary", "!!!!"), "not base64"},
+      {"unpadded base64", Binary(kLittle, "Base64Binary", "AAAAAAEAAAACAAA"), "not base64"},
+      {"base64 but not zlib", Binary(kLittle, "GZipBase64Binary", "AAAAAAEAAAA="), "not zlib"},
+      {"no Endian", Binary("", "Base64Binary", "AAAAAAEAAAACAAAA"), "Endian is missing"},
+      {"huge declared size",
+       AsciiSurface(kPoints,
+                    "Dimensionality=\"2\" Dim0=\"700000000\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "more than its"},
+      {"dimensions beyond 32 bits",
+       AsciiSurface(kPoints,
+                    "Dimensionality=\"2\" Dim0=\"2000000000\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "more than 2^31 - 1 values"},
+      {"negative Dim0",
+       AsciiSurface(kPoints, "Dimensionality=\"2\" Dim0=\"-1\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "Dim0 '-1' is not a positive integer"},
+      {"Dimensionality 7",
+       AsciiSurface(kPoints, "Dimensionality=\"7\" Dim0=\"1\" Dim1=\"3\" Encoding=\"ASCII\"",
+                    "0 1 2"),
+       "Dimensionality '7' is not 1 to 6"},
+      {"unknown encoding",
+       AsciiSurface(kPoints, "Dimensionality=\"2\" Dim0=\"1\" Dim1=\"3\" Encoding=\"Hex\"",
+                    "0 1 2"),
+       "Encoding 'Hex'"},
+      {"miscounted arrays",
+       std::regex_replace(AsciiSurface(kPoints, kTriangleAttributes, "0 1 2"),
+                          std::regex("NumberOfDataArrays=\"2\""), "NumberOfDataArrays=\"3\""),
+       "NumberOfDataArrays says 3"},
+  };
+}
+
+TEST(GiftiErrors, MalformedFilesAreRefusedNamingTheFile) {
+  TempDir dir;
+  const std::vector<BadFile> bad_files = BadFiles();
+  // The daemon's stderr is its log: libgiftiio must not get to complain there.
+  ::testing::internal::CaptureStderr();
+  for (const BadFile& bad : bad_files) {
+    SCOPED_TRACE(bad.label);
+    const std::string path = dir.File("bad.surf.gii");
+    WriteBytes(path, bad.bytes);
+    auto soup = ReadTriangleSoup(path);
+    ASSERT_FALSE(soup.ok());
+    EXPECT_EQ(soup.status().code(), absl::StatusCode::kInvalidArgument) << soup.status();
+    EXPECT_THAT(soup.status().message(), HasSubstr(path));
+    EXPECT_THAT(soup.status().message(), HasSubstr(bad.says));
+    auto uploaded = ReadTriangleSoupFromMemory(bad.bytes, "gii", "sent.surf.gii");
+    ASSERT_FALSE(uploaded.ok());
+    EXPECT_THAT(uploaded.status().message(), HasSubstr("sent.surf.gii"));
+    EXPECT_THAT(uploaded.status().message(), HasSubstr(bad.says));
+  }
+  EXPECT_EQ(::testing::internal::GetCapturedStderr(), "");
+}
+
+TEST(GiftiErrors, EmptyFileAndUnknownExtension) {
+  TempDir dir;
+  WriteBytes(dir.File("empty.surf.gii"), "");
+  EXPECT_THAT(ReadTriangleSoup(dir.File("empty.surf.gii")).status().message(), HasSubstr("empty"));
+  EXPECT_TRUE(IsMeshFormat("gii"));
+  EXPECT_THAT(MeshFormatList(), HasSubstr("gii"));
+}
+
+TEST(GiftiMetric, FieldReadsBackAsFloat32WithInf) {
+  TempDir dir;
+  const std::string path = dir.File("d.func.gii");
+  const double inf = std::numeric_limits<double>::infinity();
+  const std::vector<double> field = {0.0, 1.0 / 3.0, 2.5, inf, 1e-3, 12345.678901234};
+  ASSERT_OK(WriteField(path, field));
+
+  gifti_set_verb(0);
+  gifti_image* image = gifti_read_image(path.c_str(), 1);
+  ASSERT_NE(image, nullptr);
+  ASSERT_EQ(image->numDA, 1);
+  const giiDataArray* da = image->darray[0];
+  EXPECT_EQ(da->intent, NIFTI_INTENT_SHAPE);
+  EXPECT_EQ(da->datatype, NIFTI_TYPE_FLOAT32);
+  EXPECT_EQ(da->encoding, GIFTI_ENCODING_B64GZ);
+  EXPECT_EQ(da->num_dim, 1);
+  ASSERT_EQ(da->nvals, static_cast<int64_t>(field.size()));
+  const float* got = static_cast<const float*>(da->data);
+  for (size_t i = 0; i < field.size(); ++i) {
+    EXPECT_EQ(got[i], static_cast<float>(field[i])) << "vertex " << i;
+  }
+  EXPECT_TRUE(std::isinf(got[3]) && got[3] > 0);
+  gifti_free_image(image);
+}
+
+TEST(GiftiMetric, ExtensionIsFuncGii) {
+  EXPECT_OK(CheckFieldPath("out/D.FUNC.GII", false));
+  EXPECT_THAT(CheckFieldPath("d.gii", false).message(), HasSubstr(".func.gii"));
+  EXPECT_THAT(CheckFieldPath("d.surf.gii", false).message(), HasSubstr("cannot write"));
+  EXPECT_FALSE(CheckFieldPath("dir.func.gii/", false).ok());
+}
+
+}  // namespace
+}  // namespace geodesic
