@@ -731,7 +731,8 @@ class Client:
                     raise
 
     def _sparse_tiles(self, mesh: str, ps: Optional[List[Any]], pt: Optional[List[Any]],
-                      request: dict, shape: Tuple[int, int], want: np.dtype) -> Optional[List[Any]]:
+                      request: dict, shape: Tuple[int, int],
+                      want: np.dtype) -> Optional[List[Any]]:
         """csr_matrix blocks of columns, in order, from MatrixRows streams of sparse rows;
         None when the server answers without them (an older server)."""
         import scipy.sparse
@@ -894,8 +895,9 @@ def _matrix_out(out: Any, shape: Tuple[int, int], dtype: np.dtype) -> np.ndarray
     if not isinstance(out, np.ndarray):
         raise ValueError(f"out: expected a path or a numpy array, got {type(out).__name__}")
     if out.shape != shape or out.dtype != dtype or not out.flags.writeable:
-        raise ValueError(f"out: expected a writable {shape} {dtype} array, got a "
-                         f"{'' if out.flags.writeable else 'read-only '}{out.shape} {out.dtype} one")
+        state = "" if out.flags.writeable else "read-only "
+        raise ValueError(f"out: expected a writable {shape} {dtype} array, got a {state}"
+                         f"{out.shape} {out.dtype} one")
     return out
 
 
