@@ -1,8 +1,11 @@
 #include "server/geodesic_service.h"
 
 #include <algorithm>
+#include <bit>
 #include <chrono>
+#include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <optional>
 #include <string_view>
 #include <thread>
@@ -117,6 +120,69 @@ uint64_t PairScratchBytes(const GeodesicEngine& engine) {
          kTouchedRecords * sizeof(PairTable::Record);
 }
 
+// Every vertex in file order: what a request's all_sources/all_targets stand for.
+std::vector<SurfacePoint> AllVertices(const Mesh& mesh) {
+  std::vector<SurfacePoint> points;
+  points.reserve(mesh.num_vertices());
+  for (VertexId v = 0; v < mesh.num_vertices(); ++v) points.push_back(SurfacePoint::Vertex(v));
+  return points;
+}
+
+// Packed matrices are the host's own bytes, which the wire format promises
+// to be little-endian.
+static_assert(std::endian::native == std::endian::little,
+              "packed matrix values are copied as the host holds them");
+
+// Bytes of one value of a packed dtype; 0 for MATRIX_DTYPE_DEFAULT, whose
+// values travel as repeated doubles.
+size_t PackedBytes(v1::MatrixDtype dtype) {
+  switch (dtype) {
+    case v1::MATRIX_DTYPE_FLOAT32:
+      return sizeof(float);
+    case v1::MATRIX_DTYPE_FLOAT64:
+      return sizeof(double);
+    default:
+      return 0;
+  }
+}
+
+// Appends `row` to `out` as float32 (rounded to nearest, as numpy's astype
+// does) or float64 bytes, without a staging copy.
+void PackRow(absl::Span<const double> row, bool narrow, char* out) {
+  if (!narrow) {
+    std::memcpy(out, row.data(), row.size() * sizeof(double));
+    return;
+  }
+  for (size_t j = 0; j < row.size(); ++j) {
+    const float value = static_cast<float>(row[j]);
+    std::memcpy(out + j * sizeof(float), &value, sizeof(float));
+  }
+}
+
+// A sparse row's entries within the radius, as the chunk's bytes will
+// hold them; +inf (unreachable) is never within a finite radius.
+struct SparseRow {
+  std::string indices, values;
+  uint64_t count = 0;
+};
+
+SparseRow WithinRadius(absl::Span<const double> row, double radius, bool narrow) {
+  SparseRow kept;
+  for (size_t j = 0; j < row.size(); ++j) {
+    if (!(row[j] <= radius)) continue;
+    const uint32_t column = static_cast<uint32_t>(j);
+    kept.indices.append(reinterpret_cast<const char*>(&column), sizeof column);
+    if (narrow) {
+      const float value = static_cast<float>(row[j]);
+      kept.values.append(reinterpret_cast<const char*>(&value), sizeof value);
+    } else {
+      kept.values.append(reinterpret_cast<const char*>(&row[j]), sizeof(double));
+    }
+    ++kept.count;
+  }
+  return kept;
+}
+
 // Serialized sizes, a little over: a double takes 9 bytes with its tag
 // unless packed, a message adds its tag and length, and the echo and
 // framing stay under a kilobyte.
@@ -166,13 +232,44 @@ absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContex
   return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx));
 }
 
-absl::Status GeodesicService::CheckMatrixLimits(const v1::MatrixRequest& req) const {
-  if (req.sources_size() <= limits_.max_sources && req.targets_size() <= limits_.max_pairs) {
+absl::Status GeodesicService::CheckMatrixLimits(const v1::MatrixRequest& req, bool streamed) {
+  if (!std::isfinite(req.radius()) || req.radius() < 0) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("radius %g is not a finite distance >= 0 (0: dense rows)", req.radius()));
+  }
+  if (!v1::MatrixDtype_IsValid(req.dtype())) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("dtype %d is not a MatrixDtype", req.dtype()));
+  }
+  if (req.all_sources() && req.sources_size() > 0) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "all_sources and %d explicit sources: give one or the other", req.sources_size()));
+  }
+  if (req.all_targets() && req.targets_size() > 0) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "all_targets and %d explicit targets: give one or the other", req.targets_size()));
+  }
+  if (!streamed && req.radius() > 0) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "radius %g asks for sparse rows, which only MatrixRows answers", req.radius()));
+  }
+  uint64_t rows = req.sources_size(), cols = req.targets_size();
+  if (!streamed && (req.all_sources() || req.all_targets())) {
+    // Counted before any graph is waited for or built, so that a refusal
+    // costs nothing.
+    ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> mesh, FindMesh(SelectorOf(req).mesh()));
+    if (req.all_sources()) rows = mesh->mesh->num_vertices();
+    if (req.all_targets()) cols = mesh->mesh->num_vertices();
+  }
+  if (rows <= uint64_t(limits_.max_sources) && cols <= uint64_t(limits_.max_pairs)) {
     return absl::OkStatus();
   }
-  return absl::ResourceExhaustedError(absl::StrFormat(
-      "matrix of %d x %d exceeds the limits (%d sources, %d targets)", req.sources_size(),
-      req.targets_size(), limits_.max_sources, limits_.max_pairs));
+  return absl::ResourceExhaustedError(
+      absl::StrFormat("matrix of %u x %u exceeds the limits (%d sources, %d targets)%s", rows, cols,
+                      limits_.max_sources, limits_.max_pairs,
+                      req.all_sources() || req.all_targets()
+                          ? "; MatrixRows streams all_sources and all_targets of any mesh"
+                          : ""));
 }
 
 absl::Status GeodesicService::CheckAnswerSize(const std::string& what, uint64_t bytes) const {
@@ -710,6 +807,8 @@ absl::StatusOr<GeodesicService::MatrixQuery> GeodesicService::PrepareMatrix(
   const Mesh& mesh = q.engine->mesh();
   ASSIGN_OR_RETURN(q.sources, PointsFromProto(req.sources(), mesh, "source"));
   ASSIGN_OR_RETURN(q.targets, PointsFromProto(req.targets(), mesh, "target"));
+  if (req.all_sources()) q.sources = AllVertices(mesh);
+  if (req.all_targets()) q.targets = AllVertices(mesh);
   return q;
 }
 
@@ -734,28 +833,51 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
                                      v1::MatrixResponse* resp) {
   const v1::GraphSelector graph = SelectorOf(*req);
   return Handle("Matrix", ctx, graph.mesh(), true, [&]() -> absl::Status {
-    RETURN_IF_ERROR(CheckMatrixLimits(*req));
-    const uint64_t entries = uint64_t(req->sources_size()) * uint64_t(req->targets_size());
-    const uint64_t answer = entries * 9 + kAnswerOverhead;
-    RETURN_IF_ERROR(CheckAnswerSize(
-        absl::StrFormat("a %d x %d matrix", req->sources_size(), req->targets_size()), answer));
+    RETURN_IF_ERROR(CheckMatrixLimits(*req, /*streamed=*/false));
+    const size_t value_bytes = PackedBytes(req->dtype());
+    auto answer_of = [&](uint64_t rows, uint64_t cols) {
+      return rows * cols * (value_bytes > 0 ? value_bytes : 9) + kAnswerOverhead;
+    };
+    if (!req->all_sources() && !req->all_targets()) {
+      // Sized before the graph is waited for: a refusal costs nothing.
+      RETURN_IF_ERROR(CheckAnswerSize(
+          absl::StrFormat("a %d x %d matrix", req->sources_size(), req->targets_size()),
+          answer_of(req->sources_size(), req->targets_size())));
+    }
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
     const GraphKey& key = q.key;
     const std::vector<SurfacePoint>& sources = q.sources;
     const std::vector<SurfacePoint>& targets = q.targets;
+    const uint64_t answer = answer_of(sources.size(), targets.size());
+    RETURN_IF_ERROR(CheckAnswerSize(
+        absl::StrFormat("a %u x %u matrix", sources.size(), targets.size()), answer));
     // The solver's distances, then the reply beside them and, once the
     // handler returns, the reply's serialized copy.
     ASSIGN_OR_RETURN(Admission::Ticket run,
                      StartQuery(ctx, 2 * answer, MatrixScratchBytes(q, *req)));
-    auto m = q.engine->Matrix(sources, targets, MatrixOptionsOf(*req, ctx));
-    if (!m.ok()) return m.status();
     // One fan-restricted field per row (the "lc" solver), joined at the
     // targets as Distance joins its points; "exact" when rows are made exact.
     FillEcho(Built(key, *q.engine), req->exact() ? "exact" : "lc", resp->mutable_echo());
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
-    for (double d : *m) resp->add_distances(d);
-    return absl::OkStatus();
+    if (value_bytes == 0) {
+      auto m = q.engine->Matrix(sources, targets, MatrixOptionsOf(*req, ctx));
+      if (!m.ok()) return m.status();
+      for (double d : *m) resp->add_distances(d);
+      return absl::OkStatus();
+    }
+    // Rows go straight into the reply's bytes, each where it belongs.
+    resp->set_dtype(req->dtype());
+    std::string* packed = resp->mutable_packed();
+    packed->resize(sources.size() * targets.size() * value_bytes);
+    char* base = packed->data();
+    const bool narrow = req->dtype() == v1::MATRIX_DTYPE_FLOAT32;
+    MatrixRowSink sink;
+    sink.row = [&](size_t i, absl::Span<const double> row) {
+      PackRow(row, narrow, base + i * targets.size() * value_bytes);
+      return absl::OkStatus();
+    };
+    return q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink);
   });
 }
 
@@ -763,27 +885,43 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
                                          grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
   const v1::GraphSelector graph = SelectorOf(*req);
   return Handle("MatrixRows", ctx, graph.mesh(), true, [&]() -> absl::Status {
-    RETURN_IF_ERROR(CheckMatrixLimits(*req));
+    RETURN_IF_ERROR(CheckMatrixLimits(*req, /*streamed=*/true));
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
     const GraphKey& key = q.key;
     const std::vector<SurfacePoint>& sources = q.sources;
     const std::vector<SurfacePoint>& targets = q.targets;
+    const bool sparse = req->radius() > 0;
+    const bool narrow = req->dtype() == v1::MATRIX_DTYPE_FLOAT32;
+    const size_t value_bytes = PackedBytes(req->dtype());
+    // What the values travel as: a sparse request without a dtype gets
+    // float64 bytes, since it has no repeated form to fall back on.
+    const v1::MatrixDtype dtype =
+        sparse && value_bytes == 0 ? v1::MATRIX_DTYPE_FLOAT64 : req->dtype();
+    // Wire bytes per entry, at most: a repeated double with its share of
+    // tags, a packed value, or a sparse entry's column and value.
+    const uint64_t entry_bytes = sparse            ? sizeof(uint32_t) + (narrow ? 4 : 8)
+                                 : value_bytes > 0 ? value_bytes
+                                                   : 9;
     // Blocks small enough that the server holds one at a time, large
     // enough that framing stays negligible.
     constexpr uint64_t kBlockBytes = uint64_t{4} << 20;
     const size_t cols = std::max<size_t>(1, targets.size());
-    const size_t block_rows = std::max<size_t>(1, kBlockBytes / (9 * cols));
-    const uint64_t block_answer = block_rows * cols * 9 + kAnswerOverhead;
+    const size_t block_rows = std::max<size_t>(1, kBlockBytes / (entry_bytes * cols));
+    const uint64_t block_answer =
+        block_rows * (cols * entry_bytes + (sparse ? sizeof(uint64_t) : 0)) + kAnswerOverhead;
     RETURN_IF_ERROR(
         CheckAnswerSize(absl::StrFormat("a block of %u rows", block_rows), block_answer));
+    // A block's rows as computed (sparse ones staged per row), then the
+    // chunk's serialized copy.
     ASSIGN_OR_RETURN(Admission::Ticket run,
                      StartQuery(ctx, 2 * block_answer, MatrixScratchBytes(q, *req)));
-    for (size_t first = 0; first < sources.size() || first == 0; first += block_rows) {
+
+    v1::MatrixRowsChunk chunk;
+    char* dense = nullptr;  // the block's rows, written in place by the threads computing them
+    std::vector<SparseRow> staged(sparse ? block_rows : 0);
+    auto begin_block = [&](size_t first) {
       const size_t n = std::min(block_rows, sources.size() - first);
-      auto m = q.engine->Matrix(absl::MakeConstSpan(sources).subspan(first, n), targets,
-                                MatrixOptionsOf(*req, ctx));
-      if (!m.ok()) return m.status();
-      v1::MatrixRowsChunk chunk;
+      chunk.Clear();
       if (first == 0) {
         FillEcho(Built(key, *q.engine), req->exact() ? "exact" : "lc", chunk.mutable_echo());
       }
@@ -791,11 +929,56 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
       chunk.set_rows(n);
       chunk.set_cols(targets.size());
       chunk.set_total_rows(sources.size());
-      chunk.mutable_distances()->Add(m->begin(), m->end());
+      chunk.set_dtype(dtype);
+      if (sparse) return;
+      if (value_bytes == 0) {
+        chunk.mutable_distances()->Resize(static_cast<int>(n * targets.size()), 0.0);
+        dense = reinterpret_cast<char*>(chunk.mutable_distances()->mutable_data());
+      } else {
+        std::string* packed = chunk.mutable_packed();
+        packed->resize(n * targets.size() * value_bytes);
+        dense = packed->data();
+      }
+    };
+    MatrixRowSink sink;
+    sink.batch_rows = block_rows;
+    sink.row = [&](size_t i, absl::Span<const double> row) {
+      const size_t k = i % block_rows;
+      if (sparse) {
+        staged[k] = WithinRadius(row, req->radius(), narrow);
+      } else {
+        PackRow(row, narrow, dense + k * row.size() * (narrow ? sizeof(float) : sizeof(double)));
+      }
+      return absl::OkStatus();
+    };
+    sink.batch_done = [&](size_t end) -> absl::Status {
+      if (sparse) {
+        const size_t n = chunk.rows();
+        std::string* indptr = chunk.mutable_indptr();
+        std::string* indices = chunk.mutable_indices();
+        std::string* values = chunk.mutable_values();
+        uint64_t offset = 0;
+        indptr->append(reinterpret_cast<const char*>(&offset), sizeof offset);
+        for (size_t k = 0; k < n; ++k) {
+          SparseRow& row = staged[k];
+          offset += row.count;
+          indptr->append(reinterpret_cast<const char*>(&offset), sizeof offset);
+          indices->append(row.indices);
+          values->append(row.values);
+          row = SparseRow();
+        }
+      }
       if (!writer->Write(chunk)) return absl::CancelledError("client went away");
-      if (sources.empty()) break;
+      if (end < sources.size()) begin_block(end);
+      return absl::OkStatus();
+    };
+    begin_block(0);
+    if (sources.empty()) {
+      // No batch runs: the one block says the matrix has no rows.
+      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      return absl::OkStatus();
     }
-    return absl::OkStatus();
+    return q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink);
   });
 }
 

@@ -103,8 +103,12 @@ class GeodesicService final : public v1::Geodesic::Service {
   // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
   // `bytes` cannot fit one message.
   absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;
-  // RESOURCE_EXHAUSTED past --max-sources rows or --max-pairs columns.
-  absl::Status CheckMatrixLimits(const v1::MatrixRequest& req) const;
+  // A matrix request's radius, dtype and selectors checked
+  // (INVALID_ARGUMENT), then its size: RESOURCE_EXHAUSTED past --max-sources
+  // rows or --max-pairs columns, an `all` selector counting as its mesh's
+  // vertices. `streamed` (MatrixRows): `all` selectors are not held to those
+  // limits, since no list travels and the rows go out in bounded blocks.
+  absl::Status CheckMatrixLimits(const v1::MatrixRequest& req, bool streamed);
   // What Matrix and MatrixRows both start from: the graph's engine (waited
   // for or started, as any query's) and the request's points on its mesh.
   struct MatrixQuery {

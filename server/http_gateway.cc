@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
@@ -16,11 +17,14 @@
 #include "absl/status/status.h"
 #include "absl/strings/ascii.h"
 #include "absl/strings/escaping.h"
+#include "absl/strings/match.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/surface_point.h"
+#include "core/query/matrix_files.h"
+#include "core/query/result_files.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "google/protobuf/util/json_util.h"
 #include "grpcpp/grpcpp.h"
@@ -407,7 +411,31 @@ struct ApiRequest {
   const std::string& mesh;
   const HttpRequest& http;
   const json& body;
+  // Set by a handler that answers in another format than JSON (a matrix as
+  // .npy bytes): sent as it is instead of the handler's JSON.
+  std::optional<HttpResponse>* raw = nullptr;
 };
+
+// The client asked for a matrix as NumPy bytes rather than JSON.
+bool WantsNpy(const HttpRequest& http) {
+  return absl::StrContains(absl::AsciiStrToLower(http.header("Accept")), "application/x-npy");
+}
+
+// The body's "dtype": "float32" or "float64" (absent: float64).
+grpc::Status BodyDtype(const json& body, v1::MatrixDtype* dtype) {
+  *dtype = v1::MATRIX_DTYPE_DEFAULT;
+  auto it = body.find("dtype");
+  if (it == body.end() || it->is_null()) return grpc::Status::OK;
+  if (it->is_string() && it->get<std::string>() == "float32") {
+    *dtype = v1::MATRIX_DTYPE_FLOAT32;
+  } else if (it->is_string() && it->get<std::string>() == "float64") {
+    *dtype = v1::MATRIX_DTYPE_FLOAT64;
+  } else {
+    return Invalid(
+        absl::StrFormat("\"dtype\" must be \"float32\" or \"float64\", got %s", Quote(*it)));
+  }
+  return grpc::Status::OK;
+}
 
 }  // namespace
 
@@ -775,22 +803,53 @@ struct HttpGateway::Impl {
     if (grpc::Status s = Specs(call, mesh, body, "targets", "target", &targets); !s.ok()) return s;
     for (auto& p : sources) *req.add_sources() = std::move(p);
     for (auto& p : targets) *req.add_targets() = std::move(p);
+    v1::MatrixDtype dtype;
+    if (grpc::Status s = BodyDtype(body, &dtype); !s.ok()) return s;
+    const bool npy = WantsNpy(r.http);
+    // Packed bytes whenever a dtype is named or .npy is wanted: the .npy's
+    // data is those bytes as they came.
+    if (npy && dtype == v1::MATRIX_DTYPE_DEFAULT) dtype = v1::MATRIX_DTYPE_FLOAT64;
+    req.set_dtype(dtype);
     v1::MatrixResponse resp;
     grpc::Status s = stub->Matrix(call.Context().get(), req, &resp);
     if (!s.ok()) return s;
-    if (static_cast<uint64_t>(resp.rows()) * resp.cols() !=
-        static_cast<uint64_t>(resp.distances_size())) {
+    const uint64_t entries = static_cast<uint64_t>(resp.rows()) * resp.cols();
+    const bool narrow = dtype == v1::MATRIX_DTYPE_FLOAT32;
+    const uint64_t got = dtype == v1::MATRIX_DTYPE_DEFAULT
+                             ? resp.distances_size()
+                             : resp.packed().size() / (narrow ? sizeof(float) : sizeof(double));
+    if (entries != got || (dtype != v1::MATRIX_DTYPE_DEFAULT && resp.dtype() != dtype)) {
       return grpc::Status(grpc::StatusCode::INTERNAL, "matrix size does not match rows x cols");
     }
+    if (npy) {
+      HttpResponse& res = r.raw->emplace();
+      const MatrixDtype descr = narrow ? MatrixDtype::kFloat32 : MatrixDtype::kFloat64;
+      res.body = NpyPreamble(NpyDescr(descr), {resp.rows(), resp.cols()});
+      res.body += resp.packed();
+      res.content_type = "application/x-npy";
+      return s;
+    }
+    auto entry = [&](uint64_t k) -> double {
+      if (dtype == v1::MATRIX_DTYPE_DEFAULT) return resp.distances(static_cast<int>(k));
+      if (narrow) {
+        float value;
+        std::memcpy(&value, resp.packed().data() + k * sizeof value, sizeof value);
+        return value;
+      }
+      double value;
+      std::memcpy(&value, resp.packed().data() + k * sizeof value, sizeof value);
+      return value;
+    };
     json rows = json::array();
     for (uint32_t r = 0; r < resp.rows(); ++r) {
       json row = json::array();
       for (uint32_t c = 0; c < resp.cols(); ++c) {
-        row.push_back(JsonDistance(resp.distances(r * resp.cols() + c)));
+        row.push_back(JsonDistance(entry(uint64_t(r) * resp.cols() + c)));
       }
       rows.push_back(std::move(row));
     }
     *out = {{"distances", std::move(rows)}, {"exact", exact}};
+    if (dtype != v1::MATRIX_DTYPE_DEFAULT) (*out)["dtype"] = narrow ? "float32" : "float64";
     AddEcho(resp.echo(), out);
     return s;
   }
@@ -887,7 +946,7 @@ struct HttpGateway::Impl {
         {"POST",   "/v1/meshes/{}/field",    &Impl::Field,
          WithGraph({"sources", "targets", "max_distance", "method", "nearest_source"})},
         {"POST",   "/v1/meshes/{}/matrix",   &Impl::Matrix,
-         WithGraph({"sources", "targets", "exact"})},
+         WithGraph({"sources", "targets", "exact", "dtype"})},
         {"POST",   "/v1/meshes/{}/snap",     &Impl::Snap,         {"positions"}},
         {"POST",   "/v1/meshes/{}/sample",   &Impl::Sample,       WithGraph({"count", "seed"})},
     };
@@ -908,11 +967,16 @@ struct HttpGateway::Impl {
     if (s.ok() && !route.body_keys.empty()) {
       if (s = ParseBody(req, &body); s.ok()) s = OnlyKeys(body, route.body_keys);
     }
-    if (s.ok()) s = (this->*handler)(call, {args.empty() ? "" : args[0], req, body}, &out);
+    std::optional<HttpResponse> raw;
+    if (s.ok()) s = (this->*handler)(call, {args.empty() ? "" : args[0], req, body, &raw}, &out);
     if (s.ok() && call.expired()) {
       s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
     }
     if (!s.ok()) return ErrorResponse(s);
+    if (raw) {
+      raw->headers.emplace_back("Cache-Control", "no-store");
+      return *std::move(raw);
+    }
     HttpResponse res;
     res.headers.emplace_back("Cache-Control", "no-store");
     res.body = Dump(out);

@@ -8,6 +8,7 @@ the gRPC listener.
 
 Usage: http_gateway_test.py BUILD_BIN_DIR SOURCE_DIR
 """
+import io
 import json
 import math
 import os
@@ -19,6 +20,8 @@ import time
 import unittest
 import urllib.error
 import urllib.request
+
+import numpy as np
 
 BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
@@ -72,6 +75,17 @@ def http_request(url, method, headers):
             return Answer(r.status, r.headers, r.read().decode())
     except urllib.error.HTTPError as e:
         return Answer(e.code, e.headers, e.read().decode())
+
+
+def post_bytes(url, body, headers):
+    """(HTTP status, headers, body bytes) of a POST of JSON `body` with the token."""
+    req = urllib.request.Request(url, method="POST", data=json.dumps(body).encode(), headers={
+        "Content-Type": "application/json", "Authorization": f"Bearer {TOKEN}", **headers})
+    try:
+        with urllib.request.urlopen(req, timeout=60) as r:
+            return r.status, r.headers, r.read()
+    except urllib.error.HTTPError as e:
+        return e.code, e.headers, e.read()
 
 
 def inf_to_none(values):
@@ -266,6 +280,44 @@ class GatewayTest(unittest.TestCase):
         self.assertEqual(status, 200, body)
         self.assertEqual(body["distances"],
                          self.client.matrix("spot", sources, targets, epsilon=EPS).tolist())
+
+    def test_matrix_as_npy_equals_the_json_answer(self):
+        sources = ["v:0", "v:10", "f:0:0.2,0.3,0.5"]
+        targets = ["v:100", "v:200", "f:5:0.3,0.3,0.4", "v:0"]
+        body = {"sources": sources, "targets": targets, "eps": EPS}
+        status, as_json = self.post("matrix", body)
+        self.assertEqual(status, 200, as_json)
+        want = np.array(as_json["distances"], dtype=np.float64)
+        self.assertEqual(want.shape, (3, 4))
+        self.assertTrue(np.isfinite(want).all())
+        self.assertEqual(want[0, 3], 0)
+        url = f"{self.base}/v1/meshes/spot/matrix"
+        for dtype, descr in ((None, "<f8"), ("float64", "<f8"), ("float32", "<f4")):
+            request = dict(body, **({"dtype": dtype} if dtype else {}))
+            status, headers, data = post_bytes(url, request, {"Accept": "application/x-npy"})
+            self.assertEqual(status, 200, data[:200])
+            self.assertEqual(headers["Content-Type"], "application/x-npy")
+            self.assertEqual(data[:8], b"\x93NUMPY\x01\x00")
+            header_len = int.from_bytes(data[8:10], "little")
+            self.assertEqual((10 + header_len) % 64, 0)
+            self.assertEqual(data[10 + header_len - 1:10 + header_len], b"\n")
+            got = np.load(io.BytesIO(data))
+            self.assertEqual((got.dtype, got.shape), (np.dtype(descr), (3, 4)), dtype)
+            self.assertEqual(got.tobytes(), want.astype(descr).tobytes(), dtype)
+        # JSON too can carry float32 values: the float64 ones rounded.
+        status, narrow = self.post("matrix", dict(body, dtype="float32"))
+        self.assertEqual(status, 200, narrow)
+        self.assertEqual(narrow["dtype"], "float32")
+        self.assertEqual(np.array(narrow["distances"], dtype=np.float32).tobytes(),
+                         want.astype(np.float32).tobytes())
+        status, bad = self.post("matrix", dict(body, dtype="float16"))
+        self.assert_error(status, bad, 400, "INVALID_ARGUMENT")
+        self.assertIn('"float16"', bad["error"]["message"])
+        status, headers, data = post_bytes(url, dict(body, dtype=3),
+                                           {"Accept": "application/x-npy"})
+        self.assertEqual(status, 400)
+        self.assertEqual(headers["Content-Type"], "application/json")
+        self.assertEqual(json.loads(data)["error"]["code"], "INVALID_ARGUMENT")
 
     def test_exact_distance_and_matrix_equal_grpc(self):
         pairs = [["v:0", "v:1500"], ["f:0:0.2,0.3,0.5", "e:10:0.25"]]

@@ -109,6 +109,40 @@ class RecordingProxy(grpc.GenericRpcHandler):
         return grpc.unary_unary_rpc_method_handler(unary)
 
 
+class OlderServer:
+    """A stub as a server older than packed matrices answers: it never sees the request's new
+    fields (dtype, radius, all_sources, all_targets), so it answers float64 distances."""
+
+    def __init__(self, stub):
+        self._stub = stub
+        self.requests = []
+
+    def __getattr__(self, name):
+        return getattr(self._stub, name)
+
+    def _old(self, req):
+        old = pb.MatrixRequest()
+        old.CopyFrom(req)
+        for field in ("dtype", "radius", "all_sources", "all_targets"):
+            old.ClearField(field)
+        self.requests.append(req)
+        return old
+
+    def Matrix(self, req, **kw):
+        return self._stub.Matrix(self._old(req), **kw)
+
+    def MatrixRows(self, req, **kw):
+        return self._stub.MatrixRows(self._old(req), **kw)
+
+
+def thresholded(dense, radius):
+    """(indptr, indices, values) of the entries of `dense` within `radius`, zeros kept."""
+    rows, cols = np.nonzero(dense <= radius)
+    indptr = np.zeros(dense.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=dense.shape[0]), out=indptr[1:])
+    return indptr, cols, dense[rows, cols]
+
+
 class ClientTest(unittest.TestCase):
     @classmethod
     def setUpClass(cls):
@@ -222,6 +256,146 @@ class ClientTest(unittest.TestCase):
                                         epsilon=eps)
         self.assertTrue(np.all(m[0] <= graph_only[0] * (1 + 1e-12)))
 
+    def test_packed_matrices_equal_the_float64_answer_bit_for_bit(self):
+        sources, targets = [0, 10, "f:0:0.2,0.3,0.5"], [100, 200, 0, "e:40:0.3"]
+        raw = rpc.GeodesicStub(self.client._channel)
+        req = pb.MatrixRequest(graph=pb.GraphSelector(mesh="spot", epsilon=0.01),
+                               sources=self.client._resolve("spot", sources),
+                               targets=self.client._resolve("spot", targets))
+        doubles = np.array(raw.Matrix(req, timeout=60).distances, dtype=np.float64)
+        self.assertEqual(doubles.size, 12)
+        self.assertTrue(np.isfinite(doubles).all())
+        want = doubles.reshape(3, 4)
+        old = self.client.matrix("spot", sources, targets, epsilon=0.01)  # the old call
+        self.assertEqual((old.dtype, old.shape), (np.float64, (3, 4)))
+        self.assertEqual(old.tobytes(), want.tobytes())
+        for dtype in (np.float32, np.float64):
+            got = self.client.matrix("spot", sources, targets, epsilon=0.01, dtype=dtype)
+            self.assertEqual((got.dtype, got.shape), (np.dtype(dtype), (3, 4)))
+            self.assertEqual(got.tobytes(), want.astype(dtype).tobytes(), dtype)
+            # The streamed form's packed rows too.
+            req.dtype = pb.MATRIX_DTYPE_FLOAT32 if dtype is np.float32 else pb.MATRIX_DTYPE_FLOAT64
+            chunks = list(raw.MatrixRows(req, timeout=60))
+            self.assertTrue(all(c.dtype == req.dtype and not c.distances for c in chunks))
+            self.assertEqual(b"".join(c.packed for c in chunks), want.astype(dtype).tobytes())
+
+    def test_whole_mesh_matrices_equal_the_vertex_lists(self):
+        n = self.client.mesh("spot").diagnostics.vertices
+        self.assertEqual(n, 2930)
+        targets = [0, 1500, 2929, "f:5:0.3,0.3,0.4"]
+        listed = self.client.matrix("spot", np.arange(n), targets, epsilon=0.01)
+        self.assertEqual(listed.shape, (n, 4))
+        self.assertTrue(np.isfinite(listed).all())
+        whole = self.client.matrix("spot", None, targets, epsilon=0.01, dtype=np.float64)
+        self.assertEqual(whole.tobytes(), listed.tobytes())
+        # The whole-mesh form defaults to float32.
+        narrow = self.client.matrix("spot", None, targets, epsilon=0.01)
+        self.assertEqual(narrow.dtype, np.float32)
+        self.assertEqual(narrow.tobytes(), listed.astype(np.float32).tobytes())
+        rows = self.client.matrix("spot", [7, 1500], None, epsilon=0.01, dtype=np.float64)
+        self.assertEqual(rows.shape, (2, n))
+        self.assertEqual(rows.tobytes(), self.client.matrix(
+            "spot", [7, 1500], np.arange(n), epsilon=0.01).tobytes())
+        self.assertEqual(rows[0, 7], 0)
+
+    def test_matrix_into_a_npy_file_and_an_array(self):
+        n = 2930
+        path = f"{self.work}/all.npy"
+        got = self.client.matrix("spot", epsilon=0.01, out=path)  # every vertex x every vertex
+        self.assertIsInstance(got, np.memmap)
+        del got
+        m = np.load(path, mmap_mode="r")
+        self.assertEqual((m.dtype, m.shape), (np.float32, (n, n)))
+        self.assertTrue(np.isfinite(m).all())
+        self.assertTrue((np.diag(m) == 0).all())
+        some = [0, 999, 2929]
+        want = self.client.matrix("spot", some, np.arange(n), epsilon=0.01)
+        self.assertTrue(np.isfinite(want).all())
+        self.assertEqual(np.asarray(m[some]).tobytes(), want.astype(np.float32).tobytes())
+        # Into the caller's array, whose dtype it takes.
+        out = np.full((3, n), np.nan, dtype=np.float64)
+        self.assertIs(self.client.matrix("spot", some, None, epsilon=0.01, out=out), out)
+        self.assertEqual(out.tobytes(), want.tobytes())
+        with self.assertRaisesRegex(ValueError, "writable"):
+            self.client.matrix("spot", some, None, epsilon=0.01, out=np.empty((2, n)))
+        with self.assertRaisesRegex(ValueError, "float16"):
+            self.client.matrix("spot", some, [0], epsilon=0.01, dtype=np.float16)
+
+    def test_neighbourhood_matrix_is_the_thresholded_dense_matrix(self):
+        import scipy.sparse
+        sources = np.arange(0, 2930, 7)
+        dense = self.client.matrix("spot", sources, None, epsilon=0.01, dtype=np.float64)
+        self.assertTrue(np.isfinite(dense).all())
+        radius = float(np.quantile(dense, 0.1))
+        indptr, indices, values = thresholded(dense, radius)
+        self.assertTrue(0 < values.size < dense.size / 5)
+        for dtype in (np.float64, np.float32):
+            got = self.client.neighbourhood_matrix("spot", radius, sources, epsilon=0.01,
+                                                   dtype=dtype)
+            self.assertIsInstance(got, scipy.sparse.csr_matrix)
+            self.assertEqual((got.shape, got.dtype), (dense.shape, np.dtype(dtype)))
+            self.assertEqual(got.indptr.tolist(), indptr.tolist())
+            self.assertEqual(got.indices.tolist(), indices.tolist())
+            self.assertEqual(got.data.tobytes(), values.astype(dtype).tobytes())
+        whole = self.client.neighbourhood_matrix("spot", radius, epsilon=0.01)
+        self.assertEqual(whole.shape, (2930, 2930))
+        self.assertEqual(whole.dtype, np.float32)
+        rows = whole[sources]
+        self.assertEqual(rows.nnz, got.nnz)
+        self.assertEqual(rows.toarray().tobytes(), got.toarray().tobytes())
+        self.assertEqual(whole.diagonal().tolist(), [0] * 2930)
+        self.assertEqual(whole.indptr[-1], whole.nnz)
+        for radius in (0, -1, float("nan"), float("inf")):
+            with self.assertRaisesRegex(ValueError, "radius"):
+                self.client.neighbourhood_matrix("spot", radius)
+
+    def test_bad_radius_and_conflicting_selectors_are_refused_by_name(self):
+        raw = rpc.GeodesicStub(self.client._channel)
+        graph = pb.GraphSelector(mesh="spot", epsilon=0.01)
+        for radius, text in ((-1.0, "radius -1"), (float("nan"), "radius nan"),
+                             (float("inf"), "radius inf")):
+            with self.assertRaises(grpc.RpcError) as e:
+                list(raw.MatrixRows(pb.MatrixRequest(graph=graph, all_targets=True,
+                                                     sources=[pb.SurfacePoint(vertex=0)],
+                                                     radius=radius), timeout=60))
+            self.assertEqual(e.exception.code(), grpc.StatusCode.INVALID_ARGUMENT)
+            self.assertIn(text, e.exception.details())
+        with self.assertRaises(grpc.RpcError) as e:
+            list(raw.MatrixRows(pb.MatrixRequest(graph=graph, all_sources=True,
+                                                 sources=[pb.SurfacePoint(vertex=0)],
+                                                 targets=[pb.SurfacePoint(vertex=1)]),
+                                timeout=60))
+        self.assertEqual(e.exception.code(), grpc.StatusCode.INVALID_ARGUMENT)
+        self.assertIn("all_sources and 1 explicit sources", e.exception.details())
+        # Matrix keeps its limits, the whole mesh counted as its vertices.
+        with self.assertRaises(grpc.RpcError) as e:
+            raw.Matrix(pb.MatrixRequest(graph=graph, all_sources=True, all_targets=True),
+                       timeout=60)
+        self.assertEqual(e.exception.code(), grpc.StatusCode.RESOURCE_EXHAUSTED)
+        self.assertIn("matrix of 2930 x 2930 exceeds the limits (1024 sources, 10000 targets)",
+                      e.exception.details())
+
+    def test_an_older_server_is_read_through_its_float64_answers(self):
+        targets = [0, 1500, "f:5:0.3,0.3,0.4"]
+        want = self.client.matrix("spot", None, targets, epsilon=0.01, dtype=np.float64)
+        self.assertTrue(np.isfinite(want).all())
+        radius = float(np.quantile(want, 0.2))
+        sparse = self.client.neighbourhood_matrix("spot", radius, None, targets, epsilon=0.01)
+        self.assertGreater(sparse.nnz, 0)
+        with Client(f"127.0.0.1:{self.port}", timeout=120) as c:
+            old = c._stub = OlderServer(c._stub)
+            got = c.matrix("spot", None, targets, epsilon=0.01)
+            self.assertEqual(got.dtype, np.float32)
+            self.assertEqual(got.tobytes(), want.astype(np.float32).tobytes())
+            self.assertTrue(old.requests[0].all_sources)  # tried, then spelt out
+            self.assertFalse(old.requests[-1].all_sources)
+            got_sparse = c.neighbourhood_matrix("spot", radius, None, targets, epsilon=0.01)
+            self.assertEqual(got_sparse.indptr.tolist(), sparse.indptr.tolist())
+            self.assertEqual(got_sparse.indices.tolist(), sparse.indices.tolist())
+            self.assertEqual(got_sparse.data.tobytes(), sparse.data.tobytes())
+            got = c.matrix("spot", [0, 7], targets, epsilon=0.01)
+            self.assertEqual(got.tobytes(), want[[0, 7]].tobytes())
+
     def test_pseudo_vertex_graph_is_its_own_graph(self):
         # Requested with wait, the client watches the pseudo graph, not the plain one.
         g = self.client.request_graph("spot", epsilon=0.01, wait=True, pseudo_vertices=True)
@@ -317,6 +491,13 @@ class ClientTest(unittest.TestCase):
                 positions = np.random.default_rng(5).normal(size=(200, 3)) * 0.5
                 self.assertEqual(tight.snap("spot", positions), self.client.snap("spot", positions))
                 self.assertEqual((tight.max_pairs, tight.max_sources), (50, 4))
+                # Whole-mesh selectors stream past both limits, in one request.
+                whole = tight.matrix("spot", None, [0, 7], epsilon=0.01, dtype=np.float64)
+                self.assertEqual(whole.tobytes(), self.client.matrix(
+                    "spot", None, [0, 7], epsilon=0.01, dtype=np.float64).tobytes())
+                self.assertEqual(tight.matrix("spot", [0, 7], None, epsilon=0.01).tobytes(),
+                                 self.client.matrix("spot", [0, 7], None,
+                                                    epsilon=0.01).tobytes())
         finally:
             daemon_ports.stop(daemon)
             shutil.rmtree(work)

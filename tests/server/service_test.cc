@@ -4,8 +4,12 @@
 #include <grpcpp/grpcpp.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
+#include <cmath>
+#include <cstring>
 #include <filesystem>
+#include <limits>
 #include <set>
 #include <thread>
 #include <tuple>
@@ -208,6 +212,289 @@ TEST_F(ServiceTest, MatrixEqualsDistanceAndEchoesItsSolver) {
       EXPECT_EQ(matrix.distances(k), 0) << "a point's distance to itself";
     }
   }
+}
+
+// A MatrixRows stream read to its end: its blocks, and how it finished.
+struct Rows {
+  std::vector<v1::MatrixRowsChunk> chunks;
+  grpc::Status status;
+};
+
+Rows ReadRows(v1::Geodesic::Stub& stub, const v1::MatrixRequest& req) {
+  grpc::ClientContext ctx;
+  auto reader = stub.MatrixRows(&ctx, req);
+  Rows rows;
+  v1::MatrixRowsChunk chunk;
+  while (reader->Read(&chunk)) rows.chunks.push_back(chunk);
+  rows.status = reader->Finish();
+  return rows;
+}
+
+// Every block's bytes in one field, in order, each block checked to hold
+// whole rows of the request's width.
+template <typename T>
+std::vector<T> Packed(const Rows& rows, size_t cols) {
+  std::vector<T> out;
+  for (const auto& c : rows.chunks) {
+    EXPECT_EQ(c.first_row(), out.size() / cols);
+    EXPECT_EQ(c.distances_size(), 0) << "packed rows leave distances empty";
+    EXPECT_EQ(c.packed().size(), size_t{c.rows()} * cols * sizeof(T));
+    const size_t at = out.size();
+    out.resize(at + c.packed().size() / sizeof(T));
+    std::memcpy(out.data() + at, c.packed().data(), c.packed().size());
+  }
+  return out;
+}
+
+// Packed float64 rows are the repeated doubles' bytes, float32 ones those
+// doubles rounded to nearest; `all_targets` is the list of every vertex;
+// sparse rows hold exactly the dense entries within the radius. Rows span
+// several blocks, each of whole rows.
+TEST_F(ServiceTest, MatrixRowsPackDenseAndSparseRowsAsTheDoublesBitForBit) {
+  ReadySpot(1e-2);
+  v1::MatrixRequest req;
+  req.set_mesh("spot");
+  req.set_epsilon(1e-2);
+  std::vector<SurfacePoint> sources, all;
+  for (uint32_t v = 0; v < 400; ++v) {
+    sources.push_back(SurfacePoint::Vertex(v * 7));
+    *req.add_sources() = Vertex(v * 7);
+  }
+  for (uint32_t v = 0; v < 2930; ++v) all.push_back(SurfacePoint::Vertex(v));
+  req.set_all_targets(true);  // past --max-pairs (50): streamed rows are not held to it
+  const size_t cols = all.size();
+
+  const Rows legacy = ReadRows(*stub_, req);
+  ASSERT_TRUE(legacy.status.ok()) << legacy.status.error_message();
+  ASSERT_GT(legacy.chunks.size(), 1u);
+  std::vector<double> want;
+  for (const auto& c : legacy.chunks) {
+    EXPECT_EQ(c.dtype(), v1::MATRIX_DTYPE_DEFAULT);
+    EXPECT_EQ(c.cols(), cols);
+    EXPECT_EQ(c.total_rows(), sources.size());
+    EXPECT_TRUE(c.packed().empty());
+    want.insert(want.end(), c.distances().begin(), c.distances().end());
+  }
+  ASSERT_EQ(want.size(), sources.size() * cols);
+  for (double d : want) ASSERT_TRUE(std::isfinite(d)) << "spot is one component";
+  auto engine = Engine(1e-2);
+  ASSERT_NE(engine, nullptr);
+  auto explicit_all = engine->Matrix(sources, all);
+  ASSERT_TRUE(explicit_all.ok()) << explicit_all.status();
+  EXPECT_TRUE(*explicit_all == want) << "all_targets differs from every vertex listed";
+
+  req.set_dtype(v1::MATRIX_DTYPE_FLOAT64);
+  const Rows f64 = ReadRows(*stub_, req);
+  ASSERT_TRUE(f64.status.ok()) << f64.status.error_message();
+  for (const auto& c : f64.chunks) EXPECT_EQ(c.dtype(), v1::MATRIX_DTYPE_FLOAT64);
+  const std::vector<double> packed64 = Packed<double>(f64, cols);
+  ASSERT_EQ(packed64.size(), want.size());
+  EXPECT_EQ(std::memcmp(packed64.data(), want.data(), want.size() * sizeof(double)), 0);
+
+  req.set_dtype(v1::MATRIX_DTYPE_FLOAT32);
+  const Rows f32 = ReadRows(*stub_, req);
+  ASSERT_TRUE(f32.status.ok()) << f32.status.error_message();
+  EXPECT_LT(f32.chunks.size(), f64.chunks.size()) << "float32 blocks hold twice the rows";
+  const std::vector<float> packed32 = Packed<float>(f32, cols);
+  ASSERT_EQ(packed32.size(), want.size());
+  std::vector<float> rounded(want.begin(), want.end());
+  EXPECT_EQ(std::memcmp(packed32.data(), rounded.data(), rounded.size() * sizeof(float)), 0);
+
+  // A radius that keeps about a tenth of the entries, the zeros included.
+  std::vector<double> sorted = want;
+  std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 10, sorted.end());
+  const double radius = sorted[sorted.size() / 10];
+  ASSERT_GT(radius, 0);
+  for (v1::MatrixDtype dtype : {v1::MATRIX_DTYPE_DEFAULT, v1::MATRIX_DTYPE_FLOAT32}) {
+    const bool narrow = dtype == v1::MATRIX_DTYPE_FLOAT32;
+    req.set_dtype(dtype);
+    req.set_radius(radius);
+    const Rows sparse = ReadRows(*stub_, req);
+    ASSERT_TRUE(sparse.status.ok()) << sparse.status.error_message();
+    ASSERT_GT(sparse.chunks.size(), 1u);
+    size_t row = 0, kept = 0;
+    for (const auto& c : sparse.chunks) {
+      EXPECT_EQ(c.dtype(), narrow ? v1::MATRIX_DTYPE_FLOAT32 : v1::MATRIX_DTYPE_FLOAT64);
+      EXPECT_EQ(c.first_row(), row);
+      EXPECT_TRUE(c.packed().empty());
+      EXPECT_EQ(c.distances_size(), 0);
+      ASSERT_EQ(c.indptr().size(), (c.rows() + 1) * sizeof(uint64_t));
+      std::vector<uint64_t> indptr(c.rows() + 1);
+      std::memcpy(indptr.data(), c.indptr().data(), c.indptr().size());
+      ASSERT_EQ(indptr[0], 0u);
+      ASSERT_EQ(c.indices().size(), indptr.back() * sizeof(uint32_t));
+      ASSERT_EQ(c.values().size(), indptr.back() * (narrow ? sizeof(float) : sizeof(double)));
+      for (size_t k = 0; k < c.rows(); ++k, ++row) {
+        std::vector<uint32_t> got_cols, want_cols;
+        std::vector<double> got_values, want_values;
+        for (uint64_t e = indptr[k]; e < indptr[k + 1]; ++e) {
+          uint32_t column;
+          std::memcpy(&column, c.indices().data() + e * sizeof column, sizeof column);
+          got_cols.push_back(column);
+          if (narrow) {
+            float value;
+            std::memcpy(&value, c.values().data() + e * sizeof value, sizeof value);
+            got_values.push_back(value);
+          } else {
+            double value;
+            std::memcpy(&value, c.values().data() + e * sizeof value, sizeof value);
+            got_values.push_back(value);
+          }
+        }
+        for (size_t j = 0; j < cols; ++j) {
+          const double d = want[row * cols + j];
+          if (d > radius) continue;
+          want_cols.push_back(static_cast<uint32_t>(j));
+          want_values.push_back(narrow ? double(static_cast<float>(d)) : d);
+        }
+        ASSERT_FALSE(want_cols.empty()) << "row " << row << " keeps at least its own zero";
+        ASSERT_EQ(got_cols, want_cols) << "row " << row;
+        ASSERT_EQ(got_values, want_values) << "row " << row;
+        kept += got_cols.size();
+      }
+    }
+    EXPECT_EQ(row, sources.size());
+    EXPECT_GT(kept, want.size() / 20);
+    EXPECT_LT(kept, want.size() / 5);
+  }
+}
+
+// Matrix answers packed bytes too; `all` selectors stand for every vertex
+// and count as such against Matrix's limits; radius, dtype and conflicting
+// selectors are refused with the value named.
+TEST_F(ServiceTest, MatrixSelectorsRadiusAndDtypeAreCheckedAndNamed) {
+  ReadySpot(1e-2);
+  v1::MatrixRequest base;
+  base.set_mesh("spot");
+  base.set_epsilon(1e-2);
+  *base.add_sources() = Vertex(3);
+  *base.add_sources() = Face(0, 0.2, 0.3, 0.5);
+  for (uint32_t t : {0, 100, 2000}) *base.add_targets() = Vertex(t);
+  auto unary = [&](const v1::MatrixRequest& req, v1::MatrixResponse* resp) {
+    grpc::ClientContext ctx;
+    return stub_->Matrix(&ctx, req, resp);
+  };
+  v1::MatrixResponse legacy;
+  ASSERT_TRUE(unary(base, &legacy).ok());
+  ASSERT_EQ(legacy.distances_size(), 6);
+  EXPECT_TRUE(legacy.packed().empty());
+  for (v1::MatrixDtype dtype : {v1::MATRIX_DTYPE_FLOAT32, v1::MATRIX_DTYPE_FLOAT64}) {
+    v1::MatrixRequest req = base;
+    req.set_dtype(dtype);
+    v1::MatrixResponse packed;
+    ASSERT_TRUE(unary(req, &packed).ok());
+    EXPECT_EQ(packed.dtype(), dtype);
+    EXPECT_EQ(packed.distances_size(), 0);
+    for (int k = 0; k < 6; ++k) {
+      ASSERT_TRUE(std::isfinite(legacy.distances(k)));
+      if (dtype == v1::MATRIX_DTYPE_FLOAT32) {
+        ASSERT_EQ(packed.packed().size(), 6 * sizeof(float));
+        float value;
+        std::memcpy(&value, packed.packed().data() + k * sizeof value, sizeof value);
+        EXPECT_EQ(value, static_cast<float>(legacy.distances(k))) << "entry " << k;
+      } else {
+        ASSERT_EQ(packed.packed().size(), 6 * sizeof(double));
+        double value;
+        std::memcpy(&value, packed.packed().data() + k * sizeof value, sizeof value);
+        EXPECT_EQ(value, legacy.distances(k)) << "entry " << k;
+      }
+    }
+  }
+
+  // all_sources streams every vertex's row, past Matrix's row limit.
+  {
+    v1::MatrixRequest req = base;
+    req.clear_sources();
+    req.set_all_sources(true);
+    req.set_dtype(v1::MATRIX_DTYPE_FLOAT64);
+    const Rows rows = ReadRows(*stub_, req);
+    ASSERT_TRUE(rows.status.ok()) << rows.status.error_message();
+    const std::vector<double> got = Packed<double>(rows, 3);
+    ASSERT_EQ(got.size(), 2930u * 3);
+    EXPECT_EQ(got[3 * 3], legacy.distances(0)) << "row 3 is vertex 3's";
+    EXPECT_EQ(got[100 * 3 + 1], 0);
+  }
+
+  auto expect_refused = [&](const v1::MatrixRequest& req, grpc::StatusCode code,
+                            const std::string& message) {
+    v1::MatrixResponse resp;
+    grpc::Status s = unary(req, &resp);
+    EXPECT_EQ(s.error_code(), code) << s.error_message();
+    EXPECT_THAT(s.error_message(), HasSubstr(message));
+    if (req.radius() != 0 && std::isfinite(req.radius()) && req.radius() > 0) return;
+    const Rows rows = ReadRows(*stub_, req);
+    if (code == grpc::StatusCode::RESOURCE_EXHAUSTED) {
+      EXPECT_TRUE(rows.status.ok()) << "MatrixRows streams `all`: " << rows.status.error_message();
+      return;
+    }
+    EXPECT_EQ(rows.status.error_code(), code) << rows.status.error_message();
+    EXPECT_THAT(rows.status.error_message(), HasSubstr(message));
+  };
+  for (double radius : {-1.0, std::nan(""), std::numeric_limits<double>::infinity()}) {
+    v1::MatrixRequest req = base;
+    req.set_radius(radius);
+    expect_refused(req, grpc::StatusCode::INVALID_ARGUMENT,
+                   absl::StrCat("radius ", std::isnan(radius)   ? "nan"
+                                           : std::isinf(radius) ? "inf"
+                                                                : "-1"));
+  }
+  {
+    v1::MatrixRequest req = base;
+    req.set_radius(0.5);
+    expect_refused(req, grpc::StatusCode::INVALID_ARGUMENT, "only MatrixRows");
+  }
+  {
+    v1::MatrixRequest req = base;
+    req.set_all_sources(true);
+    expect_refused(req, grpc::StatusCode::INVALID_ARGUMENT,
+                   "all_sources and 2 explicit sources: give one or the other");
+    req = base;
+    req.set_all_targets(true);
+    expect_refused(req, grpc::StatusCode::INVALID_ARGUMENT, "all_targets and 3 explicit targets");
+    req = base;
+    req.set_dtype(static_cast<v1::MatrixDtype>(7));
+    expect_refused(req, grpc::StatusCode::INVALID_ARGUMENT, "dtype 7");
+    req = base;
+    req.clear_targets();
+    req.set_all_targets(true);
+    expect_refused(req, grpc::StatusCode::RESOURCE_EXHAUSTED,
+                   "matrix of 2 x 2930 exceeds the limits (1024 sources, 50 targets)");
+  }
+}
+
+// A client that goes away mid-stream stops the rows being computed: the
+// query leaves admission within moments, not after the whole matrix.
+TEST_F(ServiceTest, MatrixRowsStopWhenTheClientGoesAway) {
+  ReadySpot(1e-2);
+  v1::MatrixRequest req;
+  req.set_mesh("spot");
+  req.set_epsilon(1e-2);
+  req.set_all_sources(true);
+  req.set_all_targets(true);
+  req.set_dtype(v1::MATRIX_DTYPE_FLOAT32);
+  const auto start = std::chrono::steady_clock::now();
+  std::chrono::steady_clock::duration first_block;
+  {
+    grpc::ClientContext ctx;
+    auto reader = stub_->MatrixRows(&ctx, req);
+    v1::MatrixRowsChunk chunk;
+    ASSERT_TRUE(reader->Read(&chunk));
+    first_block = std::chrono::steady_clock::now() - start;
+    EXPECT_EQ(chunk.total_rows(), 2930u);
+    // Several blocks to go. The block under way when the client leaves takes
+    // about as long as the first: the rows stop within it, not after it.
+    ASSERT_LT(chunk.rows() * 5, 2930u);
+    ctx.TryCancel();
+    EXPECT_EQ(reader->Finish().error_code(), grpc::StatusCode::CANCELLED);
+  }
+  const auto cancelled = std::chrono::steady_clock::now();
+  while (service_->admission().running() > 0 &&
+         std::chrono::steady_clock::now() < cancelled + std::chrono::seconds(30)) {
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  }
+  EXPECT_EQ(service_->admission().running(), 0);
+  EXPECT_LT(std::chrono::steady_clock::now() - cancelled, first_block / 2)
+      << "the rows went on after the client left";
 }
 
 // exact: the exact engine's distances for pairs and matrix rows, marked

@@ -103,6 +103,9 @@ class Client:
         self.max_pairs = max_pairs
         self.max_sources = max_sources
         self.path_batch = path_batch
+        # False once the server has answered a matrix without packed rows (older than them):
+        # later matrices go straight to its float64 answers.
+        self._packed_rows = True
 
     def close(self) -> None:
         self._channel.close()
@@ -568,19 +571,229 @@ class Client:
                                  max_error=max_error)
         return p
 
-    def matrix(self, mesh: str, sources: Points, targets: Points,
-               epsilon: Optional[float] = None, pseudo_vertices: bool = False,
-               exact: bool = False, max_error: float = 0.0) -> np.ndarray:
-        """(len(sources), len(targets)) float64 array of distances, computed in tiles that fit
-        the server's limits; exact: every row exact."""
-        ps, pt = self._resolve(mesh, sources), self._resolve(mesh, targets)
-        out = np.empty((len(ps), len(pt)), dtype=np.float64)
+    def matrix(self, mesh: str, sources: Optional[Points] = None,
+               targets: Optional[Points] = None, epsilon: Optional[float] = None,
+               pseudo_vertices: bool = False, exact: bool = False, max_error: float = 0.0, *,
+               dtype: Any = None, out: Any = None) -> np.ndarray:
+        """(len(sources), len(targets)) array of distances (+inf where unreachable); exact:
+        every row exact.
+
+        sources, targets: None means every mesh vertex in file order (no id list travels, and
+        the rows stream from the server whatever the mesh's size).
+        dtype: numpy.float32 or numpy.float64. None chooses float64 when both sources and
+        targets are given (what matrix always returned, so older callers get the same array)
+        and float32 when either is None (the whole-mesh form, for large matrices); with an
+        `out` array, its dtype. float32 values are the float64 ones rounded to nearest, and
+        halve what travels and what the matrix holds.
+        out: None for a new array; a path, for a .npy file created with
+        numpy.lib.format.open_memmap and returned as that memmap; or a writable (rows, cols)
+        float32/float64 array or memmap, filled and returned. Blocks of rows go from the
+        server's packed bytes (numpy.frombuffer) straight into it, with no float64 copy of
+        the matrix; a server older than packed rows is read through its float64 answers,
+        tile by tile."""
+        ps = None if sources is None else self._resolve(mesh, sources)
+        pt = None if targets is None else self._resolve(mesh, targets)
+        vertices = self._vertex_count(mesh) if ps is None or pt is None else 0
+        shape = (vertices if ps is None else len(ps), vertices if pt is None else len(pt))
+        want = _matrix_dtype(dtype, out, ps is None or pt is None)
+        result = _matrix_out(out, shape, want)
+        if result.size == 0:
+            return result
+        request = dict(graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), exact=exact,
+                       dtype=_DTYPES[want.type])
+        if self._packed_rows and self._matrix_packed(mesh, ps, pt, request, result):
+            return result
+        # An older server: its float64 answers, tile by tile, with the whole-mesh selectors
+        # spelt out as vertex ids.
+        all_vertices = [pb.SurfacePoint(vertex=v) for v in range(vertices)]
+        self._matrix_float64(mesh, all_vertices if ps is None else ps,
+                             all_vertices if pt is None else pt, epsilon, pseudo_vertices,
+                             exact, max_error, result)
+        return result
+
+    def neighbourhood_matrix(self, mesh: str, radius: float, sources: Optional[Points] = None,
+                             targets: Optional[Points] = None, dtype: Any = np.float32,
+                             epsilon: Optional[float] = None, pseudo_vertices: bool = False,
+                             exact: bool = False, max_error: float = 0.0) -> Any:
+        """The distances within `radius` as a scipy.sparse.csr_matrix of shape
+        (len(sources), len(targets)), None meaning every mesh vertex in file order: entry
+        (i, j) is stored exactly when matrix()[i, j] <= radius (zeros, such as a vertex's own
+        distance, included; unreachable pairs never), with the same value. dtype: numpy.float32
+        (default) or numpy.float64. The server sends only those entries; a server older than
+        sparse rows is read densely and thresholded here."""
+        import scipy.sparse  # only this method needs scipy
+        radius = float(radius)
+        if not (np.isfinite(radius) and radius > 0):
+            raise ValueError(f"radius {radius} is not a finite distance > 0")
+        want = np.dtype(dtype)
+        if want.type not in _DTYPES:
+            raise ValueError(f"dtype {want} is not float32 or float64")
+        ps = None if sources is None else self._resolve(mesh, sources)
+        pt = None if targets is None else self._resolve(mesh, targets)
+        vertices = self._vertex_count(mesh) if ps is None or pt is None else 0
+        shape = (vertices if ps is None else len(ps), vertices if pt is None else len(pt))
+        request = dict(graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), exact=exact,
+                       dtype=_DTYPES[want.type], radius=radius)
+        if self._packed_rows and shape[0] and shape[1]:
+            tiles = self._sparse_tiles(mesh, ps, pt, request, shape, want)
+            if tiles is not None:
+                if len(tiles) == 1:
+                    return tiles[0]
+                return scipy.sparse.hstack(tiles, format="csr")
+        dense = self.matrix(mesh, ps, pt, epsilon, pseudo_vertices, exact, max_error,
+                            dtype=np.float64) if shape[0] and shape[1] else \
+            np.empty(shape, dtype=np.float64)
+        return _threshold(dense, radius, want)
+
+    def _vertex_count(self, mesh: str) -> int:
+        """What the whole-mesh selectors stand for: the registered mesh's vertices."""
+        return int(self._unary("GetMesh", pb.GetMeshRequest(name=mesh), mesh).diagnostics.vertices)
+
+    def _tiles(self, ps: Optional[List[Any]], pt: Optional[List[Any]],
+               shape: Tuple[int, int]) -> List[Tuple[int, int, int, int]]:
+        """(first row, rows, first column, columns) of the requests a matrix takes: explicit
+        lists within the server's limits, a whole-mesh selector whole (it streams)."""
+        rstep = shape[0] if ps is None else max(1, self.max_sources)
+        cstep = shape[1] if pt is None else max(1, self.max_pairs)
+        return [(r, min(rstep, shape[0] - r), c, min(cstep, shape[1] - c))
+                for c in range(0, shape[1], cstep) for r in range(0, shape[0], rstep)]
+
+    def _tile_request(self, request: dict, ps: Optional[List[Any]], pt: Optional[List[Any]],
+                      tile: Tuple[int, int, int, int]) -> Any:
+        r, rows, c, cols = tile
+        return pb.MatrixRequest(
+            **request, all_sources=ps is None, all_targets=pt is None,
+            sources=[] if ps is None else ps[r:r + rows],
+            targets=[] if pt is None else pt[c:c + cols])
+
+    def _learn_matrix_limits(self, e: GeodesicError) -> bool:
+        """After a refusal naming smaller matrix limits, adopts them (True: tile again)."""
+        limits = _MATRIX_LIMITS.search(e.details() or "")
+        if not isinstance(e, ResourceExhaustedError) or not limits:
+            return False
+        max_sources, max_targets = (int(x) for x in limits.groups())
+        if not (0 < max_sources < self.max_sources or 0 < max_targets < self.max_pairs):
+            return False
+        self.max_sources = min(self.max_sources, max(1, max_sources))
+        self.max_pairs = min(self.max_pairs, max(1, max_targets))
+        return True
+
+    def _matrix_packed(self, mesh: str, ps: Optional[List[Any]], pt: Optional[List[Any]],
+                       request: dict, out: np.ndarray) -> bool:
+        """Fills `out` with packed rows: a tile whose answer fits one message well from
+        Matrix, others streamed by MatrixRows. False (nothing to rely on in `out`) when the
+        server answers without packed rows: an older server."""
+        wire = np.dtype("<f4") if request["dtype"] == pb.MATRIX_DTYPE_FLOAT32 else np.dtype("<f8")
+        while True:
+            try:
+                for tile in self._tiles(ps, pt, out.shape):
+                    req = self._tile_request(request, ps, pt, tile)
+                    r, rows, c, cols = tile
+                    unary = ps is not None and pt is not None and \
+                        rows * cols * wire.itemsize <= self._max_message // 2
+                    if unary:
+                        try:
+                            resp = self._unary("Matrix", req, mesh)
+                        except ResourceExhaustedError as e:
+                            # Over a server's smaller message cap: streamed instead.
+                            if not _ROW_BLOCKS.search(e.details() or ""):
+                                raise
+                            unary = False
+                        else:
+                            if resp.dtype != req.dtype:
+                                self._packed_rows = False
+                                return False
+                            out[r:r + rows, c:c + cols] = _packed_block(
+                                resp.packed, wire, resp.rows, resp.cols)
+                    if unary:
+                        continue
+
+                    def blocks(req: Any = req, r: int = r, c: int = c) -> bool:
+                        stream = self._stub.MatrixRows(req, timeout=self.timeout,
+                                                       metadata=self._meta(mesh))
+                        for b in stream:
+                            if b.dtype != req.dtype:
+                                stream.cancel()
+                                return False
+                            first = r + b.first_row
+                            out[first:first + b.rows, c:c + b.cols] = _packed_block(
+                                b.packed, wire, b.rows, b.cols)
+                        return True
+
+                    if not self._call("MatrixRows", blocks):
+                        self._packed_rows = False
+                        return False
+                return True
+            except GeodesicError as e:
+                if e.code() == grpc.StatusCode.UNIMPLEMENTED:
+                    self._packed_rows = False
+                    return False
+                if not self._learn_matrix_limits(e):
+                    raise
+
+    def _sparse_tiles(self, mesh: str, ps: Optional[List[Any]], pt: Optional[List[Any]],
+                      request: dict, shape: Tuple[int, int],
+                      want: np.dtype) -> Optional[List[Any]]:
+        """csr_matrix blocks of columns, in order, from MatrixRows streams of sparse rows;
+        None when the server answers without them (an older server)."""
+        import scipy.sparse
+        wire = want.newbyteorder("<")
+        while True:
+            try:
+                tiles = []
+                for c, cols in sorted({(t[2], t[3]) for t in self._tiles(ps, pt, shape)}):
+                    indptr, indices, values = [np.zeros(1, dtype=np.int64)], [], []
+                    for tile in self._tiles(ps, pt, shape):
+                        if tile[2] != c:
+                            continue
+                        req = self._tile_request(request, ps, pt, tile)
+                        got: List[Any] = []
+
+                        def blocks(req: Any = req, got: List[Any] = got) -> bool:
+                            got.clear()
+                            stream = self._stub.MatrixRows(req, timeout=self.timeout,
+                                                           metadata=self._meta(mesh))
+                            for b in stream:
+                                if b.dtype != req.dtype:
+                                    stream.cancel()
+                                    return False
+                                got.append((np.frombuffer(b.indptr, dtype="<u8"),
+                                            np.frombuffer(b.indices, dtype="<u4"),
+                                            np.frombuffer(b.values, dtype=wire)))
+                            return True
+
+                        if not self._call("MatrixRows", blocks):
+                            self._packed_rows = False
+                            return None
+                        for ptr, idx, val in got:
+                            indptr.append(ptr[1:].astype(np.int64) + indptr[-1][-1])
+                            indices.append(idx)
+                            values.append(val)
+                    index_type = np.int32 if shape[1] < 2**31 else np.int64
+                    tiles.append(scipy.sparse.csr_matrix(
+                        (np.concatenate(values) if values else np.empty(0, dtype=want),
+                         np.concatenate(indices).astype(index_type) if indices
+                         else np.empty(0, dtype=index_type),
+                         np.concatenate(indptr)), shape=(shape[0], cols)))
+                return tiles
+            except GeodesicError as e:
+                if e.code() == grpc.StatusCode.UNIMPLEMENTED:
+                    self._packed_rows = False
+                    return None
+                if not self._learn_matrix_limits(e):
+                    raise
+
+    def _matrix_float64(self, mesh: str, ps: List[Any], pt: List[Any],
+                        epsilon: Optional[float], pseudo_vertices: bool, exact: bool,
+                        max_error: float, out: np.ndarray) -> None:
+        """Fills `out` from the float64 answers every server gives, in tiles that fit its
+        limits."""
         # Beyond what one tile holds, MatrixRows streams blocks of rows, so neither side holds
         # a whole tile's message; a server without it answers tiles of Matrix.
         if len(ps) * len(pt) * 8 > self._max_message // 2 and \
                 self._matrix_rows(mesh, ps, pt, epsilon, pseudo_vertices, exact, out,
                                   max_error):
-            return out
+            return
         row_cap = self.max_sources
         while True:
             cols = max(1, min(self.max_pairs, len(pt)))
@@ -595,21 +808,15 @@ class Client:
                             sources=ps[r:r + rows], targets=pt[c:c + cols]), mesh)
                         out[r:r + resp.rows, c:c + resp.cols] = np.asarray(
                             resp.distances, dtype=np.float64).reshape(resp.rows, resp.cols)
-                return out
+                return
             except ResourceExhaustedError as e:
                 # An answer over a server's smaller message cap: fewer rows per tile.
                 if _ROW_BLOCKS.search(e.details() or "") and rows > 1:
                     row_cap = rows // 2
                     continue
                 # The server's own limits, learnt: tile again with them.
-                limits = _MATRIX_LIMITS.search(e.details() or "")
-                if not limits:
+                if not self._learn_matrix_limits(e):
                     raise
-                max_sources, max_targets = (int(x) for x in limits.groups())
-                if not (0 < max_sources < self.max_sources or 0 < max_targets < self.max_pairs):
-                    raise
-                self.max_sources = min(self.max_sources, max(1, max_sources))
-                self.max_pairs = min(self.max_pairs, max(1, max_targets))
 
     def _matrix_rows(self, mesh: str, ps: List[Any], pt: List[Any], epsilon: Optional[float],
                      pseudo_vertices: bool, exact: bool, out: np.ndarray,
@@ -658,6 +865,60 @@ class Client:
             graph=self._graph(mesh, epsilon, pseudo_vertices, max_error), count=count,
             seed=seed), mesh)
         return np.asarray(resp.vertices, dtype=np.uint32), float(resp.covering_radius)
+
+
+# The wire's dtype for each numpy type a matrix may take.
+_DTYPES = {np.float32: pb.MATRIX_DTYPE_FLOAT32, np.float64: pb.MATRIX_DTYPE_FLOAT64}
+
+
+def _matrix_dtype(dtype: Any, out: Any, whole_mesh: bool) -> np.dtype:
+    """The dtype matrix() answers in (see its docstring)."""
+    if dtype is not None:
+        want = np.dtype(dtype)
+    elif isinstance(out, np.ndarray):
+        want = out.dtype
+    else:
+        want = np.dtype(np.float32 if whole_mesh else np.float64)
+    if want.type not in _DTYPES:
+        raise ValueError(f"dtype {want} is not float32 or float64")
+    return want
+
+
+def _matrix_out(out: Any, shape: Tuple[int, int], dtype: np.dtype) -> np.ndarray:
+    """Where matrix() writes: a new array, a new .npy memmap at a path, or the caller's."""
+    if out is None:
+        return np.empty(shape, dtype=dtype)
+    if isinstance(out, (str, os.PathLike)):
+        if 0 in shape:  # nothing to map: the file alone
+            np.save(os.fspath(out), np.empty(shape, dtype=dtype))
+            return np.load(os.fspath(out))
+        return np.lib.format.open_memmap(os.fspath(out), mode="w+", dtype=dtype, shape=shape)
+    if not isinstance(out, np.ndarray):
+        raise ValueError(f"out: expected a path or a numpy array, got {type(out).__name__}")
+    if out.shape != shape or out.dtype != dtype or not out.flags.writeable:
+        state = "" if out.flags.writeable else "read-only "
+        raise ValueError(f"out: expected a writable {shape} {dtype} array, got a {state}"
+                         f"{out.shape} {out.dtype} one")
+    return out
+
+
+def _packed_block(packed: bytes, wire: np.dtype, rows: int, cols: int) -> np.ndarray:
+    """A block of packed rows as a (rows, cols) view of the message's bytes."""
+    block = np.frombuffer(packed, dtype=wire)
+    if block.size != rows * cols:
+        raise ValueError(f"the server sent {block.size} values for a {rows} x {cols} block")
+    return block.reshape(rows, cols)
+
+
+def _threshold(dense: np.ndarray, radius: float, dtype: np.dtype) -> Any:
+    """The entries of `dense` within `radius` as a csr_matrix, zeros kept."""
+    import scipy.sparse
+    rows, cols = np.nonzero(dense <= radius)
+    values = dense[rows, cols].astype(dtype)
+    index_type = np.int32 if dense.shape[1] < 2**31 else np.int64
+    indptr = np.zeros(dense.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=dense.shape[0]), out=indptr[1:])
+    return scipy.sparse.csr_matrix((values, cols.astype(index_type), indptr), shape=dense.shape)
 
 
 def _is_position(value: Any) -> bool:

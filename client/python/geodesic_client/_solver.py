@@ -126,11 +126,23 @@ class MeshSolver:
                                 pseudo_vertices=self.pseudo_vertices, exact=exact,
                                 max_error=self.max_error)
 
-    def matrix(self, sources: Points, targets: Points, *, exact: bool = False) -> np.ndarray:
-        """(len(sources), len(targets)) array of distances."""
+    def matrix(self, sources: Optional[Points] = None, targets: Optional[Points] = None, *,
+               exact: bool = False, dtype: Any = None, out: Any = None) -> np.ndarray:
+        """(len(sources), len(targets)) array of distances, None meaning every vertex; dtype
+        and out as Client.matrix."""
         return self.client.matrix(self.name, sources, targets, self.epsilon,
                                   pseudo_vertices=self.pseudo_vertices, exact=exact,
-                                  max_error=self.max_error)
+                                  max_error=self.max_error, dtype=dtype, out=out)
+
+    def neighbourhood_matrix(self, radius: float, sources: Optional[Points] = None,
+                             targets: Optional[Points] = None, dtype: Any = np.float32, *,
+                             exact: bool = False) -> Any:
+        """The distances within radius as a scipy.sparse.csr_matrix; see
+        Client.neighbourhood_matrix."""
+        return self.client.neighbourhood_matrix(self.name, radius, sources, targets, dtype,
+                                                self.epsilon,
+                                                pseudo_vertices=self.pseudo_vertices,
+                                                exact=exact, max_error=self.max_error)
 
     def sample_points(self, count: int, seed: int = 0) -> Tuple[np.ndarray, float]:
         """Farthest-point sampling: (vertex ids, covering radius); see Client.sample_points."""
