@@ -826,6 +826,9 @@ MatrixOptions GeodesicService::MatrixOptionsOf(const v1::MatrixRequest& req,
   options.cancelled = Cancelled(ctx);
   options.exact = req.exact();
   options.exact_max_bytes = limits_.max_exact_bytes;
+  // Sparse rows: the search stops at the radius. Not for exact rows, whose
+  // graph entries just past it may still be exact ones within it.
+  if (req.radius() > 0 && !req.exact()) options.max_distance = req.radius();
   return options;
 }
 

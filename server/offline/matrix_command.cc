@@ -147,7 +147,10 @@ absl::StatusOr<Written> WriteSparse(const GeodesicEngine& engine,
     }
     return absl::OkStatus();
   };
-  RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, MatrixOptions{}, sink));
+  // The search stops at the radius: a neighbourhood costs what it holds.
+  MatrixOptions options;
+  options.max_distance = radius;
+  RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, options, sink));
   const uint64_t nonzeros = file.nonzeros();
   ASSIGN_OR_RETURN(const uint64_t bytes, std::move(file).Commit());
   return Written{bytes, nonzeros};

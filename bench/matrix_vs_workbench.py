@@ -1,0 +1,175 @@
+#!/usr/bin/python3
+"""All-pairs geodesic distance matrices: geodesicd against Connectome Workbench.
+
+Runs, in one process tree and one after the other on the same surface:
+  geodesicd build   SURFACE --eps EPS
+  geodesicd matrix  --sources all --targets all --dtype float32 --threads T
+  wb_command -surface-geodesic-distance-all-to-all SURFACE OUT.dconn.nii
+and prints a Markdown table (wall seconds, peak RSS, error against exact
+fields where ../shared/truth has them) with the time ratio of the same run.
+The surface is a GIFTI .surf.gii (what Workbench reads); an .off or .obj is
+converted to one first (with nibabel). wb_command is Debian's
+connectome-workbench; without it only geodesicd's side is measured.
+
+  bench/matrix_vs_workbench.py MESH [--eps 1e-3] [--threads 2] [--geodesicd PATH]
+"""
+import argparse
+import json
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+
+
+def read_off_or_obj(path: Path):
+    """Vertices (N x 3 float64) and triangles (M x 3 int32) of a plain OFF/OBJ."""
+    text = path.read_text().split("\n")
+    if path.suffix.lower() == ".off":
+        words = " ".join(l.split("#")[0] for l in text).split()
+        assert words[0].upper() == "OFF", f"{path}: not an OFF file"
+        nv, nf = int(words[1]), int(words[2])
+        v = np.array(words[4:4 + 3 * nv], dtype=np.float64).reshape(nv, 3)
+        f, at = [], 4 + 3 * nv
+        for _ in range(nf):
+            k = int(words[at])
+            assert k == 3, f"{path}: face of {k} corners"
+            f.append([int(x) for x in words[at + 1:at + 4]])
+            at += 1 + k
+        return v, np.array(f, dtype=np.int32)
+    v, f = [], []
+    for line in text:
+        p = line.split()
+        if not p:
+            continue
+        if p[0] == "v":
+            v.append([float(x) for x in p[1:4]])
+        elif p[0] == "f":
+            idx = [int(x.split("/")[0]) - 1 for x in p[1:]]
+            assert len(idx) == 3, f"{path}: face of {len(idx)} corners"
+            f.append(idx)
+    return np.array(v, dtype=np.float64), np.array(f, dtype=np.int32)
+
+
+def to_gifti(mesh: Path, out: Path) -> None:
+    import nibabel as nib
+    v, f = read_off_or_obj(mesh)
+    img = nib.gifti.GiftiImage()
+    img.add_gifti_data_array(nib.gifti.GiftiDataArray(
+        v.astype(np.float32), intent="NIFTI_INTENT_POINTSET", datatype="NIFTI_TYPE_FLOAT32"))
+    img.add_gifti_data_array(nib.gifti.GiftiDataArray(
+        f, intent="NIFTI_INTENT_TRIANGLE", datatype="NIFTI_TYPE_INT32"))
+    nib.save(img, str(out))
+
+
+def timed(cmd):
+    """(wall seconds, peak RSS bytes, stdout) of a command, through GNU time."""
+    with tempfile.NamedTemporaryFile("r", suffix=".time") as t:
+        start = time.monotonic()
+        r = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", t.name] + cmd,
+                           capture_output=True, text=True)
+        wall = time.monotonic() - start
+        if r.returncode != 0:
+            sys.exit(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
+        rss_kb = int(t.read().strip().split("\n")[-1])
+    return wall, rss_kb * 1024, r.stdout
+
+
+def row_errors(row: np.ndarray, exact: np.ndarray, source: int):
+    """Max and mean relative error of a row against an exact field."""
+    assert row.shape == exact.shape and row.size > 0
+    keep = np.isfinite(exact) & (exact > 0)
+    keep[source] = False
+    assert keep.sum() > 0 and np.isfinite(row[keep]).all(), "row has unreached vertices"
+    rel = np.abs(row[keep].astype(np.float64) - exact[keep]) / exact[keep]
+    return float(rel.max()), float(rel.mean())
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("mesh", type=Path)
+    ap.add_argument("--eps", type=float, default=1e-3)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--geodesicd", default=str(HERE.parent / "build" / "bin" / "geodesicd"))
+    ap.add_argument("--truth", type=Path, default=HERE.parent.parent / "shared" / "truth")
+    ap.add_argument("--keep", type=Path, help="directory to keep the matrices in")
+    args = ap.parse_args()
+
+    work = Path(tempfile.mkdtemp(prefix="matrix-bench-", dir=args.keep))
+    try:
+        surface = args.mesh
+        if not surface.name.endswith(".gii"):
+            surface = work / (args.mesh.stem + ".surf.gii")
+            to_gifti(args.mesh, surface)
+        stem = re.sub(r"\.surf$", "", surface.stem)
+        graph, ours = work / "g.dgg", work / "D.npy"
+        build_s, _, _ = timed([args.geodesicd, "build", str(surface), "--eps", str(args.eps),
+                               "--out", str(graph), "--quiet", "--json"])
+        ours_s, ours_rss, out = timed([
+            args.geodesicd, "matrix", "--mesh", str(surface), "--graph", str(graph),
+            "--sources", "all", "--targets", "all", "--dtype", "float32",
+            "--out", str(ours), "--threads", str(args.threads), "--json"])
+        report = json.loads(out)
+        D = np.load(ours, mmap_mode="r")
+        n = D.shape[0]
+        assert D.shape == (n, n) and n > 0
+        # Symmetric where the graph is: sampled blocks against their transposes.
+        rng = np.random.default_rng(1)
+        rows = np.sort(rng.choice(n, size=min(n, 256), replace=False))
+        block = np.asarray(D[rows][:, rows])
+        assert np.isfinite(block).all()
+        asym = float(np.max(np.abs(block - block.T)))
+
+        wb = shutil.which("wb_command")
+        wb_s = wb_rss = None
+        W = None
+        if wb:
+            dconn = work / "wb.dconn.nii"
+            wb_s, wb_rss, _ = timed([wb, "-surface-geodesic-distance-all-to-all", str(surface),
+                                     str(dconn)])
+            import nibabel as nib
+            W = nib.load(str(dconn)).dataobj
+
+        errors = {"ours": [], "wb": []}
+        for f in sorted(args.truth.glob(f"{stem}.exact.s*.f64")):
+            s = int(re.search(r"\.s(\d+)\.f64$", f.name).group(1))
+            exact = np.fromfile(f, dtype="<f8")
+            assert exact.size == n, f"{f}: {exact.size} values for {n} vertices"
+            errors["ours"].append(row_errors(np.asarray(D[s]), exact, s))
+            if W is not None:
+                errors["wb"].append(row_errors(np.asarray(W[s], dtype=np.float64), exact, s))
+
+        def err(name):
+            e = errors[name]
+            if not e:
+                return "no exact fields"
+            return f"{100 * max(x[0] for x in e):.3g}% / {100 * np.mean([x[1] for x in e]):.3g}%"
+
+        print(f"All pairs of {surface.name} ({n} vertices), eps {args.eps:g}, "
+              f"geodesicd on {args.threads} threads; graph built in {build_s:.1f} s")
+        print()
+        print("| tool | wall s | peak RSS MiB | max / mean error vs exact |")
+        print("|---|---:|---:|---:|")
+        print(f"| geodesicd matrix, float32 .npy | {ours_s:.1f} | {ours_rss / 2**20:.0f} | "
+              f"{err('ours')} |")
+        if wb_s is not None:
+            print(f"| wb_command -surface-geodesic-distance-all-to-all | {wb_s:.1f} | "
+                  f"{wb_rss / 2**20:.0f} | {err('wb')} |")
+            print()
+            print(f"wb_command / geodesicd wall time: {wb_s / ours_s:.1f}x "
+                  f"(with the graph build: {wb_s / (ours_s + build_s):.1f}x)")
+        print(f"largest |D - D^T| over {len(rows)}^2 sampled entries: {asym:.3g}; "
+              f"matrix reported {report['seconds']:.1f} s, {report['bytes']} bytes")
+    finally:
+        if not args.keep:
+            shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    main()
