@@ -17,6 +17,7 @@
 
 namespace geodesic::v1 {
 class RegisterMeshRequest;
+class RegisterRegionRequest;
 class UploadMeshRequest;
 class ListMeshesRequest;
 class GetMeshRequest;
@@ -55,6 +56,7 @@ class SerializationTraits<protobuf::MessageLite, void> {
       : public SerializationTraits<protobuf::MessageLite, void> {};
 
 GEODESIC_READ_AS_MESSAGE_LITE(RegisterMeshRequest)
+GEODESIC_READ_AS_MESSAGE_LITE(RegisterRegionRequest)
 GEODESIC_READ_AS_MESSAGE_LITE(UploadMeshRequest)
 GEODESIC_READ_AS_MESSAGE_LITE(ListMeshesRequest)
 GEODESIC_READ_AS_MESSAGE_LITE(GetMeshRequest)

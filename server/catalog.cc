@@ -147,27 +147,34 @@ bool CatalogState::RemoveGraph(const std::string& mesh, const DggParams& params,
 
 std::string CatalogToJson(const CatalogState& state) {
   json meshes = json::array(), graphs = json::array();
+  uint32_t version = Catalog::kOldestFormatVersion;
   for (const CatalogMesh& m : state.meshes) {
-    meshes.push_back({{"name", m.name},
-                      {"source", m.source},
-                      {"format", m.format},
-                      {"source_hash", Hex(m.source_hash)},
-                      {"fingerprint", Hex(m.fingerprint)},
-                      {"repair_non_manifold", m.repair_non_manifold}});
+    json entry = {{"name", m.name},
+                  {"source", m.source},
+                  {"format", m.format},
+                  {"source_hash", Hex(m.source_hash)},
+                  {"fingerprint", Hex(m.fingerprint)},
+                  {"repair_non_manifold", m.repair_non_manifold}};
+    if (!m.parent.empty()) {
+      entry["region"] = {{"parent", m.parent},
+                         {"mask", m.region_faces ? "faces" : "vertices"},
+                         {"ids", m.region_ids}};
+      version = Catalog::kFormatVersion;
+    }
+    meshes.push_back(std::move(entry));
   }
-  bool certified = false;
   for (const CatalogGraph& g : state.graphs) {
     json entry = ParamsToJson(g.params);
     entry["mesh"] = g.mesh;
     // Only for a certified graph: a catalog without one stays version 1.
     if (g.max_error > 0) {
       entry["max_error"] = g.max_error;
-      certified = true;
+      version = std::max(version, Catalog::kCertifiedFormatVersion);
     }
     graphs.push_back(std::move(entry));
   }
   const json j = {{"format", kFormatName},
-                  {"version", certified ? Catalog::kFormatVersion : Catalog::kOldestFormatVersion},
+                  {"version", version},
                   {"generation", state.generation},
                   {"meshes", std::move(meshes)},
                   {"graphs", std::move(graphs)}};
@@ -195,10 +202,21 @@ absl::StatusOr<CatalogState> CatalogFromJson(const std::string& text, const std:
     for (size_t i = 0; i < meshes.size(); ++i) {
       const json& m = meshes[i];
       const std::string where = absl::StrFormat("meshes[%u]", i);
-      state.meshes.push_back(
-          {Get<std::string>(m, "name", where), Get<std::string>(m, "source", where),
-           Get<std::string>(m, "format", where), GetHex(m, "source_hash", where),
-           GetHex(m, "fingerprint", where), Get<bool>(m, "repair_non_manifold", where)});
+      CatalogMesh& mesh = state.meshes.emplace_back(
+          CatalogMesh{Get<std::string>(m, "name", where), Get<std::string>(m, "source", where),
+                      Get<std::string>(m, "format", where), GetHex(m, "source_hash", where),
+                      GetHex(m, "fingerprint", where), Get<bool>(m, "repair_non_manifold", where)});
+      if (m.contains("region")) {
+        const json& region = m.at("region");
+        const std::string at = where + ".region";
+        mesh.parent = Get<std::string>(region, "parent", at);
+        const std::string mask = Get<std::string>(region, "mask", at);
+        if (mask != "vertices" && mask != "faces") {
+          throw Malformed{absl::StrFormat("%s.mask: '%s' is not vertices or faces", at, mask)};
+        }
+        mesh.region_faces = mask == "faces";
+        mesh.region_ids = Get<std::vector<uint32_t>>(region, "ids", at);
+      }
     }
     const json& graphs = GetArray(j, "graphs");
     for (size_t i = 0; i < graphs.size(); ++i) {

@@ -33,6 +33,11 @@ struct CatalogMesh {
   uint64_t source_hash = 0;  // the mesh snapshot's key (core/mesh/mesh_snapshot.h)
   uint64_t fingerprint = 0;  // of the built mesh: graphs are keyed by it
   bool repair_non_manifold = false;
+  // A region (source "region"): cut again from the mesh `parent` with these
+  // ids of its vertices, or of its faces.
+  std::string parent{};
+  bool region_faces = false;
+  std::vector<uint32_t> region_ids{};
 };
 
 // A graph requested plain, or certified (max_error > 0): then `params` are
@@ -63,12 +68,14 @@ struct CatalogState {
 
 class Catalog {
  public:
-  // Version 2 added certified graphs (a graph's "max_error"). A catalog
-  // without one is still written as version 1, which builds before it
-  // read; one with a certified graph is version 2, which they refuse
-  // rather than take it for a plain graph (and drop its bound when they
-  // write the catalog back). Both versions are read.
-  static constexpr uint32_t kFormatVersion = 2;
+  // Version 2 added certified graphs (a graph's "max_error"), version 3
+  // regions (a mesh's "region"). A catalog is written with the oldest
+  // version that holds what it lists, which builds before it read; a newer
+  // one they refuse rather than take a certified graph for a plain one or a
+  // region for a file (and drop what they cannot hold when they write the
+  // catalog back). Every version up to this one is read.
+  static constexpr uint32_t kFormatVersion = 3;
+  static constexpr uint32_t kCertifiedFormatVersion = 2;
   static constexpr uint32_t kOldestFormatVersion = 1;
   // A file of real blocks kept beside the catalog: on a full disk, a change
   // that cannot be written deletes it and tries again, so that unloads and

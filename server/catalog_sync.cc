@@ -40,7 +40,16 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
   }
   // A failure to restore what the catalog no longer lists is no news.
   std::erase_if(failures_, [&](const auto& f) { return !state.FindMesh(f.first); });
+  // Regions after the meshes they are cut from.
+  std::vector<const CatalogMesh*> order;
   for (const CatalogMesh& m : state.meshes) {
+    if (m.parent.empty()) order.push_back(&m);
+  }
+  for (const CatalogMesh& m : state.meshes) {
+    if (!m.parent.empty()) order.push_back(&m);
+  }
+  for (const CatalogMesh* listed : order) {
+    const CatalogMesh& m = *listed;
     if (meshes_.contains(m.name)) continue;
     absl::Status s = hooks_.restore_mesh(m);
     if (!s.ok()) {
@@ -93,12 +102,22 @@ absl::Status CatalogSync::RecordMesh(const CatalogMesh& mesh) {
 absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
   absl::MutexLock lock(&mu_);
   bool listed = false;
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update(
-                                           [&](CatalogState& s) {
-                                             listed = s.RemoveMesh(name);
-                                             return absl::OkStatus();
-                                           },
-                                           Catalog::Reserve::kFreesSpace));
+  ASSIGN_OR_RETURN(CatalogState state,
+                   catalog_->Update(
+                       [&](CatalogState& s) -> absl::Status {
+                         // Regions registered on other replicas too.
+                         for (const CatalogMesh& m : s.meshes) {
+                           if (m.parent == name) {
+                             return absl::FailedPreconditionError(
+                                 absl::StrFormat("mesh '%s' has the region '%s' "
+                                                 "registered: unload the region first",
+                                                 name, m.name));
+                           }
+                         }
+                         listed = s.RemoveMesh(name);
+                         return absl::OkStatus();
+                       },
+                       Catalog::Reserve::kFreesSpace));
   // The caller unloads the mesh itself.
   meshes_.erase(name);
   std::erase_if(graphs_, [&](const CatalogGraph& g) { return g.mesh == name; });

@@ -160,6 +160,13 @@ void Daemon::OpenCatalog() {
   CatalogSync::Hooks hooks{
       .restore_mesh =
           [this](const CatalogMesh& m) {
+            if (!m.parent.empty()) {
+              return meshes_
+                  ->RegisterRegion(m.name, m.parent,
+                                   m.region_faces ? RegionMask::kFaces : RegionMask::kVertices,
+                                   m.region_ids, m.fingerprint)
+                  .status();
+            }
             return meshes_
                 ->RegisterRecorded(m.name, m.source, m.format, m.source_hash, m.fingerprint,
                                    m.repair_non_manifold)

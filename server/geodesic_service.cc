@@ -310,8 +310,9 @@ absl::StatusOr<GraphKey> GeodesicService::Key(const v1::GraphSelector& graph) co
 
 absl::Status GeodesicService::Record(const RegisteredMesh& m, bool existed) {
   if (!catalog_) return absl::OkStatus();
-  absl::Status s = catalog_->RecordMesh(
-      {m.name, m.source, m.format, m.source_hash, m.fingerprint, m.repair_non_manifold});
+  absl::Status s = catalog_->RecordMesh({m.name, m.source, m.format, m.source_hash, m.fingerprint,
+                                         m.repair_non_manifold, m.parent,
+                                         m.region_mask == RegionMask::kFaces, m.region_ids});
   // Not recorded, not registered: a client told of an error must not find
   // the mesh answering here and gone after a restart.
   if (!s.ok() && !existed) meshes_->Remove(m.name).IgnoreError();
@@ -476,6 +477,11 @@ void FillMesh(const RegisteredMesh& m, v1::Mesh* out) {
     copy->set_copy(c.copy);
   }
   ToProto(m.diagnostics, out->mutable_diagnostics());
+  if (m.region) {
+    out->set_parent(m.parent);
+    out->set_parent_vertices(m.region->region_vertex.size());
+    out->set_parent_faces(m.region->region_face.size());
+  }
 }
 
 }  // namespace
@@ -529,6 +535,31 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
   });
 }
 
+grpc::Status GeodesicService::RegisterRegion(grpc::ServerContext* ctx,
+                                             const v1::RegisterRegionRequest* req, v1::Mesh* resp) {
+  return Handle("RegisterRegion", ctx, req->name(), false, [&]() -> absl::Status {
+    RETURN_IF_ERROR(MeshRegistry::ValidateName(req->name()));
+    if (req->vertex_ids().empty() == req->face_ids().empty()) {
+      return absl::InvalidArgumentError(
+          "a region is given by vertex_ids or by face_ids: exactly one of the two");
+    }
+    NameLocks::Hold hold(names_, req->name(), absl::FromChrono(ctx->deadline()));
+    if (!hold.held()) return NameBusy(req->name());
+    // The parent may have been registered on another replica.
+    RETURN_IF_ERROR(FindMesh(req->parent()).status());
+    const bool existed = meshes_->Get(req->name()).ok();
+    const bool by_faces = !req->face_ids().empty();
+    const auto& ids = by_faces ? req->face_ids() : req->vertex_ids();
+    auto m = meshes_->RegisterRegion(req->name(), req->parent(),
+                                     by_faces ? RegionMask::kFaces : RegionMask::kVertices,
+                                     std::vector<uint32_t>(ids.begin(), ids.end()));
+    if (!m.ok()) return m.status();
+    RETURN_IF_ERROR(Record(**m, existed));
+    FillMesh(**m, resp);
+    return absl::OkStatus();
+  });
+}
+
 grpc::Status GeodesicService::ListMeshes(grpc::ServerContext* ctx, const v1::ListMeshesRequest*,
                                          v1::ListMeshesResponse* resp) {
   return Handle("ListMeshes", ctx, "", false, [&]() -> absl::Status {
@@ -552,6 +583,14 @@ grpc::Status GeodesicService::UnloadMesh(grpc::ServerContext* ctx, const v1::Unl
   return Handle("UnloadMesh", ctx, req->name(), false, [&]() -> absl::Status {
     NameLocks::Hold hold(names_, req->name(), absl::FromChrono(ctx->deadline()));
     if (!hold.held()) return NameBusy(req->name());
+    // A region is cut again from its parent at every restart.
+    for (const auto& m : meshes_->List()) {
+      if (m->parent == req->name()) {
+        return absl::FailedPreconditionError(
+            absl::StrFormat("mesh '%s' has the region '%s' registered: unload the region first",
+                            req->name(), m->name));
+      }
+    }
     // The catalog first: once it no longer lists the mesh, no restart or
     // replica brings it back.
     bool catalogued = false;

@@ -67,6 +67,8 @@ class GeodesicService final : public v1::Geodesic::Service {
                             v1::Mesh*) override;
   grpc::Status UploadMesh(grpc::ServerContext*, grpc::ServerReader<v1::UploadMeshRequest>*,
                           v1::Mesh*) override;
+  grpc::Status RegisterRegion(grpc::ServerContext*, const v1::RegisterRegionRequest*,
+                              v1::Mesh*) override;
   grpc::Status ListMeshes(grpc::ServerContext*, const v1::ListMeshesRequest*,
                           v1::ListMeshesResponse*) override;
   grpc::Status GetMesh(grpc::ServerContext*, const v1::GetMeshRequest*, v1::Mesh*) override;

@@ -399,6 +399,11 @@ json MeshJson(const v1::Mesh& m) {
               {"fingerprint", m.fingerprint()},
               {"source", m.source()},
               {"restored", m.restored()}};
+  if (!m.parent().empty()) {
+    out["parent"] = m.parent();
+    out["parent_vertices"] = m.parent_vertices();
+    out["parent_faces"] = m.parent_faces();
+  }
   json diagnostics = json::parse(DiagnosticsJsonText(d), nullptr, false);
   if (!diagnostics.is_discarded()) out["diagnostics"] = std::move(diagnostics);
   return out;
@@ -606,6 +611,18 @@ struct HttpGateway::Impl {
     }
     writer->WritesDone();
     return writer->Finish();
+  }
+
+  // POST /v1/meshes/PARENT/regions: {"name", "vertex_ids" or "face_ids"}
+  // is RegisterRegionRequest in protobuf's JSON mapping, its parent the path's.
+  grpc::Status RegisterRegion(const Call& call, const ApiRequest& r, json* out) {
+    v1::RegisterRegionRequest req;
+    if (grpc::Status s = MessageOf(r.body, &req); !s.ok()) return s;
+    req.set_parent(r.mesh);
+    v1::Mesh mesh;
+    grpc::Status s = stub->RegisterRegion(call.Context().get(), req, &mesh);
+    if (s.ok()) *out = MeshJson(mesh);
+    return s;
   }
 
   grpc::Status UnloadMesh(const Call& call, const ApiRequest& r, json* out) {
@@ -939,6 +956,7 @@ struct HttpGateway::Impl {
         {"GET",    "/v1/meshes/{}",          &Impl::GetMesh},
         {"DELETE", "/v1/meshes/{}",          &Impl::UnloadMesh},
         {"GET",    "/v1/meshes/{}/geometry", &Impl::Geometry},
+        {"POST",   "/v1/meshes/{}/regions",  &Impl::RegisterRegion, {"name", "vertex_ids", "face_ids"}},
         {"GET",    "/v1/meshes/{}/graph",    &Impl::GetGraph},
         {"DELETE", "/v1/meshes/{}/graph",    &Impl::CancelGraph},
         {"POST",   "/v1/meshes/{}/graph",    &Impl::RequestGraph, WithGraph({})},

@@ -465,6 +465,48 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterReco
   return Insert(std::move(m));
 }
 
+absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRegion(
+    const std::string& name, const std::string& parent, RegionMask mask, std::vector<uint32_t> ids,
+    uint64_t fingerprint) {
+  RETURN_IF_ERROR(ValidateName(name));
+  ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> p, Get(parent));
+  // A region of a region would need its grandparent to be restored first,
+  // and says nothing a region of the grandparent does not.
+  if (!p->parent.empty()) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("mesh '%s' is itself a region of '%s': cut the region from '%s'", parent,
+                        p->parent, p->parent));
+  }
+  ASSIGN_OR_RETURN(
+      Region region,
+      ExtractRegion(*p->mesh, mask, ids, absl::StrFormat("region '%s' of '%s'", name, parent)));
+  auto m = std::make_shared<RegisteredMesh>();
+  m->name = name;
+  m->source = "region";
+  m->format = "region";
+  m->mesh = region.mesh;
+  m->fingerprint = MeshFingerprint(*m->mesh);
+  if (fingerprint != 0 && m->fingerprint != fingerprint) {
+    return absl::FailedPreconditionError(absl::StrFormat(
+        "region '%s' of '%s' has fingerprint %016x, not the %016x recorded: its parent changed",
+        name, parent, m->fingerprint, fingerprint));
+  }
+  TriangleSoup soup{m->mesh->positions(), {}};
+  for (FaceId f = 0; f < m->mesh->num_faces(); ++f) {
+    soup.triangles.push_back(
+        {m->mesh->face_vertex(f, 0), m->mesh->face_vertex(f, 1), m->mesh->face_vertex(f, 2)});
+  }
+  ComputeDiagnostics(soup, &m->diagnostics);
+  m->diagnostics.path = absl::StrFormat("region of %s", parent);
+  m->diagnostics.format = "region";
+  m->locator = std::make_shared<const LazySurfaceLocator>(m->mesh);
+  m->parent = parent;
+  m->region = std::make_shared<const Region>(std::move(region));
+  m->region_mask = mask;
+  m->region_ids = std::move(ids);
+  return Insert(std::move(m));
+}
+
 std::string MeshRegistry::SnapshotName(const RegisteredMesh& m) {
   return MeshSnapshotName(m.source_hash);
 }

@@ -16,6 +16,7 @@
 #include "absl/synchronization/mutex.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_io.h"
+#include "core/mesh/region.h"
 #include "core/mesh/surface_locator.h"
 
 namespace geodesic::server {
@@ -49,6 +50,12 @@ struct RegisteredMesh {
   // the file's vertices).
   bool repair_non_manifold = false;
   std::vector<VertexCopy> vertex_copies;
+  // A region of the registered mesh `parent` (RegisterRegion), cut with
+  // these ids, which a catalog records to cut it again; source "region".
+  std::string parent;
+  std::shared_ptr<const Region> region;
+  RegionMask region_mask = RegionMask::kVertices;
+  std::vector<uint32_t> region_ids;
 };
 
 class MeshRegistry {
@@ -105,6 +112,16 @@ class MeshRegistry {
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRecorded(
       const std::string& name, const std::string& source, const std::string& format,
       uint64_t source_hash, uint64_t fingerprint, bool repair);
+  // A region of the registered mesh `parent` (core/mesh/region.h), kept in
+  // memory only: it is cut again from its parent whenever it is needed.
+  // NOT_FOUND for an unknown parent, FAILED_PRECONDITION for a parent that
+  // is a region itself or, with a non-zero `fingerprint` (a catalog's
+  // record), for a region that came out another mesh.
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRegion(const std::string& name,
+                                                                       const std::string& parent,
+                                                                       RegionMask mask,
+                                                                       std::vector<uint32_t> ids,
+                                                                       uint64_t fingerprint = 0);
   // The snapshot file name of a mesh ("<source hash>.mesh").
   static std::string SnapshotName(const RegisteredMesh& m);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;

@@ -85,7 +85,7 @@ absl::StatusOr<std::optional<GraphFileDraft>> DraftFor(const Mesh& mesh, const D
 // Writes the graph, and its certificate beside it (or removes a stale one),
 // and prints what `build` and `merge` report.
 
-int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
+int WriteAndReport(const char* command, const WorkMesh& work, const DggGraph& graph,
                    const DggBuildStats& stats, std::string out_path, const std::string& graph_dir,
                    int threads, bool json, const GraphCertificate* certificate = nullptr,
                    std::optional<GraphFileDraft> draft = std::nullopt) {
@@ -97,6 +97,7 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
         certificate ? WriteCertificate(out_path, graph, *certificate) : RemoveCertificate(out_path);
   }
   if (!written.ok()) return Fail(command, written);
+  const Mesh& mesh = *work.mesh();
   const uint64_t file_bytes = std::filesystem::file_size(out_path);
   const size_t n = mesh.num_vertices();
   const double epsilon = graph.params().epsilon;
@@ -130,6 +131,7 @@ int WriteAndReport(const char* command, const Mesh& mesh, const DggGraph& graph,
                    {"spilled_bytes", stats.spilled_bytes},
                    {"file_bytes", file_bytes}};
     if (certificate) report["certificate"] = CertificateJson(*certificate);
+    work.AddJson(report);
     PrintJson(report);
   } else {
     std::printf(
@@ -197,10 +199,14 @@ struct BuildFlags {
   int threads = 0;
   bool json = false, pseudo = false, quiet = false, prune = false, exact_fans = false,
        plain = false, repair = false;
+  RegionFlags region;
 };
 
 void AddBuildFlags(CLI::App& app, BuildFlags& f) {
-  app.add_option("mesh", f.mesh_path, "mesh file (" + MeshFormatList() + ": x.surf.gii)")
+  app.add_option("mesh", f.mesh_path,
+                 "mesh file (" + MeshFormatList() +
+                     ": x.surf.gii); with a region, the graph is the region's, for this file and "
+                     "the same region flags only")
       ->required();
   auto* eps =
       app.add_option("--eps", f.epsilon, "accuracy: relative error of graph distances, in (0, 1)");
@@ -255,12 +261,12 @@ void AddBuildFlags(CLI::App& app, BuildFlags& f) {
                  "file beside the output and are read back once. The graph itself is held once, "
                  "in place (default: no limit)");
   AddRepairFlag(app, &f.repair);
+  AddRegionFlags(app, &f.region, false);
 }
 
 // `--max-error X`: build, check and rebuild until certified, then write the
 // graph and its certificate.
-int BuildCertified(std::shared_ptr<const Mesh> mesh, const DggBuildOptions& build,
-                   const BuildFlags& f) {
+int BuildCertified(const WorkMesh& work, const DggBuildOptions& build, const BuildFlags& f) {
   CertifyOptions options;
   options.build = build;
   options.build.progress = nullptr;
@@ -271,11 +277,11 @@ int BuildCertified(std::shared_ptr<const Mesh> mesh, const DggBuildOptions& buil
       return bar(absl::StrFormat("build %u: %s", n, std::string(phase)), fraction);
     };
   }
-  auto certified = BuildCertifiedGraph(mesh, f.max_error, options);
+  auto certified = BuildCertifiedGraph(work.mesh(), f.max_error, options);
   if (build.progress) std::fprintf(stderr, "\n");
   if (!certified.ok()) return Fail("build", certified.status());
-  return WriteAndReport("build", *mesh, *certified->graph, certified->stats, f.out_path,
-                        f.graph_dir, f.threads, f.json, &certified->certificate);
+  return WriteAndReport("build", work, *certified->graph, certified->stats, f.out_path, f.graph_dir,
+                        f.threads, f.json, &certified->certificate);
 }
 
 }  // namespace
@@ -296,8 +302,9 @@ int RunBuild(int argc, char** argv) {
     return Fail("build", absl::InvalidArgumentError(
                              "--out is required (or --graph-dir, for a whole graph)"));
   }
-  auto mesh = LoadMeshOrError(f.mesh_path, f.repair);
-  if (!mesh.ok()) return Fail("build", mesh.status());
+  auto work = LoadWorkMesh(f.mesh_path, f.repair, f.region);
+  if (!work.ok()) return Fail("build", work.status());
+  const Mesh& mesh = *work->mesh();
   DggBuildOptions options;
   options.params.epsilon = f.epsilon;
   options.params.pseudo_vertices = f.pseudo;
@@ -315,17 +322,17 @@ int RunBuild(int argc, char** argv) {
       return Fail("build", absl::InvalidArgumentError(
                                "--max-error certifies a whole graph: it cannot build a --part"));
     }
-    return BuildPart(**mesh, options, f.part, f.out_path, f.json);
+    return BuildPart(mesh, options, f.part, f.out_path, f.json);
   }
-  if (app.count("--max-error")) return BuildCertified(*mesh, options, f);
+  if (app.count("--max-error")) return BuildCertified(*work, options, f);
   const bool bar = static_cast<bool>(options.progress);
-  auto draft = DraftFor(**mesh, options.params, f.out_path, f.graph_dir, options);
+  auto draft = DraftFor(mesh, options.params, f.out_path, f.graph_dir, options);
   if (!draft.ok()) return Fail("build", draft.status());
   DggBuildStats stats;
-  auto graph = BuildDgg(**mesh, options, &stats);
+  auto graph = BuildDgg(mesh, options, &stats);
   if (bar) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("build", graph.status());
-  return WriteAndReport("build", **mesh, **graph, stats, f.out_path, f.graph_dir, f.threads, f.json,
+  return WriteAndReport("build", *work, **graph, stats, f.out_path, f.graph_dir, f.threads, f.json,
                         nullptr, std::move(*draft));
 }
 
@@ -360,12 +367,15 @@ int RunMerge(int argc, char** argv) {
   app.add_flag("--exact-fans", exact_fans, "expect parts built with --exact-fans (as --prune)");
   bool repair = false;
   AddRepairFlag(app, &repair);
+  RegionFlags region;
+  AddRegionFlags(app, &region, false);
   CLI11_PARSE(app, argc, argv);
   if (out_path.empty() && graph_dir.empty()) {
     return Fail("merge", absl::InvalidArgumentError("--out or --graph-dir is required"));
   }
-  auto mesh = LoadMeshOrError(mesh_path, repair);
-  if (!mesh.ok()) return Fail("merge", mesh.status());
+  auto work = LoadWorkMesh(mesh_path, repair, region);
+  if (!work.ok()) return Fail("merge", work.status());
+  const Mesh& mesh = *work->mesh();
   std::vector<DggPartSource> parts;
   for (const std::string& path : part_paths) {
     auto index = ReadDggPartIndex(path);
@@ -391,14 +401,14 @@ int RunMerge(int argc, char** argv) {
   // The parts carry the graph's build record (checked alike by the merge).
   auto draft = parts.empty()
                    ? absl::StatusOr<std::optional<GraphFileDraft>>(std::nullopt)
-                   : DraftFor(**mesh, parts.front().index.params, out_path, graph_dir, options);
+                   : DraftFor(mesh, parts.front().index.params, out_path, graph_dir, options);
   if (!draft.ok()) return Fail("merge", draft.status());
   DggBuildStats stats;
-  auto graph = MergeDggParts(**mesh, std::move(parts), options, &stats);
+  auto graph = MergeDggParts(mesh, std::move(parts), options, &stats);
   if (bar) std::fprintf(stderr, "\n");
   if (!graph.ok()) return Fail("merge", graph.status());
-  return WriteAndReport("merge", **mesh, **graph, stats, out_path, graph_dir, threads, json,
-                        nullptr, std::move(*draft));
+  return WriteAndReport("merge", *work, **graph, stats, out_path, graph_dir, threads, json, nullptr,
+                        std::move(*draft));
 }
 
 }  // namespace geodesic::offline

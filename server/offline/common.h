@@ -11,6 +11,7 @@
 #include "absl/status/statusor.h"
 #include "core/dgg/dgg_graph.h"
 #include "core/mesh/mesh.h"
+#include "core/mesh/region.h"
 #include "core/mesh/surface_locator.h"
 #include "core/mesh/surface_point.h"
 #include "nlohmann/json.hpp"
@@ -24,6 +25,33 @@ int Fail(const char* command, const absl::Status& status);
 // per fan (appended after the file's vertices) instead of refused.
 absl::StatusOr<std::shared_ptr<const Mesh>> LoadMeshOrError(const std::string& path,
                                                             bool repair_non_manifold = false);
+
+// --region-vertices / --region-faces, and --parent-ids where results can be
+// written in the parent's ids.
+struct RegionFlags {
+  std::string vertices_path, faces_path;
+  bool parent_ids = false;
+  bool given() const { return !vertices_path.empty() || !faces_path.empty(); }
+};
+void AddRegionFlags(CLI::App& app, RegionFlags* flags, bool parent_ids);
+
+// Vertex or face ids, from a text file (one id a line; blank lines and
+// lines starting with # skipped) or a .npy (a 1-d array of integer ids, or
+// of bools: the ids of the true entries). A leading @ is ignored, as in
+// point lists. Errors name `flag`, the path and, in text, the line.
+absl::StatusOr<std::vector<uint32_t>> ReadIdList(std::string path, const std::string& flag);
+
+// The mesh a command works on: the file's, or the region of it the flags
+// name (then the file's mesh is its parent).
+struct WorkMesh {
+  std::shared_ptr<const Mesh> parent;
+  std::shared_ptr<const Region> region;  // null without a region
+  const std::shared_ptr<const Mesh>& mesh() const { return region ? region->mesh : parent; }
+  // The --json keys of a region: its vertex and face counts, and its parent's.
+  void AddJson(nlohmann::ordered_json& out) const;
+};
+absl::StatusOr<WorkMesh> LoadWorkMesh(const std::string& path, bool repair,
+                                      const RegionFlags& region);
 
 // A distance limit: a number above zero (inf allowed), never NaN.
 inline const CLI::Validator kPositiveDistance(
@@ -66,6 +94,25 @@ absl::StatusOr<std::vector<SurfacePoint>> ResolvePointList(PointResolver& resolv
                                                            const Mesh& mesh,
                                                            const std::vector<std::string>& args,
                                                            const std::string& flag);
+
+// The point lists of a matrix on the work mesh. With --parent-ids, specs
+// name points of the parent (ids and positions alike), mapped into the
+// region, a point outside it an error naming `flag` and the point, and
+// `all` is every parent vertex, those outside the region included: their
+// slot is kNone. Otherwise as ResolvePointList on the work mesh.
+struct WorkPoints {
+  std::vector<SurfacePoint> points;  // on the work mesh
+  std::vector<uint32_t> slot;        // per point listed: its index in `points`, or kNone
+};
+// `resolver` is on the parent with --parent-ids, on the work mesh otherwise
+// (one for every list, so that positions build one search index).
+absl::StatusOr<WorkPoints> ResolveWorkPoints(const WorkMesh& work, bool parent_ids,
+                                             PointResolver& resolver,
+                                             const std::vector<std::string>& args,
+                                             const std::string& flag);
+// A point of the parent as the region's (the point itself without a region).
+absl::StatusOr<SurfacePoint> IntoWorkMesh(const WorkMesh& work, const SurfacePoint& parent_point,
+                                          const std::string& flag);
 
 // One spec, for commands that resolve a single point.
 absl::StatusOr<SurfacePoint> ResolvePoint(const Mesh& mesh, const std::string& spec);

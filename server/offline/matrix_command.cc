@@ -29,6 +29,7 @@ struct MatrixFlags {
   std::optional<double> radius;
   int threads = 0;
   bool json = false, repair = false;
+  RegionFlags region;
 };
 
 // A radius for the sparse output: finite, above zero.
@@ -45,9 +46,13 @@ const CLI::Validator kFiniteRadius(
 
 void AddMatrixFlags(CLI::App& app, MatrixFlags& f) {
   constexpr char kPoints[] =
-      "all (every mesh vertex, in file order), point specs (v:ID, e:EDGE:T, f:FACE:B0,B1,B2, "
+      "all (every mesh vertex, in file order; with a region, its vertices, or with --parent-ids "
+      "every parent vertex, rows and columns outside the region +inf), point specs (v:ID, "
+      "e:EDGE:T, f:FACE:B0,B1,B2, "
       "xyz:X,Y,Z) or @FILE (one spec per line, # comments)";
-  app.add_option("--mesh", f.mesh_path, "mesh file the graph was built for")->required();
+  app.add_option("--mesh", f.mesh_path,
+                 "mesh file the graph was built for (with a region: its parent)")
+      ->required();
   app.add_option("--graph", f.graph_path, "graph file (geodesicd build)")->required();
   app.add_option("--sources", f.sources, std::string("the rows: ") + kPoints)->required();
   app.add_option("--targets", f.targets, std::string("the columns: ") + kPoints)->required();
@@ -66,6 +71,7 @@ void AddMatrixFlags(CLI::App& app, MatrixFlags& f) {
       ->check(CLI::NonNegativeNumber);
   app.add_flag("--json", f.json, "print a JSON object");
   AddRepairFlag(app, &f.repair);
+  AddRegionFlags(app, &f.region, true);
 }
 
 // A bad output name or a missing directory is refused before any work.
@@ -87,6 +93,34 @@ absl::Status CheckOutput(const MatrixFlags& f) {
   return absl::OkStatus();
 }
 
+// Where the computed matrix goes in the one written: they differ only with
+// --parent-ids, where `all` lists parent vertices outside the region, whose
+// rows and columns are +inf (absent from a sparse matrix), never computed.
+struct Layout {
+  size_t rows = 0, columns = 0;
+  std::vector<size_t> row_of;         // per computed row, its row in the file
+  std::vector<uint32_t> column_slot;  // per file column, its computed column or kNone
+  bool identity = true;
+
+  Layout(const WorkPoints& sources, const WorkPoints& targets)
+      : rows(sources.slot.size()), columns(targets.slot.size()), column_slot(targets.slot) {
+    for (size_t i = 0; i < sources.slot.size(); ++i) {
+      if (sources.slot[i] != kNone) row_of.push_back(i);
+    }
+    identity =
+        row_of.size() == rows && sources.points.size() == rows && targets.points.size() == columns;
+  }
+  // A computed row as the file's; `row` itself when they are the same.
+  absl::Span<const double> Expand(absl::Span<const double> row, std::vector<double>& out) const {
+    if (identity) return row;
+    out.assign(columns, kInfinity);
+    for (size_t j = 0; j < columns; ++j) {
+      if (column_slot[j] != kNone) out[j] = row[column_slot[j]];
+    }
+    return out;
+  }
+};
+
 struct Written {
   uint64_t bytes = 0;
   uint64_t nonzeros = 0;  // sparse only
@@ -95,13 +129,24 @@ struct Written {
 // Each row goes to its place in the file from the thread that computed it.
 absl::StatusOr<Written> WriteDense(const GeodesicEngine& engine,
                                    absl::Span<const SurfacePoint> sources,
-                                   absl::Span<const SurfacePoint> targets, const std::string& path,
-                                   MatrixDtype dtype) {
+                                   absl::Span<const SurfacePoint> targets, const Layout& layout,
+                                   const std::string& path, MatrixDtype dtype) {
   ASSIGN_OR_RETURN(DenseMatrixFile file,
-                   DenseMatrixFile::Create(path, sources.size(), targets.size(), dtype));
+                   DenseMatrixFile::Create(path, layout.rows, layout.columns, dtype));
   MatrixRowSink sink;
-  sink.row = [&](size_t i, absl::Span<const double> row) { return file.WriteRow(i, row); };
+  sink.row = [&](size_t i, absl::Span<const double> row) {
+    std::vector<double> expanded;
+    return file.WriteRow(layout.row_of[i], layout.Expand(row, expanded));
+  };
   RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, MatrixOptions{}, sink));
+  if (layout.row_of.size() < layout.rows) {
+    const std::vector<double> outside(layout.columns, kInfinity);
+    std::vector<bool> computed(layout.rows, false);
+    for (size_t r : layout.row_of) computed[r] = true;
+    for (size_t r = 0; r < layout.rows; ++r) {
+      if (!computed[r]) RETURN_IF_ERROR(file.WriteRow(r, outside));
+    }
+  }
   ASSIGN_OR_RETURN(const uint64_t bytes, std::move(file).Commit());
   return Written{bytes, 0};
 }
@@ -127,23 +172,32 @@ SparseRow WithinRadius(absl::Span<const double> row, double radius) {
 // the batch is done, then go to the file in order.
 absl::StatusOr<Written> WriteSparse(const GeodesicEngine& engine,
                                     absl::Span<const SurfacePoint> sources,
-                                    absl::Span<const SurfacePoint> targets, const std::string& path,
-                                    MatrixDtype dtype, double radius, size_t batch_rows) {
+                                    absl::Span<const SurfacePoint> targets, const Layout& layout,
+                                    const std::string& path, MatrixDtype dtype, double radius,
+                                    size_t batch_rows) {
   ASSIGN_OR_RETURN(SparseMatrixFile file,
-                   SparseMatrixFile::Create(path, sources.size(), targets.size(), dtype));
+                   SparseMatrixFile::Create(path, layout.rows, layout.columns, dtype));
   std::vector<SparseRow> batch(batch_rows);
-  size_t appended = 0;
+  size_t appended = 0, file_rows = 0;
+  // Rows outside the region have no entry within any radius.
+  auto empty_rows_until = [&](size_t end) -> absl::Status {
+    for (; file_rows < end; ++file_rows) RETURN_IF_ERROR(file.AppendRow({}, {}));
+    return absl::OkStatus();
+  };
   MatrixRowSink sink;
   sink.batch_rows = batch_rows;
   sink.row = [&](size_t i, absl::Span<const double> row) {
-    batch[i % batch_rows] = WithinRadius(row, radius);
+    std::vector<double> expanded;
+    batch[i % batch_rows] = WithinRadius(layout.Expand(row, expanded), radius);
     return absl::OkStatus();
   };
   sink.batch_done = [&](size_t end) -> absl::Status {
     for (; appended < end; ++appended) {
+      RETURN_IF_ERROR(empty_rows_until(layout.row_of[appended]));
       SparseRow& row = batch[appended % batch_rows];
       RETURN_IF_ERROR(file.AppendRow(row.columns, row.values));
       row = SparseRow();
+      ++file_rows;
     }
     return absl::OkStatus();
   };
@@ -151,6 +205,7 @@ absl::StatusOr<Written> WriteSparse(const GeodesicEngine& engine,
   MatrixOptions options;
   options.max_distance = radius;
   RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, options, sink));
+  RETURN_IF_ERROR(empty_rows_until(layout.rows));
   const uint64_t nonzeros = file.nonzeros();
   ASSIGN_OR_RETURN(const uint64_t bytes, std::move(file).Commit());
   return Written{bytes, nonzeros};
@@ -164,8 +219,8 @@ uint64_t PeakRssBytes() {
 
 // The matrix of the flags' points, written in the arena of --threads.
 absl::StatusOr<Written> ComputeAndWrite(const MatrixFlags& f, const GeodesicEngine& engine,
-                                        absl::Span<const SurfacePoint> sources,
-                                        absl::Span<const SurfacePoint> targets) {
+                                        const WorkPoints& sources, const WorkPoints& targets) {
+  const Layout layout(sources, targets);
   const MatrixDtype dtype = f.dtype == "float32" ? MatrixDtype::kFloat32 : MatrixDtype::kFloat64;
   const int threads = f.threads > 0 ? f.threads : tbb::info::default_concurrency();
   // A few rows per thread per batch: rows take about as long as each
@@ -175,14 +230,15 @@ absl::StatusOr<Written> ComputeAndWrite(const MatrixFlags& f, const GeodesicEngi
   absl::StatusOr<Written> written;
   ThreadArena(threads).execute([&] {
     written = f.radius
-                  ? WriteSparse(engine, sources, targets, f.out_path, dtype, *f.radius, batch_rows)
-                  : WriteDense(engine, sources, targets, f.out_path, dtype);
+                  ? WriteSparse(engine, sources.points, targets.points, layout, f.out_path, dtype,
+                                *f.radius, batch_rows)
+                  : WriteDense(engine, sources.points, targets.points, layout, f.out_path, dtype);
   });
   return written;
 }
 
-void Report(const MatrixFlags& f, size_t rows, size_t columns, const Written& written,
-            double seconds) {
+void Report(const MatrixFlags& f, const WorkMesh& work, size_t rows, size_t columns,
+            const Written& written, double seconds) {
   if (!f.json) {
     const std::string kept =
         f.radius ? absl::StrFormat(", %u entries within %g", written.nonzeros, *f.radius) : "";
@@ -197,6 +253,7 @@ void Report(const MatrixFlags& f, size_t rows, size_t columns, const Written& wr
     out["radius"] = *f.radius;
     out["nonzeros"] = written.nonzeros;
   }
+  work.AddJson(out);
   PrintJson(out);
 }
 
@@ -210,22 +267,22 @@ int RunMatrix(int argc, char** argv) {
   AddMatrixFlags(app, f);
   CLI11_PARSE(app, argc, argv);
   if (absl::Status s = CheckOutput(f); !s.ok()) return Fail("matrix", s);
-  auto mesh = LoadMeshOrError(f.mesh_path, f.repair);
-  if (!mesh.ok()) return Fail("matrix", mesh.status());
-  auto graph = GraphFile::Open(f.graph_path, **mesh, GraphFile::Check::kFull);
+  auto work = LoadWorkMesh(f.mesh_path, f.repair, f.region);
+  if (!work.ok()) return Fail("matrix", work.status());
+  auto graph = GraphFile::Open(f.graph_path, *work->mesh(), GraphFile::Check::kFull);
   if (!graph.ok()) return Fail("matrix", graph.status());
-  PointResolver resolver(**mesh);
-  auto sources = ResolvePointList(resolver, **mesh, f.sources, "--sources");
+  PointResolver resolver(f.region.parent_ids ? *work->parent : *work->mesh());
+  auto sources = ResolveWorkPoints(*work, f.region.parent_ids, resolver, f.sources, "--sources");
   if (!sources.ok()) return Fail("matrix", sources.status());
-  auto targets = ResolvePointList(resolver, **mesh, f.targets, "--targets");
+  auto targets = ResolveWorkPoints(*work, f.region.parent_ids, resolver, f.targets, "--targets");
   if (!targets.ok()) return Fail("matrix", targets.status());
-  GeodesicEngine engine(*mesh, *graph);
+  GeodesicEngine engine(work->mesh(), *graph);
   const auto t0 = std::chrono::steady_clock::now();
   auto written = ComputeAndWrite(f, engine, *sources, *targets);
   if (!written.ok()) return Fail("matrix", written.status());
   const double seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  Report(f, sources->size(), targets->size(), *written, seconds);
+  Report(f, *work, sources->slot.size(), targets->slot.size(), *written, seconds);
   return 0;
 }
 

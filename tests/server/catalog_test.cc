@@ -127,6 +127,51 @@ TEST_F(CatalogTest, CertifiedGraphsRoundTripAsVersion2) {
   EXPECT_THAT(CatalogToJson(*after), ::testing::HasSubstr("\"version\": 1\n"));
 }
 
+TEST_F(CatalogTest, RegionsRoundTripAsVersion3) {
+  Catalog catalog(dir_);
+  CatalogMesh region{"cortex", "region", "region", 0, 0x1111222233334444ULL, false};
+  region.parent = "kitten";
+  region.region_faces = true;
+  region.region_ids = {7, 3, 3, 4000000000u};
+  auto written = catalog.Update([&](CatalogState& s) {
+    s.PutMesh(Kitten());
+    s.PutMesh(region);
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(written.ok()) << written.status();
+  EXPECT_THAT(CatalogToJson(*written), ::testing::HasSubstr("\"version\": 3\n"));
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  const CatalogMesh* m = read->FindMesh("cortex");
+  ASSERT_NE(m, nullptr);
+  EXPECT_EQ(m->parent, "kitten");
+  EXPECT_TRUE(m->region_faces);
+  EXPECT_EQ(m->region_ids, region.region_ids);
+  EXPECT_EQ(m->fingerprint, region.fingerprint);
+  const CatalogMesh* whole = read->FindMesh("kitten");
+  ASSERT_NE(whole, nullptr);
+  EXPECT_TRUE(whole->parent.empty());
+  EXPECT_TRUE(whole->region_ids.empty());
+  EXPECT_EQ(CatalogToJson(*read), CatalogToJson(*written));
+
+  // Gone: the catalog is version 1 again.
+  auto after = catalog.Update([&](CatalogState& s) {
+    EXPECT_TRUE(s.RemoveMesh("cortex"));
+    return absl::OkStatus();
+  });
+  ASSERT_TRUE(after.ok()) << after.status();
+  EXPECT_THAT(CatalogToJson(*after), ::testing::HasSubstr("\"version\": 1\n"));
+
+  WriteCatalogText(R"({"format": "geodesicd-catalog", "version": 3, "generation": 1,
+    "meshes": [{"name": "r", "source": "region", "format": "region",
+      "source_hash": "0000000000000000", "fingerprint": "0000000000000001",
+      "repair_non_manifold": false, "region": {"parent": "p", "mask": "edges", "ids": []}}],
+    "graphs": []})");
+  auto bad = catalog.Read();
+  EXPECT_EQ(bad.status().code(), absl::StatusCode::kDataLoss);
+  EXPECT_THAT(bad.status().message(), ::testing::HasSubstr("meshes[0].region.mask"));
+}
+
 // A catalog as builds before certified graphs wrote it still loads, its
 // graphs plain.
 TEST_F(CatalogTest, AVersion1CatalogStillLoads) {

@@ -468,6 +468,56 @@ class GatewayTest(unittest.TestCase):
             status, body = curl(f"{self.base}/v1/meshes/{name}")
             self.assert_error(status, body, 404, "NOT_FOUND")
 
+    def test_regions_are_registered_over_http(self):
+        status, geo = curl(f"{self.base}/v1/meshes/spot/geometry")
+        self.assertEqual(status, 200, geo)
+        upper = [v for v in range(len(geo["positions"]) // 3) if geo["positions"][3 * v + 1] > 0]
+        self.assertTrue(0 < len(upper) < 2930, len(upper))
+        # A by-path copy of spot as the parent, so that spot can go on
+        # being unloaded and registered by other tests.
+        status, body = curl(f"{self.base}/v1/meshes", "POST", {"name": "parent",
+                                                                "path": "spot.obj"})
+        self.assertEqual(status, 200, body)
+        status, region = curl(f"{self.base}/v1/meshes/parent/regions", "POST",
+                              {"name": "upper", "vertex_ids": upper})
+        self.assertEqual(status, 200, region)
+        self.assertEqual((region["parent"], region["parent_vertices"], region["parent_faces"]),
+                         ("parent", 2930, 5856))
+        self.assertTrue(0 < region["vertices"] <= len(upper), region["vertices"])
+        status, listed = curl(f"{self.base}/v1/meshes")
+        self.assertEqual(status, 200, listed)
+        [whole] = [m for m in listed["meshes"] if m["name"] == "parent"]
+        self.assertNotIn("parent", whole)
+        # Queried as any mesh, in its own ids.
+        last = region["vertices"] - 1
+        status, body = self.post_to("upper", "distance", {"pairs": [["v:0", f"v:{last}"]],
+                                                          "eps": EPS})
+        self.assertEqual(status, 200, body)
+        self.assertGreater(body["distances"][0], 0)
+        status, body = self.post_to("upper", "distance", {"pairs": [["v:0", f"v:{last + 1}"]],
+                                                          "eps": EPS})
+        self.assert_error(status, body, 400, "OUT_OF_RANGE")
+        # Its parent stays while it is registered; mistakes are named.
+        status, body = curl(f"{self.base}/v1/meshes/parent", "DELETE")
+        self.assert_error(status, body, 409, "FAILED_PRECONDITION")
+        self.assertIn("'upper'", body["error"]["message"])
+        status, body = curl(f"{self.base}/v1/meshes/parent/regions", "POST",
+                            {"name": "x", "vertex_ids": [0, 1, 2], "face_ids": [0]})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = curl(f"{self.base}/v1/meshes/parent/regions", "POST",
+                            {"name": "x", "vertex_ids": [0, 99999]})
+        self.assert_error(status, body, 400, "OUT_OF_RANGE")
+        self.assertIn("99999", body["error"]["message"])
+        status, body = curl(f"{self.base}/v1/meshes/parent/regions", "POST",
+                            {"name": "x", "vertex_idz": [0]})
+        self.assert_error(status, body, 400, "INVALID_ARGUMENT")
+        status, body = curl(f"{self.base}/v1/meshes/nosuch/regions", "POST",
+                            {"name": "x", "vertex_ids": upper})
+        self.assert_error(status, body, 404, "NOT_FOUND")
+        for name in ("upper", "parent"):
+            status, body = curl(f"{self.base}/v1/meshes/{name}", "DELETE")
+            self.assertEqual(status, 200, body)
+
     def post_to(self, mesh, what, body):
         return curl(f"{self.base}/v1/meshes/{mesh}/{what}", "POST", body)
 

@@ -10,11 +10,13 @@
 #include <cstring>
 #include <filesystem>
 #include <limits>
+#include <numeric>
 #include <set>
 #include <thread>
 #include <tuple>
 
 #include "absl/strings/str_cat.h"
+#include "absl/strings/str_format.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
 #include "gmock/gmock.h"
@@ -897,6 +899,184 @@ TEST_F(ServiceTest, UnloadDropsTheMeshAndItsGraphs) {
   ASSERT_TRUE(stub_->ListGraphs(&ctx, {}, &list).ok());
   EXPECT_EQ(list.graphs_size(), 0);
   EXPECT_EQ(registry_->Get("spot").status().code(), absl::StatusCode::kNotFound);
+}
+
+// The cow without the right half of a band through its body, in the
+// parent's vertex ids (as core/region_test.cc cuts it).
+std::vector<uint32_t> SpotWithoutBand(const Mesh& spot) {
+  std::vector<uint32_t> kept;
+  for (VertexId v = 0; v < spot.num_vertices(); ++v) {
+    const Vec3& p = spot.position(v);
+    if (!(std::abs(p.y - 0.1) < 0.08 && p.x > 0)) kept.push_back(v);
+  }
+  return kept;
+}
+
+TEST_F(ServiceTest, ARegionIsAMeshOfItsOwnThatRemembersItsParent) {
+  ReadySpot(1e-2);
+  auto spot = registry_->Get("spot");
+  ASSERT_TRUE(spot.ok());
+  const std::vector<uint32_t> kept = SpotWithoutBand(*(*spot)->mesh);
+  ASSERT_FALSE(kept.empty());
+  ASSERT_LT(kept.size(), (*spot)->mesh->num_vertices());
+  auto register_region = [&](const std::string& name, const std::string& parent,
+                             const std::vector<uint32_t>& vertices,
+                             const std::vector<uint32_t>& faces, v1::Mesh* out) {
+    grpc::ClientContext ctx;
+    v1::RegisterRegionRequest req;
+    req.set_name(name);
+    req.set_parent(parent);
+    for (uint32_t v : vertices) req.add_vertex_ids(v);
+    for (uint32_t f : faces) req.add_face_ids(f);
+    return stub_->RegisterRegion(&ctx, req, out);
+  };
+  v1::Mesh region;
+  grpc::Status s = register_region("body", "spot", kept, {}, &region);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_EQ(region.parent(), "spot");
+  EXPECT_EQ(region.parent_vertices(), 2930u);
+  EXPECT_EQ(region.parent_faces(), (*spot)->mesh->num_faces());
+  EXPECT_GT(region.diagnostics().vertices(), 0u);
+  EXPECT_LT(region.diagnostics().vertices(), 2930u);
+  EXPECT_NE(region.fingerprint(), absl::StrFormat("%016x", (*spot)->fingerprint));
+  // Again, the same: a no-op.
+  v1::Mesh again;
+  ASSERT_TRUE(register_region("body", "spot", kept, {}, &again).ok());
+  EXPECT_EQ(again.fingerprint(), region.fingerprint());
+  {
+    grpc::ClientContext ctx;
+    v1::ListMeshesResponse list;
+    ASSERT_TRUE(stub_->ListMeshes(&ctx, {}, &list).ok());
+    int regions = 0;
+    for (const v1::Mesh& m : list.meshes()) {
+      if (m.name() == "body") regions += m.parent() == "spot" && m.parent_vertices() == 2930u;
+      if (m.name() == "spot") {
+        EXPECT_TRUE(m.parent().empty());
+      }
+    }
+    EXPECT_EQ(regions, 1);
+  }
+  // Queried as any mesh, in its own vertex ids.
+  const uint32_t n = region.diagnostics().vertices();
+  auto distance = [&](uint32_t a, uint32_t b, double* d) {
+    grpc::ClientContext ctx;
+    v1::DistanceRequest req;
+    req.mutable_graph()->set_mesh("body");
+    req.mutable_graph()->set_epsilon(1e-2);
+    *req.add_pairs()->mutable_from() = Vertex(a);
+    *req.mutable_pairs(0)->mutable_to() = Vertex(b);
+    v1::DistanceResponse resp;
+    grpc::Status status = stub_->Distance(&ctx, req, &resp);
+    if (status.ok() && resp.results_size() == 1) *d = resp.results(0).distance();
+    return status;
+  };
+  double d = 0;
+  s = distance(0, n - 1, &d);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  EXPECT_TRUE(std::isfinite(d) && d > 0) << d;
+  EXPECT_EQ(distance(0, n, &d).error_code(), grpc::StatusCode::OUT_OF_RANGE);
+  // Its parent stays while it is registered.
+  {
+    grpc::ClientContext ctx;
+    v1::UnloadMeshRequest req;
+    req.set_name("spot");
+    v1::UnloadMeshResponse resp;
+    s = stub_->UnloadMesh(&ctx, req, &resp);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+    EXPECT_THAT(s.error_message(), HasSubstr("'body'"));
+  }
+  // Mistakes, named.
+  v1::Mesh bad;
+  s = register_region("x", "nosuch", kept, {}, &bad);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
+  s = register_region("x", "spot", {0, 5000}, {}, &bad);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::OUT_OF_RANGE);
+  EXPECT_THAT(s.error_message(), HasSubstr("vertex id 5000"));
+  s = register_region("x", "spot", {}, {}, &bad);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  s = register_region("x", "spot", {0, 1, 2}, {0}, &bad);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  s = register_region("x", "body", {0, 1, 2}, {}, &bad);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  std::vector<uint32_t> every_face((*spot)->mesh->num_faces());
+  std::iota(every_face.begin(), every_face.end(), 0u);
+  s = register_region("body", "spot", {}, every_face, &bad);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::ALREADY_EXISTS);
+}
+
+// A region recorded in a catalog is cut again from its parent by the next
+// daemon, the same mesh (fingerprint), whichever order the names sort in.
+TEST_F(ServiceTest, ARecordedRegionIsRestoredAfterItsParent) {
+  const std::filesystem::path dir =
+      std::filesystem::temp_directory_path() / absl::StrCat("service_region_test.", getpid());
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  Catalog catalog(dir.string());
+  auto hooks = [](MeshRegistry* registry) {
+    return CatalogSync::Hooks{
+        .restore_mesh =
+            [registry](const CatalogMesh& m) {
+              if (!m.parent.empty()) {
+                return registry
+                    ->RegisterRegion(m.name, m.parent,
+                                     m.region_faces ? RegionMask::kFaces : RegionMask::kVertices,
+                                     m.region_ids, m.fingerprint)
+                    .status();
+              }
+              return registry->RegisterPath(m.name, m.source).status();
+            },
+        .drop_mesh = [registry](const std::string& name) { registry->Remove(name).IgnoreError(); },
+        .request_graph = [](const std::string&, const DggParams&, double) {},
+        .cancel_graph = [](const std::string&, const DggParams&, double) {}};
+  };
+  CatalogSync sync(&catalog, hooks(registry_.get()));
+  service_->UseCatalog(&sync);
+  {
+    grpc::ClientContext ctx;
+    v1::RegisterMeshRequest req;
+    req.set_name("zspot");  // sorts after its region
+    req.set_path("spot.obj");
+    v1::Mesh mesh;
+    ASSERT_TRUE(stub_->RegisterMesh(&ctx, req, &mesh).ok());
+  }
+  auto spot = registry_->Get("zspot");
+  ASSERT_TRUE(spot.ok());
+  grpc::ClientContext ctx;
+  v1::RegisterRegionRequest req;
+  req.set_name("body");
+  req.set_parent("zspot");
+  for (uint32_t v : SpotWithoutBand(*(*spot)->mesh)) req.add_vertex_ids(v);
+  v1::Mesh region;
+  grpc::Status s = stub_->RegisterRegion(&ctx, req, &region);
+  ASSERT_TRUE(s.ok()) << s.error_message();
+  // A region only the catalog knows (another replica's) keeps its parent too.
+  ASSERT_TRUE(registry_->Remove("body").ok());
+  {
+    grpc::ClientContext unload_ctx;
+    v1::UnloadMeshRequest unload;
+    unload.set_name("zspot");
+    v1::UnloadMeshResponse resp;
+    s = stub_->UnloadMesh(&unload_ctx, unload, &resp);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+    EXPECT_THAT(s.error_message(), HasSubstr("'body'"));
+    EXPECT_TRUE(registry_->Get("zspot").ok());
+  }
+  service_->UseCatalog(nullptr);
+
+  auto state = catalog.Read();
+  ASSERT_TRUE(state.ok()) << state.status();
+  const CatalogMesh* recorded = state->FindMesh("body");
+  ASSERT_NE(recorded, nullptr);
+  EXPECT_EQ(recorded->parent, "zspot");
+  EXPECT_EQ(recorded->region_ids.size(), size_t(req.vertex_ids_size()));
+  MeshRegistry restarted(std::string(GEODESIC_SOURCE_DIR) + "/data");
+  CatalogSync follower(&catalog, hooks(&restarted));
+  ASSERT_TRUE(follower.Reconcile().ok());
+  auto restored = restarted.Get("body");
+  ASSERT_TRUE(restored.ok()) << restored.status();
+  EXPECT_EQ(absl::StrFormat("%016x", (*restored)->fingerprint), region.fingerprint());
+  EXPECT_EQ((*restored)->parent, "zspot");
+  std::filesystem::remove_all(dir);
 }
 
 // A registration and an unload of one name, raced again and again with a
