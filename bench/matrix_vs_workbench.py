@@ -61,8 +61,12 @@ def to_gifti(mesh: Path, out: Path) -> None:
     import nibabel as nib
     v, f = read_off_or_obj(mesh)
     img = nib.gifti.GiftiImage()
+    # Workbench names the surface's structure in its CIFTI output, which
+    # nibabel refuses to read without one.
+    meta = nib.gifti.GiftiMetaData({"AnatomicalStructurePrimary": "CortexLeft"})
     img.add_gifti_data_array(nib.gifti.GiftiDataArray(
-        v.astype(np.float32), intent="NIFTI_INTENT_POINTSET", datatype="NIFTI_TYPE_FLOAT32"))
+        v.astype(np.float32), intent="NIFTI_INTENT_POINTSET", datatype="NIFTI_TYPE_FLOAT32",
+        meta=meta))
     img.add_gifti_data_array(nib.gifti.GiftiDataArray(
         f, intent="NIFTI_INTENT_TRIANGLE", datatype="NIFTI_TYPE_INT32"))
     nib.save(img, str(out))
