@@ -13,7 +13,7 @@ namespace geodesic {
 namespace {
 
 // Unchanged since version 1: CheckHeader then names an old part's version.
-constexpr char kMagic[8] = {'G', 'E', 'O', 'D', 'P', 'R', 'T', '\0'};
+constexpr char kPartMagic[8] = {'G', 'E', 'O', 'D', 'P', 'R', 'T', '\0'};
 
 // The header, then the offsets (end - begin + 1 uint64) and the edges.
 struct PartHeader {
@@ -56,7 +56,7 @@ uint64_t PayloadChecksum(const DggCandidatePart& part) {
 
 absl::Status WriteDggPart(const DggCandidatePart& part, const std::string& path) {
   PartHeader h{};
-  std::memcpy(h.magic, kMagic, sizeof(kMagic));
+  std::memcpy(h.magic, kPartMagic, sizeof(kPartMagic));
   h.version = kPartFormatVersion;
   h.endian = kEndianTag;
   h.mesh_fingerprint = part.mesh_fingerprint;
@@ -90,14 +90,14 @@ absl::StatusOr<PartHeader> ReadHeader(std::ifstream& in, uint64_t size, const st
     // Too short for this version's header, but perhaps a whole part of
     // another version: that is the better report.
     if (static_cast<size_t>(in.gcount()) >= kVersionPrefixBytes &&
-        std::memcmp(h.magic, kMagic, sizeof(kMagic)) == 0 &&
+        std::memcmp(h.magic, kPartMagic, sizeof(kPartMagic)) == 0 &&
         (h.version != kPartFormatVersion || h.endian != kEndianTag)) {
-      return CheckHeader(h, kMagic, kPartFormatVersion, size, "part file", path);
+      return CheckHeader(h, kPartMagic, kPartFormatVersion, size, "part file", path);
     }
     return absl::DataLossError(
         absl::StrFormat("%s: %u bytes is too short for a part file header", path, size));
   }
-  RETURN_IF_ERROR(CheckHeader(h, kMagic, kPartFormatVersion, size, "part file", path));
+  RETURN_IF_ERROR(CheckHeader(h, kPartMagic, kPartFormatVersion, size, "part file", path));
   if (h.begin > h.end || h.end > h.num_vertices || h.num_edges > size / sizeof(DggHalfEdge) ||
       size != PartFileBytes(h.begin, h.end, h.num_edges)) {
     return absl::DataLossError(

@@ -28,7 +28,7 @@
 namespace geodesic {
 namespace {
 
-constexpr char kMagic[8] = {'G', 'E', 'O', 'D', 'D', 'G', 'G', '\0'};
+constexpr char kGraphMagic[8] = {'G', 'E', 'O', 'D', 'D', 'G', 'G', '\0'};
 constexpr size_t kHeaderBytes = 4096;
 constexpr size_t kAlignment = kSectionAlignment;
 
@@ -81,7 +81,7 @@ absl::StatusOr<Header> ReadHeader(const void* base, size_t size, const std::stri
   }
   Header h;
   std::memcpy(&h, base, sizeof(h));
-  RETURN_IF_ERROR(CheckHeader(h, kMagic, kGraphFormatVersion, size, "graph file", path));
+  RETURN_IF_ERROR(CheckHeader(h, kGraphMagic, kGraphFormatVersion, size, "graph file", path));
   if (h.section_count != kSectionCount) {
     return absl::DataLossError(
         absl::StrFormat("%s: %u sections, expected %u", path, h.section_count, kSectionCount));
@@ -180,7 +180,7 @@ uint64_t EdgesOffset(uint32_t num_nodes) {
 Header LayOut(const DggGraph& graph, const SectionData& data) {
   const uint64_t edges_at = EdgesOffset(graph.num_nodes());
   Header h{};
-  std::memcpy(h.magic, kMagic, sizeof(kMagic));
+  std::memcpy(h.magic, kGraphMagic, sizeof(kGraphMagic));
   h.version = kGraphFormatVersion;
   h.endian = kEndianTag;
   h.mesh_fingerprint = graph.mesh_fingerprint();

@@ -19,7 +19,7 @@
 namespace geodesic {
 namespace {
 
-constexpr char kMagic[8] = {'G', 'E', 'O', 'D', 'M', 'S', 'H', '\0'};
+constexpr char kSnapshotMagic[8] = {'G', 'E', 'O', 'D', 'M', 'S', 'H', '\0'};
 constexpr size_t kHeaderBytes = 4096;
 constexpr size_t kAlignment = kSectionAlignment;
 constexpr int kArrayCount = 11;
@@ -143,7 +143,7 @@ std::string MeshSnapshotName(uint64_t source_hash) {
 absl::Status WriteMeshSnapshot(const Mesh& mesh, const MeshDiagnostics& diagnostics,
                                uint64_t source_hash, const std::string& path) {
   Header h{};
-  std::memcpy(h.magic, kMagic, sizeof(kMagic));
+  std::memcpy(h.magic, kSnapshotMagic, sizeof(kSnapshotMagic));
   h.version = kMeshSnapshotVersion;
   h.endian = kEndianTag;
   h.source_hash = source_hash;
@@ -188,7 +188,7 @@ absl::StatusOr<RestoredMesh> ReadMeshSnapshot(const std::string& path, uint64_t 
   }
   Header h;
   RETURN_IF_ERROR(ReadAt(fd.get(), &h, sizeof(h), 0, path));
-  RETURN_IF_ERROR(CheckHeader(h, kMagic, kMeshSnapshotVersion, size, "mesh snapshot", path));
+  RETURN_IF_ERROR(CheckHeader(h, kSnapshotMagic, kMeshSnapshotVersion, size, "mesh snapshot", path));
   if (h.source_hash != source_hash) {
     return absl::FailedPreconditionError(
         absl::StrFormat("%s was saved from other file contents", path));

@@ -15,7 +15,7 @@
 namespace geodesic {
 namespace {
 
-constexpr char kMagic[8] = {'G', 'E', 'O', 'D', 'X', 'L', 'M', '\0'};
+constexpr char kLandmarksMagic[8] = {'G', 'E', 'O', 'D', 'X', 'L', 'M', '\0'};
 constexpr uint32_t kFormatVersion = 1;
 
 // The header, then the fields: num_vertices * count float32, vertex-major.
@@ -48,7 +48,7 @@ absl::Status WriteExactLandmarks(const ExactLandmarks& landmarks, const Mesh& me
                                  const std::string& path) {
   const std::span<const float> fields = landmarks.fields();
   LandmarksHeader h{};
-  std::memcpy(h.magic, kMagic, sizeof(kMagic));
+  std::memcpy(h.magic, kLandmarksMagic, sizeof(kLandmarksMagic));
   h.version = kFormatVersion;
   h.endian = kEndianTag;
   h.mesh_fingerprint = MeshFingerprint(mesh);
@@ -87,7 +87,7 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ReadExactLandmarks(const s
     return absl::DataLossError(
         absl::StrFormat("%s: %d bytes, shorter than an exact landmarks header", path, size));
   }
-  RETURN_IF_ERROR(CheckHeader(h, kMagic, kFormatVersion, size, "exact landmarks file", path));
+  RETURN_IF_ERROR(CheckHeader(h, kLandmarksMagic, kFormatVersion, size, "exact landmarks file", path));
   const uint64_t fingerprint = MeshFingerprint(mesh);
   if (h.num_vertices != mesh.num_vertices() || h.mesh_fingerprint != fingerprint) {
     return absl::FailedPreconditionError(absl::StrFormat(
