@@ -18,6 +18,7 @@ static_assert(sizeof(Lanes) == sizeof(LaneLabels) && alignof(LaneLabels) >= alig
 
 Lanes& AsLanes(LaneLabels& l) { return *reinterpret_cast<Lanes*>(l.dist); }
 static_assert(sizeof(LaneFans) == sizeof(LaneBits));
+static_assert(kFieldLanes == 8, "MaskOf and kLaneBit spell out eight lanes");
 
 // Sets the fans of the lanes of `which` to `f`, all in one write.
 void SetFans(LaneFans& fans, const LaneBits& which, FanRange f) {
@@ -33,11 +34,20 @@ double Lowest(const Lanes& l) {
   return low;
 }
 
+// The lanes whose bits are set, one bit each. Narrowed to a byte a lane, the
+// top bits gather by one multiplication: with AVX-512 the compiler keeps the
+// comparison's mask register and narrows it in two instructions, where a
+// loop over the lanes took one extraction each.
 uint32_t MaskOf(const LaneBits& bits) {
-  uint32_t m = 0;
-  for (int k = 0; k < kFieldLanes; ++k) m |= uint32_t(bits[k] & 1) << k;
-  return m;
+  typedef int8_t LaneBytes __attribute__((vector_size(kFieldLanes)));
+  const LaneBytes bytes = __builtin_convertvector(bits, LaneBytes);
+  uint64_t b;
+  std::memcpy(&b, &bytes, sizeof(b));
+  return static_cast<uint32_t>(((b & 0x8080808080808080ull) * 0x0002040810204081ull) >> 56);
 }
+
+// Lane k's bit of a lane mask, for spreading one over the lanes.
+constexpr LaneBits kLaneBit = {1, 2, 4, 8, 16, 32, 64, 128};
 
 // The smallest label among the lanes of `mask`: a queued node's key.
 double LowestOf(const LaneLabels& l, uint32_t mask) {
@@ -74,13 +84,20 @@ FanRange CoverFans(const LaneFans& fans, uint32_t mask, uint32_t degree) {
 
 }  // namespace
 
-// Eight lanes are one instruction each with AVX-512 and two with AVX2, where
-// x86-64's baseline SSE2 takes four: the loader picks the clone the machine
-// runs.
-__attribute__((target_clones("avx512f", "avx2", "default"))) absl::StatusOr<LaneStats>
-SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc,
-                absl::Span<const Endpoint> sources, double max_distance,
-                const std::function<bool()>& cancelled) {
+// Eight lanes are one instruction each with AVX-512, whose mask registers
+// also hold the comparisons; without it (AVX2 was no faster) the compiler
+// splits them. The loader picks the clone the machine runs, through a
+// resolver that runs before ThreadSanitizer's runtime is up (and crashes
+// there), so a TSan build has the one portable version.
+#if defined(__SANITIZE_THREAD__)
+#define GEODESIC_LANE_CLONES
+#else
+#define GEODESIC_LANE_CLONES __attribute__((target_clones("arch=x86-64-v4", "default")))
+#endif
+GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
+    const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc,
+    absl::Span<const Endpoint> sources, double max_distance,
+    const std::function<bool()>& cancelled) {
   const uint32_t nodes = g.num_nodes();
   sc.PrepareLanes(nodes);
   LaneLabels* dist = sc.lane_dist.data();
@@ -127,8 +144,7 @@ SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape, QueryScratch
     // Only the lanes that improved relax: the others did so with these
     // labels already. Labels past the limit stop there.
     Lanes du = AsLanes(dist[u]);
-    LaneBits keep = du <= limit;
-    for (int k = 0; k < kFieldLanes; ++k) keep[k] &= -int64_t(mask >> k & 1);
+    const LaneBits keep = (du <= limit) & (((LaneBits{} + mask) & kLaneBit) != 0);
     du = keep ? du : unreached;
     const uint32_t active = MaskOf(keep);
     if (!active) continue;
@@ -144,7 +160,6 @@ SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape, QueryScratch
     stats.relaxed += run.count;
     for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
       const DggEdge& e = edges[i];
-
       const Lanes nd = du + e.weight;
       Lanes& dv = AsLanes(dist[e.target]);
       const LaneBits better = nd < dv;
