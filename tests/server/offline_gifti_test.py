@@ -15,24 +15,11 @@ import numpy as np
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from checklist import Checklist  # noqa: E402
-from geodesicd_runner import geodesicd_runner  # noqa: E402
+from geodesicd_runner import geodesicd_runner, read_obj  # noqa: E402
 
 bin_dir, src = sys.argv[1], sys.argv[2]
 check = Checklist()
 run = geodesicd_runner(bin_dir)
-
-
-def read_obj(path):
-    """Vertices and triangles of an OBJ (corners v, v/vt, v//vn, v/vt/vn)."""
-    vertices, faces = [], []
-    with open(path) as f:
-        for line in f:
-            fields = line.split()
-            if fields and fields[0] == "v":
-                vertices.append([float(x) for x in fields[1:4]])
-            elif fields and fields[0] == "f":
-                faces.append([int(c.split("/")[0]) - 1 for c in fields[1:]])
-    return np.array(vertices), np.array(faces, dtype=np.int32)
 
 
 def write_surf_gii(path, vertices, faces, encoding="GZipBase64Binary"):

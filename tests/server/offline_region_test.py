@@ -15,24 +15,12 @@ import scipy.sparse
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from checklist import Checklist  # noqa: E402
-from geodesicd_runner import geodesicd_runner  # noqa: E402
+from geodesicd_runner import geodesicd_runner, read_obj  # noqa: E402
 
 bin_dir, src = sys.argv[1], sys.argv[2]
 mesh = os.path.join(src, "data", "spot.obj")
 check = Checklist()
 run = geodesicd_runner(bin_dir)
-
-
-def read_obj(path):
-    vertices, faces = [], []
-    with open(path) as f:
-        for line in f:
-            parts = line.split()
-            if parts and parts[0] == "v":
-                vertices.append([float(x) for x in parts[1:4]])
-            elif parts and parts[0] == "f":
-                faces.append([int(p.split("/")[0]) - 1 for p in parts[1:4]])
-    return np.array(vertices), np.array(faces)
 
 
 def same(name, a, b):
