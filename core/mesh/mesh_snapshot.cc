@@ -188,7 +188,8 @@ absl::StatusOr<RestoredMesh> ReadMeshSnapshot(const std::string& path, uint64_t 
   }
   Header h;
   RETURN_IF_ERROR(ReadAt(fd.get(), &h, sizeof(h), 0, path));
-  RETURN_IF_ERROR(CheckHeader(h, kSnapshotMagic, kMeshSnapshotVersion, size, "mesh snapshot", path));
+  RETURN_IF_ERROR(
+      CheckHeader(h, kSnapshotMagic, kMeshSnapshotVersion, size, "mesh snapshot", path));
   if (h.source_hash != source_hash) {
     return absl::FailedPreconditionError(
         absl::StrFormat("%s was saved from other file contents", path));

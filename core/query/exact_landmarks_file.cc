@@ -87,7 +87,8 @@ absl::StatusOr<std::unique_ptr<const ExactLandmarks>> ReadExactLandmarks(const s
     return absl::DataLossError(
         absl::StrFormat("%s: %d bytes, shorter than an exact landmarks header", path, size));
   }
-  RETURN_IF_ERROR(CheckHeader(h, kLandmarksMagic, kFormatVersion, size, "exact landmarks file", path));
+  RETURN_IF_ERROR(
+      CheckHeader(h, kLandmarksMagic, kFormatVersion, size, "exact landmarks file", path));
   const uint64_t fingerprint = MeshFingerprint(mesh);
   if (h.num_vertices != mesh.num_vertices() || h.mesh_fingerprint != fingerprint) {
     return absl::FailedPreconditionError(absl::StrFormat(

@@ -181,7 +181,6 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
 
 using query_internal::CheckPoint;
 using query_internal::Endpoint;
-using query_internal::FieldDistanceTo;
 using query_internal::JoinToGraph;
 using query_internal::LaneDistancesTo;
 using query_internal::SolveField;
