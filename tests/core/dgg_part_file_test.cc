@@ -23,20 +23,13 @@ namespace geodesic {
 namespace {
 
 using ::testing::HasSubstr;
+using testing::ReadBytes;
 using testing::TempDir;
+using testing::WriteBytes;
 
 // The header of version 3: magic, version, endian tag, ..., and its last
 // field, the header checksum.
 constexpr size_t kHeaderBytes = 104;
-
-std::string ReadBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  return std::string(std::istreambuf_iterator<char>(in), {});
-}
-
-void WriteBytes(const std::string& path, const std::string& bytes) {
-  std::ofstream(path, std::ios::binary | std::ios::trunc).write(bytes.data(), bytes.size());
-}
 
 class DggPartFileTest : public ::testing::Test {
  protected:

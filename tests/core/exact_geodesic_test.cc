@@ -17,7 +17,7 @@ using testing::ReadF64;
 using testing::SharedDataAvailable;
 using testing::SharedPath;
 
-constexpr double kInf = std::numeric_limits<double>::infinity();
+using testing::kInf;
 
 double RelativeError(double got, double want) {
   return std::abs(got - want) / std::max(std::abs(want), 1e-300);

@@ -30,7 +30,9 @@ namespace geodesic {
 namespace {
 
 using ::testing::HasSubstr;
+using testing::ReadBytes;
 using testing::TempDir;
+using testing::WriteBytes;
 
 // An open box (a cube without its top): 8 vertices, 10 triangles, with
 // coordinates no short decimal holds, so that any rounding on the way shows.
@@ -49,17 +51,6 @@ SmallSurface OpenBox() {
   s.faces = {0, 2, 1, 1, 2, 3, 0, 1, 5, 0, 5, 4, 1, 3, 7,
              1, 7, 5, 3, 2, 6, 3, 6, 7, 2, 0, 4, 2, 4, 6};
   return s;
-}
-
-std::string ReadBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream ss;
-  ss << in.rdbuf();
-  return ss.str();
-}
-
-void WriteBytes(const std::string& path, const std::string& bytes) {
-  std::ofstream(path, std::ios::binary) << bytes;
 }
 
 struct Layout {

@@ -393,8 +393,8 @@ TEST(MeshIoTest, MalformedObjFaceCornersAreRefused) {
     EXPECT_NE(soup.status().message().find("bad.obj line 6: face corner"), std::string::npos)
         << soup.status();
   }
-  for (const char* face : {"f 1 2 3", "f 1/1 2/1 3/1", "f 1//1 2//1 3//1",
-                                  "f 1/1/1 2/1/1 3/1/1", "f -3 -2 -1", "f 1 2 3 \r"}) {
+  for (const char* face : {"f 1 2 3", "f 1/1 2/1 3/1", "f 1//1 2//1 3//1", "f 1/1/1 2/1/1 3/1/1",
+                           "f -3 -2 -1", "f 1 2 3 \r"}) {
     auto soup = ReadTriangleSoupFromMemory(vertices + face + "\n", "obj", "good.obj");
     ASSERT_TRUE(soup.ok()) << face << ": " << soup.status();
     EXPECT_EQ(soup->triangles.size(), 1u) << face;

@@ -12,19 +12,10 @@ namespace geodesic {
 namespace {
 
 using ::testing::HasSubstr;
+using testing::ReadBytes;
 using testing::SourcePath;
 using testing::TempDir;
-
-std::string ReadBytes(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::ostringstream out;
-  out << in.rdbuf();
-  return out.str();
-}
-
-void WriteBytes(const std::string& path, const std::string& bytes) {
-  std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
-}
+using testing::WriteBytes;
 
 template <typename T>
 bool SameBytes(const std::vector<T>& a, const std::vector<T>& b) {

@@ -13,16 +13,10 @@ namespace geodesic {
 namespace {
 
 using ::testing::HasSubstr;
+using testing::ReadBytes;
 using testing::TempDir;
 
-constexpr double kInf = std::numeric_limits<double>::infinity();
-
-std::string ReadAll(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::stringstream s;
-  s << in.rdbuf();
-  return s.str();
-}
+using testing::kInf;
 
 std::vector<std::string> Lines(const std::string& text) {
   return absl::StrSplit(text, '\n', absl::SkipEmpty());
@@ -32,7 +26,7 @@ TEST(ResultFilesTest, FieldAsRawFloat64) {
   TempDir dir;
   const std::vector<double> values = {0, 0.1 + 0.2, kInf};
   ASSERT_OK(WriteField(dir.File("f.f64"), values));
-  const std::string bytes = ReadAll(dir.File("f.f64"));
+  const std::string bytes = ReadBytes(dir.File("f.f64"));
   ASSERT_EQ(bytes.size(), 3 * sizeof(double));
   std::vector<double> back(3);
   std::memcpy(back.data(), bytes.data(), bytes.size());
@@ -50,7 +44,7 @@ TEST(ResultFilesTest, FieldAndLabelsAsNpy) {
   for (auto [name, descr, count, item] :
        {std::tuple{"f.npy", "'<f8'", values.size(), sizeof(double)},
         std::tuple{"l.NPY", "'<u4'", labels.size(), sizeof(uint32_t)}}) {
-    const std::string bytes = ReadAll(dir.File(name));
+    const std::string bytes = ReadBytes(dir.File(name));
     ASSERT_GE(bytes.size(), 10u);
     EXPECT_EQ(bytes.substr(0, 6), "\x93NUMPY");
     EXPECT_EQ(bytes[6], 1);
@@ -65,7 +59,7 @@ TEST(ResultFilesTest, FieldAndLabelsAsNpy) {
     EXPECT_THAT(header, HasSubstr("'shape': (" + std::to_string(count) + ",)"));
     EXPECT_EQ(bytes.size(), data_start + count * item);
   }
-  const std::string f = ReadAll(dir.File("f.npy"));
+  const std::string f = ReadBytes(dir.File("f.npy"));
   const size_t start = f.size() - values.size() * sizeof(double);
   std::vector<double> back(values.size());
   std::memcpy(back.data(), f.data() + start, values.size() * sizeof(double));
@@ -75,7 +69,7 @@ TEST(ResultFilesTest, FieldAndLabelsAsNpy) {
 TEST(ResultFilesTest, FieldAsCsvKeepsFullPrecision) {
   TempDir dir;
   ASSERT_OK(WriteField(dir.File("f.csv"), std::vector<double>{0.1 + 0.2, kInf}));
-  EXPECT_THAT(Lines(ReadAll(dir.File("f.csv"))),
+  EXPECT_THAT(Lines(ReadBytes(dir.File("f.csv"))),
               ::testing::ElementsAre("vertex,distance", "0,0.30000000000000004", "1,inf"));
 }
 
@@ -86,7 +80,7 @@ TEST(ResultFilesTest, FieldAsColouredPly) {
   soup.triangles = {{0, 1, 2}, {1, 3, 2}};
   const std::vector<double> values = {0, 0.55, 2, kInf};
   ASSERT_OK(WriteField(dir.File("f.ply"), values, &soup));
-  const auto lines = Lines(ReadAll(dir.File("f.ply")));
+  const auto lines = Lines(ReadBytes(dir.File("f.ply")));
   const auto end = std::find(lines.begin(), lines.end(), "end_header");
   ASSERT_NE(end, lines.end());
   EXPECT_THAT(std::vector<std::string>(lines.begin(), end),
@@ -108,13 +102,13 @@ TEST(ResultFilesTest, PolylinesAsCsvPlyAndObj) {
   TempDir dir;
   const std::vector<Vec3> points = {{0, 0, 0}, {1, 0.5, 0}, {2, 1, 0.25}};
   ASSERT_OK(WritePolyline(dir.File("p.csv"), points));
-  EXPECT_THAT(Lines(ReadAll(dir.File("p.csv"))),
+  EXPECT_THAT(Lines(ReadBytes(dir.File("p.csv"))),
               ::testing::ElementsAre("x,y,z", "0,0,0", "1,0.5,0", "2,1,0.25"));
   ASSERT_OK(WritePolyline(dir.File("p.obj"), points));
-  EXPECT_THAT(Lines(ReadAll(dir.File("p.obj"))),
+  EXPECT_THAT(Lines(ReadBytes(dir.File("p.obj"))),
               ::testing::ElementsAre("v 0 0 0", "v 1 0.5 0", "v 2 1 0.25", "l 1 2 3"));
   ASSERT_OK(WritePolyline(dir.File("p.ply"), points));
-  const auto ply = Lines(ReadAll(dir.File("p.ply")));
+  const auto ply = Lines(ReadBytes(dir.File("p.ply")));
   EXPECT_THAT(ply, ::testing::Contains("element edge 2"));
   EXPECT_EQ(ply.back(), "1 2");
 }

@@ -8,6 +8,7 @@
 #include <fstream>
 #include <map>
 #include <random>
+#include <sstream>
 #include <tuple>
 
 namespace geodesic::testing {
@@ -47,6 +48,17 @@ std::vector<double> ReadF64(const std::string& path) {
   in.seekg(0);
   in.read(reinterpret_cast<char*>(values.data()), values.size() * sizeof(double));
   return values;
+}
+
+std::string ReadBytes(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream out;
+  out << in.rdbuf();
+  return out.str();
+}
+
+void WriteBytes(const std::string& path, const std::string& bytes) {
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << bytes;
 }
 
 TempDir::TempDir() {

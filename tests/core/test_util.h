@@ -2,6 +2,7 @@
 #ifndef GEODESIC_TESTS_CORE_TEST_UTIL_H_
 #define GEODESIC_TESTS_CORE_TEST_UTIL_H_
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -11,6 +12,8 @@
 #include "gtest/gtest.h"
 
 namespace geodesic::testing {
+
+inline constexpr double kInf = std::numeric_limits<double>::infinity();
 
 // ../shared next to the clone (meshes/, truth/); the environment variable
 // GEODESIC_SHARED_DIR, when set, points elsewhere (to check what happens when
@@ -26,6 +29,9 @@ std::string SourcePath(const std::string& relative);
 
 // Reads a raw little-endian float64 file.
 std::vector<double> ReadF64(const std::string& path);
+// A whole file's bytes ("" when it cannot be read), and a file made of `bytes`.
+std::string ReadBytes(const std::string& path);
+void WriteBytes(const std::string& path, const std::string& bytes);
 
 // A temporary directory removed when the object goes away.
 class TempDir {

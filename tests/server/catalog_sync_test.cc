@@ -68,7 +68,7 @@ CatalogMesh MeshNamed(const std::string& name, uint64_t fingerprint = 7) {
   return {name, "upload", "obj", 42, fingerprint, false};
 }
 
-DggParams Eps(double e) {
+DggParams ParamsAt(double e) {
   DggParams p;
   p.epsilon = e;
   return p;
@@ -97,7 +97,7 @@ TEST_F(CatalogSyncTest, AReplicaFollowsWhatAnotherRecords) {
   a.meshes["kitten"] = 7;  // registered by a client on replica a
   ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten")).ok());
   a.graphs.insert({"kitten", 1e-3});
-  auto recorded = sync_a.RecordGraph("kitten", Eps(1e-3));
+  auto recorded = sync_a.RecordGraph("kitten", ParamsAt(1e-3));
   ASSERT_TRUE(recorded.ok() && *recorded) << recorded.status();
   EXPECT_EQ(a.restores, 0);  // loaded there already
 
@@ -108,7 +108,7 @@ TEST_F(CatalogSyncTest, AReplicaFollowsWhatAnotherRecords) {
   ASSERT_TRUE(sync_b.Reconcile().ok());  // nothing new: nothing done again
   EXPECT_EQ(b.restores, 1);
 
-  auto forgot = sync_a.ForgetGraph("kitten", Eps(1e-3));
+  auto forgot = sync_a.ForgetGraph("kitten", ParamsAt(1e-3));
   ASSERT_TRUE(forgot.ok() && *forgot);
   ASSERT_TRUE(sync_b.Reconcile().ok());
   EXPECT_THAT(b.graphs, IsEmpty());
@@ -130,8 +130,8 @@ TEST_F(CatalogSyncTest, ARestartRestoresMeshesAndThenTheirGraphs) {
     before.meshes["b"] = 2;
     ASSERT_TRUE(sync.RecordMesh(MeshNamed("a", 1)).ok());
     ASSERT_TRUE(sync.RecordMesh(MeshNamed("b", 2)).ok());
-    ASSERT_TRUE(sync.RecordGraph("a", Eps(1e-2)).ok());
-    ASSERT_TRUE(sync.RecordGraph("b", Eps(1e-3)).ok());
+    ASSERT_TRUE(sync.RecordGraph("a", ParamsAt(1e-2)).ok());
+    ASSERT_TRUE(sync.RecordGraph("b", ParamsAt(1e-3)).ok());
   }
   Catalog catalog(dir_);
   FakeDaemon after;
@@ -158,8 +158,8 @@ TEST_F(CatalogSyncTest, ACertifiedGraphIsRestoredWithItsBound) {
   CatalogSync sync_a(&catalog_a, a.Hooks());
   a.meshes["kitten"] = 7;
   ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten")).ok());
-  ASSERT_TRUE(sync_a.RecordGraph("kitten", Eps(4e-3)).ok());
-  auto recorded = sync_a.RecordGraph("kitten", Eps(4e-3), 1e-2);
+  ASSERT_TRUE(sync_a.RecordGraph("kitten", ParamsAt(4e-3)).ok());
+  auto recorded = sync_a.RecordGraph("kitten", ParamsAt(4e-3), 1e-2);
   ASSERT_TRUE(recorded.ok() && *recorded) << recorded.status();
 
   // A restart: a new daemon on the directory.
@@ -170,7 +170,7 @@ TEST_F(CatalogSyncTest, ACertifiedGraphIsRestoredWithItsBound) {
   EXPECT_THAT(b.graphs, ElementsAre(Pair("kitten", 4e-3)));
   EXPECT_THAT(b.certified, ElementsAre(Pair("kitten", 1e-2)));
 
-  auto forgot = sync_a.ForgetGraph("kitten", Eps(4e-3), 1e-2);
+  auto forgot = sync_a.ForgetGraph("kitten", ParamsAt(4e-3), 1e-2);
   ASSERT_TRUE(forgot.ok() && *forgot);
   ASSERT_TRUE(sync_b.Reconcile().ok());
   EXPECT_THAT(b.certified, IsEmpty());
@@ -226,7 +226,7 @@ TEST_F(CatalogSyncTest, AMeshReplacedElsewhereIsRestoredAgain) {
   FakeDaemon a, b;
   CatalogSync sync_a(&catalog_a, a.Hooks()), sync_b(&catalog_b, b.Hooks());
   ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten", 7)).ok());
-  ASSERT_TRUE(sync_a.RecordGraph("kitten", Eps(1e-3)).ok());
+  ASSERT_TRUE(sync_a.RecordGraph("kitten", ParamsAt(1e-3)).ok());
   ASSERT_TRUE(sync_b.Reconcile().ok());
   ASSERT_TRUE(sync_a.ForgetMesh("kitten").ok());
   ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten", 9)).ok());
@@ -264,7 +264,7 @@ TEST_F(CatalogSyncTest, ReconcileNeverUndoesAConcurrentRecord) {
   for (int i = 0; i < 200; ++i) {
     const std::string name = absl::StrCat("m", i % 3);
     ASSERT_TRUE(sync.RecordMesh(MeshNamed(name)).ok());
-    ASSERT_TRUE(sync.RecordGraph(name, Eps(1e-2)).ok());
+    ASSERT_TRUE(sync.RecordGraph(name, ParamsAt(1e-2)).ok());
     auto forgot = sync.ForgetMesh(name);
     ASSERT_TRUE(forgot.ok() && *forgot);
   }
@@ -280,7 +280,7 @@ TEST_F(CatalogSyncTest, LocalOnlyMeshesAreLeftAlone) {
   d.meshes["sample"] = 3;  // registered by serve itself, never catalogued
   ASSERT_TRUE(sync.Reconcile().ok());
   EXPECT_THAT(d.meshes, ElementsAre(Pair("sample", 3u)));
-  auto graph = sync.RecordGraph("sample", Eps(1e-3));
+  auto graph = sync.RecordGraph("sample", ParamsAt(1e-3));
   ASSERT_TRUE(graph.ok());
   EXPECT_FALSE(*graph);
   auto forgot = sync.ForgetMesh("sample");
