@@ -68,10 +68,14 @@ CatalogFiles FilesOf(const CatalogState& state) {
 FileRole GraphDirFileRole(const std::string& dir, const std::string& name,
                           const CatalogFiles& files, bool in_use, std::chrono::seconds grace) {
   if (in_use || files.uploads.contains(name)) return FileRole::kInUse;
+  // A file the catalog names is finished and known, whatever its age: the
+  // grace would otherwise make every young graph unremovable, and a build
+  // needing the room fail for a graph nobody is using.
+  if (files.catalogued.contains(name)) return FileRole::kCataloged;
   std::error_code ec;
   const auto written = fs::last_write_time(fs::path(dir) / name, ec);
   if (ec || fs::file_time_type::clock::now() - written < grace) return FileRole::kInUse;
-  return files.catalogued.contains(name) ? FileRole::kCataloged : FileRole::kSpare;
+  return FileRole::kSpare;
 }
 
 absl::StatusOr<uint64_t> DirectoryBytes(const std::string& dir) {

@@ -57,10 +57,11 @@ struct CatalogFiles {
 CatalogFiles FilesOf(const CatalogState& state);
 
 // The daemon's rule for file `name` in `dir`, given the catalog read before
-// the sweep: in use if `in_use` says so, if it is an upload's snapshot, or
-// if it was written less than `grace` ago (or its time cannot be read),
-// since a registration or a replica's file may not be in that catalog yet;
-// then catalogued, then spare.
+// the sweep: in use if `in_use` says so or if it is an upload's snapshot;
+// then catalogued, whatever its age; then, for a file the catalog does not
+// name, in use if it was written less than `grace` ago (or its time cannot
+// be read), since a registration or a replica's file may not be in that
+// catalog yet; else spare.
 FileRole GraphDirFileRole(const std::string& dir, const std::string& name,
                           const CatalogFiles& files, bool in_use, std::chrono::seconds grace);
 

@@ -280,5 +280,21 @@ TEST_F(GraphDirRuleTest, UploadsRecentFilesAndFilesInUseAreNeverRemoved) {
   EXPECT_TRUE(Exists("from-a-replica.dgg"));
 }
 
+// The grace is for files the catalog does not know yet: a graph it names is
+// another user's finished graph, however young, and gives way like any other
+// rather than fail the build that needs its room.
+TEST_F(GraphDirRuleTest, AYoungGraphTheCatalogNamesIsRemovedWhenNotInUse) {
+  Add(scan_graph_, 100, 5, FileRole::kCataloged);
+  Add(MeshSnapshotName(1), 100, 5, FileRole::kCataloged);
+  Add("from-a-replica.dgg", 100, 5, FileRole::kInUse);
+  for (const auto& [name, role] : roles_) EXPECT_EQ(Role(name), role) << name;
+
+  auto report = EnforceDiskLimit(dir_, 150, [&](const std::string& name) { return Role(name); });
+  ASSERT_TRUE(report.ok()) << report.status();
+  EXPECT_EQ(report->removed.size(), 2u);
+  EXPECT_FALSE(report->over_limit);
+  EXPECT_TRUE(Exists("from-a-replica.dgg"));
+}
+
 }  // namespace
 }  // namespace geodesic::server
