@@ -22,8 +22,8 @@ BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
 import geodesic_client  # noqa: E402
-from geodesic_client import (Client, Graph, GraphCertificate, GraphState,  # noqa: E402
-                             Mesh, MeshDiagnostics, MeshSolver, Path, VertexCopy)
+from geodesic_client import (Client, GeodesicError, Graph, GraphCertificate,  # noqa: E402
+                             GraphState, Mesh, MeshDiagnostics, MeshSolver, Path, VertexCopy)
 from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
@@ -427,6 +427,43 @@ class ClientTest(unittest.TestCase):
         self.assertAlmostEqual(
             self.client.path("spot", a, b, epsilon=0.01, pseudo_vertices=True).length, d,
             delta=0.01 * d)
+
+    def test_a_region_is_a_mesh_whose_distances_stay_inside(self):
+        v, f = self.client.geometry("spot")
+        upper = np.flatnonzero(v[:, 1] > 0)
+        self.assertTrue(0 < len(upper) < len(v), len(upper))
+        region = self.client.register_region("spot-upper", "spot", vertices=upper[::-1])
+        self.assertIsInstance(region, Mesh)
+        self.assertEqual((region.name, region.parent, region.parent_vertices,
+                          region.parent_faces), ("spot-upper", "spot", len(v), len(f)))
+        self.assertEqual(self.client.mesh("spot-upper"), region)
+        # Its vertices are the parent's its faces use, in the parent's order.
+        inside = np.isin(f, upper).all(axis=1)
+        kept = np.unique(f[inside])
+        rv, rf = self.client.geometry("spot-upper")
+        self.assertEqual((len(rv), len(rf)), (len(kept), int(inside.sum())))
+        np.testing.assert_array_equal(rv, v[kept])
+        # Paths that may not leave the region are no shorter than the whole
+        # mesh's: each region distance is at least the parent's, and some are longer.
+        source = int(kept[0])
+        whole = self.client.field("spot", [f"v:{source}"], epsilon=0.01)
+        part = self.client.field("spot-upper", ["v:0"], epsilon=0.01)
+        self.assertEqual(part.shape, (len(kept),))
+        reached = np.isfinite(part)
+        self.assertGreater(reached.sum(), len(kept) // 2)
+        self.assertTrue(np.isfinite(whole[kept]).all())
+        self.assertTrue((part[reached] >= whole[kept][reached] * (1 - 0.02)).all())
+        self.assertGreater(np.max(part[reached] - whole[kept][reached]), 0)
+        by_faces = self.client.register_region("spot-upper-faces", "spot",
+                                               faces=np.flatnonzero(inside))
+        self.assertEqual(by_faces.fingerprint, region.fingerprint)
+        with self.assertRaises(ValueError):
+            self.client.register_region("x", "spot", vertices=[0], faces=[0])
+        with self.assertRaises(GeodesicError) as e:
+            self.client.register_region("x", "spot", vertices=[0, 10 ** 7])
+        self.assertIn("10000000", str(e.exception))
+        for name in ("spot-upper", "spot-upper-faces"):
+            self.client.unload_mesh(name)
 
     def test_sample_points_cover_the_mesh(self):
         vertices, radius = self.client.sample_points("spot", 8, seed=5, epsilon=0.01)

@@ -219,6 +219,23 @@ class Client:
         return Mesh._from_proto(self._unary("RegisterMesh", pb.RegisterMeshRequest(
             name=name, path=path, repair_non_manifold=repair_non_manifold), name))
 
+    def register_region(self, name: str, parent: str, *, vertices: Any = None,
+                        faces: Any = None) -> Mesh:
+        """Registers part of a registered mesh as a mesh of its own, whose distances and paths
+        never leave it (e.g. a cortical surface without its medial wall).
+
+        Exactly one of: vertices, the parent's vertex ids whose faces (all three corners
+        listed) make the region; faces, the parent's face ids. Any order, repeats allowed.
+        The returned Mesh names its parent; the parent cannot be unloaded while it has one."""
+        if (vertices is None) == (faces is None):
+            raise ValueError("register_region: give either vertices or faces")
+        ids = np.asarray(vertices if faces is None else faces).ravel()
+        if ids.size and (not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0):
+            raise ValueError("register_region: ids must be non-negative integers")
+        request = pb.RegisterRegionRequest(name=name, parent=parent)
+        (request.vertex_ids if faces is None else request.face_ids).extend(ids.tolist())
+        return Mesh._from_proto(self._unary("RegisterRegion", request, name))
+
     def mesh_solver(self, name: str, epsilon: Optional[float] = None,
                     pseudo_vertices: bool = False, max_error: float = 0.0) -> MeshSolver:
         """A handle on one mesh's graph: this client's queries without the mesh, epsilon,

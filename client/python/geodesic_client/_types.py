@@ -207,6 +207,9 @@ class Mesh:
     restart) rather than parsed again.
     repair_non_manifold: registered with that option; vertex_copies then lists the vertices
     it added, one per extra fan of a non-manifold vertex, numbered after the file's vertices.
+    parent: for a region (Client.register_region), the mesh it was cut from ("" otherwise),
+    and that mesh's vertex and face counts. A region's vertices are the parent's that its
+    faces use, in the parent's order; its faces keep the parent's order.
     """
 
     name: str
@@ -216,13 +219,17 @@ class Mesh:
     repair_non_manifold: bool
     vertex_copies: Tuple[VertexCopy, ...]
     diagnostics: MeshDiagnostics
+    parent: str = ""
+    parent_vertices: int = 0
+    parent_faces: int = 0
 
     @classmethod
     def _from_proto(cls, m) -> "Mesh":
         return cls(name=m.name, fingerprint=m.fingerprint, source=m.source, restored=m.restored,
                    repair_non_manifold=m.repair_non_manifold,
                    vertex_copies=tuple(VertexCopy(c.original, c.copy) for c in m.vertex_copies),
-                   diagnostics=MeshDiagnostics._from_proto(m.diagnostics))
+                   diagnostics=MeshDiagnostics._from_proto(m.diagnostics), parent=m.parent,
+                   parent_vertices=m.parent_vertices, parent_faces=m.parent_faces)
 
 
 @dataclass(frozen=True)
