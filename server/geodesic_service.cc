@@ -1139,8 +1139,9 @@ grpc::Status GeodesicService::GetGeometry(grpc::ServerContext* ctx, const v1::Ge
   return Handle("GetGeometry", ctx, req->name(), false, [&]() -> absl::Status {
     ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> m, FindMesh(req->name()));
     const Mesh& mesh = *m->mesh;
-    // Chunks far below the 64 MiB message limit, whatever the mesh's size.
-    constexpr int kValuesPerChunk = 1 << 19;
+    // Small chunks, whatever the mesh's size: a stream whose client does not
+    // read holds one, and its serialized copy, until it is closed.
+    constexpr int kValuesPerChunk = 1 << 16;
     v1::GeometryChunk chunk;
     chunk.set_name(m->name);
     chunk.set_fingerprint(absl::StrFormat("%016x", m->fingerprint));
