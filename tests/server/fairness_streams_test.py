@@ -9,8 +9,9 @@ Beside a well-behaved client sending light queries:
 - (c) more GetGeometry streams than --max-streams, none read: the extra ones are refused at
   once with RESOURCE_EXHAUSTED naming --max-streams, listing and queries keep answering, and
   the capacity health status says NOT_SERVING while every stream slot is taken;
-- (d) an upload that sends one message and then nothing is closed after --idle-seconds and
-  its slot given back, while an upload sending slowly but steadily is not.
+- (d) an upload that sends one message and then nothing, and a GetGeometry nobody reads, are
+  closed after --idle-seconds and their slots given back, while an upload sending slowly but
+  steadily is not.
 
 The unread streams' clients turn gRPC's BDP probing off, so that their flow-control window
 stays at its initial size and a modest answer fills it: the daemon must not depend on how
@@ -95,8 +96,8 @@ def wait_ready(stub, mesh, eps=0.0, seconds=60):
     return False
 
 
-def upload_grid(address, stub):
-    """A GRID x GRID wavy grid, its graph at GRID_EPS built."""
+def upload_grid(address, stub, graph=True):
+    """A GRID x GRID wavy grid, its graph at GRID_EPS built if `graph`."""
     xs, ys = np.meshgrid(np.arange(GRID, dtype=float), np.arange(GRID, dtype=float))
     vertices = np.stack([xs.ravel(), ys.ravel(), 0.2 * np.sin(xs.ravel() / 3)], axis=1)
     i, j = np.meshgrid(np.arange(GRID - 1), np.arange(GRID - 1), indexing="ij")
@@ -105,6 +106,8 @@ def upload_grid(address, stub):
     faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     with Client(address, timeout=60) as client:
         client.upload_mesh("grid", vertices=vertices, faces=faces)
+    if not graph:
+        return True
     stub.RequestGraph(pb.RequestGraphRequest(mesh="grid", epsilon=GRID_EPS), timeout=10)
     return wait_ready(stub, "grid", GRID_EPS)
 
@@ -237,8 +240,17 @@ def case_unread_geometry(address, stub, channel, max_streams):
         ch.close()
 
 
-def case_idle_upload(address, stub, metrics_port, log, idle):
-    # (d) a first message, then nothing.
+def ended_within(call, start, seconds):
+    """How long after `start` the call ended, or None if it still runs after `seconds`."""
+    while time.monotonic() - start < seconds:
+        if call.done():
+            return time.monotonic() - start
+        time.sleep(0.05)
+    return None
+
+
+def case_idle(address, stub, metrics_port, log, idle):
+    # (d) a first message, then nothing; and an answer nobody reads.
     payload = b"v 0 0 0\n" * 1000
     release = threading.Event()
 
@@ -261,16 +273,14 @@ def case_idle_upload(address, stub, metrics_port, log, idle):
                 **(dict(name="steady", format="obj", total_bytes=len(spot),
                         sha256=hashlib.sha256(spot).hexdigest()) if not start else {}))
 
+    channels = []
     try:
         start = time.monotonic()
         idle_call = stub.UploadMesh.future(one_then_nothing(), timeout=60)
         steady_call = stub.UploadMesh.future(steady(), timeout=60)
-        ended = None
-        while time.monotonic() - start < idle + 6:
-            if idle_call.done():
-                ended = time.monotonic() - start
-                break
-            time.sleep(0.05)
+        channels, (unread,) = unread_streams(address, lambda s, r: s.GetGeometry(r, timeout=60),
+                                             [pb.GetMeshRequest(name="grid")])
+        ended = ended_within(idle_call, start, idle + 6)
         check("(d) an upload idle for --idle-seconds is closed", ended is not None,
               f"still open after {idle + 6} s")
         check("(d) ... not before --idle-seconds", ended is None or ended >= idle * 0.9, ended)
@@ -290,13 +300,20 @@ def case_idle_upload(address, stub, metrics_port, log, idle):
         values = metrics(metrics_port)
         check("(d) its stream slot is given back", values.get("geodesicd_streams_open") == 0,
               values.get("geodesicd_streams_open"))
-        check("(d) counted as closed for idling",
-              values.get("geodesicd_streams_idle_closed_total") == 1,
+        check("(d) both, and only they, counted as closed for idling",
+              values.get("geodesicd_streams_idle_closed_total") == 2,
               values.get("geodesicd_streams_idle_closed_total"))
+        # Its client sees the end once it reads what arrived before it.
+        (geometry,) = drain([unread], 10)
+        check("(d) a GetGeometry nobody reads is closed after --idle-seconds",
+              isinstance(geometry, str) and geometry.startswith("CANCELLED"),
+              geometry if isinstance(geometry, str) else f"{len(geometry)} chunks, no error")
         with open(log) as f:
             check("(d) logged", "stream_idle_closed" in f.read())
     finally:
         release.set()
+        for ch in channels:
+            ch.close()
 
 
 def main():
@@ -326,9 +343,11 @@ def main():
     # (d): a short --idle-seconds.
     idle = 2
     daemon, ports, log = serve("idle", "--no-sample", "--idle-seconds", str(idle))
-    with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
-        case_idle_upload(f"127.0.0.1:{ports['grpc']}", rpc.GeodesicStub(channel),
-                         ports["metrics"], log, idle)
+    address = f"127.0.0.1:{ports['grpc']}"
+    with grpc.insecure_channel(address) as channel:
+        stub = rpc.GeodesicStub(channel)
+        if check("(d) the grid uploaded", upload_grid(address, stub, graph=False)):
+            case_idle(address, stub, ports["metrics"], log, idle)
     daemon_ports.stop(daemon)
     print(f"{time.monotonic() - started:.1f} s")
 
