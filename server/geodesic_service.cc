@@ -761,8 +761,9 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     auto field = (*engine)->Field(sources, options);
     if (!field.ok()) return field.status();
     // What is left is sending: the places go to other queries while the
-    // client takes its chunks, however slowly.
-    run.Release();
+    // client takes its chunks, however slowly; the answer's bytes stay
+    // counted.
+    const Admission::Ticket sending = admission_.KeepAnswer(std::move(run));
     admitted.Release();
     StreamWatchdog::Watch watch = WatchStream("DistanceField", ctx);
     std::vector<uint32_t> order(req->targets().begin(), req->targets().end());
@@ -1062,9 +1063,12 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
           row = SparseRow();
         }
       }
-      run.Release();
-      admitted.Release();
-      RETURN_IF_ERROR(Send(watch, writer, chunk));
+      {
+        // The block's bytes stay counted while the client takes them.
+        const Admission::Ticket sending = admission_.KeepAnswer(std::move(run));
+        admitted.Release();
+        RETURN_IF_ERROR(Send(watch, writer, chunk));
+      }
       if (end == sources.size()) return absl::OkStatus();
       begin_block(end);
       ASSIGN_OR_RETURN(run, start_block());
