@@ -130,6 +130,18 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
   }
 }
 
+Admission::Ticket Admission::KeepAnswer(Ticket run) {
+  if (run.owner_ != this || run.kind_ != Kind::kRun) return run;
+  const uint64_t answer = run.answer_;
+  {
+    absl::MutexLock lock(&mu_);
+    // Counted in the answer ticket from here on.
+    reserved_answer_ += answer;
+  }
+  run.Release();
+  return Ticket(this, Kind::kAnswer, answer, 0);
+}
+
 void Admission::Release(const Ticket& t) {
   absl::MutexLock lock(&mu_);
   switch (t.kind_) {
@@ -138,6 +150,10 @@ void Admission::Release(const Ticket& t) {
       break;
     case Kind::kStream:
       --streams_;
+      break;
+    case Kind::kAnswer:
+      reserved_answer_ -= t.answer_;
+      changed_.SignalAll();
       break;
     case Kind::kRun: {
       --running_;

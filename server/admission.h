@@ -45,7 +45,7 @@ struct AdmissionOptions {
 
 class Admission {
  public:
-  enum class Kind { kQuery, kRun, kStream };
+  enum class Kind { kQuery, kRun, kStream, kAnswer };
 
   // Something admitted, given back when destroyed.
   class Ticket {
@@ -85,6 +85,11 @@ class Admission {
   // deadline); CANCELLED when `cancelled` says so.
   absl::StatusOr<Ticket> Run(uint64_t answer_bytes, uint64_t scratch_bytes, absl::Time deadline,
                              const std::function<bool()>& cancelled = {});
+
+  // Gives back `run`'s query thread but keeps its answer bytes reserved: for
+  // a stream holding a computed block while it waits for its client, which
+  // may take any time and needs no thread of the query_threads.
+  Ticket KeepAnswer(Ticket run);
 
   // The retry hint sent with a refusal: about how long the queries admitted
   // take to drain through the running slots.

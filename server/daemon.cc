@@ -43,6 +43,11 @@ std::string ServiceName(const GraphKey& key) {
 // The health-check name that is NOT_SERVING while admission refuses calls.
 constexpr char kCapacity[] = "geodesic.v1.Geodesic/capacity";
 
+// gRPC threads beyond admission's: for the control calls (listing, health,
+// get, cancel) and for gRPC's own pollers.
+constexpr int kControlThreads = 16;
+constexpr int kPollerThreads = 8;
+
 // --port-file: {"grpc": P}, with "metrics": Q and "http": H when they listen, written once the
 // ports are bound, by rename so that a reader never sees half of it.
 bool WritePortFile(const std::string& path, int grpc_port, int metrics_port, int http_port) {
@@ -294,8 +299,15 @@ void Daemon::AddQueryMetrics() {
                     [&admission] { return double(admission.running()); });
   metrics_.AddGauge("geodesicd_queries_waiting", "Admitted queries waiting for a running slot.",
                     [&admission] { return double(admission.waiting()); });
-  metrics_.AddGauge("geodesicd_streams_open", "WatchGraph and UploadMesh streams (--max-streams).",
+  metrics_.AddGauge("geodesicd_streams_open", "Server streams open (--max-streams).",
                     [&admission] { return double(admission.streams()); });
+  const GeodesicService& service = *service_;
+  metrics_.AddGauge("geodesicd_calls_in_progress",
+                    "gRPC calls in a handler, each holding one of the server's threads.",
+                    [&service] { return double(service.calls_in_progress()); });
+  metrics_.AddCounter("geodesicd_streams_idle_closed_total",
+                      "Streams closed after waiting on their client for --idle-seconds.",
+                      [&service] { return double(service.watchdog().closed()); });
   metrics_.AddGauge("geodesicd_reserved_bytes",
                     "Answer and scratch bytes running queries reserved against --memory-limit.",
                     [&admission] { return double(admission.reserved_bytes()); });
@@ -336,15 +348,9 @@ int Daemon::ListenGrpc() {
   const ServiceLimits& limits = options_.limits;
   builder.SetMaxReceiveMessageSize(static_cast<int>(limits.max_message_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(limits.max_message_bytes));
-  // The synchronous server holds a thread per call in progress, and answers
-  // "Server Threadpool Exhausted" when the quota has none left: the quota
-  // covers every admitted query (running or waiting), every stream, the
-  // control calls and gRPC's own pollers, so that the answer past a limit is
-  // ours (RESOURCE_EXHAUSTED "server overloaded", with a retry hint).
-  constexpr int kControlThreads = 16;
-  constexpr int kPollerThreads = 8;
+  AddIdleArguments(builder);
   grpc::ResourceQuota quota("geodesicd");
-  quota.SetMaxThreads(limits.max_inflight + limits.max_streams + kControlThreads + kPollerThreads);
+  quota.SetMaxThreads(ThreadQuota());
   builder.SetResourceQuota(quota);
   server_ = builder.BuildAndStart();
   if (!server_ || grpc_port_ == 0) {
@@ -359,6 +365,41 @@ int Daemon::ListenGrpc() {
   health_->SetServingStatus("geodesic.v1.Geodesic", false);
   health_->SetServingStatus(kCapacity, true);
   return 0;
+}
+
+// The synchronous server holds a thread per call in progress, and answers
+// "Server Threadpool Exhausted" when the quota has none left: the quota
+// covers every admitted query (running or waiting), every stream (streamed
+// queries hold a stream slot throughout, and a query slot only while they
+// compute their first answer), the HTTP gateway's workers (whose calls come in
+// through the in-process channel), the control calls and gRPC's own
+// pollers, so that the answer past a limit is ours (RESOURCE_EXHAUSTED
+// "server overloaded", with a retry hint) and control calls always find a
+// thread.
+int Daemon::ThreadQuota() const {
+  const ServiceLimits& limits = options_.limits;
+  const int http_workers = options_.http_listen.empty() ? 0 : options_.http_limits.workers;
+  return limits.max_inflight + limits.max_streams + http_workers + kControlThreads + kPollerThreads;
+}
+
+// A connection with no call for --idle-seconds is closed (a client
+// reconnects when it calls again), and a quiet one is pinged, so that a
+// peer that vanished does not keep its connection.
+void Daemon::AddIdleArguments(grpc::ServerBuilder& builder) const {
+  const double idle = options_.limits.idle_seconds;
+  if (idle <= 0) return;
+  const int ms = static_cast<int>(std::min(idle, 86400.0) * 1000);
+  builder.AddChannelArgument(GRPC_ARG_MAX_CONNECTION_IDLE_MS, ms);
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIME_MS, ms);
+  builder.AddChannelArgument(GRPC_ARG_KEEPALIVE_TIMEOUT_MS, ms);
+}
+
+// Calls are refused, or about to be: admission is full or refusing, or the
+// control calls' threads are running out.
+bool Daemon::Overloaded() const {
+  const int calls = service_->calls_in_progress();
+  return service_->admission().overloaded() ||
+         calls >= ThreadQuota() - kPollerThreads - kControlThreads / 2;
 }
 
 int Daemon::ListenMetrics(int* port) {
@@ -504,11 +545,10 @@ void Daemon::Serve() {
   // Probes of "" and "geodesic.v1.Geodesic" keep SERVING under load (a
   // restart would only lose the resident graphs); kCapacity tells balancers
   // that this replica is refusing queries now.
-  const Admission& admission = service_->admission();
   bool overloaded = false;
   for (int tick = 0; !g_stop; ++tick) {
     std::this_thread::sleep_for(std::chrono::milliseconds(100));
-    if (admission.overloaded() != overloaded) {
+    if (Overloaded() != overloaded) {
       overloaded = !overloaded;
       SetHealth(kCapacity, !overloaded);
     }

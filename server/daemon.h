@@ -54,6 +54,10 @@ class Daemon {
   void AddQueryMetrics();
   void RegisterSample();
   int ListenGrpc();
+  // gRPC's thread quota (--max-inflight, --max-streams and the rest).
+  int ThreadQuota() const;
+  // --idle-seconds for gRPC's connections.
+  void AddIdleArguments(grpc::ServerBuilder& builder) const;
   int ListenMetrics(int* port);
   int ListenHttp();
   // Restore's steps.
@@ -68,6 +72,8 @@ class Daemon {
   // EnforceDiskLimit), logging each.
   absl::StatusOr<DiskReport> Sweep(uint64_t limit);
   void SetHealth(const std::string& service, bool serving);
+  // What the capacity health status reports: calls refused, or about to be.
+  bool Overloaded() const;
 
   const ServeOptions options_;
   Metrics metrics_;

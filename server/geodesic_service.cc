@@ -58,9 +58,33 @@ bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
 }
 
 // Streams hold a thread for as long as the client keeps them open: they are
-// bounded on their own (--max-streams), apart from queries and the control
-// calls.
-bool IsStream(std::string_view method) { return method == "WatchGraph" || method == "UploadMesh"; }
+// bounded on their own (--max-streams), apart from the control calls, also
+// when they are queries too.
+bool IsStream(std::string_view method) {
+  return method == "GetGeometry" || method == "MatrixRows" || method == "DistanceField" ||
+         method == "WatchGraph" || method == "UploadMesh";
+}
+
+// One message of a stream written, the time the client takes to make room
+// for it watched.
+template <typename Message>
+absl::Status Send(StreamWatchdog::Watch& watch, grpc::ServerWriter<Message>* writer,
+                  const Message& message) {
+  bool sent;
+  {
+    auto waiting = watch.WaitingOnClient();
+    sent = writer->Write(message);
+  }
+  return sent ? absl::OkStatus() : watch.Ended();
+}
+
+// The next message of a stream read, the time the client takes to send it
+// watched.
+template <typename Message>
+bool Receive(StreamWatchdog::Watch& watch, grpc::ServerReader<Message>* reader, Message* message) {
+  auto waiting = watch.WaitingOnClient();
+  return reader->Read(message);
+}
 
 // Error messages travel in trailing metadata, which clients cap (8 KiB by
 // default): input echoed into them is cut, and so is the whole message.
@@ -221,7 +245,13 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
               },
           .pinned = [meshes] { return meshes->resident_bytes(); },
           .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },
-      }) {}
+      }),
+      watchdog_(absl::Seconds(limits.idle_seconds)) {}
+
+StreamWatchdog::Watch GeodesicService::WatchStream(const char* method, grpc::ServerContext* ctx) {
+  return watchdog_.Add(absl::StrFormat("%s from %s", method, ctx->peer()),
+                       [ctx] { ctx->TryCancel(); });
+}
 
 absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContext* ctx,
                                                               uint64_t answer_bytes,
@@ -397,6 +427,8 @@ template <typename Body>
 grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ctx,
                                      const std::string& mesh, bool is_query, Body body) {
   const auto start = std::chrono::steady_clock::now();
+  calls_in_progress_.fetch_add(1, std::memory_order_relaxed);
+  absl::Cleanup left = [this] { calls_in_progress_.fetch_sub(1, std::memory_order_relaxed); };
   grpc::Status status;
   // Given back when the handler returns.
   absl::StatusOr<Admission::Ticket> query, stream;
@@ -510,14 +542,16 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
   return Handle("UploadMesh", ctx, name, false, [&]() -> absl::Status {
     UploadAssembler upload(limits_.max_upload_bytes);
     v1::UploadMeshRequest chunk;
+    StreamWatchdog::Watch watch = WatchStream("UploadMesh", ctx);
     // A message that cannot be parsed ends the reads as the stream's end
     // does: the declared size tells the two apart.
-    while (reader->Read(&chunk)) {
+    while (Receive(watch, reader, &chunk)) {
       RETURN_IF_ERROR(upload.Add(chunk));
       name = upload.name();
     }
     // A cancelled stream ends the reads too: nothing of it is registered,
     // however much of it came.
+    if (watch.closed()) return watch.Ended();
     if (ctx->IsCancelled()) {
       return absl::CancelledError("the upload was cancelled; nothing was registered");
     }
@@ -635,11 +669,12 @@ grpc::Status GeodesicService::WatchGraph(grpc::ServerContext* ctx, const v1::Get
   const v1::GraphSelector graph = SelectorOf(*req);
   return Handle("WatchGraph", ctx, graph.mesh(), false, [&]() -> absl::Status {
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
+    StreamWatchdog::Watch watch = WatchStream("WatchGraph", ctx);
     auto g = graphs_->Get(key);
     while (g.ok()) {
       v1::Graph out;
       ToProto(*g, &out);
-      if (!writer->Write(out)) return absl::CancelledError("client went away");
+      RETURN_IF_ERROR(Send(watch, writer, out));
       if (g->state != GraphState::kQueued && g->state != GraphState::kBuilding &&
           g->state != GraphState::kLoading && g->state != GraphState::kPersisting) {
         return absl::OkStatus();
@@ -685,7 +720,10 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
                                             const v1::DistanceFieldRequest* req,
                                             grpc::ServerWriter<v1::DistanceFieldChunk>* writer) {
   const v1::GraphSelector graph = SelectorOf(*req);
-  return Handle("DistanceField", ctx, graph.mesh(), true, [&]() -> absl::Status {
+  // A query, admitted in the body: the stream gives its place back once the
+  // field is computed.
+  return Handle("DistanceField", ctx, graph.mesh(), false, [&]() -> absl::Status {
+    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery());
     if (req->sources_size() == 0) return absl::InvalidArgumentError("a field needs a source");
     if (req->sources_size() > limits_.max_sources) {
       return absl::ResourceExhaustedError(absl::StrFormat(
@@ -722,6 +760,12 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
                                 FieldScratchBytes(**engine)));
     auto field = (*engine)->Field(sources, options);
     if (!field.ok()) return field.status();
+    // What is left is sending: the places go to other queries while the
+    // client takes its chunks, however slowly; the answer's bytes stay
+    // counted.
+    const Admission::Ticket sending = admission_.KeepAnswer(std::move(run));
+    admitted.Release();
+    StreamWatchdog::Watch watch = WatchStream("DistanceField", ctx);
     std::vector<uint32_t> order(req->targets().begin(), req->targets().end());
     const size_t total = order.empty() ? field->distance.size() : order.size();
     for (size_t offset = 0; offset < total || offset == 0; offset += limits_.field_chunk) {
@@ -742,7 +786,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
         }
         if (req->nearest_source()) chunk.add_nearest_source(field->nearest_source[v]);
       }
-      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      RETURN_IF_ERROR(Send(watch, writer, chunk));
       if (total == 0) break;
     }
     return absl::OkStatus();
@@ -926,7 +970,10 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
 grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::MatrixRequest* req,
                                          grpc::ServerWriter<v1::MatrixRowsChunk>* writer) {
   const v1::GraphSelector graph = SelectorOf(*req);
-  return Handle("MatrixRows", ctx, graph.mesh(), true, [&]() -> absl::Status {
+  // A query, admitted in the body: the stream gives its place back once its
+  // first block is computed.
+  return Handle("MatrixRows", ctx, graph.mesh(), false, [&]() -> absl::Status {
+    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery());
     RETURN_IF_ERROR(CheckMatrixLimits(*req, /*streamed=*/true));
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
     const GraphKey& key = q.key;
@@ -954,9 +1001,15 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
     RETURN_IF_ERROR(
         CheckAnswerSize(absl::StrFormat("a block of %u rows", block_rows), block_answer));
     // A block's rows as computed (sparse ones staged per row), then the
-    // chunk's serialized copy.
-    ASSIGN_OR_RETURN(Admission::Ticket run,
-                     StartQuery(ctx, 2 * block_answer, MatrixScratchBytes(q, *req)));
+    // chunk's serialized copy. Held while a block is computed, not while it
+    // is sent: a client that reads slowly, or not at all, keeps no slot.
+    // Later blocks wait their turn without being admitted again, so that a
+    // stream once started is not refused halfway (--max-streams bounds them).
+    auto start_block = [&] {
+      return StartQuery(ctx, 2 * block_answer, MatrixScratchBytes(q, *req));
+    };
+    ASSIGN_OR_RETURN(Admission::Ticket run, start_block());
+    StreamWatchdog::Watch watch = WatchStream("MatrixRows", ctx);
 
     v1::MatrixRowsChunk chunk;
     char* dense = nullptr;  // the block's rows, written in place by the threads computing them
@@ -1010,15 +1063,23 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
           row = SparseRow();
         }
       }
-      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
-      if (end < sources.size()) begin_block(end);
+      {
+        // The block's bytes stay counted while the client takes them.
+        const Admission::Ticket sending = admission_.KeepAnswer(std::move(run));
+        admitted.Release();
+        RETURN_IF_ERROR(Send(watch, writer, chunk));
+      }
+      if (end == sources.size()) return absl::OkStatus();
+      begin_block(end);
+      ASSIGN_OR_RETURN(run, start_block());
       return absl::OkStatus();
     };
     begin_block(0);
     if (sources.empty()) {
       // No batch runs: the one block says the matrix has no rows.
-      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
-      return absl::OkStatus();
+      run.Release();
+      admitted.Release();
+      return Send(watch, writer, chunk);
     }
     return q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink);
   });
@@ -1082,17 +1143,19 @@ grpc::Status GeodesicService::GetGeometry(grpc::ServerContext* ctx, const v1::Ge
   return Handle("GetGeometry", ctx, req->name(), false, [&]() -> absl::Status {
     ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> m, FindMesh(req->name()));
     const Mesh& mesh = *m->mesh;
-    // Chunks far below the 64 MiB message limit, whatever the mesh's size.
-    constexpr int kValuesPerChunk = 1 << 19;
+    // Small chunks, whatever the mesh's size: a stream whose client does not
+    // read holds one, and its serialized copy, until it is closed.
+    constexpr int kValuesPerChunk = 1 << 16;
     v1::GeometryChunk chunk;
     chunk.set_name(m->name);
     chunk.set_fingerprint(absl::StrFormat("%016x", m->fingerprint));
     chunk.set_total_vertices(mesh.num_vertices());
     chunk.set_total_faces(mesh.corners().size() / 3);
+    StreamWatchdog::Watch watch = WatchStream("GetGeometry", ctx);
     auto flush = [&](bool last) -> absl::Status {
       const int values = chunk.vertices_size() + chunk.faces_size();
       if (last ? chunk.ByteSizeLong() == 0 : values < kValuesPerChunk) return absl::OkStatus();
-      if (!writer->Write(chunk)) return absl::CancelledError("client went away");
+      RETURN_IF_ERROR(Send(watch, writer, chunk));
       chunk.Clear();
       return absl::OkStatus();
     };

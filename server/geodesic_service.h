@@ -3,6 +3,7 @@
 #ifndef GEODESIC_SERVER_GEODESIC_SERVICE_H_
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
+#include <atomic>
 #include <string>
 
 #include "absl/status/statusor.h"
@@ -13,6 +14,7 @@
 #include "server/mesh_registry.h"
 #include "server/metrics.h"
 #include "server/name_locks.h"
+#include "server/stream_watchdog.h"
 
 namespace geodesic::server {
 
@@ -20,7 +22,12 @@ struct ServiceLimits {
   double default_epsilon = 1e-3;
   int max_inflight = 64;  // queries admitted, waiting or running; beyond: RESOURCE_EXHAUSTED
   int query_threads = 0;  // admitted queries running at once (0: the cores)
-  int max_streams = 32;   // WatchGraph and UploadMesh streams open; beyond: RESOURCE_EXHAUSTED
+  // Server streams open (GetGeometry, MatrixRows, DistanceField, WatchGraph,
+  // UploadMesh); beyond: RESOURCE_EXHAUSTED.
+  int max_streams = 64;
+  // A stream waiting on its client this long (a message unread, or not
+  // sent) is closed (0: never).
+  double idle_seconds = 60;
   // The largest message either way: an answer that cannot fit is refused
   // before it is computed.
   uint64_t max_message_bytes = uint64_t{64} << 20;
@@ -53,6 +60,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   // Queries admitted and running, streams open, bytes reserved: for gauges
   // and the overload health status.
   const Admission& admission() const { return admission_; }
+  // Streams watched for idling, and how many were closed.
+  const StreamWatchdog& watchdog() const { return watchdog_; }
+  // Calls in a handler now: each holds one of gRPC's threads.
+  int calls_in_progress() const { return calls_in_progress_.load(std::memory_order_relaxed); }
 
   // From now on every call must carry the metadata "authorization: Bearer
   // <token>"; others fail with UNAUTHENTICATED. Health checks and reflection
@@ -102,6 +113,9 @@ class GeodesicService final : public v1::Geodesic::Service {
   // call's deadline.
   absl::StatusOr<Admission::Ticket> StartQuery(grpc::ServerContext* ctx, uint64_t answer_bytes,
                                                uint64_t scratch_bytes);
+  // The stream `ctx` watched for idling (--idle-seconds) until the result
+  // is destroyed.
+  StreamWatchdog::Watch WatchStream(const char* method, grpc::ServerContext* ctx);
   // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
   // `bytes` cannot fit one message.
   absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;
@@ -158,6 +172,8 @@ class GeodesicService final : public v1::Geodesic::Service {
   CatalogSync* catalog_ = nullptr;
   NameLocks names_;  // a mesh's changes, one at a time
   Admission admission_;
+  StreamWatchdog watchdog_;
+  std::atomic<int> calls_in_progress_{0};
 };
 
 }  // namespace geodesic::server

@@ -187,9 +187,14 @@ void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {
                  "queries admitted, running or waiting; beyond them a query is answered "
                  "RESOURCE_EXHAUSTED \"server overloaded\" at once, with a retry-after-ms hint");
   app.add_option("--max-streams", limits.max_streams,
-                 "WatchGraph and UploadMesh streams open at once; beyond them a stream is answered "
-                 "RESOURCE_EXHAUSTED at once (health, listing, get and cancel keep their own "
-                 "threads)");
+                 "streams open at once (GetGeometry, MatrixRows, DistanceField, WatchGraph, "
+                 "UploadMesh); beyond them a stream is answered RESOURCE_EXHAUSTED at once "
+                 "(health, listing, get and cancel keep their own threads)");
+  app.add_option("--idle-seconds", limits.idle_seconds,
+                 "a stream waiting this long on its client (an answer not read, an upload not "
+                 "sent) is closed, giving back its slot; gRPC connections with no call this "
+                 "long are closed too, and quiet ones probed (0: never)")
+      ->check(CLI::Range(0.0, 86400.0));
   app.add_option("--max-pairs", limits.max_pairs, "pairs per Distance call");
   app.add_option("--max-exact-bytes", f.max_exact_bytes,
                  "memory one exact pair or matrix row may hold, e.g. 256M; past it the call is "

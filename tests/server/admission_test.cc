@@ -206,5 +206,36 @@ TEST(AdmissionTest, IdleScratchCountsAsHeldButRunningScratchOnlyOnce) {
   EXPECT_EQ(d.status().code(), absl::StatusCode::kResourceExhausted);
 }
 
+TEST(AdmissionTest, AnAnswerKeptForItsClientFreesTheThreadButNotTheMemory) {
+  Admission admission(Limits(8, 1, 1000, [] { return uint64_t{0}; }));
+  auto block = admission.Run(400, 300, Soon());
+  ASSERT_TRUE(block.ok());
+  Admission::Ticket sending = admission.KeepAnswer(std::move(*block));
+  EXPECT_EQ(admission.running(), 0);
+  EXPECT_EQ(admission.reserved_bytes(), 400u);
+  // The one query thread is free for another query beside the kept answer.
+  auto light = admission.Run(100, 100, absl::Now() + absl::Milliseconds(200));
+  ASSERT_TRUE(light.ok()) << light.status();
+  EXPECT_EQ(admission.reserved_bytes(), 600u);
+  light->Release();
+  sending.Release();
+  EXPECT_EQ(admission.reserved_bytes(), 0u);
+}
+
+TEST(AdmissionTest, AKeptAnswerCountsAgainstTheMemoryOfQueriesThatRunBesideIt) {
+  Admission admission(Limits(8, 2, 1000, [] { return uint64_t{0}; }));
+  auto block = admission.Run(500, 0, Soon());
+  ASSERT_TRUE(block.ok());
+  Admission::Ticket sending = admission.KeepAnswer(std::move(*block));
+  auto a = admission.Run(200, 0, Soon());
+  ASSERT_TRUE(a.ok());
+  // 500 kept + 200 running + 400 would pass the limit: it waits, then is refused.
+  auto b = admission.Run(400, 0, absl::Now() + absl::Milliseconds(100));
+  EXPECT_EQ(b.status().code(), absl::StatusCode::kResourceExhausted);
+  sending.Release();
+  auto c = admission.Run(400, 0, Soon());
+  EXPECT_TRUE(c.ok()) << c.status();
+}
+
 }  // namespace
 }  // namespace geodesic::server

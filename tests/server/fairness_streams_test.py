@@ -1,0 +1,362 @@
+#!/usr/bin/python3
+"""Streams a client never reads, or never finishes sending, take nothing from the others (#55).
+
+Beside a well-behaved client sending light queries:
+- (a) two MatrixRows of every pair of the bundled mesh that nobody reads, and (b) two
+  DistanceField streams likewise: the light queries are answered (at least 18 of 20, p99
+  under a second), since a stream gives its query slot back while it waits for its client;
+  read afterwards, each stream still delivers its whole answer;
+- (c) more GetGeometry streams than --max-streams, none read: the extra ones are refused at
+  once with RESOURCE_EXHAUSTED naming --max-streams, listing and queries keep answering, and
+  the capacity health status says NOT_SERVING while every stream slot is taken;
+- (d) an upload that sends one message and then nothing, and a GetGeometry nobody reads, are
+  closed after --idle-seconds and their slots given back, while an upload sending slowly but
+  steadily is not.
+
+The unread streams' clients turn gRPC's BDP probing off, so that their flow-control window
+stays at its initial size and a modest answer fills it: the daemon must not depend on how
+much a client happens to buffer. Meshes: the bundled data/spot.obj and a grid made here.
+Every daemon listens on 127.0.0.1 port 0, and every wait is bounded.
+
+Usage: fairness_streams_test.py BUILD_BIN_DIR SOURCE_DIR
+"""
+import hashlib
+import math
+import os
+import re
+import shutil
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+
+BIN, SRC = sys.argv[1], sys.argv[2]
+sys.path.insert(0, os.path.join(SRC, "client", "python"))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import grpc  # noqa: E402
+import numpy as np  # noqa: E402
+from geodesic_client import Client  # noqa: E402
+from geodesic_client._stubs import pb, rpc  # noqa: E402
+import daemon_ports  # noqa: E402
+from checklist import Checklist  # noqa: E402
+from daemon_ports import start_daemon  # noqa: E402
+
+SPOT_VERTICES = 2930
+GRID = 100  # the grid mesh's side in vertices: its field and geometry outgrow a 64 KiB window
+GRID_EPS = 0.05  # coarse: the grid's graph builds in a moment
+SERVING, NOT_SERVING = 1, 2  # grpc.health.v1.HealthCheckResponse.ServingStatus
+UNREAD_OPTIONS = [("grpc.http2.bdp_probe", 0), ("grpc.max_receive_message_length", 64 << 20)]
+
+check = Checklist()
+work = tempfile.mkdtemp(prefix="fairness-streams-")
+
+
+def serve(name, *extra):
+    log = open(os.path.join(work, f"{name}.log"), "w")
+    daemon, ports = start_daemon(BIN, os.path.join(work, name),
+                                 ["--graph-dir", os.path.join(work, name, "graphs"),
+                                  "--log-level", "info", *extra],
+                                 stderr=log, metrics=True)
+    return daemon, ports, log.name
+
+
+def metrics(port):
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+        text = r.read().decode()
+    return {m.group(1): float(m.group(2))
+            for m in re.finditer(r"^(geodesicd_\w+) (\S+)$", text, re.M)}
+
+
+def health_check(channel):
+    """grpc.health.v1.Health/Check with its one-field messages encoded by hand (Debian's
+    python3-grpcio has no grpc_health module)."""
+    def encode(service):
+        data = service.encode()
+        return b"\x0a" + bytes([len(data)]) + data
+
+    def decode(data):
+        return data[1] if len(data) >= 2 and data[0] == 0x08 else 0
+
+    return channel.unary_unary("/grpc.health.v1.Health/Check", request_serializer=encode,
+                               response_deserializer=decode)
+
+
+def wait_ready(stub, mesh, eps=0.0, seconds=60):
+    deadline = time.time() + seconds
+    while time.time() < deadline:
+        try:
+            if stub.GetGraph(pb.GetGraphRequest(mesh=mesh, epsilon=eps), timeout=5).state == \
+                    pb.GRAPH_STATE_READY:
+                return True
+        except grpc.RpcError as e:
+            if e.code() != grpc.StatusCode.NOT_FOUND:
+                raise
+        time.sleep(0.05)
+    return False
+
+
+def upload_grid(address, stub, graph=True):
+    """A GRID x GRID wavy grid, its graph at GRID_EPS built if `graph`."""
+    xs, ys = np.meshgrid(np.arange(GRID, dtype=float), np.arange(GRID, dtype=float))
+    vertices = np.stack([xs.ravel(), ys.ravel(), 0.2 * np.sin(xs.ravel() / 3)], axis=1)
+    i, j = np.meshgrid(np.arange(GRID - 1), np.arange(GRID - 1), indexing="ij")
+    a, b = (i * GRID + j).ravel(), (i * GRID + j + 1).ravel()
+    c, d = ((i + 1) * GRID + j + 1).ravel(), ((i + 1) * GRID + j).ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    with Client(address, timeout=60) as client:
+        client.upload_mesh("grid", vertices=vertices, faces=faces)
+    if not graph:
+        return True
+    stub.RequestGraph(pb.RequestGraphRequest(mesh="grid", epsilon=GRID_EPS), timeout=10)
+    return wait_ready(stub, "grid", GRID_EPS)
+
+
+def light_queries(stub, n=20, pause=0.05, also=None):
+    """n one-pair Distance calls on spot (and `also` beside each): latencies of those
+    answered, and the errors."""
+    latencies, errors = [], []
+    for k in range(n):
+        start = time.monotonic()
+        try:
+            req = pb.DistanceRequest(mesh="spot", pairs=[pb.PointPair(**{
+                "from": pb.SurfacePoint(vertex=(37 * k) % SPOT_VERTICES),
+                "to": pb.SurfacePoint(vertex=(101 * k + 7) % SPOT_VERTICES)})])
+            if len(stub.Distance(req, timeout=3).results) == 1:
+                latencies.append(time.monotonic() - start)
+            if also:
+                also()
+        except grpc.RpcError as e:
+            errors.append(f"{e.code().name}: {e.details()}")
+        time.sleep(pause)
+    return latencies, errors
+
+
+def p99(latencies):
+    ordered = sorted(latencies)
+    return ordered[max(0, math.ceil(0.99 * len(ordered)) - 1)] if ordered else float("inf")
+
+
+def check_light(name, latencies, errors):
+    check(f"{name}: at least 18 of 20 light queries answered", len(latencies) >= 18,
+          f"{len(latencies)} answered; errors {errors[:3]}")
+    check(f"{name}: p99 of the light queries under 1 s", p99(latencies) < 1.0,
+          f"p99 {p99(latencies):.3f} s")
+
+
+def unread_streams(address, call, requests):
+    """Streams started and left unread, each on a channel of its own."""
+    channels = [grpc.insecure_channel(address, options=UNREAD_OPTIONS) for _ in requests]
+    streams = [call(rpc.GeodesicStub(ch), req) for ch, req in zip(channels, requests)]
+    return channels, streams
+
+
+def drain(streams, seconds):
+    """Reads every stream to its end: each one's messages, or its error."""
+    results = [None] * len(streams)
+
+    def read(k):
+        try:
+            results[k] = list(streams[k])
+        except grpc.RpcError as e:
+            results[k] = f"{e.code().name}: {e.details()}"
+
+    threads = [threading.Thread(target=read, args=(k,)) for k in range(len(streams))]
+    for t in threads:
+        t.start()
+    deadline = time.time() + seconds
+    for t in threads:
+        t.join(timeout=max(0.1, deadline - time.time()))
+    return results
+
+
+def case_unread_queries(address, stub):
+    # (a) every pair of spot at float64: far more than any window.
+    matrix = pb.MatrixRequest(mesh="spot", all_sources=True, all_targets=True,
+                              dtype=pb.MATRIX_DTYPE_FLOAT64)
+    channels, streams = unread_streams(address, lambda s, r: s.MatrixRows(r, timeout=60),
+                                       [matrix, matrix])
+    time.sleep(1.0)  # their first blocks computed, their windows full
+    check_light("(a) unread MatrixRows", *light_queries(stub))
+    results = drain(streams, 40)
+    rows = [sum(c.rows for c in r) if isinstance(r, list) else r for r in results]
+    check("(a) each MatrixRows, read afterwards, delivers every row",
+          rows == [SPOT_VERTICES] * 2, rows)
+    for ch in channels:
+        ch.close()
+
+    # (b) fields of the grid, each larger than a window.
+    field = pb.DistanceFieldRequest(mesh="grid", epsilon=GRID_EPS,
+                                    sources=[pb.SurfacePoint(vertex=0)])
+    channels, streams = unread_streams(address, lambda s, r: s.DistanceField(r, timeout=60),
+                                       [field, field])
+    time.sleep(1.0)
+    check_light("(b) unread DistanceField", *light_queries(stub))
+    results = drain(streams, 30)
+    values = [sum(len(c.values) for c in r) if isinstance(r, list) else r for r in results]
+    check("(b) each DistanceField, read afterwards, delivers every value",
+          values == [GRID * GRID] * 2, values)
+    for ch in channels:
+        ch.close()
+
+
+def case_unread_geometry(address, stub, channel, max_streams):
+    # (c) ten times --max-streams, on a small thread quota: before streams were counted,
+    # these took every gRPC thread.
+    n = 10 * max_streams
+    channels, streams = unread_streams(
+        address, lambda s, r: s.GetGeometry(r, timeout=30),
+        [pb.GetMeshRequest(name="grid")] * n)
+    refused, deadline = [], time.time() + 10
+    # The refused end at once; the admitted wait on their clients.
+    while time.time() < deadline and len(refused) < n - max_streams:
+        refused = [s for s in streams if s.done()]
+        time.sleep(0.05)
+    codes = {s.code() for s in refused}
+    details = [s.details() for s in refused]
+    check("(c) streams past --max-streams are refused at once",
+          len(refused) == n - max_streams, f"{len(refused)} of {n} ended")
+    check("(c) refused RESOURCE_EXHAUSTED", codes == {grpc.StatusCode.RESOURCE_EXHAUSTED}, codes)
+    check("(c) the refusal names --max-streams",
+          details and all("--max-streams" in d for d in details), details[:1])
+    health = health_check(channel)
+    capacity = None
+    try:
+        capacity = health("geodesic.v1.Geodesic/capacity", timeout=3)
+    except grpc.RpcError as e:
+        capacity = e.code().name
+    check("(c) capacity health says NOT_SERVING while every stream slot is taken",
+          capacity == NOT_SERVING, capacity)
+
+    def listing():
+        names = {m.name for m in stub.ListMeshes(pb.ListMeshesRequest(), timeout=3).meshes}
+        assert "grid" in names, names
+        stub.GetMesh(pb.GetMeshRequest(name="spot"), timeout=3)
+    check_light("(c) unread GetGeometry (queries, listing, get)",
+                *light_queries(stub, also=listing))
+    for s in streams:
+        s.cancel()
+    for ch in channels:
+        ch.close()
+
+
+def ended_within(call, start, seconds):
+    """How long after `start` the call ended, or None if it still runs after `seconds`."""
+    while time.monotonic() - start < seconds:
+        if call.done():
+            return time.monotonic() - start
+        time.sleep(0.05)
+    return None
+
+
+def case_idle(address, stub, metrics_port, log, idle):
+    # (d) a first message, then nothing; and an answer nobody reads.
+    payload = b"v 0 0 0\n" * 1000
+    release = threading.Event()
+
+    def one_then_nothing():
+        yield pb.UploadMeshRequest(name="idle", format="obj", total_bytes=len(payload),
+                                   sha256="0" * 64, data=payload[:8])
+        release.wait(60)
+
+    with open(os.path.join(SRC, "data", "spot.obj"), "rb") as f:
+        spot = f.read()
+
+    def steady():
+        # Four parts, each well within --idle-seconds of the last.
+        step = len(spot) // 4 + 1
+        for start in range(0, len(spot), step):
+            if start:
+                time.sleep(idle * 0.6)
+            yield pb.UploadMeshRequest(
+                data=spot[start:start + step],
+                **(dict(name="steady", format="obj", total_bytes=len(spot),
+                        sha256=hashlib.sha256(spot).hexdigest()) if not start else {}))
+
+    channels = []
+    try:
+        start = time.monotonic()
+        idle_call = stub.UploadMesh.future(one_then_nothing(), timeout=60)
+        steady_call = stub.UploadMesh.future(steady(), timeout=60)
+        channels, (unread,) = unread_streams(address, lambda s, r: s.GetGeometry(r, timeout=60),
+                                             [pb.GetMeshRequest(name="grid")])
+        ended = ended_within(idle_call, start, idle + 6)
+        check("(d) an upload idle for --idle-seconds is closed", ended is not None,
+              f"still open after {idle + 6} s")
+        check("(d) ... not before --idle-seconds", ended is None or ended >= idle * 0.9, ended)
+        if ended is not None:
+            check("(d) ... ending the client's call with an error",
+                  idle_call.exception() is not None, idle_call)
+        try:
+            steady_error = None if steady_call.result(timeout=idle * 4 + 10).name == "steady" \
+                else "another mesh"
+        except grpc.RpcError as e:
+            steady_error = f"{e.code().name}: {e.details()}"
+        check("(d) an upload sending steadily, slower than --idle-seconds in all, is registered",
+              steady_error is None, steady_error)
+        deadline = time.time() + 5
+        while time.time() < deadline and metrics(metrics_port).get("geodesicd_streams_open"):
+            time.sleep(0.1)
+        values = metrics(metrics_port)
+        check("(d) its stream slot is given back", values.get("geodesicd_streams_open") == 0,
+              values.get("geodesicd_streams_open"))
+        check("(d) both, and only they, counted as closed for idling",
+              values.get("geodesicd_streams_idle_closed_total") == 2,
+              values.get("geodesicd_streams_idle_closed_total"))
+        # Its client sees the end once it reads what arrived before it.
+        (geometry,) = drain([unread], 10)
+        check("(d) a GetGeometry nobody reads is closed after --idle-seconds",
+              isinstance(geometry, str) and geometry.startswith("CANCELLED"),
+              geometry if isinstance(geometry, str) else f"{len(geometry)} chunks, no error")
+        with open(log) as f:
+            check("(d) logged", "stream_idle_closed" in f.read())
+    finally:
+        release.set()
+        for ch in channels:
+            ch.close()
+
+
+def main():
+    started = time.monotonic()
+    # (a), (b): two query threads, as on a two-core machine by default.
+    daemon, ports, _ = serve("queries", "--query-threads", "2")
+    address = f"127.0.0.1:{ports['grpc']}"
+    with grpc.insecure_channel(address) as channel:
+        stub = rpc.GeodesicStub(channel)
+        if check("spot's graph ready", wait_ready(stub, "spot")) and \
+                check("the grid uploaded, its graph ready", upload_grid(address, stub)):
+            case_unread_queries(address, stub)
+    daemon_ports.stop(daemon)
+
+    # (c): a small thread quota (--max-inflight + --max-streams + the control threads).
+    max_streams = 4
+    daemon, ports, _ = serve("geometry", "--query-threads", "2", "--max-inflight", "4",
+                             "--max-streams", str(max_streams))
+    address = f"127.0.0.1:{ports['grpc']}"
+    with grpc.insecure_channel(address) as channel:
+        stub = rpc.GeodesicStub(channel)
+        if check("(c) spot's graph ready", wait_ready(stub, "spot")) and \
+                check("(c) the grid uploaded", upload_grid(address, stub)):
+            case_unread_geometry(address, stub, channel, max_streams)
+    daemon_ports.stop(daemon)
+
+    # (d): a short --idle-seconds.
+    idle = 2
+    daemon, ports, log = serve("idle", "--no-sample", "--idle-seconds", str(idle))
+    address = f"127.0.0.1:{ports['grpc']}"
+    with grpc.insecure_channel(address) as channel:
+        stub = rpc.GeodesicStub(channel)
+        if check("(d) the grid uploaded", upload_grid(address, stub, graph=False)):
+            case_idle(address, stub, ports["metrics"], log, idle)
+    daemon_ports.stop(daemon)
+    print(f"{time.monotonic() - started:.1f} s")
+
+
+if __name__ == "__main__":
+    try:
+        main()
+    except RuntimeError as e:  # a daemon that would not start
+        check("daemon started", False, str(e)[-2000:])
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    check.finish()
