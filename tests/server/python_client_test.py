@@ -560,6 +560,8 @@ class ClientTest(unittest.TestCase):
                     self.assertIn(part, message)
                 self.assertEqual(c.graph("spot", epsilon=0.01, pseudo_vertices=True).state,
                                  GraphState.FAILED)
+                # Asked for: a query starts only the default epsilon's graph.
+                c.request_graph("spot", epsilon=0.01, wait=True)
                 d = c.distances("spot", [10], [20], epsilon=0.01)
                 self.assertTrue(np.isfinite(d).all() and d[0] > 0, d)
         finally:
