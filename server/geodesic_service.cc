@@ -1048,9 +1048,9 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
       return absl::OkStatus();
     };
     if (req->exact()) {
-      // Exact rows go a few at a time, each batch a slice after which a
-      // waiting client's query may run.
-      sink.batch_rows = std::max(1u, std::thread::hardware_concurrency());
+      // Exact rows go a lane group per core at a time, each batch a slice
+      // after which a waiting client's query may run.
+      sink.batch_rows = size_t{kFieldLanes} * std::max(1u, std::thread::hardware_concurrency());
       sink.batch_done = [&](size_t) {
         return NextSlice(ctx, run, slice_start, 2 * answer, scratch);
       };
