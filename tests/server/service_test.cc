@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -31,10 +32,13 @@ using ::testing::HasSubstr;
 
 class ServiceTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  // Tests change limits_ between TearDown() and SetUp(), which keeps them.
+  ServiceTest() {
     limits_.field_chunk = 1000;  // spot's 2,930 values stream in 3 chunks
     limits_.max_pairs = 50;
     limits_.log_requests = false;
+  }
+  void SetUp() override {
     registry_ = std::make_unique<MeshRegistry>(std::string(GEODESIC_SOURCE_DIR) + "/data");
     GraphCache::Options options;
     options.build_threads = 2;
@@ -689,6 +693,44 @@ TEST_F(ServiceTest, ExactPairsAndSamplesPastTheirCapsAreRefusedNamingTheFlag) {
   EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
   EXPECT_THAT(s.error_message(), HasSubstr("--max-samples"));
   EXPECT_TRUE(sample(3).ok());
+}
+
+TEST_F(ServiceTest, ALightQueryRunsBetweenTheSlicesOfAnotherClientsExactBatch) {
+  TearDown();
+  limits_.query_threads = 1;
+  limits_.max_pairs = limits_.max_exact_pairs;
+  SetUp();
+  ReadySpot(1e-2);
+  auto call = [&](const std::string& token, bool exact, int pairs) {
+    grpc::ClientContext ctx;
+    ctx.AddMetadata("authorization", "Bearer " + token);
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    v1::DistanceRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(1e-2);
+    req.set_exact(exact);
+    for (int i = 0; i < pairs; ++i) {
+      *req.add_pairs()->mutable_from() = Vertex(i * 7);
+      *req.mutable_pairs(i)->mutable_to() = Vertex((i * 7 + 1465) % 2930);
+    }
+    v1::DistanceResponse resp;
+    return stub_->Distance(&ctx, req, &resp);
+  };
+  absl::Duration heavy_took;
+  std::thread heavy([&] {
+    const absl::Time start = absl::Now();
+    const grpc::Status s = call("heavy", true, limits_.max_exact_pairs);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    heavy_took = absl::Now() - start;
+  });
+  while (service_->admission().running() == 0) absl::SleepFor(absl::Milliseconds(1));
+  // The one slot is the heavy batch's: the light query waits for a slice's
+  // end, not for the batch's.
+  const absl::Time start = absl::Now();
+  EXPECT_TRUE(call("light", false, 1).ok());
+  const absl::Duration light_took = absl::Now() - start;
+  heavy.join();
+  EXPECT_LT(light_took, heavy_took / 2) << "heavy " << heavy_took;
 }
 
 TEST_F(ServiceTest, ANegativeOrNanMaxDistanceIsRefused) {
