@@ -91,8 +91,9 @@ class Admission {
 
   // A query's place among the admitted: RESOURCE_EXHAUSTED "server
   // overloaded: ..." when max_inflight are admitted already, or the client's
-  // share of them.
-  absl::StatusOr<Ticket> AdmitQuery(const std::string& client = "");
+  // share of them. No default client: every caller must say whose query it
+  // is, or all its callers' queries would share one client's share.
+  absl::StatusOr<Ticket> AdmitQuery(const std::string& client);
   // A stream's place: RESOURCE_EXHAUSTED when max_streams are open.
   absl::StatusOr<Ticket> OpenStream();
   // An admitted query's turn to run: waits for one of the query_threads (the

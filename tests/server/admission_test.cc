@@ -57,7 +57,7 @@ TEST(AdmissionTest, QueriesPastMaxInflightAreRefusedWithARetryHint) {
 TEST(AdmissionTest, CountersReturnToZeroWhenTicketsAreGivenBack) {
   Admission admission(Limits(4, 2, 2));
   {
-    auto q = admission.AdmitQuery();
+    auto q = admission.AdmitQuery("a");
     auto r = admission.Run(100, 50, Soon());
     auto s = admission.OpenStream();
     ASSERT_TRUE(q.ok() && r.ok() && s.ok());
@@ -81,7 +81,7 @@ TEST(AdmissionTest, CountersReturnToZeroWhenTicketsAreGivenBack) {
 
 TEST(AdmissionTest, StreamsAreBoundedApartFromQueries) {
   Admission admission(Limits(1, 1, 1));
-  auto q = admission.AdmitQuery();
+  auto q = admission.AdmitQuery("a");
   auto s = admission.OpenStream();
   ASSERT_TRUE(q.ok() && s.ok());
   auto t = admission.OpenStream();
