@@ -21,6 +21,7 @@ Admission::Ticket& Admission::Ticket::operator=(Ticket&& other) noexcept {
     Release();
     owner_ = std::exchange(other.owner_, nullptr);
     kind_ = other.kind_;
+    client_ = std::move(other.client_);
     answer_ = other.answer_;
     scratch_ = other.scratch_;
     start_ = other.start_;
@@ -40,17 +41,31 @@ absl::Status Admission::Refuse(const std::string& what, int64_t retry_after_ms) 
       absl::StrFormat("server overloaded: %s; retry after %d ms", what, retry_after_ms));
 }
 
-absl::StatusOr<Admission::Ticket> Admission::AdmitQuery() {
+int Admission::InflightPerClient() const {
+  if (options_.max_inflight_per_client > 0) return options_.max_inflight_per_client;
+  return std::max(1, options_.max_inflight / 2);
+}
+
+absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& client) {
+  std::string what;
   {
     absl::MutexLock lock(&mu_);
-    if (admitted_ < options_.max_inflight) {
+    Client& c = clients_[client];
+    if (admitted_ < options_.max_inflight && c.admitted < InflightPerClient()) {
       ++admitted_;
-      return Ticket(this, Kind::kQuery, 0, 0);
+      ++c.admitted;
+      return Ticket(this, Kind::kQuery, client, 0, 0);
     }
     last_refusal_ = absl::Now();
+    what = admitted_ >= options_.max_inflight
+               ? absl::StrFormat("%d queries admitted (--max-inflight)", options_.max_inflight)
+               : absl::StrFormat(
+                     "this client has %d queries admitted, its share of them "
+                     "(--max-inflight-per-client)",
+                     c.admitted);
+    ForgetIfIdleLocked(client);
   }
-  return Refuse(absl::StrFormat("%d queries admitted (--max-inflight)", options_.max_inflight),
-                RetryAfterMs());
+  return Refuse(what, RetryAfterMs());
 }
 
 absl::StatusOr<Admission::Ticket> Admission::OpenStream() {
@@ -58,7 +73,7 @@ absl::StatusOr<Admission::Ticket> Admission::OpenStream() {
     absl::MutexLock lock(&mu_);
     if (streams_ < options_.max_streams) {
       ++streams_;
-      return Ticket(this, Kind::kStream, 0, 0);
+      return Ticket(this, Kind::kStream, "", 0, 0);
     }
     last_refusal_ = absl::Now();
   }
@@ -73,9 +88,50 @@ uint64_t Admission::UsedLocked() const {
   return held + idle_scratch + reserved_answer_ + reserved_scratch_;
 }
 
+uint64_t Admission::NextLocked() const {
+  if (turns_.empty()) return 0;
+  int active = 0;
+  for (const auto& [key, c] : clients_) active += c.running > 0 || !c.waiting.empty();
+  const int threads = std::max(1, options_.query_threads);
+  const int share = std::max(1, (threads + active - 1) / std::max(1, active));
+  for (const std::string& key : turns_) {
+    const Client& c = clients_.at(key);
+    if (c.running < share) return c.waiting.front();
+  }
+  return clients_.at(turns_.front()).waiting.front();
+}
+
+void Admission::LeaveQueueLocked(const std::string& client, uint64_t number) {
+  Client& c = clients_[client];
+  c.waiting.erase(std::find(c.waiting.begin(), c.waiting.end(), number));
+  --waiting_;
+  auto turn = std::find(turns_.begin(), turns_.end(), client);
+  if (turn != turns_.end()) turns_.erase(turn);
+  // A client keeps its turns for as long as it has queries waiting, and
+  // goes behind the others once served.
+  if (!c.waiting.empty()) turns_.push_back(client);
+}
+
+void Admission::ForgetIfIdleLocked(const std::string& client) {
+  auto it = clients_.find(client);
+  if (it != clients_.end() && it->second.admitted == 0 && it->second.running == 0 &&
+      it->second.waiting.empty()) {
+    clients_.erase(it);
+  }
+}
+
+bool Admission::OthersWaiting(const std::string& client) const {
+  absl::MutexLock lock(&mu_);
+  for (const std::string& key : turns_) {
+    if (key != client) return true;
+  }
+  return false;
+}
+
 absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t scratch_bytes,
                                                  absl::Time deadline,
-                                                 const std::function<bool()>& cancelled) {
+                                                 const std::function<bool()>& cancelled,
+                                                 const std::string& client) {
   const uint64_t want = answer_bytes + scratch_bytes;
   const uint64_t limit = options_.memory_limit;
   absl::MutexLock lock(&mu_);
@@ -90,26 +146,31 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
     }
   }
   const uint64_t number = next_number_++;
-  queue_.push_back(number);
+  Client& self = clients_[client];
+  self.waiting.push_back(number);
+  ++waiting_;
+  if (std::find(turns_.begin(), turns_.end(), client) == turns_.end()) turns_.push_back(client);
   auto leave = [&] {
-    queue_.erase(std::find(queue_.begin(), queue_.end(), number));
+    LeaveQueueLocked(client, number);
+    ForgetIfIdleLocked(client);
     changed_.SignalAll();
   };
   while (true) {
-    // Only the front asks for memory: the held() callbacks take the cache's
-    // lock, and a release wakes every waiter. With nothing running, what is
-    // held can only shrink by evictions the cache makes on its own: the
-    // front query runs rather than wait on them (the limit is then passed by
-    // one query at most).
-    if (queue_.front() == number && running_ < options_.query_threads &&
+    // Only the query whose turn it is asks for memory: the held() callbacks
+    // take the cache's lock, and a release wakes every waiter. With nothing
+    // running, what is held can only shrink by evictions the cache makes on
+    // its own: that query runs rather than wait on them (the limit is then
+    // passed by one query at most).
+    if (running_ < options_.query_threads && NextLocked() == number &&
         (limit == 0 || running_ == 0 || UsedLocked() + want <= limit)) {
-      queue_.pop_front();
+      LeaveQueueLocked(client, number);
       ++running_;
+      ++clients_[client].running;
       reserved_answer_ += answer_bytes;
       reserved_scratch_ += scratch_bytes;
       // The next in line may fit beside this one.
       changed_.SignalAll();
-      Ticket t(this, Kind::kRun, answer_bytes, scratch_bytes);
+      Ticket t(this, Kind::kRun, client, answer_bytes, scratch_bytes);
       t.start_ = absl::Now();
       return t;
     }
@@ -123,7 +184,7 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
       last_refusal_ = now;
       return Refuse(absl::StrFormat("the call's deadline came while %d queries were running "
                                     "and %d waiting",
-                                    running_, queue_.size()),
+                                    running_, waiting_),
                     RetryAfterMsLocked());
     }
     changed_.WaitWithDeadline(&mu_, std::min(deadline, now + kCancelPoll));
@@ -139,7 +200,7 @@ Admission::Ticket Admission::KeepAnswer(Ticket run) {
     reserved_answer_ += answer;
   }
   run.Release();
-  return Ticket(this, Kind::kAnswer, answer, 0);
+  return Ticket(this, Kind::kAnswer, run.client_, answer, 0);
 }
 
 void Admission::Release(const Ticket& t) {
@@ -147,6 +208,8 @@ void Admission::Release(const Ticket& t) {
   switch (t.kind_) {
     case Kind::kQuery:
       --admitted_;
+      --clients_[t.client_].admitted;
+      ForgetIfIdleLocked(t.client_);
       break;
     case Kind::kStream:
       --streams_;
@@ -157,6 +220,8 @@ void Admission::Release(const Ticket& t) {
       break;
     case Kind::kRun: {
       --running_;
+      --clients_[t.client_].running;
+      ForgetIfIdleLocked(t.client_);
       reserved_answer_ -= t.answer_;
       reserved_scratch_ -= t.scratch_;
       const double seconds = absl::ToDoubleSeconds(absl::Now() - t.start_);
@@ -191,7 +256,7 @@ int Admission::running() const {
 
 int Admission::waiting() const {
   absl::MutexLock lock(&mu_);
-  return static_cast<int>(queue_.size());
+  return waiting_;
 }
 
 int Admission::streams() const {

@@ -5,10 +5,19 @@
 // Overload is an answer, not a failure (Envoy's and nginx's habit): a query
 // past --max-inflight, or a stream past --max-streams, is refused at once with
 // RESOURCE_EXHAUSTED and a retry hint, while every query admitted is answered.
-// Admitted queries run at most `query_threads` at a time, in the order they
-// asked, each with its answer and scratch bytes reserved against the memory
-// limit, so that CPU and memory stay bounded however many clients wait. Calls
-// that are neither (health, listing, get, cancel, unload) pass untouched.
+// Admitted queries run at most `query_threads` at a time, each with its
+// answer and scratch bytes reserved against the memory limit, so that CPU and
+// memory stay bounded however many clients wait. Calls that are neither
+// (health, listing, get, cancel, unload) pass untouched.
+//
+// Fair share: queries are keyed by client (the service passes the bearer
+// token, else the peer's address). Each client's waiting queries run in the
+// order it sent them, and free slots go to the waiting clients in turn, so
+// one client's heavy calls do not hold up another's light ones: while other
+// clients wait, a client runs at most its share of the slots, and it is
+// admitted at most max_inflight_per_client queries at any time. Long calls
+// give their slot back between slices and ask again (Run), which puts them
+// behind the other clients' turns.
 #ifndef GEODESIC_SERVER_ADMISSION_H_
 #define GEODESIC_SERVER_ADMISSION_H_
 
@@ -16,6 +25,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <string>
 
 #include "absl/base/thread_annotations.h"
@@ -29,6 +39,9 @@ struct AdmissionOptions {
   int max_inflight = 64;  // queries admitted, waiting or running
   int query_threads = 1;  // admitted queries running at once
   int max_streams = 32;   // streams open at once (watches, uploads)
+  // Queries one client may have admitted at once (0: half of max_inflight,
+  // at least 1), so that one client's flood leaves room for the others.
+  int max_inflight_per_client = 0;
   // Bytes the reservations of running queries must fit in, beside `held`;
   // 0: no memory reservation.
   uint64_t memory_limit = 0;
@@ -59,10 +72,15 @@ class Admission {
 
    private:
     friend class Admission;
-    Ticket(Admission* owner, Kind kind, uint64_t answer, uint64_t scratch)
-        : owner_(owner), kind_(kind), answer_(answer), scratch_(scratch) {}
+    Ticket(Admission* owner, Kind kind, std::string client, uint64_t answer, uint64_t scratch)
+        : owner_(owner),
+          kind_(kind),
+          client_(std::move(client)),
+          answer_(answer),
+          scratch_(scratch) {}
     Admission* owner_ = nullptr;
     Kind kind_ = Kind::kQuery;
+    std::string client_;
     uint64_t answer_ = 0, scratch_ = 0;
     absl::Time start_;
   };
@@ -72,19 +90,25 @@ class Admission {
   Admission& operator=(const Admission&) = delete;
 
   // A query's place among the admitted: RESOURCE_EXHAUSTED "server
-  // overloaded: ..." when max_inflight are admitted already.
-  absl::StatusOr<Ticket> AdmitQuery();
+  // overloaded: ..." when max_inflight are admitted already, or the client's
+  // share of them.
+  absl::StatusOr<Ticket> AdmitQuery(const std::string& client = "");
   // A stream's place: RESOURCE_EXHAUSTED when max_streams are open.
   absl::StatusOr<Ticket> OpenStream();
-  // An admitted query's turn to run: waits, first come first served, for one
-  // of the query_threads and for `answer_bytes + scratch_bytes` of memory
+  // An admitted query's turn to run: waits for one of the query_threads (the
+  // client's turn among the waiting clients, and its own queries first come
+  // first served) and for `answer_bytes + scratch_bytes` of memory
   // (with nothing running, the front query runs whatever is held, so that a
   // cache filling the limit slows queries to one at a time, not to none).
   // RESOURCE_EXHAUSTED at once if that much can never fit the limit, or when
   // `deadline` comes first (so the client reads a clean overload, not a
   // deadline); CANCELLED when `cancelled` says so.
   absl::StatusOr<Ticket> Run(uint64_t answer_bytes, uint64_t scratch_bytes, absl::Time deadline,
-                             const std::function<bool()>& cancelled = {});
+                             const std::function<bool()>& cancelled = {},
+                             const std::string& client = "");
+  // Whether a query of a client other than `client` waits to run: a slice
+  // of long work then gives its slot back.
+  bool OthersWaiting(const std::string& client) const;
 
   // Gives back `run`'s query thread but keeps its answer bytes reserved: for
   // a stream holding a computed block while it waits for its client, which
@@ -111,6 +135,16 @@ class Admission {
   uint64_t UsedLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
+  int InflightPerClient() const;
+  // The waiting query whose turn it is: the oldest of the first client in
+  // turn that runs less than its share of the slots (the first client in
+  // turn if all run their share); 0 if none waits.
+  uint64_t NextLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Takes query `number` of `client` out of the waiting ones.
+  void LeaveQueueLocked(const std::string& client, uint64_t number)
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Forgets a client that has nothing admitted, running or waiting.
+  void ForgetIfIdleLocked(const std::string& client) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
 
   const AdmissionOptions options_;
   mutable absl::Mutex mu_;
@@ -120,9 +154,16 @@ class Admission {
   int streams_ ABSL_GUARDED_BY(mu_) = 0;
   uint64_t reserved_answer_ ABSL_GUARDED_BY(mu_) = 0;
   uint64_t reserved_scratch_ ABSL_GUARDED_BY(mu_) = 0;
-  // Waiting queries in arrival order, by number; the front runs next.
-  std::deque<uint64_t> queue_ ABSL_GUARDED_BY(mu_);
-  uint64_t next_number_ ABSL_GUARDED_BY(mu_) = 0;
+  struct Client {
+    int admitted = 0;
+    int running = 0;
+    std::deque<uint64_t> waiting;  // its queries' numbers, in arrival order
+  };
+  std::map<std::string, Client> clients_ ABSL_GUARDED_BY(mu_);
+  // The clients with queries waiting, in the order their turns come.
+  std::deque<std::string> turns_ ABSL_GUARDED_BY(mu_);
+  int waiting_ ABSL_GUARDED_BY(mu_) = 0;
+  uint64_t next_number_ ABSL_GUARDED_BY(mu_) = 1;
   // Mean seconds a query runs (exponentially weighted), for the retry hint.
   double mean_run_seconds_ ABSL_GUARDED_BY(mu_) = 0.01;
   absl::Time last_refusal_ ABSL_GUARDED_BY(mu_) = absl::InfinitePast();

@@ -57,6 +57,31 @@ bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
   return false;
 }
 
+// Who a call is for fair shares (Admission, the build budget): its bearer
+// token when it sends one, else its peer's address without the port, which
+// changes with every connection.
+std::string ClientKey(const grpc::ServerContext& ctx) {
+  constexpr std::string_view kPrefix = "Bearer ";
+  const auto& metadata = ctx.client_metadata();
+  auto [begin, end] = metadata.equal_range("authorization");
+  for (auto it = begin; it != end; ++it) {
+    std::string_view value(it->second.data(), it->second.size());
+    if (value.starts_with(kPrefix)) return "token " + std::string(value.substr(kPrefix.size()));
+  }
+  std::string peer = ctx.peer();
+  const size_t colon = peer.rfind(':');
+  if (colon != std::string::npos && colon + 1 < peer.size() &&
+      peer.find_first_not_of("0123456789", colon + 1) == std::string::npos) {
+    peer.resize(colon);
+  }
+  return "peer " + peer;
+}
+
+// How long a slice of a long call (exact pairs, sampling) holds its run
+// slot before it lets a waiting client's query run: short beside the second
+// a light query may wait, long beside the cost of queueing again.
+constexpr absl::Duration kSlice = absl::Milliseconds(50);
+
 // Streams hold a thread for as long as the client keeps them open: they are
 // bounded on their own (--max-streams), apart from the control calls, also
 // when they are queries too.
@@ -238,6 +263,7 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
                                ? limits.query_threads
                                : std::max(1, static_cast<int>(std::thread::hardware_concurrency())),
           .max_streams = limits.max_streams,
+          .max_inflight_per_client = limits.max_inflight_per_client,
           .memory_limit = graphs->memory_limit(),
           .held =
               [meshes, graphs] {
@@ -259,7 +285,19 @@ absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContex
   // A refusal sent a little before the deadline reaches the client as an
   // overload, with its retry hint, not as DEADLINE_EXCEEDED.
   const absl::Time deadline = absl::FromChrono(ctx->deadline()) - absl::Milliseconds(20);
-  return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx));
+  return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx), ClientKey(*ctx));
+}
+
+absl::Status GeodesicService::NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run,
+                                        absl::Time& slice_start, uint64_t answer_bytes,
+                                        uint64_t scratch_bytes) {
+  if (absl::Now() - slice_start < kSlice || !admission_.OthersWaiting(ClientKey(*ctx))) {
+    return absl::OkStatus();
+  }
+  run.Release();
+  ASSIGN_OR_RETURN(run, StartQuery(ctx, answer_bytes, scratch_bytes));
+  slice_start = absl::Now();
+  return absl::OkStatus();
 }
 
 absl::Status GeodesicService::CheckMatrixLimits(const v1::MatrixRequest& req, bool streamed) {
@@ -366,15 +404,75 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> GeodesicService::FindMesh(
   return m;
 }
 
+absl::Status GeodesicService::CheckBuildBudget(const GraphKey& key, const RegisteredMesh& mesh,
+                                               const std::string& client) {
+  auto estimate = [&](const DggParams& params) {
+    const DggBuildEstimate e = graphs_->Estimate(mesh, params);
+    return absl::StrFormat("estimated at %u bytes and %.0f s to build", e.bytes, e.seconds);
+  };
+  if (key.max_error > 0 && key.max_error < limits_.min_max_error) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "max_error %g is below %g, the smallest bound this server builds graphs for "
+        "(--min-max-error): its first build alone is %s",
+        key.max_error, limits_.min_max_error, estimate(key.params)));
+  }
+  if (key.max_error == 0 && key.params.epsilon < limits_.min_epsilon) {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "epsilon %g is below %g, the smallest this server builds graphs at (--min-epsilon): "
+        "the graph of mesh '%s' is %s",
+        key.params.epsilon, limits_.min_epsilon, key.mesh, estimate(key.params)));
+  }
+  int queued = 0, mine = 0;
+  for (const GraphStatus& g : graphs_->List()) {
+    if (!InProgress(g.state)) continue;
+    ++queued;
+    const GraphKey other{g.mesh, g.params, g.max_error};
+    // Being made, a certified graph still lists its key's epsilon.
+    auto by = started_by_.find(other);
+    mine += by != started_by_.end() && by->second == client;
+  }
+  if (queued >= limits_.max_queued_builds) {
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "%d graphs are queued or being made, the most this server takes (--max-queued-builds): "
+        "retry once one is ready, or follow them with WatchGraph",
+        queued));
+  }
+  if (mine >= limits_.max_queued_builds_per_client) {
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "this client has %d graphs queued or being made, its share of the build queue "
+        "(--max-queued-builds-per-client): retry once one of them is ready",
+        mine));
+  }
+  return absl::OkStatus();
+}
+
 absl::StatusOr<GraphStatus> GeodesicService::StartGraph(
-    const GraphKey& key, const std::shared_ptr<const RegisteredMesh>& mesh) {
+    const GraphKey& key, const std::shared_ptr<const RegisteredMesh>& mesh,
+    const std::string& client) {
+  absl::MutexLock lock(&builds_mu_);
+  // A graph being made or made already is joined, not built again: only a
+  // new build (never requested, failed, cancelled) counts against the budget.
+  auto known = graphs_->Get(key);
+  const bool joins =
+      known.ok() && (InProgress(known->state) || known->state == GraphState::kReady ||
+                     known->state == GraphState::kEvicted);
+  if (!joins) RETURN_IF_ERROR(CheckBuildBudget(key, *mesh, client));
   // Refused at once, before the catalog records it: a graph that cannot fit
   // the limits would otherwise hold a build worker for nothing.
   RETURN_IF_ERROR(graphs_->Admit(*mesh, key.params, key.max_error).status());
   if (catalog_) {
     RETURN_IF_ERROR(catalog_->RecordGraph(key.mesh, key.params, key.max_error).status());
   }
-  return graphs_->Request(mesh, key.params, key.max_error);
+  GraphStatus started = graphs_->Request(mesh, key.params, key.max_error);
+  if (!joins) {
+    // Graphs no longer being made no longer count: forget them here.
+    std::erase_if(started_by_, [&](const auto& entry) {
+      auto g = graphs_->Get(entry.first);
+      return !g.ok() || !InProgress(g->state);
+    });
+    started_by_[key] = client;
+  }
+  return started;
 }
 
 absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEngine(
@@ -394,13 +492,27 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
     // Never requested: a query starts the graph as RequestGraph would
     // (unless the operator preloads graphs and wants no builds on demand).
     if (!limits_.build_on_query) return engine;
+    const bool default_graph = key.max_error == 0 && !key.params.pseudo_vertices &&
+                               key.params.epsilon == limits_.default_epsilon;
+    if (!default_graph && !limits_.auto_build_any_epsilon) {
+      return absl::FailedPreconditionError(absl::StrFormat(
+          "the graph of mesh '%s' %s was never requested: queries start a graph only at the "
+          "server's default epsilon %g without pseudo vertices (--auto-build-any-epsilon allows "
+          "any); ask for it with RequestGraph first",
+          key.mesh,
+          key.max_error > 0
+              ? absl::StrFormat("certified to max error %g", key.max_error)
+              : absl::StrFormat("at epsilon %g%s", key.params.epsilon,
+                                key.params.pseudo_vertices ? " with pseudo vertices" : ""),
+          limits_.default_epsilon));
+    }
     NameLocks::Hold hold(names_, key.mesh, deadline);
     if (!hold.held()) return NameBusy(key.mesh);
     if (!graphs_->Get(key).ok()) {
       // Found again under the name: the mesh may have been unloaded or
       // registered anew while this call waited for it.
       ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> mesh, FindMesh(key.mesh));
-      RETURN_IF_ERROR(StartGraph(key, mesh).status());
+      RETURN_IF_ERROR(StartGraph(key, mesh, ClientKey(*ctx)).status());
     }
   }
   // Queued, built, mapped (an evicted graph is mapped again by Acquire):
@@ -436,7 +548,7 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
     status = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
                           "missing or wrong bearer token: send metadata "
                           "'authorization: Bearer <token>'");
-  } else if (is_query && !(query = admission_.AdmitQuery()).ok()) {
+  } else if (is_query && !(query = admission_.AdmitQuery(ClientKey(*ctx))).ok()) {
     status = ToGrpc(query.status());
   } else if (IsStream(method) && !(stream = admission_.OpenStream()).ok()) {
     status = ToGrpc(stream.status());
@@ -646,7 +758,7 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto m = FindMesh(key.mesh);
     if (!m.ok()) return m.status();
-    ASSIGN_OR_RETURN(const GraphStatus started, StartGraph(key, *m));
+    ASSIGN_OR_RETURN(const GraphStatus started, StartGraph(key, *m, ClientKey(*ctx)));
     ToProto(started, resp);
     return absl::OkStatus();
   });
@@ -723,7 +835,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
   // A query, admitted in the body: the stream gives its place back once the
   // field is computed.
   return Handle("DistanceField", ctx, graph.mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery());
+    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery(ClientKey(*ctx)));
     if (req->sources_size() == 0) return absl::InvalidArgumentError("a field needs a source");
     if (req->sources_size() > limits_.max_sources) {
       return absl::ResourceExhaustedError(absl::StrFormat(
@@ -740,6 +852,10 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
         req->method() == "dijkstra" ? FieldMethod::kDijkstra : FieldMethod::kLabelCorrecting;
     if (!req->method().empty() && req->method() != "lc" && req->method() != "dijkstra") {
       return absl::InvalidArgumentError("method must be \"lc\" or \"dijkstra\"");
+    }
+    if (!(req->max_distance() >= 0)) {
+      return absl::InvalidArgumentError(absl::StrFormat(
+          "max_distance %g is not a distance >= 0 (0: no limit)", req->max_distance()));
     }
     if (req->max_distance() > 0) options.max_distance = req->max_distance();
     options.nearest_source = req->nearest_source();
@@ -816,6 +932,12 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
       return absl::ResourceExhaustedError(absl::StrFormat(
           "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
     }
+    if (req->exact() && req->pairs_size() > limits_.max_exact_pairs) {
+      return absl::ResourceExhaustedError(absl::StrFormat(
+          "%d exact pairs exceed the limit of %d exact pairs per call (--max-exact-pairs): "
+          "split the batch",
+          req->pairs_size(), limits_.max_exact_pairs));
+    }
     const uint64_t pairs = req->pairs_size();
     RETURN_IF_ERROR(CheckAnswerSize(absl::StrFormat("%u pairs", pairs),
                                     pairs * kPairResultBytes + kAnswerOverhead));
@@ -840,9 +962,9 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     const uint64_t lanes = std::clamp<uint64_t>(pairs, 1, std::thread::hardware_concurrency());
     // An exact pair may hold up to max_exact_bytes of windows on each lane.
     const uint64_t exact_bytes = req->exact() ? limits_.max_exact_bytes : 0;
-    ASSIGN_OR_RETURN(
-        Admission::Ticket run,
-        StartQuery(ctx, 2 * answer, lanes * (PairScratchBytes(**engine) + exact_bytes)));
+    const uint64_t scratch = lanes * (PairScratchBytes(**engine) + exact_bytes);
+    ASSIGN_OR_RETURN(Admission::Ticket run, StartQuery(ctx, 2 * answer, scratch));
+    absl::Time slice_start = absl::Now();
     uint64_t answer_bytes = kAnswerOverhead;
     FillEcho(Built(key, **engine), req->exact() ? "exact" : "bidirectional-astar",
              resp->mutable_echo());
@@ -853,8 +975,11 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     options.cancelled = Cancelled(ctx);
     // Paths are as long as they are: with them the pairs go in blocks, and
     // the answer is refused as soon as it cannot be sent, not after them all.
-    const size_t block = req->with_path() ? 8 * lanes : from.size();
+    // Exact pairs go a pair per lane at a time, each block a slice after
+    // which a waiting client's query may run.
+    const size_t block = req->exact() ? lanes : req->with_path() ? 8 * lanes : from.size();
     for (size_t begin = 0; begin < from.size(); begin += block) {
+      if (begin > 0) RETURN_IF_ERROR(NextSlice(ctx, run, slice_start, 2 * answer, scratch));
       const size_t count = std::min(block, from.size() - begin);
       ASSIGN_OR_RETURN(
           std::vector<PairResult> results,
@@ -939,30 +1064,41 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
         absl::StrFormat("a %u x %u matrix", sources.size(), targets.size()), answer));
     // The solver's distances, then the reply beside them and, once the
     // handler returns, the reply's serialized copy.
-    ASSIGN_OR_RETURN(Admission::Ticket run,
-                     StartQuery(ctx, 2 * answer, MatrixScratchBytes(q, *req)));
+    const uint64_t scratch = MatrixScratchBytes(q, *req);
+    ASSIGN_OR_RETURN(Admission::Ticket run, StartQuery(ctx, 2 * answer, scratch));
+    absl::Time slice_start = absl::Now();
     // One fan-restricted field per row (the "lc" solver), joined at the
     // targets as Distance joins its points; "exact" when rows are made exact.
     FillEcho(Built(key, *q.engine), req->exact() ? "exact" : "lc", resp->mutable_echo());
     resp->set_rows(sources.size());
     resp->set_cols(targets.size());
-    if (value_bytes == 0) {
-      auto m = q.engine->Matrix(sources, targets, MatrixOptionsOf(*req, ctx));
-      if (!m.ok()) return m.status();
-      for (double d : *m) resp->add_distances(d);
-      return absl::OkStatus();
-    }
-    // Rows go straight into the reply's bytes, each where it belongs.
-    resp->set_dtype(req->dtype());
-    std::string* packed = resp->mutable_packed();
-    packed->resize(sources.size() * targets.size() * value_bytes);
-    char* base = packed->data();
+    // Rows go straight into the reply's values or bytes, each where it
+    // belongs.
+    char* base = nullptr;
     const bool narrow = req->dtype() == v1::MATRIX_DTYPE_FLOAT32;
+    const size_t row_bytes = targets.size() * (value_bytes > 0 ? value_bytes : sizeof(double));
+    if (value_bytes == 0) {
+      resp->mutable_distances()->Resize(static_cast<int>(sources.size() * targets.size()), 0.0);
+      base = reinterpret_cast<char*>(resp->mutable_distances()->mutable_data());
+    } else {
+      resp->set_dtype(req->dtype());
+      std::string* packed = resp->mutable_packed();
+      packed->resize(sources.size() * targets.size() * value_bytes);
+      base = packed->data();
+    }
     MatrixRowSink sink;
     sink.row = [&](size_t i, absl::Span<const double> row) {
-      PackRow(row, narrow, base + i * targets.size() * value_bytes);
+      PackRow(row, narrow, base + i * row_bytes);
       return absl::OkStatus();
     };
+    if (req->exact()) {
+      // Exact rows go a lane group per core at a time, each batch a slice
+      // after which a waiting client's query may run.
+      sink.batch_rows = size_t{kFieldLanes} * std::max(1u, std::thread::hardware_concurrency());
+      sink.batch_done = [&](size_t) {
+        return NextSlice(ctx, run, slice_start, 2 * answer, scratch);
+      };
+    }
     return q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink);
   });
 }
@@ -973,7 +1109,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
   // A query, admitted in the body: the stream gives its place back once its
   // first block is computed.
   return Handle("MatrixRows", ctx, graph.mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery());
+    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery(ClientKey(*ctx)));
     RETURN_IF_ERROR(CheckMatrixLimits(*req, /*streamed=*/true));
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
     const GraphKey& key = q.key;
@@ -1115,21 +1251,24 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
                                            v1::SamplePointsResponse* resp) {
   const v1::GraphSelector graph = SelectorOf(*req);
   return Handle("SamplePoints", ctx, graph.mesh(), true, [&]() -> absl::Status {
-    // Each point costs a field: a count is bounded like a field's sources.
-    if (req->count() > static_cast<uint32_t>(limits_.max_pairs)) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "%u points exceed the limit of %d per call", req->count(), limits_.max_pairs));
+    // Each point costs a field.
+    if (req->count() > static_cast<uint32_t>(limits_.max_samples)) {
+      return absl::ResourceExhaustedError(
+          absl::StrFormat("%u points exceed the limit of %d per call (--max-samples)", req->count(),
+                          limits_.max_samples));
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key, ctx));
     // A field's arrays and each vertex's distance to the samples so far.
-    ASSIGN_OR_RETURN(Admission::Ticket run,
-                     StartQuery(ctx, 2 * (uint64_t(req->count()) * 6 + kAnswerOverhead),
-                                FieldScratchBytes(*engine) +
-                                    uint64_t(engine->mesh().num_vertices()) * sizeof(double)));
+    const uint64_t answer = 2 * (uint64_t(req->count()) * 6 + kAnswerOverhead);
+    const uint64_t scratch =
+        FieldScratchBytes(*engine) + uint64_t(engine->mesh().num_vertices()) * sizeof(double);
+    ASSIGN_OR_RETURN(Admission::Ticket run, StartQuery(ctx, answer, scratch));
+    absl::Time slice_start = absl::Now();
     SampleOptions options;
     options.seed = req->seed();
     options.cancelled = Cancelled(ctx);
+    options.between_points = [&] { return NextSlice(ctx, run, slice_start, answer, scratch); };
     ASSIGN_OR_RETURN(SampleResult sample, engine->SamplePoints(req->count(), options));
     FillEcho(Built(key, *engine), "farthest-point", resp->mutable_echo());
     for (VertexId v : sample.vertices) resp->add_vertices(v);

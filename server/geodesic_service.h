@@ -4,6 +4,7 @@
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
 #include <atomic>
+#include <map>
 #include <string>
 
 #include "absl/status/statusor.h"
@@ -32,6 +33,12 @@ struct ServiceLimits {
   // before it is computed.
   uint64_t max_message_bytes = uint64_t{64} << 20;
   int max_pairs = 10000;  // pairs per Distance call
+  // Exact pairs per Distance call: each costs a window propagation, far
+  // more than a graph pair.
+  int max_exact_pairs = 256;
+  int max_samples = 1024;  // SamplePoints count: each point costs a field
+  // Queries one client may have admitted at once (0: half of max_inflight).
+  int max_inflight_per_client = 0;
   // The windows one exact pair or matrix row may hold (a propagation keeps
   // them for its trace): past it the call fails with RESOURCE_EXHAUSTED, and
   // admission reserves it for each lane of an exact call.
@@ -46,6 +53,20 @@ struct ServiceLimits {
   // operators who build every graph ahead (--config, RequestGraph).
   bool build_on_query = true;
   double build_wait_seconds = 300;
+  // Build budget: graphs queued or being made at once, in all and started
+  // by one client (RequestGraph or a query); past either, a new graph is
+  // refused RESOURCE_EXHAUSTED. Joining a graph being made is always fine.
+  int max_queued_builds = 8;
+  int max_queued_builds_per_client = 2;
+  // The smallest epsilon and certified bound a client may have built (their
+  // cost grows steeply as they shrink); graphs the operator lists in
+  // --config are not held to them.
+  double min_epsilon = 1e-4;
+  double min_max_error = 1e-3;
+  // A query starts a graph never requested only at the default epsilon
+  // (plain, no pseudo vertices), so that a query naming a new epsilon
+  // cannot start a build; true: at any epsilon.
+  bool auto_build_any_epsilon = false;
   // Graphs this daemon builds use exact fans (geodesicd serve --exact-fans):
   // part of the build record of every graph it requests.
   bool exact_fans = false;
@@ -116,6 +137,11 @@ class GeodesicService final : public v1::Geodesic::Service {
   // The stream `ctx` watched for idling (--idle-seconds) until the result
   // is destroyed.
   StreamWatchdog::Watch WatchStream(const char* method, grpc::ServerContext* ctx);
+  // Between two slices of a long call: once `run` has been held a slice's
+  // time while another client waits, gives it back and waits for the
+  // call's next turn (StartQuery with the same reservation).
+  absl::Status NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run, absl::Time& slice_start,
+                         uint64_t answer_bytes, uint64_t scratch_bytes);
   // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
   // `bytes` cannot fit one message.
   absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;
@@ -156,7 +182,14 @@ class GeodesicService final : public v1::Geodesic::Service {
   // Admits, records and requests a graph (RequestGraph, and queries that
   // start the graph they need).
   absl::StatusOr<GraphStatus> StartGraph(const GraphKey& key,
-                                         const std::shared_ptr<const RegisteredMesh>& mesh);
+                                         const std::shared_ptr<const RegisteredMesh>& mesh,
+                                         const std::string& client);
+  // Whether `client` may start a new graph of `key`: its epsilon or bound
+  // within --min-epsilon / --min-max-error, and the build queue within its
+  // bounds. Errors name the flag, and the graph's estimate.
+  absl::Status CheckBuildBudget(const GraphKey& key, const RegisteredMesh& mesh,
+                                const std::string& client)
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(builds_mu_);
   // The engine of a ready graph; FindMesh's error when its mesh is not
   // registered. A graph being made (built, mapped, known only to the
   // catalog) is waited for within the call's deadline, and one never
@@ -171,6 +204,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   std::string bearer_token_;
   CatalogSync* catalog_ = nullptr;
   NameLocks names_;  // a mesh's changes, one at a time
+  // The client that started each graph (for the per-client build budget);
+  // held while a build is checked and queued.
+  absl::Mutex builds_mu_;
+  std::map<GraphKey, std::string> started_by_ ABSL_GUARDED_BY(builds_mu_);
   Admission admission_;
   StreamWatchdog watchdog_;
   std::atomic<int> calls_in_progress_{0};

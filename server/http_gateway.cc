@@ -10,6 +10,7 @@
 #include <functional>
 #include <map>
 #include <optional>
+#include <set>
 #include <sstream>
 #include <variant>
 #include <vector>
@@ -224,8 +225,25 @@ grpc::Status ParseBody(const HttpRequest& req, json* body) {
     return Invalid(absl::StrFormat("request body nests arrays and objects deeper than %u levels",
                                    kMaxNesting));
   }
-  *body = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
+  // A key given twice would silently take its last value: which one the
+  // client meant is unknown, so the body is refused.
+  std::vector<std::set<std::string>> keys;
+  std::optional<std::string> duplicate;
+  auto check_keys = [&](int, json::parse_event_t event, json& parsed) {
+    if (event == json::parse_event_t::object_start) keys.emplace_back();
+    if (event == json::parse_event_t::object_end && !keys.empty()) keys.pop_back();
+    if (event == json::parse_event_t::key && !keys.empty() && !duplicate &&
+        !keys.back().insert(parsed.get<std::string>()).second) {
+      duplicate = parsed.get<std::string>();
+    }
+    return true;
+  };
+  *body = json::parse(req.body, check_keys, /*allow_exceptions=*/false);
   if (body->is_discarded()) return Invalid("request body is not valid JSON");
+  if (duplicate) {
+    return Invalid(absl::StrFormat("request body gives the key \"%s\" more than once",
+                                   absl::CHexEscape(duplicate->substr(0, 80))));
+  }
   if (!body->is_object()) return Invalid("request body must be a JSON object");
   return grpc::Status::OK;
 }

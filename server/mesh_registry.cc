@@ -193,6 +193,12 @@ absl::Status MeshRegistry::ValidateName(const std::string& name) {
   if (name == "." || name == "..") {
     return absl::InvalidArgumentError(absl::StrFormat("'%s' is not a mesh name", name));
   }
+  // Names are command-line arguments too (the CLI, scripts), where a
+  // leading '-' reads as a flag.
+  if (name.front() == '-') {
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "mesh name '%s' starts with '-', which reads as a flag on command lines", Echo(name)));
+  }
   return absl::OkStatus();
 }
 

@@ -195,7 +195,20 @@ void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {
                  "sent) is closed, giving back its slot; gRPC connections with no call this "
                  "long are closed too, and quiet ones probed (0: never)")
       ->check(CLI::Range(0.0, 86400.0));
+  app.add_option("--max-inflight-per-client", limits.max_inflight_per_client,
+                 "queries one client (its bearer token, else its address) may have admitted at "
+                 "once; beyond them its queries are answered RESOURCE_EXHAUSTED while other "
+                 "clients' are admitted (0: half of --max-inflight)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--max-pairs", limits.max_pairs, "pairs per Distance call");
+  app.add_option("--max-exact-pairs", limits.max_exact_pairs,
+                 "exact pairs per Distance call (each is a window propagation); beyond: "
+                 "RESOURCE_EXHAUSTED")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--max-samples", limits.max_samples,
+                 "points per SamplePoints call (each costs a distance field); beyond: "
+                 "RESOURCE_EXHAUSTED")
+      ->check(CLI::PositiveNumber);
   app.add_option("--max-exact-bytes", f.max_exact_bytes,
                  "memory one exact pair or matrix row may hold, e.g. 256M; past it the call is "
                  "answered RESOURCE_EXHAUSTED (0: no limit)");
@@ -205,6 +218,28 @@ void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {
   app.add_flag("--no-build-on-query", f.no_build_on_query,
                "a query on a graph nobody requested fails (FAILED_PRECONDITION) instead of "
                "starting its build and waiting for it: for daemons whose graphs are built ahead");
+  app.add_flag("--auto-build-any-epsilon", limits.auto_build_any_epsilon,
+               "a query on a graph nobody requested starts its build at any epsilon, bound or "
+               "pseudo vertices it names; without it, only at --default-epsilon, and other "
+               "graphs must be asked for with RequestGraph (FAILED_PRECONDITION otherwise)");
+  app.add_option("--max-queued-builds", limits.max_queued_builds,
+                 "graphs queued or being made at once; a request for a new one beyond them is "
+                 "answered RESOURCE_EXHAUSTED (joining one being made is always answered)")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--max-queued-builds-per-client", limits.max_queued_builds_per_client,
+                 "graphs one client (its bearer token, else its address) may have queued or "
+                 "being made at once, by RequestGraph or its queries")
+      ->check(CLI::PositiveNumber);
+  app.add_option("--min-epsilon", limits.min_epsilon,
+                 "the smallest epsilon clients may have a graph built at (smaller ones cost "
+                 "steeply more); refused INVALID_ARGUMENT with the graph's estimate. --config "
+                 "graphs are not held to it")
+      ->check(CLI::Range(1e-6, 0.5));
+  app.add_option("--min-max-error", limits.min_max_error,
+                 "the smallest bound clients may have a certified graph built for; refused "
+                 "INVALID_ARGUMENT with the estimate of its first build. --config graphs are "
+                 "not held to it")
+      ->check(CLI::Range(kMinMaxError, kMaxMaxError));
   app.add_option("--build-wait-seconds", limits.build_wait_seconds,
                  "longest a query waits for its graph to be built or mapped (within its own "
                  "deadline); then UNAVAILABLE with the build's progress, to retry")

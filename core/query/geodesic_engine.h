@@ -157,6 +157,10 @@ struct SampleOptions {
   // it, so one seed gives one sampling.
   uint64_t seed = 0;
   std::function<bool()> cancelled;
+  // Called on the calling thread between two points' fields, when the
+  // sampling holds nothing shared (a server gives its CPU slot back there);
+  // an error stops the sampling with it.
+  std::function<absl::Status()> between_points;
 };
 
 struct SampleResult {

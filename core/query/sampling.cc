@@ -49,6 +49,7 @@ absl::StatusOr<SampleResult> GeodesicEngine::SamplePoints(int count,
     result.covering_radius = farthest == kNone ? 0 : nearest[farthest];
     if (result.vertices.size() == static_cast<size_t>(count)) break;
     result.vertices.push_back(farthest);
+    if (options.between_points) RETURN_IF_ERROR(options.between_points());
   }
   return result;
 }

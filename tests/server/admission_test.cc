@@ -1,8 +1,11 @@
 #include "server/admission.h"
 
+#include <algorithm>
 #include <atomic>
 #include <functional>
+#include <memory>
 #include <mutex>
+#include <string>
 #include <thread>
 #include <vector>
 
@@ -37,18 +40,18 @@ AdmissionOptions Limits(int max_inflight, int query_threads, uint64_t memory_lim
 
 TEST(AdmissionTest, QueriesPastMaxInflightAreRefusedWithARetryHint) {
   Admission admission(Limits(2, 1));
-  auto a = admission.AdmitQuery();
-  auto b = admission.AdmitQuery();
+  auto a = admission.AdmitQuery("a");
+  auto b = admission.AdmitQuery("b");
   ASSERT_TRUE(a.ok());
   ASSERT_TRUE(b.ok());
-  auto c = admission.AdmitQuery();
+  auto c = admission.AdmitQuery("c");
   ASSERT_EQ(c.status().code(), absl::StatusCode::kResourceExhausted);
   EXPECT_THAT(c.status().message(), HasSubstr("server overloaded"));
   EXPECT_THAT(c.status().message(), HasSubstr("retry after"));
   EXPECT_EQ(admission.refusals(), 1u);
   EXPECT_TRUE(admission.overloaded());
   a->Release();
-  EXPECT_TRUE(admission.AdmitQuery().ok());
+  EXPECT_TRUE(admission.AdmitQuery("c").ok());
 }
 
 TEST(AdmissionTest, CountersReturnToZeroWhenTicketsAreGivenBack) {
@@ -235,6 +238,139 @@ TEST(AdmissionTest, AKeptAnswerCountsAgainstTheMemoryOfQueriesThatRunBesideIt) {
   sending.Release();
   auto c = admission.Run(400, 0, Soon());
   EXPECT_TRUE(c.ok()) << c.status();
+}
+
+// Runs `client`'s query on a thread once it is in line, recording its name
+// in `order` when it gets a slot and holding the slot until `release`.
+class Waiter {
+ public:
+  Waiter(Admission& admission, std::string client, std::string name, std::mutex& mu,
+         std::vector<std::string>& order)
+      : thread_([&admission, client, name, &mu, &order, this] {
+          auto run = admission.Run(0, 0, Soon(), {}, client);
+          ASSERT_TRUE(run.ok()) << run.status();
+          {
+            std::lock_guard<std::mutex> lock(mu);
+            order.push_back(name);
+          }
+          release_.WaitForNotification();
+        }) {}
+  ~Waiter() {
+    Release();
+    thread_.join();
+  }
+  void Release() {
+    if (!release_.HasBeenNotified()) release_.Notify();
+  }
+
+ private:
+  absl::Notification release_;
+  std::thread thread_;
+};
+
+void WaitUntilWaiting(const Admission& admission, int n) {
+  while (admission.waiting() < n) absl::SleepFor(absl::Milliseconds(1));
+}
+
+void WaitUntilRan(std::mutex& mu, const std::vector<std::string>& order, size_t n) {
+  while (true) {
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      if (order.size() >= n) return;
+    }
+    absl::SleepFor(absl::Milliseconds(1));
+  }
+}
+
+TEST(AdmissionTest, FreeSlotsGoToTheWaitingClientsInTurn) {
+  Admission admission(Limits(16, 1));
+  auto busy = admission.Run(0, 0, Soon(), {}, "heavy");
+  ASSERT_TRUE(busy.ok());
+  std::mutex mu;
+  std::vector<std::string> order;
+  std::vector<std::unique_ptr<Waiter>> waiters;
+  // Three of one client's queries wait before the other client's one.
+  for (const char* name : {"heavy1", "heavy2", "heavy3"}) {
+    waiters.push_back(std::make_unique<Waiter>(admission, "heavy", name, mu, order));
+    WaitUntilWaiting(admission, static_cast<int>(waiters.size()));
+  }
+  waiters.push_back(std::make_unique<Waiter>(admission, "light", "light1", mu, order));
+  WaitUntilWaiting(admission, 4);
+  busy->Release();
+  // Each query gives its slot back once it ran, and the next one runs.
+  const std::vector<std::string> names = {"heavy1", "heavy2", "heavy3", "light1"};
+  for (size_t k = 0; k < waiters.size(); ++k) {
+    WaitUntilRan(mu, order, k + 1);
+    std::string last;
+    {
+      std::lock_guard<std::mutex> lock(mu);
+      last = order.back();
+    }
+    waiters[std::find(names.begin(), names.end(), last) - names.begin()]->Release();
+  }
+  waiters.clear();
+  // The light client's query did not wait behind all of the heavy one's.
+  EXPECT_THAT(order, ::testing::ElementsAre("heavy1", "light1", "heavy2", "heavy3"));
+  EXPECT_EQ(admission.running(), 0);
+  EXPECT_EQ(admission.waiting(), 0);
+}
+
+TEST(AdmissionTest, AClientRunsAtMostItsShareOfTheSlotsWhileOthersWait) {
+  Admission admission(Limits(16, 2));
+  // Alone, a client may take every slot.
+  auto first = admission.Run(0, 0, Soon(), {}, "heavy");
+  auto second = admission.Run(0, 0, Soon(), {}, "heavy");
+  ASSERT_TRUE(first.ok() && second.ok());
+  std::mutex mu;
+  std::vector<std::string> order;
+  auto heavy = std::make_unique<Waiter>(admission, "heavy", "heavy", mu, order);
+  WaitUntilWaiting(admission, 1);
+  auto light = std::make_unique<Waiter>(admission, "light", "light", mu, order);
+  WaitUntilWaiting(admission, 2);
+  // The heavy client asked first, but holds one slot of two while the
+  // light one waits: the freed slot is the light client's.
+  first->Release();
+  WaitUntilRan(mu, order, 1);
+  {
+    std::lock_guard<std::mutex> lock(mu);
+    EXPECT_EQ(order.front(), "light");
+  }
+  EXPECT_EQ(admission.waiting(), 1);
+  second->Release();
+  WaitUntilRan(mu, order, 2);
+  heavy.reset();
+  light.reset();
+  EXPECT_EQ(admission.running(), 0);
+}
+
+TEST(AdmissionTest, AClientIsAdmittedAtMostItsShareOfMaxInflight) {
+  Admission admission(Limits(4, 1));
+  auto a = admission.AdmitQuery("flood");
+  auto b = admission.AdmitQuery("flood");
+  ASSERT_TRUE(a.ok() && b.ok());
+  auto c = admission.AdmitQuery("flood");
+  ASSERT_EQ(c.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(c.status().message(), HasSubstr("--max-inflight-per-client"));
+  // Another client still finds room.
+  auto d = admission.AdmitQuery("other");
+  EXPECT_TRUE(d.ok()) << d.status();
+  a->Release();
+  EXPECT_TRUE(admission.AdmitQuery("flood").ok());
+}
+
+TEST(AdmissionTest, OthersWaitingSeesOnlyOtherClients) {
+  Admission admission(Limits(16, 1));
+  auto busy = admission.Run(0, 0, Soon(), {}, "a");
+  ASSERT_TRUE(busy.ok());
+  std::mutex mu;
+  std::vector<std::string> order;
+  {
+    Waiter same(admission, "a", "a", mu, order);
+    WaitUntilWaiting(admission, 1);
+    EXPECT_FALSE(admission.OthersWaiting("a"));
+    EXPECT_TRUE(admission.OthersWaiting("b"));
+    busy->Release();
+  }
 }
 
 }  // namespace

@@ -20,9 +20,10 @@ cleanup() {
   rm -rf "$work"
 }
 trap cleanup EXIT
+# --min-epsilon: the kill below needs a build that takes seconds.
 start_daemon() {  # start_daemon GRAPH_DIR
   daemon_start "$bin" "$work" --mesh-root "$src/data" --log-level warning --build-threads 1 \
-    --graph-dir "$@" || exit 1
+    --min-epsilon 1e-5 --graph-dir "$@" || exit 1
   retry_for 10 quietly cli meshes || daemon_fail "geodesicd does not answer"
 }
 stop_daemon() { daemon_stop; }

@@ -160,8 +160,12 @@ def replicas(work):
     # Two replicas on one directory ask for one graph while it builds: one
     # builds, the other waits for it and maps the file.
     graphs = os.path.join(work, "shared")
-    one, one_ports = serve(work, graphs, "--build-threads", "1", metrics=True)
-    two, two_ports = serve(work, graphs, "--build-threads", "1", metrics=True)
+    # A graph slow enough to build that the second replica finds it building:
+    # below --min-epsilon's default.
+    one, one_ports = serve(work, graphs, "--build-threads", "1", "--min-epsilon", "1e-5",
+                           metrics=True)
+    two, two_ports = serve(work, graphs, "--build-threads", "1", "--min-epsilon", "1e-5",
+                           metrics=True)
     rc, _, err = cli(one_ports["grpc"], "--mesh", "spot", "load", "spot.obj")
     check("spot registered on the first replica", rc == 0, err)
     eps = "3e-5"

@@ -447,6 +447,7 @@ class ClientTest(unittest.TestCase):
         # mesh's: each region distance is at least the parent's, and some are longer.
         source = int(kept[0])
         whole = self.client.field("spot", [f"v:{source}"], epsilon=0.01)
+        self.client.request_graph("spot-upper", epsilon=0.01, wait=True)  # not the default ε
         part = self.client.field("spot-upper", ["v:0"], epsilon=0.01)
         self.assertEqual(part.shape, (len(kept),))
         reached = np.isfinite(part)
@@ -597,6 +598,8 @@ class ClientTest(unittest.TestCase):
                     self.assertIn(part, message)
                 self.assertEqual(c.graph("spot", epsilon=0.01, pseudo_vertices=True).state,
                                  GraphState.FAILED)
+                # Asked for: a query starts only the default epsilon's graph.
+                c.request_graph("spot", epsilon=0.01, wait=True)
                 d = c.distances("spot", [10], [20], epsilon=0.01)
                 self.assertTrue(np.isfinite(d).all() and d[0] > 0, d)
         finally:

@@ -212,7 +212,12 @@ class PackageTest(unittest.TestCase):
             c.distance("nosuch", 1, 2)
         with self.assertRaises(gc.InvalidArgumentError):
             c.distances("spot", gc.FacePoints([1], [[0.5, 0.5, 0.5]]), [2])
-        # A graph nobody requested is started by the first query, which waits for it.
+        # A graph nobody requested, at another epsilon than the server's default, is not
+        # started by a query: the error says to request it, and then the query answers.
+        with self.assertRaises(gc.FailedPreconditionError) as e:
+            gc.Client(f"127.0.0.1:{self.port}", epsilon=0.3).distance("spot", 1, 2)
+        self.assertIn("RequestGraph", e.exception.details())
+        c.request_graph("spot", epsilon=0.3, wait=True)
         first = gc.Client(f"127.0.0.1:{self.port}", epsilon=0.3).distance("spot", 1, 2)
         self.assertTrue(np.isfinite(first) and first > 0, first)
         self.assertEqual(first, gc.Client(f"127.0.0.1:{self.port}", epsilon=0.3).distance(

@@ -5,6 +5,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -31,10 +32,13 @@ using ::testing::HasSubstr;
 
 class ServiceTest : public ::testing::Test {
  protected:
-  void SetUp() override {
+  // Tests change limits_ between TearDown() and SetUp(), which keeps them.
+  ServiceTest() {
     limits_.field_chunk = 1000;  // spot's 2,930 values stream in 3 chunks
     limits_.max_pairs = 50;
     limits_.log_requests = false;
+  }
+  void SetUp() override {
     registry_ = std::make_unique<MeshRegistry>(std::string(GEODESIC_SOURCE_DIR) + "/data");
     GraphCache::Options options;
     options.build_threads = 2;
@@ -581,8 +585,11 @@ TEST_F(ServiceTest, BadRequestsGetCodesThatNameTheProblem) {
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   s = distance(Vertex(0), Vertex(1), "nosuch", 1e-2);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::NOT_FOUND);
-  s = distance(Vertex(0), Vertex(1), "spot", 0.02);  // never requested: started, waited for
-  EXPECT_TRUE(s.ok()) << s.error_message();
+  // Never requested, and not the default epsilon: no query starts it.
+  s = distance(Vertex(0), Vertex(1), "spot", 0.02);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+  EXPECT_THAT(s.error_message(), HasSubstr("RequestGraph"));
+  EXPECT_THAT(s.error_message(), HasSubstr("--auto-build-any-epsilon"));
   s = distance(Vertex(0), Vertex(1), "spot", std::nan(""));
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   grpc::ClientContext ctx;
@@ -596,8 +603,12 @@ TEST_F(ServiceTest, BadRequestsGetCodesThatNameTheProblem) {
 }
 
 TEST_F(ServiceTest, AQueryStartsTheGraphItNeedsUnlessTheOperatorSaysNo) {
+  TearDown();
+  limits_.default_epsilon = 0.03;
+  SetUp();
   ReadySpot(1e-2);  // registers spot
-  // The first query on a graph nobody requested builds it and answers.
+  // The first query on the default graph, which nobody requested, builds it
+  // and answers.
   grpc::ClientContext ctx;
   v1::DistanceRequest req;
   req.set_mesh("spot");
@@ -616,6 +627,24 @@ TEST_F(ServiceTest, AQueryStartsTheGraphItNeedsUnlessTheOperatorSaysNo) {
   ASSERT_TRUE(stub_->GetGraph(&get_ctx, get, &graph).ok());
   EXPECT_EQ(graph.state(), v1::GRAPH_STATE_READY);
 
+  // Another epsilon starts a graph only when the operator allows any.
+  v1::DistanceRequest other = req;
+  other.set_epsilon(0.05);
+  {
+    grpc::ClientContext other_ctx;
+    grpc::Status s = stub_->Distance(&other_ctx, other, &first);
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
+    EXPECT_THAT(s.error_message(), HasSubstr("RequestGraph"));
+  }
+  TearDown();
+  limits_.auto_build_any_epsilon = true;
+  SetUp();
+  ReadySpot(1e-2);
+  {
+    grpc::ClientContext other_ctx;
+    EXPECT_TRUE(stub_->Distance(&other_ctx, other, &first).ok());
+  }
+
   // An operator who builds every graph ahead turns that off.
   TearDown();
   limits_.build_on_query = false;
@@ -626,6 +655,146 @@ TEST_F(ServiceTest, AQueryStartsTheGraphItNeedsUnlessTheOperatorSaysNo) {
   grpc::Status s = stub_->Distance(&off_ctx, req, &refused);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::FAILED_PRECONDITION);
   EXPECT_THAT(s.error_message(), HasSubstr("eps 0.03"));
+}
+
+TEST_F(ServiceTest, ExactPairsAndSamplesPastTheirCapsAreRefusedNamingTheFlag) {
+  TearDown();
+  limits_.max_exact_pairs = 4;
+  limits_.max_samples = 3;
+  SetUp();
+  ReadySpot(1e-2);
+  auto exact = [&](int pairs) {
+    grpc::ClientContext ctx;
+    v1::DistanceRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(1e-2);
+    req.set_exact(true);
+    for (int i = 0; i < pairs; ++i) {
+      *req.add_pairs()->mutable_from() = Vertex(i);
+      *req.mutable_pairs(i)->mutable_to() = Vertex(1500 + i);
+    }
+    v1::DistanceResponse resp;
+    return stub_->Distance(&ctx, req, &resp);
+  };
+  grpc::Status s = exact(5);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(s.error_message(), HasSubstr("--max-exact-pairs"));
+  EXPECT_TRUE(exact(4).ok());
+  auto sample = [&](uint32_t count) {
+    grpc::ClientContext ctx;
+    v1::SamplePointsRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(1e-2);
+    req.set_count(count);
+    v1::SamplePointsResponse resp;
+    return stub_->SamplePoints(&ctx, req, &resp);
+  };
+  s = sample(4);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(s.error_message(), HasSubstr("--max-samples"));
+  EXPECT_TRUE(sample(3).ok());
+}
+
+TEST_F(ServiceTest, ALightQueryRunsBetweenTheSlicesOfAnotherClientsExactBatch) {
+  TearDown();
+  limits_.query_threads = 1;
+  limits_.max_pairs = limits_.max_exact_pairs;
+  SetUp();
+  ReadySpot(1e-2);
+  auto call = [&](const std::string& token, bool exact, int pairs) {
+    grpc::ClientContext ctx;
+    ctx.AddMetadata("authorization", "Bearer " + token);
+    ctx.set_deadline(std::chrono::system_clock::now() + std::chrono::seconds(120));
+    v1::DistanceRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(1e-2);
+    req.set_exact(exact);
+    for (int i = 0; i < pairs; ++i) {
+      *req.add_pairs()->mutable_from() = Vertex(i * 7);
+      *req.mutable_pairs(i)->mutable_to() = Vertex((i * 7 + 1465) % 2930);
+    }
+    v1::DistanceResponse resp;
+    return stub_->Distance(&ctx, req, &resp);
+  };
+  absl::Duration heavy_took;
+  std::thread heavy([&] {
+    const absl::Time start = absl::Now();
+    const grpc::Status s = call("heavy", true, limits_.max_exact_pairs);
+    EXPECT_TRUE(s.ok()) << s.error_message();
+    heavy_took = absl::Now() - start;
+  });
+  while (service_->admission().running() == 0) absl::SleepFor(absl::Milliseconds(1));
+  // The one slot is the heavy batch's: the light query waits for a slice's
+  // end, not for the batch's.
+  const absl::Time start = absl::Now();
+  EXPECT_TRUE(call("light", false, 1).ok());
+  const absl::Duration light_took = absl::Now() - start;
+  heavy.join();
+  EXPECT_LT(light_took, heavy_took / 2) << "heavy " << heavy_took;
+}
+
+TEST_F(ServiceTest, ANegativeOrNanMaxDistanceIsRefused) {
+  ReadySpot(1e-2);
+  for (double bad : {-1.0, std::nan("")}) {
+    grpc::ClientContext ctx;
+    v1::DistanceFieldRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(1e-2);
+    *req.add_sources() = Vertex(0);
+    req.set_max_distance(bad);
+    auto reader = stub_->DistanceField(&ctx, req);
+    v1::DistanceFieldChunk chunk;
+    while (reader->Read(&chunk)) {
+    }
+    grpc::Status s = reader->Finish();
+    EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT) << bad;
+    EXPECT_THAT(s.error_message(), HasSubstr("max_distance"));
+  }
+}
+
+TEST_F(ServiceTest, TheBuildBudgetBoundsNewGraphsPerClientAndInAll) {
+  TearDown();
+  limits_.max_queued_builds = 3;
+  limits_.max_queued_builds_per_client = 2;
+  SetUp();
+  ReadySpot(1e-2);
+  auto request = [&](const std::string& token, double eps, double max_error = 0) {
+    grpc::ClientContext ctx;
+    if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
+    v1::RequestGraphRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(eps);
+    req.mutable_graph()->set_max_error(max_error);
+    v1::Graph graph;
+    return stub_->RequestGraph(&ctx, req, &graph);
+  };
+  grpc::Status s = request("", 1e-5);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_THAT(s.error_message(), HasSubstr("--min-epsilon"));
+  EXPECT_THAT(s.error_message(), HasSubstr("estimated at"));
+  s = request("", 0, 1e-4);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
+  EXPECT_THAT(s.error_message(), HasSubstr("--min-max-error"));
+  // Builds long enough to stay queued while the test asks.
+  EXPECT_TRUE(request("a", 2e-4).ok());
+  EXPECT_TRUE(request("a", 2.1e-4).ok());
+  s = request("a", 2.2e-4);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(s.error_message(), HasSubstr("--max-queued-builds-per-client"));
+  // Joining a graph being made adds no build.
+  EXPECT_TRUE(request("b", 2e-4).ok());
+  EXPECT_TRUE(request("b", 2.3e-4).ok());
+  s = request("c", 2.4e-4);
+  EXPECT_EQ(s.error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  EXPECT_THAT(s.error_message(), HasSubstr("--max-queued-builds"));
+  for (double eps : {2e-4, 2.1e-4, 2.3e-4}) {
+    grpc::ClientContext ctx;
+    v1::CancelGraphRequest req;
+    req.mutable_graph()->set_mesh("spot");
+    req.mutable_graph()->set_epsilon(eps);
+    v1::Graph graph;
+    stub_->CancelGraph(&ctx, req, &graph);
+  }
 }
 
 TEST_F(ServiceTest, ThePseudoVertexGraphIsItsOwnGraph) {
@@ -961,8 +1130,7 @@ TEST_F(ServiceTest, ARegionIsAMeshOfItsOwnThatRemembersItsParent) {
   auto distance = [&](uint32_t a, uint32_t b, double* d) {
     grpc::ClientContext ctx;
     v1::DistanceRequest req;
-    req.mutable_graph()->set_mesh("body");
-    req.mutable_graph()->set_epsilon(1e-2);
+    req.mutable_graph()->set_mesh("body");  // at the default epsilon: started by the query
     *req.add_pairs()->mutable_from() = Vertex(a);
     *req.mutable_pairs(0)->mutable_to() = Vertex(b);
     v1::DistanceResponse resp;

@@ -561,7 +561,8 @@ class Client:
                 batch = smaller
                 if with_path:
                     self.path_batch = smaller
-                if smaller < self.max_pairs and _LIMIT.search(e.details()):
+                # An exact cap (--max-exact-pairs) says nothing of graph pairs.
+                if smaller < self.max_pairs and _LIMIT.search(e.details()) and not exact:
                     self.max_pairs = smaller
                 continue
             out[i:j] = [r.distance for r in resp.results]
