@@ -94,7 +94,11 @@ HttpResponse ErrorResponse(const grpc::Status& s) {
   res.status = HttpStatus(s.error_code());
   if (s.error_code() == grpc::StatusCode::UNAUTHENTICATED) {
     res.headers.emplace_back("WWW-Authenticate", "Bearer");
-  } else if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
+  }
+  // A client without the right credentials gets its answer and the
+  // connection's end: kept alive, its connections would fill the cap.
+  res.close = s.error_code() == grpc::StatusCode::UNAUTHENTICATED;
+  if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
     res.headers.emplace_back("Retry-After", "1");
   }
   json body = {{"error", {{"code", CodeName(s.error_code())}, {"message", s.error_message()}}}};
