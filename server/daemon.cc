@@ -25,6 +25,10 @@ namespace {
 // daemon does not know about.
 constexpr auto kDiskGrace = std::chrono::minutes(2);
 
+// How long the HTTP gateway may take, once the gRPC calls still running at
+// the drain's end were cancelled, to write the answers they ended with.
+constexpr auto kAnswerWriteGrace = std::chrono::seconds(1);
+
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
@@ -583,12 +587,30 @@ void Daemon::FollowCatalog() {
 void Daemon::Drain() {
   std::fprintf(stderr, "geodesicd: shutting down (draining up to %.0f s)\n",
                options_.drain_seconds);
+  const auto drain = std::chrono::milliseconds(static_cast<int64_t>(options_.drain_seconds * 1000));
+  const auto drain_end = std::chrono::steady_clock::now() + drain;
   SetHealth("", false);
-  http_.reset();  // its calls go through `server_`
+  // No new requests over HTTP; those being answered go on.
+  if (http_) http_->StopAccepting();
+  // Queries waiting for a build are answered now instead of when it ends;
+  // no build outlives the drain. Graph writes are atomic (temp + rename):
+  // an interrupted build leaves no file a restart would trust.
+  graphs_->CancelAll();
+  // The gateway's calls go through the in-process channel, which the gRPC
+  // server's shutdown ends at once ("transport closed") rather than letting
+  // them finish: its requests get the drain first, then the server's own
+  // calls what is left of it (the health status already sends balancers
+  // elsewhere).
+  if (http_) http_->WaitForAnswers(drain_end);
+  // Calls still running then are cancelled.
+  const auto left = std::max(drain_end - std::chrono::steady_clock::now(),
+                             std::chrono::steady_clock::duration::zero());
   server_->Shutdown(std::chrono::system_clock::now() +
-                    std::chrono::milliseconds(static_cast<int64_t>(options_.drain_seconds * 1000)));
-  // Graph writes are atomic (temp + rename): an interrupted build leaves no
-  // file a restart would trust. The cache's destructor cancels and joins.
+                    std::chrono::duration_cast<std::chrono::system_clock::duration>(left));
+  // The gateway's requests whose calls were cancelled answer so within a
+  // moment; then every connection closes.
+  if (http_) http_->Finish(std::chrono::steady_clock::now() + kAnswerWriteGrace);
+  http_.reset();
 }
 
 void Daemon::SetHealth(const std::string& service, bool serving) {

@@ -412,7 +412,10 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
                                     std::min(deadline, absl::Now() + absl::Seconds(1)));
   }
   engine = graphs_->Acquire(key);
-  if (engine.ok() || !absl::IsUnavailable(engine.status()) || !status.ok()) return engine;
+  if (engine.ok() || !absl::IsUnavailable(engine.status()) || !status.ok() ||
+      !InProgress(status->state)) {
+    return engine;
+  }
   const std::string which = key.max_error > 0
                                 ? absl::StrFormat("certified to max error %g", key.max_error)
                                 : absl::StrFormat("at epsilon %g", key.params.epsilon);

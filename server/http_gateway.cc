@@ -1305,6 +1305,12 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
     if (res) res = g->WithCors(head, std::move(*res));
     return res;
   };
+  server.reserve_body = [g](const HttpRequest& head, size_t body_bytes,
+                            std::shared_ptr<void>* hold) {
+    std::optional<HttpResponse> res = g->ReserveBody(head, body_bytes, hold);
+    if (res) res = g->WithCors(head, std::move(*res));
+    return res;
+  };
   server.refuse = [g](HttpRefusal why, const HttpRequest& head, size_t body_limit) {
     return g->WithCors(head, g->Refuse(why, head, body_limit));
   };

@@ -65,8 +65,14 @@ class HttpGateway {
   static absl::StatusOr<std::unique_ptr<HttpGateway>> Start(const HttpGatewayOptions& options,
                                                             grpc::Server* grpc_server,
                                                             const MeshRegistry* meshes);
-  // Stops accepting, finishes queued and running requests, closes every
-  // connection.
+  // Shutdown in steps (HttpServer's): stop accepting and reading new
+  // requests; wait for the answers of those being answered until a
+  // deadline; and, once the calls still running were stopped, wait again
+  // for their answers and close every connection.
+  void StopAccepting();
+  void WaitForAnswers(std::chrono::steady_clock::time_point deadline);
+  void Finish(std::chrono::steady_clock::time_point deadline);
+  // Closes every connection, then waits for running requests to return.
   ~HttpGateway();
 
   int port() const;
