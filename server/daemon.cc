@@ -84,6 +84,7 @@ int Daemon::Start() {
   // the catalog then records it for restarts and replicas.
   meshes_ = std::make_unique<MeshRegistry>(options_.mesh_root, options_.graph_dir,
                                            /*durable=*/!options_.graph_dir.empty());
+  meshes_->SetMemoryLimit(options_.memory_limit);
   if (disk_ && options_.disk_limit > 0) {
     meshes_->SetDiskReservation(
         [this](uint64_t bytes) { return disk_->Reserve(bytes); },
@@ -92,7 +93,9 @@ int Daemon::Start() {
   GraphCache::Options cache;
   cache.graph_dir = options_.graph_dir;
   cache.memory_limit = options_.memory_limit;
-  cache.resident_bytes_outside = [this] { return meshes_->resident_bytes(); };
+  cache.resident_bytes_outside = [this] {
+    return meshes_->resident_bytes() + (memory_ ? memory_->reserved() : 0);
+  };
   cache.on_file_used = MarkFileUsed;
   cache.build_workers = options_.build_workers;
   cache.build_threads = options_.build_threads;
@@ -113,6 +116,12 @@ int Daemon::Start() {
   service_ =
       std::make_unique<GeodesicService>(meshes_.get(), graphs_.get(), &metrics_, options_.limits);
   if (!options_.token.empty()) service_->RequireBearerToken(options_.token);
+  // Beside the meshes and the running queries' reservations; graphs make
+  // room, being evictable.
+  memory_ = std::make_unique<MemoryLedger>(options_.memory_limit, [this] {
+    return meshes_->resident_bytes() + service_->admission().reserved_bytes();
+  });
+  service_->CountHeldElsewhere([this] { return memory_->reserved(); });
   AddQueryMetrics();
   if (int rc = ListenGrpc(); rc != 0) return rc;
   int metrics_port = 0;
@@ -429,6 +438,7 @@ int Daemon::ListenHttp() {
   gateway.bearer_token = options_.token;
   gateway.cors_origin = options_.http_cors_origin;
   gateway.limits = options_.http_limits;
+  gateway.memory = memory_.get();
   auto started = HttpGateway::Start(gateway, server_.get(), meshes_.get());
   if (!started.ok()) {
     std::fprintf(stderr, "geodesicd serve: %s\n", std::string(started.status().message()).c_str());

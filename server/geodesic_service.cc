@@ -240,8 +240,9 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
           .max_streams = limits.max_streams,
           .memory_limit = graphs->memory_limit(),
           .held =
-              [meshes, graphs] {
-                return meshes->resident_bytes() + graphs->resident_bytes() + graphs->mapped_bytes();
+              [this, meshes, graphs] {
+                return meshes->resident_bytes() + graphs->resident_bytes() +
+                       graphs->mapped_bytes() + (held_elsewhere_ ? held_elsewhere_() : 0);
               },
           .pinned = [meshes] { return meshes->resident_bytes(); },
           .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },

@@ -4,6 +4,7 @@
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
 #include <atomic>
+#include <functional>
 #include <string>
 
 #include "absl/status/statusor.h"
@@ -73,6 +74,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   // answering, and follows it for meshes and graphs this daemon lacks
   // (registered through another replica, or before a restart).
   void UseCatalog(CatalogSync* catalog) { catalog_ = catalog; }
+  // Memory the limit covers that others hold (the HTTP gateway's bodies and
+  // answers): queries wait for it, or run beside it, as for graphs. Set
+  // before serving.
+  void CountHeldElsewhere(std::function<uint64_t()> bytes) { held_elsewhere_ = std::move(bytes); }
 
   grpc::Status RegisterMesh(grpc::ServerContext*, const v1::RegisterMeshRequest*,
                             v1::Mesh*) override;
@@ -171,6 +176,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   std::string bearer_token_;
   CatalogSync* catalog_ = nullptr;
   NameLocks names_;  // a mesh's changes, one at a time
+  std::function<uint64_t()> held_elsewhere_;
   Admission admission_;
   StreamWatchdog watchdog_;
   std::atomic<int> calls_in_progress_{0};

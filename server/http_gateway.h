@@ -26,12 +26,14 @@
 #ifndef GEODESIC_SERVER_HTTP_GATEWAY_H_
 #define GEODESIC_SERVER_HTTP_GATEWAY_H_
 
+#include <chrono>
 #include <memory>
 #include <string>
 
 #include "absl/status/statusor.h"
 #include "grpcpp/server.h"
 #include "server/http_server.h"
+#include "server/memory_ledger.h"
 #include "server/mesh_registry.h"
 
 namespace geodesic::server {
@@ -56,6 +58,9 @@ struct HttpGatewayOptions {
   // Deadlines, connection and worker limits (limits.max_body_bytes is
   // replaced by max_body_bytes above).
   HttpLimits limits;
+  // --memory-limit's share for request bodies and geometry answers; null:
+  // not counted. Must outlive the gateway.
+  MemoryLedger* memory = nullptr;
 };
 
 class HttpGateway {
