@@ -467,11 +467,11 @@ void AppendDouble(double value, std::string* out) {
 
 // {"name", "fingerprint", "positions": [x, y, z, ...], "faces": [i, j, k,
 // ...]}: the registry's arrays in file order, flat.
-std::string GeometryJson(const std::string& name, uint64_t fingerprint, const Mesh& mesh,
+std::string GeometryJson(const std::string& name, const json& fingerprint, const Mesh& mesh,
                          uint64_t bound) {
   std::string out;
   out.reserve(bound);
-  out += "{\"name\":" + Dump(json(name)) + ",\"fingerprint\":" + std::to_string(fingerprint) +
+  out += "{\"name\":" + Dump(json(name)) + ",\"fingerprint\":" + Dump(fingerprint) +
          ",\"positions\":[";
   const char* comma = "";
   for (const Vec3& p : mesh.positions()) {
@@ -707,7 +707,7 @@ struct HttpGateway::Impl {
       hold = *std::move(reserved);
     }
     HttpResponse& res = r.raw->emplace();
-    res.body = GeometryJson(name, info["fingerprint"].get<uint64_t>(), mesh, bytes);
+    res.body = GeometryJson(name, info["fingerprint"], mesh, bytes);
     res.content_type = "application/json";
     res.hold = std::move(hold);
     return grpc::Status::OK;
