@@ -1258,17 +1258,22 @@ struct HttpGateway::Impl {
     return std::nullopt;
   }
 
-  // A body and what is parsed from it, reserved within --memory-limit
-  // before it is read: a JSON body's tree of values and the request built
-  // from it take several times its text, an upload's copies a few.
-  static constexpr uint64_t kBodyMemoryFactor = 8;
+  // A body and what is made of it, reserved within --memory-limit before it
+  // is read. A JSON body becomes a tree of values, then copies of its
+  // points, then the request message on both sides of the in-process
+  // channel: a body of short tokens (pairs of "v:ID" strings) takes tens of
+  // times its text, and the reservation covers that worst case. A mesh
+  // file's bytes are copied a few times whole.
+  static constexpr uint64_t kJsonBodyMemoryFactor = 32;
+  static constexpr uint64_t kFileBodyMemoryFactor = 8;
 
   std::optional<HttpResponse> ReserveBody(const HttpRequest& head, size_t body_bytes,
                                           std::shared_ptr<void>* hold) const {
     if (!options.memory) return std::nullopt;
+    const bool is_json = head.header("Content-Type").starts_with("application/json");
     auto reserved = options.memory->Reserve(
-        kBodyMemoryFactor * body_bytes,
-        absl::StrFormat("a request body of %u bytes, with what is parsed from it", body_bytes));
+        (is_json ? kJsonBodyMemoryFactor : kFileBodyMemoryFactor) * body_bytes,
+        absl::StrFormat("a request body of %u bytes, with what is made of it", body_bytes));
     if (reserved.ok()) {
       *hold = *std::move(reserved);
       return std::nullopt;
