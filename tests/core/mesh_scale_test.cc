@@ -32,13 +32,15 @@ struct Answers {
 
 constexpr double kEpsilon = 1e-2;
 
-// Exact and graph distances of a fixed spread of vertex pairs.
-Answers Measure(double factor) {
+// Exact and graph distances of a fixed spread of vertex pairs, on the graph
+// with pseudo vertices if asked.
+Answers Measure(double factor, bool pseudo = false) {
   auto mesh = Mesh::Build(ScaledSpot(factor), "spot.obj");
   EXPECT_TRUE(mesh.ok()) << mesh.status();
   auto shared = std::make_shared<const Mesh>(*std::move(mesh));
   DggBuildOptions options;
   options.params.epsilon = kEpsilon;
+  options.params.pseudo_vertices = pseudo;
   auto graph = BuildDgg(*shared, options);
   EXPECT_TRUE(graph.ok()) << graph.status();
   GeodesicEngine engine(shared, *graph);
@@ -74,6 +76,18 @@ TEST(MeshScaleTest, AnswersScaleWithTheMeshAcrossTheUsableRange) {
       EXPECT_NEAR(scaled.graph[i], unit.graph[i] * factor, 1e-5 * unit.graph[i] * factor)
           << "pair " << i << " at " << factor;
     }
+  }
+}
+
+// Pseudo vertices come from geodesics shot across faces, whose steps are
+// lengths in the mesh's units too.
+TEST(MeshScaleTest, PseudoVertexGraphsScaleWithTheMeshToo) {
+  const Answers unit = Measure(1, /*pseudo=*/true);
+  const double factor = 1e-20;
+  const Answers scaled = Measure(factor, /*pseudo=*/true);
+  for (size_t i = 0; i < unit.graph.size(); ++i) {
+    EXPECT_NEAR(scaled.graph[i], unit.graph[i] * factor, 1e-5 * unit.graph[i] * factor)
+        << "pair " << i;
   }
 }
 
