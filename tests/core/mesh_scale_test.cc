@@ -19,32 +19,32 @@ namespace {
 
 using ::testing::HasSubstr;
 
-TriangleSoup ScaledSpot(double factor) {
+TriangleSoup ScaledSpotSoup(double factor) {
   auto soup = ReadTriangleSoup(testing::SourcePath("data/spot.obj"));
   EXPECT_TRUE(soup.ok()) << soup.status();
   for (Vec3& p : soup->positions) p = {p.x * factor, p.y * factor, p.z * factor};
   return *std::move(soup);
 }
 
-struct Answers {
+struct ScaledAnswers {
   std::vector<double> exact, graph;
 };
 
-constexpr double kEpsilon = 1e-2;
+constexpr double kScaleTestEpsilon = 1e-2;
 
 // Exact and graph distances of a fixed spread of vertex pairs, on the graph
 // with pseudo vertices if asked.
-Answers Measure(double factor, bool pseudo = false) {
-  auto mesh = Mesh::Build(ScaledSpot(factor), "spot.obj");
+ScaledAnswers MeasureScaledSpot(double factor, bool pseudo = false) {
+  auto mesh = Mesh::Build(ScaledSpotSoup(factor), "spot.obj");
   EXPECT_TRUE(mesh.ok()) << mesh.status();
   auto shared = std::make_shared<const Mesh>(*std::move(mesh));
   DggBuildOptions options;
-  options.params.epsilon = kEpsilon;
+  options.params.epsilon = kScaleTestEpsilon;
   options.params.pseudo_vertices = pseudo;
   auto graph = BuildDgg(*shared, options);
   EXPECT_TRUE(graph.ok()) << graph.status();
   GeodesicEngine engine(shared, *graph);
-  Answers out;
+  ScaledAnswers out;
   const VertexId n = static_cast<VertexId>(shared->num_vertices());
   PairOptions exact;
   exact.exact = true;
@@ -61,9 +61,9 @@ Answers Measure(double factor, bool pseudo = false) {
 }
 
 TEST(MeshScaleTest, AnswersScaleWithTheMeshAcrossTheUsableRange) {
-  const Answers unit = Measure(1);
+  const ScaledAnswers unit = MeasureScaledSpot(1);
   for (double factor : {1e-20, 1e-6, 1e6, 1e20}) {
-    const Answers scaled = Measure(factor);
+    const ScaledAnswers scaled = MeasureScaledSpot(factor);
     for (size_t i = 0; i < unit.exact.size(); ++i) {
       const double want = unit.exact[i] * factor;
       ASSERT_GT(unit.exact[i], 0);
@@ -71,7 +71,7 @@ TEST(MeshScaleTest, AnswersScaleWithTheMeshAcrossTheUsableRange) {
       // The graph's bound: never below the exact distance, at most epsilon
       // (and float32 rounding) above it.
       EXPECT_GE(scaled.graph[i], scaled.exact[i] * (1 - 1e-9)) << "pair " << i << " at " << factor;
-      EXPECT_LE(scaled.graph[i], scaled.exact[i] * (1 + 1.5 * kEpsilon))
+      EXPECT_LE(scaled.graph[i], scaled.exact[i] * (1 + 1.5 * kScaleTestEpsilon))
           << "pair " << i << " at " << factor;
       EXPECT_NEAR(scaled.graph[i], unit.graph[i] * factor, 1e-5 * unit.graph[i] * factor)
           << "pair " << i << " at " << factor;
@@ -82,9 +82,9 @@ TEST(MeshScaleTest, AnswersScaleWithTheMeshAcrossTheUsableRange) {
 // Pseudo vertices come from geodesics shot across faces, whose steps are
 // lengths in the mesh's units too.
 TEST(MeshScaleTest, PseudoVertexGraphsScaleWithTheMeshToo) {
-  const Answers unit = Measure(1, /*pseudo=*/true);
+  const ScaledAnswers unit = MeasureScaledSpot(1, /*pseudo=*/true);
   const double factor = 1e-20;
-  const Answers scaled = Measure(factor, /*pseudo=*/true);
+  const ScaledAnswers scaled = MeasureScaledSpot(factor, /*pseudo=*/true);
   for (size_t i = 0; i < unit.graph.size(); ++i) {
     EXPECT_NEAR(scaled.graph[i], unit.graph[i] * factor, 1e-5 * unit.graph[i] * factor)
         << "pair " << i;
@@ -93,7 +93,7 @@ TEST(MeshScaleTest, PseudoVertexGraphsScaleWithTheMeshToo) {
 
 TEST(MeshScaleTest, RefusesMeshesOutsideTheUsableRangeNamingIt) {
   for (double factor : {1e-160, 1e-50}) {
-    auto mesh = Mesh::Build(ScaledSpot(factor), "spot.obj");
+    auto mesh = Mesh::Build(ScaledSpotSoup(factor), "spot.obj");
     ASSERT_FALSE(mesh.ok()) << factor;
     EXPECT_EQ(mesh.status().code(), absl::StatusCode::kInvalidArgument);
     EXPECT_THAT(mesh.status().message(), HasSubstr("spot.obj: edge "));
@@ -101,7 +101,7 @@ TEST(MeshScaleTest, RefusesMeshesOutsideTheUsableRangeNamingIt) {
     EXPECT_THAT(mesh.status().message(), HasSubstr("at least 1e-30"));
   }
   for (double factor : {1e50, 1e160}) {
-    auto mesh = Mesh::Build(ScaledSpot(factor), "spot.obj");
+    auto mesh = Mesh::Build(ScaledSpotSoup(factor), "spot.obj");
     ASSERT_FALSE(mesh.ok()) << factor;
     EXPECT_THAT(mesh.status().message(), HasSubstr("spot.obj: bounding-box diagonal"));
     EXPECT_THAT(mesh.status().message(), HasSubstr("at most 1e+30"));
@@ -115,7 +115,7 @@ TEST(MeshScaleTest, LoadMeshRefusesTheSameWayForTheOfflineCommands) {
   {
     std::FILE* f = std::fopen(path.c_str(), "w");
     ASSERT_NE(f, nullptr);
-    const TriangleSoup soup = ScaledSpot(1e35);
+    const TriangleSoup soup = ScaledSpotSoup(1e35);
     for (const Vec3& p : soup.positions) std::fprintf(f, "v %.9g %.9g %.9g\n", p.x, p.y, p.z);
     for (const auto& t : soup.triangles) {
       std::fprintf(f, "f %u %u %u\n", t[0] + 1, t[1] + 1, t[2] + 1);
