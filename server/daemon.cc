@@ -25,6 +25,10 @@ namespace {
 // daemon does not know about.
 constexpr auto kDiskGrace = std::chrono::minutes(2);
 
+// How long the HTTP gateway may take, once the gRPC calls still running at
+// the drain's end were cancelled, to write the answers they ended with.
+constexpr auto kAnswerWriteGrace = std::chrono::seconds(1);
+
 std::atomic<bool> g_stop{false};
 void OnSignal(int) { g_stop = true; }
 
@@ -80,6 +84,7 @@ int Daemon::Start() {
   // the catalog then records it for restarts and replicas.
   meshes_ = std::make_unique<MeshRegistry>(options_.mesh_root, options_.graph_dir,
                                            /*durable=*/!options_.graph_dir.empty());
+  meshes_->SetMemoryLimit(options_.memory_limit);
   if (disk_ && options_.disk_limit > 0) {
     meshes_->SetDiskReservation(
         [this](uint64_t bytes) { return disk_->Reserve(bytes); },
@@ -88,7 +93,9 @@ int Daemon::Start() {
   GraphCache::Options cache;
   cache.graph_dir = options_.graph_dir;
   cache.memory_limit = options_.memory_limit;
-  cache.resident_bytes_outside = [this] { return meshes_->resident_bytes(); };
+  cache.resident_bytes_outside = [this] {
+    return meshes_->resident_bytes() + (memory_ ? memory_->reserved() : 0);
+  };
   cache.on_file_used = MarkFileUsed;
   cache.build_workers = options_.build_workers;
   cache.build_threads = options_.build_threads;
@@ -109,6 +116,12 @@ int Daemon::Start() {
   service_ =
       std::make_unique<GeodesicService>(meshes_.get(), graphs_.get(), &metrics_, options_.limits);
   if (!options_.token.empty()) service_->RequireBearerToken(options_.token);
+  // Beside the meshes and the running queries' reservations; graphs make
+  // room, being evictable.
+  memory_ = std::make_unique<MemoryLedger>(options_.memory_limit, [this] {
+    return meshes_->resident_bytes() + service_->admission().reserved_bytes();
+  });
+  service_->CountHeldElsewhere([this] { return memory_->reserved(); });
   AddQueryMetrics();
   if (int rc = ListenGrpc(); rc != 0) return rc;
   int metrics_port = 0;
@@ -425,6 +438,7 @@ int Daemon::ListenHttp() {
   gateway.bearer_token = options_.token;
   gateway.cors_origin = options_.http_cors_origin;
   gateway.limits = options_.http_limits;
+  gateway.memory = memory_.get();
   auto started = HttpGateway::Start(gateway, server_.get(), meshes_.get());
   if (!started.ok()) {
     std::fprintf(stderr, "geodesicd serve: %s\n", std::string(started.status().message()).c_str());
@@ -583,12 +597,30 @@ void Daemon::FollowCatalog() {
 void Daemon::Drain() {
   std::fprintf(stderr, "geodesicd: shutting down (draining up to %.0f s)\n",
                options_.drain_seconds);
+  const auto drain = std::chrono::milliseconds(static_cast<int64_t>(options_.drain_seconds * 1000));
+  const auto drain_end = std::chrono::steady_clock::now() + drain;
   SetHealth("", false);
-  http_.reset();  // its calls go through `server_`
+  // No new requests over HTTP; those being answered go on.
+  if (http_) http_->StopAccepting();
+  // Queries waiting for a build are answered now instead of when it ends;
+  // no build outlives the drain. Graph writes are atomic (temp + rename):
+  // an interrupted build leaves no file a restart would trust.
+  graphs_->CancelAll();
+  // The gateway's calls go through the in-process channel, which the gRPC
+  // server's shutdown ends at once ("transport closed") rather than letting
+  // them finish: its requests get the drain first, then the server's own
+  // calls what is left of it (the health status already sends balancers
+  // elsewhere).
+  if (http_) http_->WaitForAnswers(drain_end);
+  // Calls still running then are cancelled.
+  const auto left = std::max(drain_end - std::chrono::steady_clock::now(),
+                             std::chrono::steady_clock::duration::zero());
   server_->Shutdown(std::chrono::system_clock::now() +
-                    std::chrono::milliseconds(static_cast<int64_t>(options_.drain_seconds * 1000)));
-  // Graph writes are atomic (temp + rename): an interrupted build leaves no
-  // file a restart would trust. The cache's destructor cancels and joins.
+                    std::chrono::duration_cast<std::chrono::system_clock::duration>(left));
+  // The gateway's requests whose calls were cancelled answer so within a
+  // moment; then every connection closes.
+  if (http_) http_->Finish(std::chrono::steady_clock::now() + kAnswerWriteGrace);
+  http_.reset();
 }
 
 void Daemon::SetHealth(const std::string& service, bool serving) {

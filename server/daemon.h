@@ -23,6 +23,7 @@
 #include "server/geodesic_service.h"
 #include "server/graph_cache.h"
 #include "server/http_gateway.h"
+#include "server/memory_ledger.h"
 #include "server/mesh_registry.h"
 #include "server/metrics.h"
 #include "server/serve_options.h"
@@ -83,6 +84,9 @@ class Daemon {
   std::unique_ptr<DiskBudget> disk_;
   std::atomic<uint64_t> disk_removed_{0};
   std::unique_ptr<MeshRegistry> meshes_;
+  // The HTTP gateway's bodies and answers within --memory-limit (made once
+  // the service is); outlives the cache and the gateway, which count it.
+  std::unique_ptr<MemoryLedger> memory_;
   std::unique_ptr<GraphCache> graphs_;
   std::unique_ptr<Catalog> catalog_;
   std::unique_ptr<CatalogSync> sync_;

@@ -266,8 +266,9 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
           .max_inflight_per_client = limits.max_inflight_per_client,
           .memory_limit = graphs->memory_limit(),
           .held =
-              [meshes, graphs] {
-                return meshes->resident_bytes() + graphs->resident_bytes() + graphs->mapped_bytes();
+              [this, meshes, graphs] {
+                return meshes->resident_bytes() + graphs->resident_bytes() +
+                       graphs->mapped_bytes() + (held_elsewhere_ ? held_elsewhere_() : 0);
               },
           .pinned = [meshes] { return meshes->resident_bytes(); },
           .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },
@@ -524,7 +525,10 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
                                     std::min(deadline, absl::Now() + absl::Seconds(1)));
   }
   engine = graphs_->Acquire(key);
-  if (engine.ok() || !absl::IsUnavailable(engine.status()) || !status.ok()) return engine;
+  if (engine.ok() || !absl::IsUnavailable(engine.status()) || !status.ok() ||
+      !InProgress(status->state)) {
+    return engine;
+  }
   const std::string which = key.max_error > 0
                                 ? absl::StrFormat("certified to max error %g", key.max_error)
                                 : absl::StrFormat("at epsilon %g", key.params.epsilon);

@@ -4,6 +4,7 @@
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
 #include <atomic>
+#include <functional>
 #include <map>
 #include <string>
 
@@ -94,6 +95,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   // answering, and follows it for meshes and graphs this daemon lacks
   // (registered through another replica, or before a restart).
   void UseCatalog(CatalogSync* catalog) { catalog_ = catalog; }
+  // Memory the limit covers that others hold (the HTTP gateway's bodies and
+  // answers): queries wait for it, or run beside it, as for graphs. Set
+  // before serving.
+  void CountHeldElsewhere(std::function<uint64_t()> bytes) { held_elsewhere_ = std::move(bytes); }
 
   grpc::Status RegisterMesh(grpc::ServerContext*, const v1::RegisterMeshRequest*,
                             v1::Mesh*) override;
@@ -208,6 +213,8 @@ class GeodesicService final : public v1::Geodesic::Service {
   // held while a build is checked and queued.
   absl::Mutex builds_mu_;
   std::map<GraphKey, std::string> started_by_ ABSL_GUARDED_BY(builds_mu_);
+
+  std::function<uint64_t()> held_elsewhere_;
   Admission admission_;
   StreamWatchdog watchdog_;
   std::atomic<int> calls_in_progress_{0};

@@ -1229,6 +1229,16 @@ absl::StatusOr<GraphStatus> GraphCache::Cancel(const GraphKey& key) {
   return e.status;
 }
 
+void GraphCache::CancelAll() {
+  absl::MutexLock lock(&mu_);
+  stopping_ = true;
+  for (auto& [key, e] : entries_) {
+    if (Finished(e->status.state)) continue;
+    e->cancel = true;
+    if (e->status.state == GraphState::kQueued) Transition(*e, GraphState::kCancelled);
+  }
+}
+
 std::vector<GraphStatus> GraphCache::List() const {
   absl::MutexLock lock(&mu_);
   std::vector<GraphStatus> out;
@@ -1273,6 +1283,12 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GraphCache::Acquire(const 
       return absl::FailedPreconditionError(
           absl::StrFormat("%s failed: %s", Describe(key), e.status.error));
     case GraphState::kCancelled:
+      // At shutdown (CancelAll) another replica, or this one restarted,
+      // can answer: unavailable, not the client's to fix.
+      if (stopping_) {
+        return absl::UnavailableError(
+            absl::StrFormat("%s was cancelled: the server is shutting down; retry", Describe(key)));
+      }
       return absl::FailedPreconditionError(
           absl::StrFormat("%s was cancelled: request it again", Describe(key)));
     case GraphState::kEvicted:

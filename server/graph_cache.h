@@ -262,6 +262,10 @@ class GraphCache {
   absl::StatusOr<GraphStatus> WaitForChange(const GraphKey& key, uint64_t version,
                                             absl::Time deadline) const;
   absl::StatusOr<GraphStatus> Cancel(const GraphKey& key);
+  // Shutdown: cancels every queued and running operation, and the workers
+  // take no more, so that queries waiting for a graph are answered at once
+  // and no build outlives the drain.
+  void CancelAll();
   std::vector<GraphStatus> List() const;
   uint64_t memory_limit() const { return options_.memory_limit; }
   // Drops every graph of a mesh (unload); their operations are cancelled and

@@ -1,6 +1,7 @@
 #include "server/http_gateway.h"
 
 #include <algorithm>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <cstdlib>
@@ -95,7 +96,11 @@ HttpResponse ErrorResponse(const grpc::Status& s) {
   res.status = HttpStatus(s.error_code());
   if (s.error_code() == grpc::StatusCode::UNAUTHENTICATED) {
     res.headers.emplace_back("WWW-Authenticate", "Bearer");
-  } else if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
+  }
+  // A client without the right credentials gets its answer and the
+  // connection's end: kept alive, its connections would fill the cap.
+  res.close = s.error_code() == grpc::StatusCode::UNAUTHENTICATED;
+  if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
     res.headers.emplace_back("Retry-After", "1");
   }
   json body = {{"error", {{"code", CodeName(s.error_code())}, {"message", s.error_message()}}}};
@@ -460,6 +465,51 @@ grpc::Status BodyDtype(const json& body, v1::MatrixDtype* dtype) {
   return grpc::Status::OK;
 }
 
+// The longest text GeometryJson writes for `mesh`: a shortest round-trip
+// double is at most 24 characters, a vertex id 10, each with a comma.
+uint64_t GeometryJsonBound(const Mesh& mesh) {
+  constexpr uint64_t kFrame = 1024;  // keys, the name, the fingerprint
+  return kFrame + 3 * uint64_t{mesh.num_vertices()} * 25 + 3 * uint64_t{mesh.num_faces()} * 11;
+}
+
+// A double as the JSON library writes it: the shortest text that reads back
+// the same, with ".0" on an integer so that it stays a float to readers.
+void AppendDouble(double value, std::string* out) {
+  char text[32];
+  const auto end = std::to_chars(text, text + sizeof text, value).ptr;
+  out->append(text, end);
+  if (std::find_if(text, end, [](char c) { return c == '.' || c == 'e' || c == 'n'; }) == end) {
+    out->append(".0");
+  }
+}
+
+// {"name", "fingerprint", "positions": [x, y, z, ...], "faces": [i, j, k,
+// ...]}: the registry's arrays in file order, flat.
+std::string GeometryJson(const std::string& name, const json& fingerprint, const Mesh& mesh,
+                         uint64_t bound) {
+  std::string out;
+  out.reserve(bound);
+  out += "{\"name\":" + Dump(json(name)) + ",\"fingerprint\":" + Dump(fingerprint) +
+         ",\"positions\":[";
+  const char* comma = "";
+  for (const Vec3& p : mesh.positions()) {
+    for (double c : {p.x, p.y, p.z}) {
+      out += comma;
+      AppendDouble(c, &out);
+      comma = ",";
+    }
+  }
+  out += "],\"faces\":[";
+  comma = "";
+  for (VertexId v : mesh.corners()) {
+    out += comma;
+    out += std::to_string(v);
+    comma = ",";
+  }
+  out += "]}";
+  return out;
+}
+
 }  // namespace
 
 struct HttpGateway::Impl {
@@ -655,25 +705,29 @@ struct HttpGateway::Impl {
 
   // Geometry has no RPC: GetMesh authorises the call and names a missing
   // mesh, then the registry's arrays are sent as they are, in file order,
-  // so that a face id and its barycentrics mean the same on both sides.
-  grpc::Status Geometry(const Call& call, const ApiRequest& r, json* out) {
+  // so that a face id and its barycentrics mean the same on both sides. The
+  // text is written straight into one string of the size reserved for it
+  // within --memory-limit, held until it is sent: a tree of JSON values
+  // first would take several times the text.
+  grpc::Status Geometry(const Call& call, const ApiRequest& r, json*) {
     const std::string& name = r.mesh;
     json info;
     if (grpc::Status s = GetMesh(call, r, &info); !s.ok()) return s;
     auto m = meshes->Get(name);
     if (!m.ok()) return ToGrpc(m.status());
     const Mesh& mesh = *(*m)->mesh;
-    std::vector<double> positions;
-    positions.reserve(3 * mesh.num_vertices());
-    for (const Vec3& p : mesh.positions()) {
-      positions.push_back(p.x);
-      positions.push_back(p.y);
-      positions.push_back(p.z);
+    const uint64_t bytes = GeometryJsonBound(mesh);
+    std::shared_ptr<void> hold;
+    if (options.memory) {
+      auto reserved = options.memory->Reserve(
+          bytes, absl::StrFormat("the geometry of mesh '%s' as JSON", name));
+      if (!reserved.ok()) return ToGrpc(reserved.status());
+      hold = *std::move(reserved);
     }
-    *out = {{"name", name},
-            {"fingerprint", info["fingerprint"]},
-            {"positions", std::move(positions)},
-            {"faces", mesh.corners()}};
+    HttpResponse& res = r.raw->emplace();
+    res.body = GeometryJson(name, info["fingerprint"], mesh, bytes);
+    res.content_type = "application/json";
+    res.hold = std::move(hold);
     return grpc::Status::OK;
   }
 
@@ -1222,6 +1276,32 @@ struct HttpGateway::Impl {
     return std::nullopt;
   }
 
+  // A body and what is made of it, reserved within --memory-limit before it
+  // is read. A JSON body becomes a tree of values, then copies of its
+  // points, then the request message on both sides of the in-process
+  // channel: a body of short tokens (pairs of "v:ID" strings) takes tens of
+  // times its text, and the reservation covers that worst case. A mesh
+  // file's bytes are copied a few times whole.
+  static constexpr uint64_t kJsonBodyMemoryFactor = 32;
+  static constexpr uint64_t kFileBodyMemoryFactor = 8;
+
+  std::optional<HttpResponse> ReserveBody(const HttpRequest& head, size_t body_bytes,
+                                          std::shared_ptr<void>* hold) const {
+    if (!options.memory) return std::nullopt;
+    const bool is_json = head.header("Content-Type").starts_with("application/json");
+    auto reserved = options.memory->Reserve(
+        (is_json ? kJsonBodyMemoryFactor : kFileBodyMemoryFactor) * body_bytes,
+        absl::StrFormat("a request body of %u bytes, with what is made of it", body_bytes));
+    if (reserved.ok()) {
+      *hold = *std::move(reserved);
+      return std::nullopt;
+    }
+    HttpResponse res = ErrorResponse(ToGrpc(reserved.status()));
+    // Never fits: too large, as an over-long body is; fits later: busy.
+    if (absl::IsResourceExhausted(reserved.status())) res.status = 413;
+    return res;
+  }
+
   HttpResponse Refuse(HttpRefusal why, const HttpRequest& head, size_t body_limit) const {
     switch (why) {
       case HttpRefusal::kBodyTooLarge: {
@@ -1286,6 +1366,14 @@ HttpGateway::HttpGateway(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
 HttpGateway::~HttpGateway() = default;
 
+void HttpGateway::StopAccepting() { impl_->server->StopAccepting(); }
+void HttpGateway::WaitForAnswers(std::chrono::steady_clock::time_point deadline) {
+  impl_->server->WaitForAnswers(deadline);
+}
+void HttpGateway::Finish(std::chrono::steady_clock::time_point deadline) {
+  impl_->server->Finish(deadline);
+}
+
 int HttpGateway::port() const { return impl_->server->port(); }
 bool HttpGateway::tls() const { return impl_->server->tls(); }
 
@@ -1316,6 +1404,12 @@ absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewa
   server.handler = [g](const HttpRequest& req) { return g->WithCors(req, g->Handle(req)); };
   server.headers = [g](const HttpRequest& head, size_t* body_limit) {
     std::optional<HttpResponse> res = g->Admit(head, body_limit);
+    if (res) res = g->WithCors(head, std::move(*res));
+    return res;
+  };
+  server.reserve_body = [g](const HttpRequest& head, size_t body_bytes,
+                            std::shared_ptr<void>* hold) {
+    std::optional<HttpResponse> res = g->ReserveBody(head, body_bytes, hold);
     if (res) res = g->WithCors(head, std::move(*res));
     return res;
   };

@@ -26,12 +26,14 @@
 #ifndef GEODESIC_SERVER_HTTP_GATEWAY_H_
 #define GEODESIC_SERVER_HTTP_GATEWAY_H_
 
+#include <chrono>
 #include <memory>
 #include <string>
 
 #include "absl/status/statusor.h"
 #include "grpcpp/server.h"
 #include "server/http_server.h"
+#include "server/memory_ledger.h"
 #include "server/mesh_registry.h"
 
 namespace geodesic::server {
@@ -56,6 +58,9 @@ struct HttpGatewayOptions {
   // Deadlines, connection and worker limits (limits.max_body_bytes is
   // replaced by max_body_bytes above).
   HttpLimits limits;
+  // --memory-limit's share for request bodies and geometry answers; null:
+  // not counted. Must outlive the gateway.
+  MemoryLedger* memory = nullptr;
 };
 
 class HttpGateway {
@@ -65,8 +70,14 @@ class HttpGateway {
   static absl::StatusOr<std::unique_ptr<HttpGateway>> Start(const HttpGatewayOptions& options,
                                                             grpc::Server* grpc_server,
                                                             const MeshRegistry* meshes);
-  // Stops accepting, finishes queued and running requests, closes every
-  // connection.
+  // Shutdown in steps (HttpServer's): stop accepting and reading new
+  // requests; wait for the answers of those being answered until a
+  // deadline; and, once the calls still running were stopped, wait again
+  // for their answers and close every connection.
+  void StopAccepting();
+  void WaitForAnswers(std::chrono::steady_clock::time_point deadline);
+  void Finish(std::chrono::steady_clock::time_point deadline);
+  // Closes every connection, then waits for running requests to return.
   ~HttpGateway();
 
   int port() const;

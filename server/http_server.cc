@@ -211,6 +211,58 @@ class ConnectionLimiter {
   std::map<std::string, int> by_address_;
 };
 
+// What shutdown asks of a connection, on its strand.
+class SessionControl {
+ public:
+  virtual ~SessionControl() = default;
+  // Closes the connection unless it is answering a request; one that is
+  // closes once its answer is written (`now`: closes it whatever it does).
+  virtual void Stop(bool now) = 0;
+};
+
+// The open connections and how many are answering a request (from the
+// request's dispatch to the end of its answer's write), for shutdown.
+class SessionRegistry {
+ public:
+  uint64_t Add(std::weak_ptr<SessionControl> session) {
+    std::lock_guard<std::mutex> lock(mu_);
+    sessions_.emplace(next_id_, std::move(session));
+    return next_id_++;
+  }
+  void Remove(uint64_t id) {
+    std::lock_guard<std::mutex> lock(mu_);
+    sessions_.erase(id);
+  }
+  void Busy(int delta) {
+    std::lock_guard<std::mutex> lock(mu_);
+    busy_ += delta;
+    if (busy_ == 0) idle_.notify_all();
+  }
+  // Until no connection is answering, or the deadline.
+  void WaitIdle(std::chrono::steady_clock::time_point deadline) {
+    std::unique_lock<std::mutex> lock(mu_);
+    idle_.wait_until(lock, deadline, [this] { return busy_ == 0; });
+  }
+  void StopAll(bool now) {
+    std::vector<std::shared_ptr<SessionControl>> live;
+    {
+      std::lock_guard<std::mutex> lock(mu_);
+      for (auto& [id, weak] : sessions_) {
+        if (auto session = weak.lock()) live.push_back(std::move(session));
+      }
+    }
+    // Outside the lock: a session released here unregisters itself.
+    for (auto& session : live) session->Stop(now);
+  }
+
+ private:
+  std::mutex mu_;
+  std::condition_variable idle_;
+  std::map<uint64_t, std::weak_ptr<SessionControl>> sessions_;
+  uint64_t next_id_ = 0;
+  int busy_ = 0;
+};
+
 // What connections share with the server; they hold it, so it lives as long
 // as the last of them, whatever the order of destruction at shutdown.
 struct Shared {
@@ -247,19 +299,36 @@ struct Shared {
   std::optional<ssl::context> tls;
   WorkerPool pool;
   ConnectionLimiter limiter;
+  SessionRegistry sessions;
+  // Shutdown began: no connection reads another request.
+  std::atomic<bool> stopping{false};
 };
 
 // One client connection, plain or TLS. Every operation runs on the
 // connection's strand; the timer of the lowest layer (beast::tcp_stream)
 // holds each phase's deadline.
 template <typename Stream>
-class Session : public std::enable_shared_from_this<Session<Stream>> {
+class Session : public SessionControl, public std::enable_shared_from_this<Session<Stream>> {
  public:
   Session(std::shared_ptr<Shared> shared, Stream stream, std::string address)
       : shared_(std::move(shared)), stream_(std::move(stream)), address_(std::move(address)) {}
-  ~Session() { shared_->limiter.Release(address_); }
+  ~Session() override {
+    if (busy_) shared_->sessions.Busy(-1);
+    shared_->sessions.Remove(id_);
+    shared_->limiter.Release(address_);
+  }
+
+  void Stop(bool now) override {
+    net::post(stream_.get_executor(), [self = this->shared_from_this(), now] {
+      self->Guard([&] {
+        if (now || !self->busy_) self->Close();
+      });
+    });
+  }
 
   void Start() {
+    id_ = shared_->sessions.Add(this->weak_from_this());
+    if (shared_->stopping) return Close();
     // One deadline for the handshake and the first request's headers.
     Tcp().expires_after(shared_->options.limits.header_timeout);
     if constexpr (kTls) {
@@ -294,6 +363,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   // A kept-alive connection may stay silent for the idle timeout; once a
   // byte arrives its headers have the header timeout.
   void AwaitNextRequest() {
+    if (shared_->stopping) return Close();
     if (buffer_.size() > 0) {
       Tcp().expires_after(shared_->options.limits.header_timeout);
       return ReadHeader();
@@ -365,8 +435,19 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     }
     if (!has_body) return Dispatch();
     limit_ = limit;
-    if (auto length = parser_->content_length(); length && *length > limit) {
+    const auto length = parser_->content_length();
+    if (length && *length > limit) {
       return Send(shared_->Refuse(HttpRefusal::kBodyTooLarge, request_, limit), true);
+    }
+    if (shared_->options.reserve_body) {
+      std::optional<HttpResponse> refused;
+      try {
+        refused = shared_->options.reserve_body(
+            request_, length ? static_cast<size_t>(*length) : limit, &body_hold_);
+      } catch (...) {
+        refused = shared_->Refuse(HttpRefusal::kInternal, request_, limit);
+      }
+      if (refused) return Send(std::move(*refused), true);
     }
     parser_->body_limit(static_cast<uint64_t>(limit));
     Tcp().expires_after(shared_->options.limits.body_timeout);
@@ -408,6 +489,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   void Dispatch() {
     parser_.reset();
     Tcp().expires_never();
+    SetBusy(true);
     auto request = std::make_shared<HttpRequest>(std::move(request_));
     auto self = this->shared_from_this();
     const bool queued = shared_->pool.TryPost([self, request] {
@@ -425,6 +507,7 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   }
 
   void Send(HttpResponse res, bool close) {
+    close = close || res.close || shared_->stopping;
     auto out = std::make_shared<http::response<http::string_body>>();
     out->version(version_ == 10 ? 10 : 11);
     out->result(static_cast<unsigned>(res.status));
@@ -440,12 +523,23 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
     }
     Tcp().expires_after(shared_->options.limits.write_timeout);
     http::async_write(stream_, *out,
-                      [self = this->shared_from_this(), out, close](beast::error_code ec, size_t) {
+                      [self = this->shared_from_this(), out, close, hold = std::move(res.hold)](
+                          beast::error_code ec, size_t) {
                         self->Guard([&] {
+                          self->body_hold_.reset();
+                          self->SetBusy(false);
                           if (ec || close) return self->Shutdown();
                           self->AwaitNextRequest();
                         });
                       });
+  }
+
+  // Counted from the dispatch to the end of the answer's write, for
+  // shutdown to wait on.
+  void SetBusy(bool busy) {
+    if (busy == busy_) return;
+    busy_ = busy;
+    shared_->sessions.Busy(busy ? 1 : -1);
   }
 
   // A polite end: TLS says close_notify (without waiting long for the
@@ -473,6 +567,9 @@ class Session : public std::enable_shared_from_this<Session<Stream>> {
   beast::flat_buffer buffer_;
   std::optional<http::request_parser<http::string_body>> parser_;
   HttpRequest request_;
+  std::shared_ptr<void> body_hold_;  // reserve_body's, until the answer is written
+  uint64_t id_ = 0;
+  bool busy_ = false;
   size_t limit_ = 0;
   bool head_ = false, keep_alive_ = false;
   unsigned version_ = 11;
@@ -521,6 +618,9 @@ struct HttpServer::Impl {
   net::io_context ioc;
   std::optional<tcp::acceptor> acceptor;
   std::optional<net::steady_timer> retry_accept;
+  // Keeps the io threads running once the acceptor is closed at shutdown,
+  // while answers still come from the workers.
+  std::optional<net::executor_work_guard<net::io_context::executor_type>> keep_running;
   std::vector<std::thread> threads;
   int port = 0;
 
@@ -580,13 +680,29 @@ struct HttpServer::Impl {
 
 HttpServer::HttpServer(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
 
-HttpServer::~HttpServer() {
-  if (!impl_) return;
+void HttpServer::StopAccepting() {
+  if (impl_->shared->stopping.exchange(true)) return;
   net::post(impl_->ioc, [impl = impl_.get()] {
     beast::error_code ec;
     impl->acceptor->close(ec);
     impl->retry_accept->cancel();
   });
+  impl_->shared->sessions.StopAll(/*now=*/false);
+}
+
+void HttpServer::WaitForAnswers(std::chrono::steady_clock::time_point deadline) {
+  impl_->shared->sessions.WaitIdle(deadline);
+}
+
+void HttpServer::Finish(std::chrono::steady_clock::time_point deadline) {
+  StopAccepting();
+  WaitForAnswers(deadline);
+  impl_->shared->sessions.StopAll(/*now=*/true);
+}
+
+HttpServer::~HttpServer() {
+  if (!impl_) return;
+  Finish(std::chrono::steady_clock::now());
   impl_->shared->pool.Drain();
   impl_->ioc.stop();
   for (auto& t : impl_->threads) {
@@ -677,6 +793,7 @@ absl::Status HttpServer::Impl::Listen(const HostPort& at, const std::string& lis
 
 void HttpServer::Impl::RunThreads() {
   retry_accept.emplace(ioc);
+  keep_running.emplace(ioc.get_executor());
   Accept();
   const int io_threads = std::max(1, shared->options.limits.io_threads);
   for (int i = 0; i < io_threads; ++i) {

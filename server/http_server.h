@@ -40,6 +40,11 @@ struct HttpResponse {
   std::string content_type;  // none when empty
   std::vector<std::pair<std::string, std::string>> headers;
   std::string body;
+  // The connection closes once this is sent: a client refused for its
+  // credentials must not keep a connection slot by sending more requests.
+  bool close = false;
+  // Held until the response is written (a memory reservation for its body).
+  std::shared_ptr<void> hold;
 };
 
 // Why the server answers by itself, without the handler.
@@ -92,6 +97,14 @@ struct HttpServerOptions {
   // then closed if a body was announced). It may lower *body_limit for this
   // request. Must not block.
   std::function<std::optional<HttpResponse>(const HttpRequest& head, size_t* body_limit)> headers;
+  // Runs on an io thread before a body is read, with its Content-Length (a
+  // chunked body: the body limit): a response here refuses it and closes the
+  // connection; otherwise what it leaves in *hold is kept until the
+  // request's answer is written (a memory reservation for the body and what
+  // is parsed from it). Must not block.
+  std::function<std::optional<HttpResponse>(const HttpRequest& head, size_t body_bytes,
+                                            std::shared_ptr<void>* hold)>
+      reserve_body;
   // The server's own answers; absent: a plain-text body naming the reason.
   // `head` may be empty (a request line that did not parse).
   std::function<HttpResponse(HttpRefusal, const HttpRequest& head, size_t body_limit)> refuse;
@@ -101,8 +114,19 @@ class HttpServer {
  public:
   // Binds and starts serving; refuses a taken port and unusable TLS files.
   static absl::StatusOr<std::unique_ptr<HttpServer>> Start(HttpServerOptions options);
-  // Stops accepting, lets queued and running handlers finish, closes every
-  // connection and joins the threads.
+  // Shutdown's first step: stops accepting, closes connections waiting for
+  // a request (kept-alive or half-sent ones), and closes the others once
+  // their answer is written. Returns at once.
+  void StopAccepting();
+  // Waits until every request being answered has had its answer written, or
+  // until `deadline`.
+  void WaitForAnswers(std::chrono::steady_clock::time_point deadline);
+  // WaitForAnswers, then closes every connection. Requests still running
+  // then get no answer: their handlers should have been stopped (the gRPC
+  // server's shutdown cancels their calls).
+  void Finish(std::chrono::steady_clock::time_point deadline);
+  // Finish(now) unless it ran, then joins the threads once queued and
+  // running handlers return.
   ~HttpServer();
 
   int port() const;

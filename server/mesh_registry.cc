@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <bit>
 #include <cerrno>
 #include <chrono>
@@ -534,9 +535,30 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(
     return absl::AlreadyExistsError(
         absl::StrFormat("mesh '%s' is registered with other content; unload it first", m->name));
   }
+  RETURN_IF_ERROR(FitsMemoryLimit(*m));
   std::shared_ptr<const RegisteredMesh> stored = std::move(m);
   meshes_.emplace(stored->name, stored);
   return stored;
+}
+
+absl::Status MeshRegistry::FitsMemoryLimit(const RegisteredMesh& m) const {
+  if (memory_limit_ == 0) return absl::OkStatus();
+  // As resident_bytes counts: each mesh once, however many names. The room
+  // kept for queries is the largest mesh's own bytes again: a field query's
+  // scratch and answer on it take about as much as its arrays.
+  absl::flat_hash_set<const Mesh*> counted;
+  uint64_t total = 0, largest = m.mesh->memory_bytes();
+  for (const auto& [name, other] : meshes_) {
+    if (counted.insert(other->mesh.get()).second) total += other->mesh->memory_bytes();
+    largest = std::max<uint64_t>(largest, other->mesh->memory_bytes());
+  }
+  if (counted.insert(m.mesh.get()).second) total += m.mesh->memory_bytes();
+  if (total + largest <= memory_limit_) return absl::OkStatus();
+  return absl::ResourceExhaustedError(absl::StrFormat(
+      "mesh '%s' (%u bytes) is refused: the registered meshes would then take %u bytes of the "
+      "server's memory limit (--memory-limit, %u bytes), leaving less than the %u bytes a query "
+      "on the largest of them needs; unload a mesh or raise the limit",
+      Echo(m.name), m.mesh->memory_bytes(), total, memory_limit_, largest));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Get(

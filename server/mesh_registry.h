@@ -84,6 +84,12 @@ class MeshRegistry {
     disk_done_ = std::move(done);
   }
 
+  // --memory-limit (0: none): a mesh registered under a new name is refused
+  // when the registered meshes with it, and room for a query on the largest
+  // of them, would pass it; queries, not registrations, would fail
+  // otherwise. Set before the first registration.
+  void SetMemoryLimit(uint64_t limit) { memory_limit_ = limit; }
+
   // `relative_path` must stay inside the mesh root once symbolic links are
   // resolved (PERMISSION_DENIED otherwise) and name a regular file
   // (INVALID_ARGUMENT naming what it is otherwise: a FIFO is refused, not
@@ -134,6 +140,9 @@ class MeshRegistry {
 
  private:
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Insert(std::shared_ptr<RegisteredMesh> m);
+  // RESOURCE_EXHAUSTED, naming the limit, when `m` under a new name does
+  // not fit SetMemoryLimit's limit.
+  absl::Status FitsMemoryLimit(const RegisteredMesh& m) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   // ALREADY_EXISTS when Insert would refuse `m`.
   absl::Status NameTakenByOther(const RegisteredMesh& m) const;
   // Loads the file at `path`, restoring it from a snapshot when there is one
@@ -151,6 +160,7 @@ class MeshRegistry {
   const std::string mesh_root_;
   const std::string snapshot_dir_;
   const bool durable_;
+  uint64_t memory_limit_ = 0;
   std::function<absl::Status(uint64_t bytes)> reserve_disk_;
   std::function<void(uint64_t reserved, uint64_t written)> disk_done_;
   absl::Mutex saves_mu_;

@@ -67,7 +67,10 @@ FaceExit FirstExit(FaceId f, const std::array<Vec2, 3>& pos, const Vec2& p, cons
     if (std::abs(den) < 1e-300) continue;
     const double s = Cross(q0 - p, q1 - q0) / -den;
     const double t = Cross(q0 - p, dir) / -den;
-    if (s > 1e-15 && t >= -1e-12 && t <= 1 + 1e-12 && s < exit.s) {
+    // The exit the shot stands on is skipped: s is a length, so "zero" is
+    // relative to the edge's, as a mesh's units are arbitrary.
+    const double zero = 1e-15 * std::max(std::abs(q1.x - q0.x), std::abs(q1.y - q0.y));
+    if (s > zero && t >= -1e-12 && t <= 1 + 1e-12 && s < exit.s) {
       exit = {g, s, std::clamp(t, 0.0, 1.0)};
     }
   }

@@ -78,10 +78,65 @@ absl::Status CheckSoup(const TriangleSoup& soup, std::string_view source) {
   return absl::OkStatus();
 }
 
+// The first edge shorter than kMinEdgeLength but not zero (zero-length
+// edges are degenerate faces, which the engines skip): false if none. Only
+// an edge whose largest coordinate difference is below the bound can be,
+// and only those pay for hypot, which neither underflows nor overflows as
+// a squared length would.
+bool FindTooShortEdge(const TriangleSoup& soup, size_t* face, int* corner, double* length) {
+  for (size_t f = 0; f < soup.triangles.size(); ++f) {
+    for (int k = 0; k < 3; ++k) {
+      const Vec3 d =
+          soup.positions[soup.triangles[f][(k + 1) % 3]] - soup.positions[soup.triangles[f][k]];
+      if (std::max({std::abs(d.x), std::abs(d.y), std::abs(d.z)}) >= kMinEdgeLength) continue;
+      const double l = std::hypot(d.x, d.y, d.z);
+      if (l > 0 && l < kMinEdgeLength) {
+        *face = f;
+        *corner = k;
+        *length = l;
+        return true;
+      }
+    }
+  }
+  return false;
+}
+
+// Refuses a mesh whose lengths the engines cannot represent accurately (see
+// kMinEdgeLength in mesh.h), naming the measure, its value and the range.
+absl::Status CheckScale(const TriangleSoup& soup, std::string_view source) {
+  if (soup.positions.empty()) return absl::OkStatus();
+  Vec3 lo = soup.positions[0], hi = lo;
+  for (const Vec3& p : soup.positions) {
+    lo = {std::min(lo.x, p.x), std::min(lo.y, p.y), std::min(lo.z, p.z)};
+    hi = {std::max(hi.x, p.x), std::max(hi.y, p.y), std::max(hi.z, p.z)};
+  }
+  const double diagonal = std::hypot(hi.x - lo.x, hi.y - lo.y, hi.z - lo.z);
+  const std::string range = absl::StrFormat(
+      "usable range: edges of at least %g and a bounding-box diagonal of at most "
+      "%g; rescale the mesh's units",
+      kMinEdgeLength, kMaxMeshDiagonal);
+  if (diagonal > kMaxMeshDiagonal) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("%s: bounding-box diagonal %g is too large to measure accurately (%s)",
+                        source, diagonal, range));
+  }
+  size_t face = 0;
+  int corner = 0;
+  double length = 0;
+  if (FindTooShortEdge(soup, &face, &corner, &length)) {
+    const auto& t = soup.triangles[face];
+    return absl::InvalidArgumentError(absl::StrFormat(
+        "%s: edge %u-%u of face %u is %g long, too short to measure accurately (%s)", source,
+        t[corner], t[(corner + 1) % 3], face, length, range));
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 absl::StatusOr<Mesh> Mesh::Build(TriangleSoup soup, std::string_view source) {
   RETURN_IF_ERROR(CheckSoup(soup, source));
+  RETURN_IF_ERROR(CheckScale(soup, source));
   Mesh m;
   const size_t nf = soup.triangles.size();
   m.a_.corners.resize(3 * nf);

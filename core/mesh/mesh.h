@@ -60,6 +60,20 @@ void ForEachEdge(const EdgeUses& uses, Body body) {
   }
 }
 
+// The lengths a mesh may have, in its own units: Mesh::Build refuses one
+// with a non-zero edge shorter than kMinEdgeLength or a bounding-box
+// diagonal longer than kMaxMeshDiagonal. Graph weights are float32, whose
+// normal numbers span about 1.2e-38 to 3.4e38: below, weights lose bits or
+// vanish (graph distances then far off the exact ones); above, they become
+// infinite (connected points unreachable). The exact engine works in double
+// but takes up to fourth powers of lengths (Heron's product), which leave
+// double's normal range below about 1e-77 and above 1e77. Eight decades of
+// margin inside float32's range keep weights normal for pieces much shorter
+// than the shortest edge (epsilon fractions, pseudo vertices) and sums much
+// longer than the diagonal, and keep every fourth power far inside double's.
+inline constexpr double kMinEdgeLength = 1e-30;
+inline constexpr double kMaxMeshDiagonal = 1e30;
+
 // Vertices and triangles exactly as a file lists them.
 struct TriangleSoup {
   std::vector<Vec3> positions;
@@ -73,7 +87,9 @@ class Mesh {
   // Builds the half-edge structure. Fails with INVALID_ARGUMENT naming the
   // first offending element for out-of-range indices, non-finite coordinates,
   // faces with a repeated vertex, non-manifold edges or vertices, and
-  // inconsistently oriented neighbours. `source` names the input in messages.
+  // inconsistently oriented neighbours, and for lengths outside the usable
+  // range (kMinEdgeLength, kMaxMeshDiagonal). `source` names the input in
+  // messages.
   static absl::StatusOr<Mesh> Build(TriangleSoup soup, std::string_view source);
 
   size_t num_vertices() const { return a_.positions.size(); }
