@@ -232,6 +232,22 @@ SparseRow WithinRadius(absl::Span<const double> row, double radius, bool narrow)
   return kept;
 }
 
+// The first chunk->rows() staged rows as the chunk's CSR bytes (indptr,
+// indices, values), each staged row emptied for the next block.
+void MoveSparseRows(std::vector<SparseRow>& staged, v1::MatrixRowsChunk* chunk) {
+  std::string* indptr = chunk->mutable_indptr();
+  uint64_t offset = 0;
+  indptr->append(reinterpret_cast<const char*>(&offset), sizeof offset);
+  for (size_t k = 0; k < chunk->rows(); ++k) {
+    SparseRow& row = staged[k];
+    offset += row.count;
+    indptr->append(reinterpret_cast<const char*>(&offset), sizeof offset);
+    chunk->mutable_indices()->append(row.indices);
+    chunk->mutable_values()->append(row.values);
+    row = SparseRow();
+  }
+}
+
 // Serialized sizes, a little over: a double takes 9 bytes with its tag
 // unless packed, a message adds its tag and length, and the echo and
 // framing stay under a kilobyte.
@@ -1116,7 +1132,6 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
     ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery(ClientKey(*ctx)));
     RETURN_IF_ERROR(CheckMatrixLimits(*req, /*streamed=*/true));
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
-    const GraphKey& key = q.key;
     const std::vector<SurfacePoint>& sources = q.sources;
     const std::vector<SurfacePoint>& targets = q.targets;
     const bool sparse = req->radius() > 0;
@@ -1150,7 +1165,6 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
     };
     ASSIGN_OR_RETURN(Admission::Ticket run, start_block());
     StreamWatchdog::Watch watch = WatchStream("MatrixRows", ctx);
-
     v1::MatrixRowsChunk chunk;
     char* dense = nullptr;  // the block's rows, written in place by the threads computing them
     std::vector<SparseRow> staged(sparse ? block_rows : 0);
@@ -1158,7 +1172,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
       const size_t n = std::min(block_rows, sources.size() - first);
       chunk.Clear();
       if (first == 0) {
-        FillEcho(Built(key, *q.engine), req->exact() ? "exact" : "lc", chunk.mutable_echo());
+        FillEcho(Built(q.key, *q.engine), req->exact() ? "exact" : "lc", chunk.mutable_echo());
       }
       chunk.set_first_row(first);
       chunk.set_rows(n);
@@ -1187,22 +1201,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
       return absl::OkStatus();
     };
     sink.batch_done = [&](size_t end) -> absl::Status {
-      if (sparse) {
-        const size_t n = chunk.rows();
-        std::string* indptr = chunk.mutable_indptr();
-        std::string* indices = chunk.mutable_indices();
-        std::string* values = chunk.mutable_values();
-        uint64_t offset = 0;
-        indptr->append(reinterpret_cast<const char*>(&offset), sizeof offset);
-        for (size_t k = 0; k < n; ++k) {
-          SparseRow& row = staged[k];
-          offset += row.count;
-          indptr->append(reinterpret_cast<const char*>(&offset), sizeof offset);
-          indices->append(row.indices);
-          values->append(row.values);
-          row = SparseRow();
-        }
-      }
+      if (sparse) MoveSparseRows(staged, &chunk);
       {
         // The block's bytes stay counted while the client takes them.
         const Admission::Ticket sending = admission_.KeepAnswer(std::move(run));
