@@ -16,6 +16,7 @@
 #include "absl/time/time.h"
 #include "core/base/status.h"
 #include "core/dgg/dgg_build.h"
+#include "server/client_key.h"
 #include "server/constant_time.h"
 #include "server/convert.h"
 #include "server/log.h"
@@ -55,26 +56,6 @@ bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
     }
   }
   return false;
-}
-
-// Who a call is for fair shares (Admission, the build budget): its bearer
-// token when it sends one, else its peer's address without the port, which
-// changes with every connection.
-std::string ClientKey(const grpc::ServerContext& ctx) {
-  constexpr std::string_view kPrefix = "Bearer ";
-  const auto& metadata = ctx.client_metadata();
-  auto [begin, end] = metadata.equal_range("authorization");
-  for (auto it = begin; it != end; ++it) {
-    std::string_view value(it->second.data(), it->second.size());
-    if (value.starts_with(kPrefix)) return "token " + std::string(value.substr(kPrefix.size()));
-  }
-  std::string peer = ctx.peer();
-  const size_t colon = peer.rfind(':');
-  if (colon != std::string::npos && colon + 1 < peer.size() &&
-      peer.find_first_not_of("0123456789", colon + 1) == std::string::npos) {
-    peer.resize(colon);
-  }
-  return "peer " + peer;
 }
 
 // How long a slice of a long call (exact pairs, sampling) holds its run

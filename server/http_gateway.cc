@@ -31,6 +31,7 @@
 #include "google/protobuf/util/json_util.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
+#include "server/client_key.h"
 #include "server/constant_time.h"
 #include "server/convert.h"
 #include "server/http_server.h"
@@ -140,7 +141,8 @@ json JsonDistance(double d) { return std::isfinite(d) ? json(d) : json(nullptr);
 class Call {
  public:
   // `segments`: the path's parts the route captured (mesh names).
-  Call(const HttpRequest& req, const std::vector<std::string>& segments) {
+  Call(const HttpRequest& req, const std::vector<std::string>& segments)
+      : client_address_(req.remote_address) {
     const std::string auth = req.header("Authorization");
     for (char c : auth) {
       if (c < 0x20 || c > 0x7e) {
@@ -178,6 +180,9 @@ class Call {
   std::unique_ptr<grpc::ClientContext> Context() const {
     auto ctx = std::make_unique<grpc::ClientContext>();
     if (!auth_.empty()) ctx->AddMetadata("authorization", auth_);
+    // Fair shares go by the HTTP client, not by the gateway's one channel.
+    if (!client_address_.empty())
+      ctx->AddMetadata(kHttpClientMetadata, HttpClientValue(client_address_));
     if (deadline_) ctx->set_deadline(*deadline_);
     return ctx;
   }
@@ -189,6 +194,7 @@ class Call {
 
  private:
   std::string auth_;
+  std::string client_address_;
   std::optional<std::chrono::system_clock::time_point> deadline_;
   grpc::Status status_;
 };

@@ -267,7 +267,7 @@ def case_idle(address, stub, metrics_port, log, idle):
         step = len(spot) // 4 + 1
         for start in range(0, len(spot), step):
             if start:
-                time.sleep(idle * 0.6)
+                time.sleep(idle * 0.4)
             yield pb.UploadMeshRequest(
                 data=spot[start:start + step],
                 **(dict(name="steady", format="obj", total_bytes=len(spot),
