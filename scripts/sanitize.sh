@@ -7,8 +7,9 @@
 #     (concurrent queries and landmark preparation on one graph). The
 #     accuracy suites (*SharedMeshes*, CgalTruth) are left out:
 #     single-threaded numerics under TSan's slowdown, already run plain
-#     and under ASan; so are the matrix tests (QueriesTest.*Matrix*), whose
-#     rows run on TBB, which TSan builds keep to one thread (see below).
+#     and under ASan; so are the scale tests (MeshScaleTest) and the
+#     matrix tests (QueriesTest.*Matrix*), whose rows run on TBB, which
+#     TSan builds keep to one thread (see below).
 #     So is the 1-against-4-threads build
 #     comparison: TSan builds keep TBB to one thread (core/base/thread_arena.h), so
 #     it could only compare one thread with one thread.
@@ -33,6 +34,6 @@ for kind in $kinds; do
     cmake --build "$dir" -j"$(nproc)" --target core_tests
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
     ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
-      -E "SharedMeshes|CgalTruth|BuildIsIdenticalWhateverTheThreadCount|QueriesTest\.(Exact)?Matrix"
+      -E "SharedMeshes|CgalTruth|MeshScaleTest|BuildIsIdenticalWhateverTheThreadCount|QueriesTest\.(Exact)?Matrix"
   fi
 done
