@@ -121,7 +121,7 @@ int Daemon::Start() {
   memory_ = std::make_unique<MemoryLedger>(options_.memory_limit, [this] {
     return meshes_->resident_bytes() + service_->admission().reserved_bytes();
   });
-  service_->CountHeldElsewhere([this] { return memory_->reserved(); });
+  service_->UseMemoryLedger(memory_.get());
   AddQueryMetrics();
   if (int rc = ListenGrpc(); rc != 0) return rc;
   int metrics_port = 0;

@@ -265,7 +265,7 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
           .held =
               [this, meshes, graphs] {
                 return meshes->resident_bytes() + graphs->resident_bytes() +
-                       graphs->mapped_bytes() + (held_elsewhere_ ? held_elsewhere_() : 0);
+                       graphs->mapped_bytes() + (ledger_ ? ledger_->reserved() : 0);
               },
           .pinned = [meshes] { return meshes->resident_bytes(); },
           .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },
@@ -658,9 +658,19 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
     StreamWatchdog::Watch watch = WatchStream("UploadMesh", ctx);
     // A message that cannot be parsed ends the reads as the stream's end
     // does: the declared size tells the two apart.
+    // The payload's declared bytes, counted against --memory-limit from its
+    // first message until it is registered (or refused): an upload left open
+    // holds them.
+    std::shared_ptr<void> payload;
+    bool counted = ledger_ == nullptr;
     while (Receive(watch, reader, &chunk)) {
       RETURN_IF_ERROR(upload.Add(chunk));
       name = upload.name();
+      if (!counted) {
+        ASSIGN_OR_RETURN(payload, ledger_->Reserve(upload.declared_bytes(),
+                                                   absl::StrFormat("the upload of '%s'", name)));
+        counted = true;
+      }
     }
     // A cancelled stream ends the reads too: nothing of it is registered,
     // however much of it came.

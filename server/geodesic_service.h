@@ -13,6 +13,7 @@
 #include "server/admission.h"
 #include "server/catalog_sync.h"
 #include "server/graph_cache.h"
+#include "server/memory_ledger.h"
 #include "server/mesh_registry.h"
 #include "server/metrics.h"
 #include "server/name_locks.h"
@@ -95,10 +96,11 @@ class GeodesicService final : public v1::Geodesic::Service {
   // answering, and follows it for meshes and graphs this daemon lacks
   // (registered through another replica, or before a restart).
   void UseCatalog(CatalogSync* catalog) { catalog_ = catalog; }
-  // Memory the limit covers that others hold (the HTTP gateway's bodies and
-  // answers): queries wait for it, or run beside it, as for graphs. Set
-  // before serving.
-  void CountHeldElsewhere(std::function<uint64_t()> bytes) { held_elsewhere_ = std::move(bytes); }
+  // Memory the limit covers outside queries: the HTTP gateway's bodies and
+  // answers, and this service's upload payloads while they arrive and are
+  // parsed. Queries wait for it, or run beside it, as for graphs. Set before
+  // serving; without it uploads are bounded by --max-upload-bytes alone.
+  void UseMemoryLedger(MemoryLedger* ledger) { ledger_ = ledger; }
 
   grpc::Status RegisterMesh(grpc::ServerContext*, const v1::RegisterMeshRequest*,
                             v1::Mesh*) override;
@@ -214,7 +216,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   absl::Mutex builds_mu_;
   std::map<GraphKey, std::string> started_by_ ABSL_GUARDED_BY(builds_mu_);
 
-  std::function<uint64_t()> held_elsewhere_;
+  MemoryLedger* ledger_ = nullptr;
   Admission admission_;
   StreamWatchdog watchdog_;
   std::atomic<int> calls_in_progress_{0};

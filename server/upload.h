@@ -32,6 +32,8 @@ class UploadAssembler {
   const std::string& name() const { return name_; }
   const std::string& format() const { return format_; }
   bool repair() const { return repair_; }
+  // The payload's size, as the first message declared it.
+  uint64_t declared_bytes() const { return total_bytes_; }
   // The payload, valid after Finish: a file's bytes, or arrays.
   bool arrays() const { return arrays_; }
   std::string& bytes() { return bytes_; }

@@ -1081,6 +1081,53 @@ std::vector<uint32_t> SpotWithoutBand(const Mesh& spot) {
   return kept;
 }
 
+// An upload left open holds its declared payload's bytes of --memory-limit:
+// a second that cannot fit beside it is refused at once, naming the limit,
+// and the bytes come back when the first ends.
+TEST_F(ServiceTest, UploadsLeftOpenCountAgainstTheMemoryLimit) {
+  MemoryLedger ledger(1'000'000, [this] { return registry_->resident_bytes(); });
+  service_->UseMemoryLedger(&ledger);
+  auto first_message = [](const std::string& name, uint64_t bytes) {
+    v1::UploadMeshRequest m;
+    m.set_name(name);
+    m.set_format("obj");
+    m.set_total_bytes(bytes);
+    m.set_sha256(std::string(64, '0'));
+    m.set_data("v 0 0 0\n");
+    return m;
+  };
+  grpc::ClientContext open_ctx;
+  v1::Mesh open_resp;
+  auto open = stub_->UploadMesh(&open_ctx, &open_resp);
+  ASSERT_TRUE(open->Write(first_message("open", 600'000)));
+  const absl::Time deadline = absl::Now() + absl::Seconds(10);
+  while (ledger.reserved() != 600'000u && absl::Now() < deadline) {
+    absl::SleepFor(absl::Milliseconds(10));
+  }
+  EXPECT_EQ(ledger.reserved(), 600'000u);
+
+  for (const auto& [bytes, code] : std::vector<std::pair<uint64_t, grpc::StatusCode>>{
+           {600'000, grpc::StatusCode::UNAVAILABLE},
+           {2'000'000, grpc::StatusCode::RESOURCE_EXHAUSTED}}) {
+    grpc::ClientContext ctx;
+    v1::Mesh resp;
+    auto refused = stub_->UploadMesh(&ctx, &resp);
+    refused->Write(first_message("second", bytes));
+    refused->WritesDone();
+    const grpc::Status status = refused->Finish();
+    EXPECT_EQ(status.error_code(), code) << bytes << ": " << status.error_message();
+    EXPECT_THAT(status.error_message(), HasSubstr("--memory-limit")) << bytes;
+    EXPECT_THAT(status.error_message(), HasSubstr("'second'")) << bytes;
+  }
+  EXPECT_EQ(ledger.reserved(), 600'000u);
+
+  open_ctx.TryCancel();
+  open->Finish();
+  while (ledger.reserved() != 0 && absl::Now() < deadline) absl::SleepFor(absl::Milliseconds(10));
+  EXPECT_EQ(ledger.reserved(), 0u);
+  EXPECT_FALSE(registry_->Get("open").ok());
+}
+
 TEST_F(ServiceTest, ARegionIsAMeshOfItsOwnThatRemembersItsParent) {
   ReadySpot(1e-2);
   auto spot = registry_->Get("spot");
