@@ -20,7 +20,6 @@ Usage: fairness_http_test.py BUILD_BIN_DIR SOURCE_DIR
 import json
 import os
 import shutil
-import signal
 import socket
 import sys
 import tempfile
@@ -33,6 +32,7 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 from geodesicd_runner import read_obj  # noqa: E402
+from raw_http import read_response  # noqa: E402
 
 SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(SRC, "..", "shared"))
 MESHES = os.path.join(SHARED, "meshes")
@@ -41,42 +41,6 @@ MAX_CONNECTIONS = 16
 MEMORY_LIMIT = 48 << 20
 DRAIN_SECONDS = 3
 MIB = 1 << 20
-
-
-def read_response(sock, timeout):
-    """(status, headers, body) of one response; None if the connection closed
-    before a status line."""
-    deadline = time.time() + timeout
-    data = b""
-    while b"\r\n\r\n" not in data:
-        left = deadline - time.time()
-        if left <= 0:
-            raise TimeoutError(f"no response within {timeout} s: {data[:200]!r}")
-        sock.settimeout(left)
-        try:
-            chunk = sock.recv(65536)
-        except (ConnectionResetError, BrokenPipeError):
-            chunk = b""
-        if not chunk:
-            return None
-        data += chunk
-    head, _, body = data.partition(b"\r\n\r\n")
-    lines = head.decode("latin-1").split("\r\n")
-    headers = {}
-    for line in lines[1:]:
-        name, _, value = line.partition(":")
-        headers[name.strip().lower()] = value.strip()
-    length = int(headers.get("content-length", "0"))
-    while len(body) < length:
-        left = deadline - time.time()
-        if left <= 0:
-            raise TimeoutError(f"body incomplete within {timeout} s")
-        sock.settimeout(left)
-        chunk = sock.recv(65536)
-        if not chunk:
-            break
-        body += chunk
-    return int(lines[0].split()[1]), headers, body
 
 
 def request(port, method, path, body=None, token=TOKEN, timeout=10.0):

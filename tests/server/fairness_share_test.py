@@ -20,7 +20,6 @@ the clients timed here):
 Every daemon listens on 127.0.0.1 port 0, every call has a deadline.
 
 Usage: fairness_share_test.py BUILD_BIN_DIR SOURCE_DIR"""
-import json
 import math
 import os
 import signal

@@ -23,6 +23,7 @@ BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import daemon_ports  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
+from raw_http import read_response  # noqa: E402
 
 TOKEN = "hostile-test-token"
 HEADER_TIMEOUT = 2.0
@@ -37,43 +38,6 @@ def vm_hwm_bytes(pid):
             if line.startswith("VmHWM:"):
                 return int(line.split()[1]) * 1024
     raise RuntimeError("no VmHWM")
-
-
-def read_response(sock, timeout=5.0):
-    """(status, headers dict lower-cased, body) of one response, or None if the
-    connection closed (or reset) before a status line."""
-    deadline = time.time() + timeout
-    data = b""
-    while b"\r\n\r\n" not in data:
-        left = deadline - time.time()
-        if left <= 0:
-            raise TimeoutError(f"no complete response headers within {timeout} s: {data[:200]!r}")
-        sock.settimeout(left)
-        try:
-            chunk = sock.recv(65536)
-        except (ConnectionResetError, BrokenPipeError):
-            chunk = b""
-        if not chunk:
-            return None if not data else (0, {}, data)
-        data += chunk
-    head, _, body = data.partition(b"\r\n\r\n")
-    lines = head.decode("latin-1").split("\r\n")
-    status = int(lines[0].split()[1])
-    headers = {}
-    for line in lines[1:]:
-        name, _, value = line.partition(":")
-        headers[name.strip().lower()] = value.strip()
-    length = int(headers.get("content-length", "0"))
-    while len(body) < length and time.time() < deadline:
-        sock.settimeout(max(0.01, deadline - time.time()))
-        try:
-            chunk = sock.recv(65536)
-        except (ConnectionResetError, BrokenPipeError, socket.timeout):
-            break
-        if not chunk:
-            break
-        body += chunk
-    return status, headers, body
 
 
 def request(port, method, path, headers=(), body=b"", timeout=5.0):
