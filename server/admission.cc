@@ -68,17 +68,31 @@ absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& clien
   return Refuse(what, RetryAfterMs());
 }
 
-absl::StatusOr<Admission::Ticket> Admission::OpenStream() {
+int Admission::StreamsPerClient() const {
+  if (options_.max_streams_per_client > 0) return options_.max_streams_per_client;
+  return std::max(1, options_.max_streams / 2);
+}
+
+absl::StatusOr<Admission::Ticket> Admission::OpenStream(const std::string& client) {
+  std::string what;
   {
     absl::MutexLock lock(&mu_);
-    if (streams_ < options_.max_streams) {
+    Client& c = clients_[client];
+    if (streams_ < options_.max_streams && c.streams < StreamsPerClient()) {
       ++streams_;
-      return Ticket(this, Kind::kStream, "", 0, 0);
+      ++c.streams;
+      return Ticket(this, Kind::kStream, client, 0, 0);
     }
     last_refusal_ = absl::Now();
+    what = streams_ >= options_.max_streams
+               ? absl::StrFormat("%d streams open (--max-streams)", options_.max_streams)
+               : absl::StrFormat(
+                     "this client has %d streams open, its share of them "
+                     "(--max-streams-per-client)",
+                     c.streams);
+    ForgetIfIdleLocked(client);
   }
-  return Refuse(absl::StrFormat("%d streams open (--max-streams)", options_.max_streams),
-                RetryAfterMs());
+  return Refuse(what, RetryAfterMs());
 }
 
 uint64_t Admission::UsedLocked() const {
@@ -115,7 +129,7 @@ void Admission::LeaveQueueLocked(const std::string& client, uint64_t number) {
 void Admission::ForgetIfIdleLocked(const std::string& client) {
   auto it = clients_.find(client);
   if (it != clients_.end() && it->second.admitted == 0 && it->second.running == 0 &&
-      it->second.waiting.empty()) {
+      it->second.streams == 0 && it->second.waiting.empty()) {
     clients_.erase(it);
   }
 }
@@ -213,6 +227,8 @@ void Admission::Release(const Ticket& t) {
       break;
     case Kind::kStream:
       --streams_;
+      --clients_[t.client_].streams;
+      ForgetIfIdleLocked(t.client_);
       break;
     case Kind::kAnswer:
       reserved_answer_ -= t.answer_;

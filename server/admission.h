@@ -15,7 +15,8 @@
 // order it sent them, and free slots go to the waiting clients in turn, so
 // one client's heavy calls do not hold up another's light ones: while other
 // clients wait, a client runs at most its share of the slots, and it is
-// admitted at most max_inflight_per_client queries at any time. Long calls
+// admitted at most max_inflight_per_client queries, and may open at most
+// max_streams_per_client streams, at any time. Long calls
 // give their slot back between slices and ask again (Run), which puts them
 // behind the other clients' turns.
 #ifndef GEODESIC_SERVER_ADMISSION_H_
@@ -42,6 +43,10 @@ struct AdmissionOptions {
   // Queries one client may have admitted at once (0: half of max_inflight,
   // at least 1), so that one client's flood leaves room for the others.
   int max_inflight_per_client = 0;
+  // Streams one client may have open at once (0: half of max_streams, at
+  // least 1): a client that opens streams and never reads them leaves the
+  // other half to the others.
+  int max_streams_per_client = 0;
   // Bytes the reservations of running queries must fit in, beside `held`;
   // 0: no memory reservation.
   uint64_t memory_limit = 0;
@@ -93,8 +98,9 @@ class Admission {
   // overloaded: ..." when max_inflight are admitted already, or the client's
   // share of them.
   absl::StatusOr<Ticket> AdmitQuery(const std::string& client = "");
-  // A stream's place: RESOURCE_EXHAUSTED when max_streams are open.
-  absl::StatusOr<Ticket> OpenStream();
+  // A stream's place: RESOURCE_EXHAUSTED when max_streams are open, or the
+  // client's share of them.
+  absl::StatusOr<Ticket> OpenStream(const std::string& client = "");
   // An admitted query's turn to run: waits for one of the query_threads (the
   // client's turn among the waiting clients, and its own queries first come
   // first served) and for `answer_bytes + scratch_bytes` of memory
@@ -136,6 +142,7 @@ class Admission {
   int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
   int InflightPerClient() const;
+  int StreamsPerClient() const;
   // The waiting query whose turn it is: the oldest of the first client in
   // turn that runs less than its share of the slots (the first client in
   // turn if all run their share); 0 if none waits.
@@ -157,6 +164,7 @@ class Admission {
   struct Client {
     int admitted = 0;
     int running = 0;
+    int streams = 0;
     std::deque<uint64_t> waiting;  // its queries' numbers, in arrival order
   };
   std::map<std::string, Client> clients_ ABSL_GUARDED_BY(mu_);

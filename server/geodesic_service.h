@@ -41,6 +41,8 @@ struct ServiceLimits {
   int max_samples = 1024;  // SamplePoints count: each point costs a field
   // Queries one client may have admitted at once (0: half of max_inflight).
   int max_inflight_per_client = 0;
+  // Streams one client may have open at once (0: half of max_streams).
+  int max_streams_per_client = 0;
   // The windows one exact pair or matrix row may hold (a propagation keeps
   // them for its trace): past it the call fails with RESOURCE_EXHAUSTED, and
   // admission reserves it for each lane of an exact call.

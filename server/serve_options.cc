@@ -200,6 +200,11 @@ void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {
                  "once; beyond them its queries are answered RESOURCE_EXHAUSTED while other "
                  "clients' are admitted (0: half of --max-inflight)")
       ->check(CLI::NonNegativeNumber);
+  app.add_option("--max-streams-per-client", limits.max_streams_per_client,
+                 "streams one client (its bearer token, else its address) may have open at "
+                 "once; beyond them its streams are answered RESOURCE_EXHAUSTED while other "
+                 "clients' are opened (0: half of --max-streams)")
+      ->check(CLI::NonNegativeNumber);
   app.add_option("--max-pairs", limits.max_pairs, "pairs per Distance call");
   app.add_option("--max-exact-pairs", limits.max_exact_pairs,
                  "exact pairs per Distance call (each is a window propagation); beyond: "

@@ -89,6 +89,27 @@ TEST(AdmissionTest, StreamsAreBoundedApartFromQueries) {
   EXPECT_THAT(t.status().message(), HasSubstr("--max-streams"));
 }
 
+TEST(AdmissionTest, AClientOpensAtMostItsShareOfTheStreams) {
+  Admission admission(Limits(4, 1, 4));
+  auto a = admission.OpenStream("flood");
+  auto b = admission.OpenStream("flood");
+  ASSERT_TRUE(a.ok() && b.ok());
+  auto c = admission.OpenStream("flood");
+  ASSERT_EQ(c.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(c.status().message(), HasSubstr("--max-streams-per-client"));
+  // Another client still finds room, until every slot is taken.
+  auto d = admission.OpenStream("other");
+  auto e = admission.OpenStream("other");
+  ASSERT_TRUE(d.ok() && e.ok());
+  auto f = admission.OpenStream("third");
+  ASSERT_EQ(f.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(f.status().message(), HasSubstr("streams open (--max-streams)"));
+  a->Release();
+  auto again = admission.OpenStream("flood");
+  EXPECT_TRUE(again.ok()) << again.status();
+  EXPECT_EQ(admission.streams(), 4);
+}
+
 TEST(AdmissionTest, AtMostQueryThreadsRunAndTheRestRunInArrivalOrder) {
   Admission admission(Limits(16, 2));
   auto first = admission.Run(0, 0, Soon());

@@ -6,9 +6,10 @@ Beside a well-behaved client sending light queries:
   DistanceField streams likewise: the light queries are answered (at least 18 of 20, p99
   under a second), since a stream gives its query slot back while it waits for its client;
   read afterwards, each stream still delivers its whole answer;
-- (c) more GetGeometry streams than --max-streams, none read: the extra ones are refused at
-  once with RESOURCE_EXHAUSTED naming --max-streams, listing and queries keep answering, and
-  the capacity health status says NOT_SERVING while every stream slot is taken;
+- (c) more GetGeometry streams than --max-streams from one client, none read: past its share
+  (--max-streams-per-client) they are refused at once naming it, another client still opens
+  its own, past them all a stream is refused naming --max-streams, listing and queries keep
+  answering, and the capacity health status says NOT_SERVING while every stream slot is taken;
 - (d) an upload that sends one message and then nothing, and a GetGeometry nobody reads, are
   closed after --idle-seconds and their slots given back, while an upload sending slowly but
   steadily is not.
@@ -200,25 +201,53 @@ def case_unread_queries(address, stub):
         ch.close()
 
 
-def case_unread_geometry(address, stub, channel, max_streams):
-    # (c) ten times --max-streams, on a small thread quota: before streams were counted,
-    # these took every gRPC thread.
-    n = 10 * max_streams
-    channels, streams = unread_streams(
-        address, lambda s, r: s.GetGeometry(r, timeout=30),
-        [pb.GetMeshRequest(name="grid")] * n)
-    refused, deadline = [], time.time() + 10
-    # The refused end at once; the admitted wait on their clients.
-    while time.time() < deadline and len(refused) < n - max_streams:
+def as_client(token):
+    """Metadata that makes a call another client's (its bearer token; the daemon asks for none)."""
+    return [("authorization", f"Bearer {token}")]
+
+
+def refused_streams(streams, expected, seconds=10):
+    """The streams that ended (refused at once) once `expected` did, or after `seconds`."""
+    refused, deadline = [], time.time() + seconds
+    while time.time() < deadline and len(refused) < expected:
         refused = [s for s in streams if s.done()]
         time.sleep(0.05)
+    return refused
+
+
+def case_unread_geometry(address, stub, channel, max_streams):
+    # (c) ten times --max-streams from one client, on a small thread quota: before streams
+    # were counted, these took every gRPC thread. The client gets its share (half of
+    # --max-streams); a second client still opens its own; past them, every stream is refused.
+    share = max_streams // 2
+    n = 10 * max_streams
+    channels, streams = unread_streams(
+        address, lambda s, r: s.GetGeometry(r, timeout=30, metadata=as_client("flood")),
+        [pb.GetMeshRequest(name="grid")] * n)
+    refused = refused_streams(streams, n - share)
     codes = {s.code() for s in refused}
     details = [s.details() for s in refused]
-    check("(c) streams past --max-streams are refused at once",
-          len(refused) == n - max_streams, f"{len(refused)} of {n} ended")
+    check("(c) one client's streams past its share are refused at once",
+          len(refused) == n - share, f"{len(refused)} of {n} ended")
     check("(c) refused RESOURCE_EXHAUSTED", codes == {grpc.StatusCode.RESOURCE_EXHAUSTED}, codes)
-    check("(c) the refusal names --max-streams",
-          details and all("--max-streams" in d for d in details), details[:1])
+    check("(c) the refusal names --max-streams-per-client",
+          details and all("--max-streams-per-client" in d for d in details), details[:1])
+    other_channels, others = unread_streams(
+        address, lambda s, r: s.GetGeometry(r, timeout=30, metadata=as_client("other")),
+        [pb.GetMeshRequest(name="grid")] * share)
+    channels += other_channels
+    streams += others
+    check("(c) another client opens its share beside the first",
+          not refused_streams(others, 1, seconds=1), [s.details() for s in others if s.done()])
+    third_channels, third = unread_streams(
+        address, lambda s, r: s.GetGeometry(r, timeout=30, metadata=as_client("third")),
+        [pb.GetMeshRequest(name="grid")])
+    channels += third_channels
+    streams += third
+    ended = refused_streams(third, 1)
+    check("(c) with every slot taken a stream is refused naming --max-streams",
+          len(ended) == 1 and ended[0].code() == grpc.StatusCode.RESOURCE_EXHAUSTED and
+          "(--max-streams)" in ended[0].details(), [s.details() for s in ended])
     health = health_check(channel)
     capacity = None
     try:
