@@ -261,6 +261,7 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
                                : std::max(1, static_cast<int>(std::thread::hardware_concurrency())),
           .max_streams = limits.max_streams,
           .max_inflight_per_client = limits.max_inflight_per_client,
+          .max_streams_per_client = limits.max_streams_per_client,
           .memory_limit = graphs->memory_limit(),
           .held =
               [this, meshes, graphs] {
@@ -551,7 +552,7 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
                           "'authorization: Bearer <token>'");
   } else if (is_query && !(query = admission_.AdmitQuery(ClientKey(*ctx))).ok()) {
     status = ToGrpc(query.status());
-  } else if (IsStream(method) && !(stream = admission_.OpenStream()).ok()) {
+  } else if (IsStream(method) && !(stream = admission_.OpenStream(ClientKey(*ctx))).ok()) {
     status = ToGrpc(stream.status());
   } else {
     status = ToGrpc(body());
@@ -984,11 +985,12 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     options.exact = req->exact();
     options.exact_max_bytes = limits_.max_exact_bytes;
     options.cancelled = Cancelled(ctx);
-    // Paths are as long as they are: with them the pairs go in blocks, and
-    // the answer is refused as soon as it cannot be sent, not after them all.
-    // Exact pairs go a pair per lane at a time, each block a slice after
-    // which a waiting client's query may run.
-    const size_t block = req->exact() ? lanes : req->with_path() ? 8 * lanes : from.size();
+    // The pairs go in blocks, between which a call that has used its slice
+    // gives its slot to a waiting client's query: an exact pair per lane at
+    // a time, graph pairs a few dozen per lane (a batch of --max-pairs takes
+    // seconds). With paths, which are as long as they are, the answer is
+    // refused as soon as it cannot be sent, not after them all.
+    const size_t block = req->exact() ? lanes : req->with_path() ? 8 * lanes : 64 * lanes;
     for (size_t begin = 0; begin < from.size(); begin += block) {
       if (begin > 0) RETURN_IF_ERROR(NextSlice(ctx, run, slice_start, 2 * answer, scratch));
       const size_t count = std::min(block, from.size() - begin);
