@@ -68,31 +68,41 @@ absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& clien
   return Refuse(what, RetryAfterMs());
 }
 
-int Admission::StreamsPerClient() const {
-  if (options_.max_streams_per_client > 0) return options_.max_streams_per_client;
-  return std::max(1, options_.max_streams / 2);
+absl::StatusOr<Admission::Ticket> Admission::OpenStream(const std::string& client) {
+  const int mine = options_.max_streams_per_client > 0 ? options_.max_streams_per_client
+                                                       : std::max(1, options_.max_streams / 2);
+  return OpenSlot(Kind::kStream, client, options_.max_streams, mine, "streams open",
+                  "--max-streams", "--max-streams-per-client");
 }
 
-absl::StatusOr<Admission::Ticket> Admission::OpenStream(const std::string& client) {
-  std::string what;
+absl::StatusOr<Admission::Ticket> Admission::StartChange(const std::string& client) {
+  return OpenSlot(Kind::kChange, client, options_.max_changes,
+                  std::max(1, options_.max_changes / 2),
+                  "registrations, unloads and graph requests in progress", "the most at once",
+                  "half of the most at once");
+}
+
+absl::StatusOr<Admission::Ticket> Admission::OpenSlot(Kind kind, const std::string& client, int max,
+                                                      int max_mine, const char* what,
+                                                      const char* flag, const char* client_flag) {
+  std::string refusal;
   {
     absl::MutexLock lock(&mu_);
+    int& open = kind == Kind::kStream ? streams_ : changes_;
     Client& c = clients_[client];
-    if (streams_ < options_.max_streams && c.streams < StreamsPerClient()) {
-      ++streams_;
-      ++c.streams;
-      return Ticket(this, Kind::kStream, client, 0, 0);
+    int& mine = kind == Kind::kStream ? c.streams : c.changes;
+    if (open < max && mine < max_mine) {
+      ++open;
+      ++mine;
+      return Ticket(this, kind, client, 0, 0);
     }
     last_refusal_ = absl::Now();
-    what = streams_ >= options_.max_streams
-               ? absl::StrFormat("%d streams open (--max-streams)", options_.max_streams)
-               : absl::StrFormat(
-                     "this client has %d streams open, its share of them "
-                     "(--max-streams-per-client)",
-                     c.streams);
+    refusal = open >= max ? absl::StrFormat("%d %s (%s)", max, what, flag)
+                          : absl::StrFormat("this client has %d %s, its share of them (%s)", mine,
+                                            what, client_flag);
     ForgetIfIdleLocked(client);
   }
-  return Refuse(what, RetryAfterMs());
+  return Refuse(refusal, RetryAfterMs());
 }
 
 uint64_t Admission::UsedLocked() const {
@@ -129,7 +139,7 @@ void Admission::LeaveQueueLocked(const std::string& client, uint64_t number) {
 void Admission::ForgetIfIdleLocked(const std::string& client) {
   auto it = clients_.find(client);
   if (it != clients_.end() && it->second.admitted == 0 && it->second.running == 0 &&
-      it->second.streams == 0 && it->second.waiting.empty()) {
+      it->second.streams == 0 && it->second.changes == 0 && it->second.waiting.empty()) {
     clients_.erase(it);
   }
 }
@@ -228,6 +238,11 @@ void Admission::Release(const Ticket& t) {
     case Kind::kStream:
       --streams_;
       --clients_[t.client_].streams;
+      ForgetIfIdleLocked(t.client_);
+      break;
+    case Kind::kChange:
+      --changes_;
+      --clients_[t.client_].changes;
       ForgetIfIdleLocked(t.client_);
       break;
     case Kind::kAnswer:

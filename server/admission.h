@@ -47,6 +47,12 @@ struct AdmissionOptions {
   // least 1): a client that opens streams and never reads them leaves the
   // other half to the others.
   int max_streams_per_client = 0;
+  // Changes in progress at once (registrations, unloads, graph requests and
+  // cancellations): they may wait on a mesh's name or read a file, each on a
+  // thread of its own, so they are bounded apart from the quick control
+  // calls (listing, get, health), which keep the rest of the control threads.
+  // A client may have at most half of them (at least 1).
+  int max_changes = 8;
   // Bytes the reservations of running queries must fit in, beside `held`;
   // 0: no memory reservation.
   uint64_t memory_limit = 0;
@@ -63,7 +69,7 @@ struct AdmissionOptions {
 
 class Admission {
  public:
-  enum class Kind { kQuery, kRun, kStream, kAnswer };
+  enum class Kind { kQuery, kRun, kStream, kChange, kAnswer };
 
   // Something admitted, given back when destroyed.
   class Ticket {
@@ -101,6 +107,9 @@ class Admission {
   // A stream's place: RESOURCE_EXHAUSTED when max_streams are open, or the
   // client's share of them.
   absl::StatusOr<Ticket> OpenStream(const std::string& client = "");
+  // A change's place: RESOURCE_EXHAUSTED when max_changes are in progress, or
+  // the client's share of them.
+  absl::StatusOr<Ticket> StartChange(const std::string& client = "");
   // An admitted query's turn to run: waits for one of the query_threads (the
   // client's turn among the waiting clients, and its own queries first come
   // first served) and for `answer_bytes + scratch_bytes` of memory
@@ -142,7 +151,10 @@ class Admission {
   int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
   int InflightPerClient() const;
-  int StreamsPerClient() const;
+  // A slot of a pool bounded in all (`open` of `max`) and per client (the
+  // client's `mine` of `max_mine`); `what` names the pool in refusals.
+  absl::StatusOr<Ticket> OpenSlot(Kind kind, const std::string& client, int max, int max_mine,
+                                  const char* what, const char* flag, const char* client_flag);
   // The waiting query whose turn it is: the oldest of the first client in
   // turn that runs less than its share of the slots (the first client in
   // turn if all run their share); 0 if none waits.
@@ -159,12 +171,14 @@ class Admission {
   int admitted_ ABSL_GUARDED_BY(mu_) = 0;
   int running_ ABSL_GUARDED_BY(mu_) = 0;
   int streams_ ABSL_GUARDED_BY(mu_) = 0;
+  int changes_ ABSL_GUARDED_BY(mu_) = 0;
   uint64_t reserved_answer_ ABSL_GUARDED_BY(mu_) = 0;
   uint64_t reserved_scratch_ ABSL_GUARDED_BY(mu_) = 0;
   struct Client {
     int admitted = 0;
     int running = 0;
     int streams = 0;
+    int changes = 0;
     std::deque<uint64_t> waiting;  // its queries' numbers, in arrival order
   };
   std::map<std::string, Client> clients_ ABSL_GUARDED_BY(mu_);

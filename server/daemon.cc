@@ -47,8 +47,10 @@ std::string ServiceName(const GraphKey& key) {
 // The health-check name that is NOT_SERVING while admission refuses calls.
 constexpr char kCapacity[] = "geodesic.v1.Geodesic/capacity";
 
-// gRPC threads beyond admission's: for the control calls (listing, health,
-// get, cancel) and for gRPC's own pollers.
+// gRPC threads beyond admission's: for the control calls and for gRPC's own
+// pollers. Admission bounds the control calls that may wait (registrations,
+// unloads, graph requests: AdmissionOptions::max_changes, half of these), so
+// listing, get and health always find the other half.
 constexpr int kControlThreads = 16;
 constexpr int kPollerThreads = 8;
 

@@ -71,6 +71,13 @@ bool IsStream(std::string_view method) {
          method == "WatchGraph" || method == "UploadMesh";
 }
 
+// Control calls that may wait on a mesh's name or read a file (admission's
+// changes); uploads are streams.
+bool IsChange(std::string_view method) {
+  return method == "RegisterMesh" || method == "RegisterRegion" || method == "UnloadMesh" ||
+         method == "RequestGraph" || method == "CancelGraph";
+}
+
 // One message of a stream written, the time the client takes to make room
 // for it watched.
 template <typename Message>
@@ -545,7 +552,7 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
   absl::Cleanup left = [this] { calls_in_progress_.fetch_sub(1, std::memory_order_relaxed); };
   grpc::Status status;
   // Given back when the handler returns.
-  absl::StatusOr<Admission::Ticket> query, stream;
+  absl::StatusOr<Admission::Ticket> query, stream, change;
   if (!bearer_token_.empty() && !HasBearerToken(*ctx, bearer_token_)) {
     status = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
                           "missing or wrong bearer token: send metadata "
@@ -554,6 +561,8 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
     status = ToGrpc(query.status());
   } else if (IsStream(method) && !(stream = admission_.OpenStream(ClientKey(*ctx))).ok()) {
     status = ToGrpc(stream.status());
+  } else if (IsChange(method) && !(change = admission_.StartChange(ClientKey(*ctx))).ok()) {
+    status = ToGrpc(change.status());
   } else {
     status = ToGrpc(body());
     // A solve stopped because the call's deadline passed reports that, not a

@@ -110,6 +110,30 @@ TEST(AdmissionTest, AClientOpensAtMostItsShareOfTheStreams) {
   EXPECT_EQ(admission.streams(), 4);
 }
 
+TEST(AdmissionTest, ChangesAreBoundedInAllAndPerClient) {
+  AdmissionOptions o = Limits(4, 1);
+  o.max_changes = 4;
+  Admission admission(o);
+  auto a = admission.StartChange("flood");
+  auto b = admission.StartChange("flood");
+  ASSERT_TRUE(a.ok() && b.ok());
+  auto c = admission.StartChange("flood");
+  ASSERT_EQ(c.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(c.status().message(), HasSubstr("this client has 2 registrations"));
+  auto d = admission.StartChange("other");
+  auto e = admission.StartChange("other");
+  ASSERT_TRUE(d.ok() && e.ok());
+  auto f = admission.StartChange("third");
+  ASSERT_EQ(f.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(f.status().message(), HasSubstr("4 registrations, unloads and graph requests"));
+  // Changes take no stream or query slot.
+  EXPECT_TRUE(admission.OpenStream("third").ok());
+  EXPECT_TRUE(admission.AdmitQuery("third").ok());
+  a->Release();
+  auto again = admission.StartChange("flood");
+  EXPECT_TRUE(again.ok()) << again.status();
+}
+
 TEST(AdmissionTest, AtMostQueryThreadsRunAndTheRestRunInArrivalOrder) {
   Admission admission(Limits(16, 2));
   auto first = admission.Run(0, 0, Soon());

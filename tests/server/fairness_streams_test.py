@@ -10,6 +10,9 @@ Beside a well-behaved client sending light queries:
   (--max-streams-per-client) they are refused at once naming it, another client still opens
   its own, past them all a stream is refused naming --max-streams, listing and queries keep
   answering, and the capacity health status says NOT_SERVING while every stream slot is taken;
+- (e) forty registrations of a large mesh at once from one client: past its share of the
+  changes in progress (registrations, unloads, graph requests) they are refused at once, and
+  listing and queries keep their threads;
 - (d) an upload that sends one message and then nothing, and a GetGeometry nobody reads, are
   closed after --idle-seconds and their slots given back, while an upload sending slowly but
   steadily is not.
@@ -45,7 +48,8 @@ from daemon_ports import start_daemon  # noqa: E402
 
 SPOT_VERTICES = 2930
 GRID = 100  # the grid mesh's side in vertices: its field and geometry outgrow a 64 KiB window
-GRID_EPS = 0.05  # coarse: the grid's graph builds in a moment
+GRID_EPS = 0.05
+BIG_GRID = 400  # (e)'s mesh: a moment to read, so registrations queue on its name  # coarse: the grid's graph builds in a moment
 SERVING, NOT_SERVING = 1, 2  # grpc.health.v1.HealthCheckResponse.ServingStatus
 UNREAD_OPTIONS = [("grpc.http2.bdp_probe", 0), ("grpc.max_receive_message_length", 64 << 20)]
 
@@ -97,14 +101,19 @@ def wait_ready(stub, mesh, eps=0.0, seconds=60):
     return False
 
 
+def grid(side):
+    """A side x side wavy grid: its vertices and faces."""
+    xs, ys = np.meshgrid(np.arange(side, dtype=float), np.arange(side, dtype=float))
+    vertices = np.stack([xs.ravel(), ys.ravel(), 0.2 * np.sin(xs.ravel() / 3)], axis=1)
+    i, j = np.meshgrid(np.arange(side - 1), np.arange(side - 1), indexing="ij")
+    a, b = (i * side + j).ravel(), (i * side + j + 1).ravel()
+    c, d = ((i + 1) * side + j + 1).ravel(), ((i + 1) * side + j).ravel()
+    return vertices, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
 def upload_grid(address, stub, graph=True):
     """A GRID x GRID wavy grid, its graph at GRID_EPS built if `graph`."""
-    xs, ys = np.meshgrid(np.arange(GRID, dtype=float), np.arange(GRID, dtype=float))
-    vertices = np.stack([xs.ravel(), ys.ravel(), 0.2 * np.sin(xs.ravel() / 3)], axis=1)
-    i, j = np.meshgrid(np.arange(GRID - 1), np.arange(GRID - 1), indexing="ij")
-    a, b = (i * GRID + j).ravel(), (i * GRID + j + 1).ravel()
-    c, d = ((i + 1) * GRID + j + 1).ravel(), ((i + 1) * GRID + j).ravel()
-    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    vertices, faces = grid(GRID)
     with Client(address, timeout=60) as client:
         client.upload_mesh("grid", vertices=vertices, faces=faces)
     if not graph:
@@ -278,6 +287,47 @@ def ended_within(call, start, seconds):
     return None
 
 
+def case_registrations(address, stub, mesh_root):
+    # (e) one client asks to register a large mesh forty times at once: each waits for the
+    # name, on a thread of its own. Past the client's share of the changes in progress they are
+    # refused at once, so listing and queries keep their threads (before, these forty took
+    # every thread of a small quota: "Server Threadpool Exhausted").
+    vertices, faces = grid(BIG_GRID)
+    with open(os.path.join(mesh_root, "big.obj"), "w") as f:
+        f.write("".join(f"v {x:.6f} {y:.6f} {z:.6f}\n" for x, y, z in vertices))
+        f.write("".join(f"f {a + 1} {b + 1} {c + 1}\n" for a, b, c in faces))
+    n = 40
+    channels = [grpc.insecure_channel(address) for _ in range(n)]
+    calls = [rpc.GeodesicStub(ch).RegisterMesh.future(
+        pb.RegisterMeshRequest(name="big", path="big.obj"), timeout=60,
+        metadata=as_client("registrar")) for ch in channels]
+
+    def listing():
+        stub.ListMeshes(pb.ListMeshesRequest(), timeout=3)
+    # While the registrations wait on the name, not after.
+    light = light_queries(stub, also=listing)
+    refused = refused_streams(calls, n - 4, seconds=5)
+    details = [c.details() for c in refused if c.code() == grpc.StatusCode.RESOURCE_EXHAUSTED]
+    check("(e) registrations past the client's share of changes are refused at once",
+          len(details) >= n - 4,
+          f"{len(details)} of {n} refused; {[c.details() for c in refused][:2]}")
+    check("(e) the refusal names the changes in progress",
+          details and all("registrations, unloads and graph requests" in d for d in details),
+          details[:1])
+    check_light("(e) forty registrations at once (queries, listing)", *light)
+    for c in calls:
+        c.exception(timeout=60)  # every call ended, either way
+    admitted = [c for c in calls if c.code() == grpc.StatusCode.OK]
+    others = [f"{c.code().name}: {c.details()}" for c in calls
+              if c.code() not in (grpc.StatusCode.OK, grpc.StatusCode.RESOURCE_EXHAUSTED)]
+    check("(e) the admitted registrations succeed, the others were refused",
+          admitted and not others and
+          all(c.result().diagnostics.vertices == BIG_GRID ** 2 for c in admitted),
+          f"{len(admitted)} registered; {others[:2]}")
+    for ch in channels:
+        ch.close()
+
+
 def case_idle(address, stub, metrics_port, log, idle):
     # (d) a first message, then nothing; and an answer nobody reads.
     payload = b"v 0 0 0\n" * 1000
@@ -367,6 +417,18 @@ def main():
         if check("(c) spot's graph ready", wait_ready(stub, "spot")) and \
                 check("(c) the grid uploaded", upload_grid(address, stub)):
             case_unread_geometry(address, stub, channel, max_streams)
+    daemon_ports.stop(daemon)
+
+    # (e): the same small thread quota, meshes registered from a root.
+    mesh_root = os.path.join(work, "meshes")
+    os.makedirs(mesh_root, exist_ok=True)
+    daemon, ports, _ = serve("registrations", "--max-inflight", "4", "--max-streams", "4",
+                             "--mesh-root", mesh_root)
+    address = f"127.0.0.1:{ports['grpc']}"
+    with grpc.insecure_channel(address) as channel:
+        stub = rpc.GeodesicStub(channel)
+        if check("(e) spot's graph ready", wait_ready(stub, "spot")):
+            case_registrations(address, stub, mesh_root)
     daemon_ports.stop(daemon)
 
     # (d): a short --idle-seconds.
