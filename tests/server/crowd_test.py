@@ -18,14 +18,12 @@ Usage: crowd_test.py BUILD_BIN_DIR SOURCE_DIR [SECONDS]
 """
 import functools
 import os
-import re
 import shutil
 import sys
 import tempfile
 import threading
 import time
 import unittest
-import urllib.request
 
 BIN, SRC = sys.argv[1], sys.argv[2]
 SECONDS = float(sys.argv[3]) if len(sys.argv) > 3 else 12
@@ -34,7 +32,7 @@ import grpc  # noqa: E402
 from geodesic_client import Client  # noqa: E402
 from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
-from daemon_ports import start_daemon  # noqa: E402
+from daemon_ports import metrics, rss_bytes, start_daemon  # noqa: E402
 
 SPOT_VERTICES = 2930
 # spot's graph at this epsilon takes the daemon long enough to build that
@@ -79,18 +77,6 @@ def wait_for_spot(stub):
 
 def vertex(v):
     return pb.SurfacePoint(vertex=v)
-
-
-def metrics(port):
-    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
-        text = r.read().decode()
-    return {m.group(1): float(m.group(2))
-            for m in re.finditer(r"^(geodesicd_\w+) (\S+)$", text, re.M)}
-
-
-def rss_kib(pid, field):
-    with open(f"/proc/{pid}/status") as f:
-        return int(re.search(rf"^{field}:\s+(\d+) kB", f.read(), re.M).group(1))
 
 
 class AsClient:
@@ -332,7 +318,7 @@ class MemoryLimitTest(unittest.TestCase):
                     **{"from": vertex(0), "to": vertex(1)})]), timeout=30)
                 # What the daemon holds beside what the limit counts: binary,
                 # gRPC, thread stacks, spot.
-                baseline = rss_kib(daemon.pid, "VmRSS") << 10
+                baseline = rss_bytes(daemon.pid)
             # About 37 MB per answer, well under the message cap.
             targets = [vertex(v % SPOT_VERTICES) for v in range(8000)]
 
@@ -348,11 +334,11 @@ class MemoryLimitTest(unittest.TestCase):
             peak = 0
             end = time.time() + min(SECONDS, 10)
             while time.time() < end:
-                peak = max(peak, rss_kib(daemon.pid, "VmRSS") << 10)
+                peak = max(peak, rss_bytes(daemon.pid))
                 time.sleep(0.05)
             stop.set()
             crowd.join()
-            peak = max(peak, rss_kib(daemon.pid, "VmHWM") << 10)
+            peak = max(peak, rss_bytes(daemon.pid, "VmHWM"))
             print(f"idle RSS {baseline >> 20} MiB, peak {peak >> 20} MiB, limit "
                   f"{self.LIMIT >> 20} MiB, answers {crowd.counts}", file=sys.stderr)
             self.assertGreater(crowd.counts.get("OK", 0), 0, (crowd.counts, crowd.errors[:3]))

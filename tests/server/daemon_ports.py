@@ -9,9 +9,11 @@ import atexit
 import itertools
 import json
 import os
+import re
 import signal
 import subprocess
 import time
+import urllib.request
 
 _started = []
 _starts = itertools.count(1)
@@ -77,6 +79,21 @@ def stop(process, sig=signal.SIGTERM, timeout=30):
         process.kill()
         process.wait(timeout=30)
         return None
+
+
+def metrics(port):
+    """The daemon's /metrics on `port` (its "metrics" port): {name: value} of every
+    geodesicd_ series without labels."""
+    with urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=5) as r:
+        text = r.read().decode()
+    return {m.group(1): float(m.group(2))
+            for m in re.finditer(r"^(geodesicd_\w+) (\S+)$", text, re.M)}
+
+
+def rss_bytes(pid, field="VmRSS"):
+    """A memory figure of /proc/PID/status (VmRSS, VmHWM, RssAnon, ...) in bytes."""
+    with open(f"/proc/{pid}/status") as f:
+        return int(re.search(rf"^{field}:\s+(\d+) kB", f.read(), re.M).group(1)) << 10
 
 
 @atexit.register

@@ -24,7 +24,7 @@ SECONDS = float(sys.argv[3]) if len(sys.argv) > 3 else 20
 sys.path.insert(0, os.path.join(SRC, "client", "python"))
 import grpc  # noqa: E402
 from geodesic_client import Client  # noqa: E402
-from daemon_ports import start_daemon  # noqa: E402
+from daemon_ports import rss_bytes, start_daemon  # noqa: E402
 
 MESH = f"{SRC}/data/spot.obj"
 # Bytes of --memory-limit left for spot and the churning uploads of it
@@ -71,14 +71,6 @@ def gauge(metrics_text, name):
         if line.startswith(name + " "):
             return float(line.split()[-1])
     raise AssertionError(f"{name} missing from /metrics")
-
-
-def rss_bytes(pid, field="VmRSS"):
-    with open(f"/proc/{pid}/status") as f:
-        for line in f:
-            if line.startswith(field + ":"):
-                return int(line.split()[1]) * 1024
-    return 0
 
 
 class Stress:
