@@ -227,6 +227,15 @@ Admission::Ticket Admission::KeepAnswer(Ticket run) {
   return Ticket(this, Kind::kAnswer, run.client_, answer, 0);
 }
 
+Admission::Ticket Admission::Adopt(Ticket run, Ticket kept) {
+  if (run.owner_ != this || kept.owner_ != this || kept.kind_ != Kind::kAnswer) return run;
+  // The bytes stay in reserved_answer_: only the ticket that gives them back
+  // changes.
+  run.answer_ += std::exchange(kept.answer_, 0);
+  kept.owner_ = nullptr;
+  return run;
+}
+
 void Admission::Release(const Ticket& t) {
   absl::MutexLock lock(&mu_);
   switch (t.kind_) {

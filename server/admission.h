@@ -129,6 +129,10 @@ class Admission {
   // a stream holding a computed block while it waits for its client, which
   // may take any time and needs no thread of the query_threads.
   Ticket KeepAnswer(Ticket run);
+  // The answer bytes `kept` holds (KeepAnswer's), now held by `run`: for a
+  // sliced call, whose partial answer stays counted while it waits for its
+  // next slice, which then asks Run for its scratch alone.
+  Ticket Adopt(Ticket run, Ticket kept);
 
   // The retry hint sent with a refusal: about how long the queries admitted
   // take to drain through the running slots.

@@ -295,13 +295,14 @@ absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContex
 }
 
 absl::Status GeodesicService::NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run,
-                                        absl::Time& slice_start, uint64_t answer_bytes,
-                                        uint64_t scratch_bytes) {
+                                        absl::Time& slice_start, uint64_t scratch_bytes) {
   if (absl::Now() - slice_start < kSlice || !admission_.OthersWaiting(ClientKey(*ctx))) {
     return absl::OkStatus();
   }
-  run.Release();
-  ASSIGN_OR_RETURN(run, StartQuery(ctx, answer_bytes, scratch_bytes));
+  // The answer built so far stays reserved while the call waits its turn.
+  Admission::Ticket kept = admission_.KeepAnswer(std::move(run));
+  ASSIGN_OR_RETURN(Admission::Ticket next, StartQuery(ctx, 0, scratch_bytes));
+  run = admission_.Adopt(std::move(next), std::move(kept));
   slice_start = absl::Now();
   return absl::OkStatus();
 }
@@ -1001,7 +1002,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
     // refused as soon as it cannot be sent, not after them all.
     const size_t block = req->exact() ? lanes : req->with_path() ? 8 * lanes : 64 * lanes;
     for (size_t begin = 0; begin < from.size(); begin += block) {
-      if (begin > 0) RETURN_IF_ERROR(NextSlice(ctx, run, slice_start, 2 * answer, scratch));
+      if (begin > 0) RETURN_IF_ERROR(NextSlice(ctx, run, slice_start, scratch));
       const size_t count = std::min(block, from.size() - begin);
       ASSIGN_OR_RETURN(
           std::vector<PairResult> results,
@@ -1117,9 +1118,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
       // Exact rows go a lane group per core at a time, each batch a slice
       // after which a waiting client's query may run.
       sink.batch_rows = size_t{kFieldLanes} * std::max(1u, std::thread::hardware_concurrency());
-      sink.batch_done = [&](size_t) {
-        return NextSlice(ctx, run, slice_start, 2 * answer, scratch);
-      };
+      sink.batch_done = [&](size_t) { return NextSlice(ctx, run, slice_start, scratch); };
     }
     return q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink);
   });
@@ -1273,7 +1272,7 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
     SampleOptions options;
     options.seed = req->seed();
     options.cancelled = Cancelled(ctx);
-    options.between_points = [&] { return NextSlice(ctx, run, slice_start, answer, scratch); };
+    options.between_points = [&] { return NextSlice(ctx, run, slice_start, scratch); };
     ASSIGN_OR_RETURN(SampleResult sample, engine->SamplePoints(req->count(), options));
     FillEcho(Built(key, *engine), "farthest-point", resp->mutable_echo());
     for (VertexId v : sample.vertices) resp->add_vertices(v);

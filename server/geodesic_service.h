@@ -147,10 +147,10 @@ class GeodesicService final : public v1::Geodesic::Service {
   // is destroyed.
   StreamWatchdog::Watch WatchStream(const char* method, grpc::ServerContext* ctx);
   // Between two slices of a long call: once `run` has been held a slice's
-  // time while another client waits, gives it back and waits for the
-  // call's next turn (StartQuery with the same reservation).
+  // time while another client waits, gives its thread and scratch back and
+  // waits for the call's next turn; its answer bytes stay reserved.
   absl::Status NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run, absl::Time& slice_start,
-                         uint64_t answer_bytes, uint64_t scratch_bytes);
+                         uint64_t scratch_bytes);
   // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
   // `bytes` cannot fit one message.
   absl::Status CheckAnswerSize(const std::string& what, uint64_t bytes) const;

@@ -285,6 +285,24 @@ TEST(AdmissionTest, AKeptAnswerCountsAgainstTheMemoryOfQueriesThatRunBesideIt) {
   EXPECT_TRUE(c.ok()) << c.status();
 }
 
+TEST(AdmissionTest, ASlicedCallKeepsItsAnswerReservedBetweenSlices) {
+  Admission admission(Limits(8, 1, 1000, [] { return uint64_t{0}; }));
+  auto slice = admission.Run(400, 300, Soon());
+  ASSERT_TRUE(slice.ok());
+  // Between slices: the thread and the scratch go back, the answer stays.
+  Admission::Ticket kept = admission.KeepAnswer(std::move(*slice));
+  EXPECT_EQ(admission.reserved_bytes(), 400u);
+  auto next = admission.Run(0, 300, Soon());
+  ASSERT_TRUE(next.ok()) << next.status();
+  Admission::Ticket run = admission.Adopt(std::move(*next), std::move(kept));
+  EXPECT_FALSE(kept.held());
+  EXPECT_EQ(admission.reserved_bytes(), 700u);
+  EXPECT_EQ(admission.running(), 1);
+  run.Release();
+  EXPECT_EQ(admission.reserved_bytes(), 0u);
+  EXPECT_EQ(admission.running(), 0);
+}
+
 // Runs `client`'s query on a thread once it is in line, recording its name
 // in `order` when it gets a slot and holding the slot until `release`.
 class Waiter {
