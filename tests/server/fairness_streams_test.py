@@ -25,7 +25,6 @@ Every daemon listens on 127.0.0.1 port 0, and every wait is bounded.
 Usage: fairness_streams_test.py BUILD_BIN_DIR SOURCE_DIR
 """
 import hashlib
-import math
 import os
 import re
 import shutil
@@ -45,13 +44,13 @@ from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
 from checklist import Checklist  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
+from fairness_clients import (SPOT_VERTICES, as_client, light_queries, p99,  # noqa: E402
+                              refused_streams, unread_streams, wait_ready)
 
-SPOT_VERTICES = 2930
 GRID = 100  # the grid mesh's side in vertices: its field and geometry outgrow a 64 KiB window
-GRID_EPS = 0.05
-BIG_GRID = 400  # (e)'s mesh: a moment to read, so registrations queue on its name  # coarse: the grid's graph builds in a moment
+GRID_EPS = 0.05  # coarse: the grid's graph builds in a moment
+BIG_GRID = 400  # (e)'s mesh: a moment to read, so registrations queue on its name
 SERVING, NOT_SERVING = 1, 2  # grpc.health.v1.HealthCheckResponse.ServingStatus
-UNREAD_OPTIONS = [("grpc.http2.bdp_probe", 0), ("grpc.max_receive_message_length", 64 << 20)]
 
 check = Checklist()
 work = tempfile.mkdtemp(prefix="fairness-streams-")
@@ -87,20 +86,6 @@ def health_check(channel):
                                response_deserializer=decode)
 
 
-def wait_ready(stub, mesh, eps=0.0, seconds=60):
-    deadline = time.time() + seconds
-    while time.time() < deadline:
-        try:
-            if stub.GetGraph(pb.GetGraphRequest(mesh=mesh, epsilon=eps), timeout=5).state == \
-                    pb.GRAPH_STATE_READY:
-                return True
-        except grpc.RpcError as e:
-            if e.code() != grpc.StatusCode.NOT_FOUND:
-                raise
-        time.sleep(0.05)
-    return False
-
-
 def grid(side):
     """A side x side wavy grid: its vertices and faces."""
     xs, ys = np.meshgrid(np.arange(side, dtype=float), np.arange(side, dtype=float))
@@ -122,43 +107,11 @@ def upload_grid(address, stub, graph=True):
     return wait_ready(stub, "grid", GRID_EPS)
 
 
-def light_queries(stub, n=20, pause=0.05, also=None):
-    """n one-pair Distance calls on spot (and `also` beside each): latencies of those
-    answered, and the errors."""
-    latencies, errors = [], []
-    for k in range(n):
-        start = time.monotonic()
-        try:
-            req = pb.DistanceRequest(mesh="spot", pairs=[pb.PointPair(**{
-                "from": pb.SurfacePoint(vertex=(37 * k) % SPOT_VERTICES),
-                "to": pb.SurfacePoint(vertex=(101 * k + 7) % SPOT_VERTICES)})])
-            if len(stub.Distance(req, timeout=3).results) == 1:
-                latencies.append(time.monotonic() - start)
-            if also:
-                also()
-        except grpc.RpcError as e:
-            errors.append(f"{e.code().name}: {e.details()}")
-        time.sleep(pause)
-    return latencies, errors
-
-
-def p99(latencies):
-    ordered = sorted(latencies)
-    return ordered[max(0, math.ceil(0.99 * len(ordered)) - 1)] if ordered else float("inf")
-
-
 def check_light(name, latencies, errors):
     check(f"{name}: at least 18 of 20 light queries answered", len(latencies) >= 18,
           f"{len(latencies)} answered; errors {errors[:3]}")
     check(f"{name}: p99 of the light queries under 1 s", p99(latencies) < 1.0,
           f"p99 {p99(latencies):.3f} s")
-
-
-def unread_streams(address, call, requests):
-    """Streams started and left unread, each on a channel of its own."""
-    channels = [grpc.insecure_channel(address, options=UNREAD_OPTIONS) for _ in requests]
-    streams = [call(rpc.GeodesicStub(ch), req) for ch, req in zip(channels, requests)]
-    return channels, streams
 
 
 def drain(streams, seconds):
@@ -208,20 +161,6 @@ def case_unread_queries(address, stub):
           values == [GRID * GRID] * 2, values)
     for ch in channels:
         ch.close()
-
-
-def as_client(token):
-    """Metadata that makes a call another client's (its bearer token; the daemon asks for none)."""
-    return [("authorization", f"Bearer {token}")]
-
-
-def refused_streams(streams, expected, seconds=10):
-    """The streams that ended (refused at once) once `expected` did, or after `seconds`."""
-    refused, deadline = [], time.time() + seconds
-    while time.time() < deadline and len(refused) < expected:
-        refused = [s for s in streams if s.done()]
-        time.sleep(0.05)
-    return refused
 
 
 def case_unread_geometry(address, stub, channel, max_streams):
