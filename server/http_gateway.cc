@@ -448,7 +448,15 @@ struct ApiRequest {
   // Set by a handler that answers in another format than JSON (a matrix as
   // .npy bytes): sent as it is instead of the handler's JSON.
   std::optional<HttpResponse>* raw = nullptr;
+  // The answer's reservation within --memory-limit (ReserveAnswer), held
+  // until the answer is sent.
+  std::shared_ptr<void>* hold = nullptr;
 };
+
+// What one number of an answer costs while it is made and sent as JSON: its
+// value as it came (8 bytes), its node in the JSON tree (16, up to twice that
+// as arrays grow) and its text (up to 24 characters and a comma).
+constexpr uint64_t kJsonNumberBytes = 8 + 2 * 16 + 25;
 
 // The client asked for a matrix as NumPy bytes rather than JSON.
 bool WantsNpy(const HttpRequest& http) {
@@ -723,17 +731,24 @@ struct HttpGateway::Impl {
     if (!m.ok()) return ToGrpc(m.status());
     const Mesh& mesh = *(*m)->mesh;
     const uint64_t bytes = GeometryJsonBound(mesh);
-    std::shared_ptr<void> hold;
-    if (options.memory) {
-      auto reserved = options.memory->Reserve(
-          bytes, absl::StrFormat("the geometry of mesh '%s' as JSON", name));
-      if (!reserved.ok()) return ToGrpc(reserved.status());
-      hold = *std::move(reserved);
+    if (grpc::Status s =
+            ReserveAnswer(r, bytes, absl::StrFormat("the geometry of mesh '%s' as JSON", name));
+        !s.ok()) {
+      return s;
     }
     HttpResponse& res = r.raw->emplace();
     res.body = GeometryJson(name, info["fingerprint"], mesh, bytes);
     res.content_type = "application/json";
-    res.hold = std::move(hold);
+    return grpc::Status::OK;
+  }
+
+  // `bytes` of --memory-limit for the answer, held until it is sent (see
+  // ApiRequest::hold); the limit's refusal otherwise.
+  grpc::Status ReserveAnswer(const ApiRequest& r, uint64_t bytes, const std::string& what) {
+    if (!options.memory) return grpc::Status::OK;
+    auto reserved = options.memory->Reserve(bytes, what);
+    if (!reserved.ok()) return ToGrpc(reserved.status());
+    *r.hold = *std::move(reserved);
     return grpc::Status::OK;
   }
 
@@ -865,6 +880,16 @@ struct HttpGateway::Impl {
     v1::DistanceFieldChunk chunk;
     while (reader->Read(&chunk)) {
       if (chunk.has_echo()) echo = chunk.echo();
+      if (!*r.hold && chunk.total() > 0) {
+        const uint64_t numbers = uint64_t{chunk.total()} * (nearest ? 2 : 1);
+        if (grpc::Status s =
+                ReserveAnswer(r, numbers * kJsonNumberBytes,
+                              absl::StrFormat("a field of %u values as JSON", chunk.total()));
+            !s.ok()) {
+          ctx->TryCancel();
+          return s;
+        }
+      }
       if (values.size() < chunk.total()) values.resize(chunk.total());
       if (nearest && nearest_source.size() < chunk.total()) nearest_source.resize(chunk.total());
       if (chunk.offset() + chunk.values_size() > values.size()) {
@@ -910,6 +935,14 @@ struct HttpGateway::Impl {
     if (!s.ok()) return s;
     const uint64_t entries = static_cast<uint64_t>(resp.rows()) * resp.cols();
     const bool narrow = dtype == v1::MATRIX_DTYPE_FLOAT32;
+    // The answer as it came is in memory already; what is made of it is not.
+    if (grpc::Status s = ReserveAnswer(
+            r, entries * (npy ? (narrow ? sizeof(float) : sizeof(double)) : kJsonNumberBytes),
+            absl::StrFormat("a matrix of %u x %u %s", resp.rows(), resp.cols(),
+                            npy ? "as .npy" : "as JSON"));
+        !s.ok()) {
+      return s;
+    }
     const uint64_t got = dtype == v1::MATRIX_DTYPE_DEFAULT
                              ? resp.distances_size()
                              : resp.packed().size() / (narrow ? sizeof(float) : sizeof(double));
@@ -1064,19 +1097,24 @@ struct HttpGateway::Impl {
       if (s = ParseBody(req, &body); s.ok()) s = OnlyKeys(body, route.body_keys);
     }
     std::optional<HttpResponse> raw;
-    if (s.ok()) s = (this->*handler)(call, {args.empty() ? "" : args[0], req, body, &raw}, &out);
+    std::shared_ptr<void> hold;
+    if (s.ok()) {
+      s = (this->*handler)(call, {args.empty() ? "" : args[0], req, body, &raw, &hold}, &out);
+    }
     if (s.ok() && call.expired()) {
       s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
     }
     if (!s.ok()) return ErrorResponse(s);
     if (raw) {
       raw->headers.emplace_back("Cache-Control", "no-store");
+      raw->hold = std::move(hold);
       return *std::move(raw);
     }
     HttpResponse res;
     res.headers.emplace_back("Cache-Control", "no-store");
     res.body = Dump(out);
     res.content_type = "application/json";
+    res.hold = std::move(hold);
     return res;
   }
 

@@ -9,7 +9,7 @@
   --drain-seconds and a small margin.
 - Meshes registered past --memory-limit are refused at registration, naming
   the limit, and queries keep answering; a body that cannot fit the limit is
-  refused before it is read.
+  refused before it is read, an answer (a matrix as JSON) before it is made.
 - A mesh scaled by 1e50 is refused at registration, naming the usable range.
 
 Needs the shared meshes (../shared/meshes beside the source tree): without
@@ -175,6 +175,24 @@ class GuardedDaemonTest(unittest.TestCase):
         self.assertIsNotNone(response, "closed without an answer")
         self.assertIn(response[0], (413, 503), response)
         self.assertIn(b"--memory-limit", response[2])
+
+    def test_f_answers_that_cannot_fit_the_memory_limit_are_refused_before_they_are_made(self):
+        # 400 x 2930 distances: their JSON would take about 64 bytes each (value, tree and
+        # text), past the limit, though the RPC's own answer (8 bytes each) fits.
+        sources = [f"v:{v}" for v in range(400)]
+        targets = [f"v:{v}" for v in range(2930)]
+        status, answer = request(self.port, "POST", "/v1/meshes/spot/matrix",
+                                 {"sources": sources, "targets": targets}, timeout=60)
+        # 429 (RESOURCE_EXHAUSTED): it can never fit; 503 if it could later.
+        self.assertIn(status, (429, 503), (status, str(answer)[:300]))
+        self.assertIn("--memory-limit", error_message(answer))
+        self.assertIn("a matrix of 400 x 2930 as JSON", error_message(answer))
+        # A small one still fits, and queries keep answering.
+        status, answer = request(self.port, "POST", "/v1/meshes/spot/matrix",
+                                 {"sources": sources[:4], "targets": targets[:100]}, timeout=60)
+        self.assertEqual(status, 200, answer)
+        self.assertEqual(len(answer["distances"]), 4)
+        self.assertEqual(self.light_query(), 200)
 
     def test_e_a_mesh_scaled_past_the_usable_range_is_refused(self):
         vertices, faces = read_obj(os.path.join(SRC, "data", "spot.obj"))
