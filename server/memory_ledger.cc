@@ -1,8 +1,24 @@
 #include "server/memory_ledger.h"
 
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
 #include "absl/strings/str_format.h"
 
 namespace geodesic::server {
+namespace {
+
+// A reservation this large held memory made and freed in bulk: a request
+// body's JSON tree and what was copied from it, an upload's bytes. glibc
+// keeps freed pages resident while a small block allocated later sits above
+// them in their heap (measured: up to a second after the answer was sent), so
+// the next reservation's bytes would be made in fresh pages beside them, past
+// the limit. They are handed back to the system before the ledger gives the
+// bytes back.
+constexpr uint64_t kTrimAtBytes = uint64_t{16} << 20;
+
+}  // namespace
 
 absl::StatusOr<std::shared_ptr<void>> MemoryLedger::Reserve(uint64_t bytes,
                                                             const std::string& what) {
@@ -29,6 +45,9 @@ absl::StatusOr<std::shared_ptr<void>> MemoryLedger::Reserve(uint64_t bytes,
 }
 
 void MemoryLedger::Release(uint64_t bytes) {
+#if defined(__GLIBC__)
+  if (bytes >= kTrimAtBytes) malloc_trim(0);
+#endif
   absl::MutexLock lock(&mu_);
   reserved_ -= bytes;
 }
