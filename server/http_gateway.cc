@@ -227,6 +227,44 @@ size_t NestingDepth(std::string_view text) {
 
 constexpr size_t kMaxNesting = 64;
 
+// Reads a JSON text for the first key an object gives twice, building
+// nothing. A DOM parse with a callback would do the same, but the library's
+// callback parser looks through the enclosing array at each object's end,
+// which made an array of many small objects take quadratic time.
+class DuplicateKeyFinder : public nlohmann::json_sax<json> {
+ public:
+  std::optional<std::string> duplicate;
+
+  bool null() override { return true; }
+  bool boolean(bool) override { return true; }
+  bool number_integer(number_integer_t) override { return true; }
+  bool number_unsigned(number_unsigned_t) override { return true; }
+  bool number_float(number_float_t, const string_t&) override { return true; }
+  bool string(string_t&) override { return true; }
+  bool binary(binary_t&) override { return true; }
+  bool start_object(std::size_t) override {
+    keys_.emplace_back();
+    return true;
+  }
+  bool key(string_t& key) override {
+    if (keys_.back().insert(key).second) return true;
+    duplicate = key;
+    return false;
+  }
+  bool end_object() override {
+    keys_.pop_back();
+    return true;
+  }
+  bool start_array(std::size_t) override { return true; }
+  bool end_array() override { return true; }
+  bool parse_error(std::size_t, const std::string&, const nlohmann::detail::exception&) override {
+    return false;
+  }
+
+ private:
+  std::vector<std::set<std::string>> keys_;  // of the objects open, innermost last
+};
+
 grpc::Status ParseBody(const HttpRequest& req, json* body) {
   if (req.body.empty()) {
     *body = json::object();
@@ -238,23 +276,15 @@ grpc::Status ParseBody(const HttpRequest& req, json* body) {
   }
   // A key given twice would silently take its last value: which one the
   // client meant is unknown, so the body is refused.
-  std::vector<std::set<std::string>> keys;
-  std::optional<std::string> duplicate;
-  auto check_keys = [&](int, json::parse_event_t event, json& parsed) {
-    if (event == json::parse_event_t::object_start) keys.emplace_back();
-    if (event == json::parse_event_t::object_end && !keys.empty()) keys.pop_back();
-    if (event == json::parse_event_t::key && !keys.empty() && !duplicate &&
-        !keys.back().insert(parsed.get<std::string>()).second) {
-      duplicate = parsed.get<std::string>();
-    }
-    return true;
-  };
-  *body = json::parse(req.body, check_keys, /*allow_exceptions=*/false);
-  if (body->is_discarded()) return Invalid("request body is not valid JSON");
-  if (duplicate) {
+  DuplicateKeyFinder finder;
+  json::sax_parse(req.body, &finder, json::input_format_t::json, /*strict=*/true,
+                  /*ignore_comments=*/false);
+  if (finder.duplicate) {
     return Invalid(absl::StrFormat("request body gives the key \"%s\" more than once",
-                                   absl::CHexEscape(duplicate->substr(0, 80))));
+                                   absl::CHexEscape(finder.duplicate->substr(0, 80))));
   }
+  *body = json::parse(req.body, nullptr, /*allow_exceptions=*/false);
+  if (body->is_discarded()) return Invalid("request body is not valid JSON");
   if (!body->is_object()) return Invalid("request body must be a JSON object");
   return grpc::Status::OK;
 }

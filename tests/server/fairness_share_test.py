@@ -14,8 +14,9 @@ the clients timed here):
   --max-queued-builds; epsilon below --min-epsilon and a bound below
   --min-max-error are refused naming the flag and the estimate; a query
   naming an epsilon nobody requested starts no build;
-- small: max_distance -1 is refused, so is a JSON body giving a key twice,
-  and a mesh named "-rf".
+- small: max_distance -1 is refused, so is a JSON body giving a key twice
+  (and a body of many empty objects within its timeout), and a mesh named
+  "-rf".
 
 Every daemon listens on 127.0.0.1 port 0, every call has a deadline.
 
@@ -243,6 +244,22 @@ def small_things(stub, http_port):
     check("a JSON body giving a key twice is refused naming it",
           status == 400 and "pairs" in answer and "more than once" in answer,
           (status, answer))
+
+    # 2 MiB of empty objects: the duplicate-key check once took quadratic time on these
+    # (half a MiB: 11 s), holding an HTTP worker; now the body is refused as soon as read.
+    body = b'{"pairs": [' + b",".join([b"{}"] * (700 * 1024)) + b"]}"
+    request = urllib.request.Request(f"http://127.0.0.1:{http_port}/v1/meshes/spot/distance",
+                                     data=body, method="POST",
+                                     headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=20) as r:
+            status, answer = r.status, r.read().decode()
+    except urllib.error.HTTPError as e:
+        status, answer = e.code, e.read().decode()
+    except OSError as e:  # timed out
+        status, answer = None, str(e)
+    check("an array of many empty objects is refused within the request's timeout",
+          status == 400 and "pair 0" in answer, (status, answer[:200]))
 
     code, message, _ = call(stub.RegisterMesh, pb.RegisterMeshRequest(name="-rf",
                                                                        path="spot.obj"), 10)
