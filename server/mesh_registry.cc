@@ -45,12 +45,15 @@ std::shared_ptr<RegisteredMesh> Wrap(const std::string& name, const std::string&
   return m;
 }
 
-absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(const std::string& name,
-                                                       const std::string& source,
-                                                       absl::StatusOr<TriangleSoup> soup,
-                                                       MeshDiagnostics diagnostics, bool repair) {
+// `room(vertices, faces)`: whether a mesh that size may be built, asked
+// before the build, which takes several times the soup's memory.
+absl::StatusOr<std::shared_ptr<RegisteredMesh>> Finish(
+    const std::string& name, const std::string& source, absl::StatusOr<TriangleSoup> soup,
+    MeshDiagnostics diagnostics, bool repair,
+    const std::function<absl::Status(uint64_t, uint64_t)>& room) {
   if (!soup.ok()) return soup.status();
   RETURN_IF_ERROR(RequireFaces(*soup, source == "upload" ? name : source));
+  RETURN_IF_ERROR(room(soup->positions.size(), soup->triangles.size()));
   // The diagnostics (of the file as it is) and the mesh need only the soup,
   // and each takes about half of a large mesh's registration: one runs
   // beside the other (the mesh gets its own copy of the soup).
@@ -263,7 +266,8 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterByte
   }
   MeshDiagnostics diagnostics;
   auto soup = ReadTriangleSoupFromMemory(bytes, format, name, &diagnostics);
-  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair));
+  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair,
+                                  RoomToBuild(name)));
   m->format = lower;
   m->source_hash = key;
   RETURN_IF_ERROR(Save(m, key, durable_));
@@ -323,7 +327,8 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterArra
   MeshDiagnostics diagnostics;
   diagnostics.path = name;
   diagnostics.format = "arrays";
-  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair));
+  ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair,
+                                  RoomToBuild(name)));
   m->format = "arrays";
   m->source_hash = key;
   RETURN_IF_ERROR(Save(m, key, durable_));
@@ -360,7 +365,8 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(
   std::string().swap(bytes);
   diagnostics.load_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
-  ASSIGN_OR_RETURN(auto m, Finish(name, display, std::move(soup), std::move(diagnostics), repair));
+  ASSIGN_OR_RETURN(auto m, Finish(name, display, std::move(soup), std::move(diagnostics), repair,
+                                  RoomToBuild(name)));
   m->source = source;
   m->diagnostics.path = path;
   m->format = format;
@@ -542,23 +548,43 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(
 }
 
 absl::Status MeshRegistry::FitsMemoryLimit(const RegisteredMesh& m) const {
+  return RoomFor(m.name, m.mesh->memory_bytes(), m.mesh.get(), "");
+}
+
+std::function<absl::Status(uint64_t, uint64_t)> MeshRegistry::RoomToBuild(
+    const std::string& name) const {
+  return [this, name](uint64_t vertices, uint64_t faces) {
+    absl::MutexLock lock(&mu_);
+    // A name registered already may come back with the same content,
+    // which Insert then keeps without a second copy: its room is checked
+    // once built.
+    if (memory_limit_ == 0 || meshes_.contains(name)) return absl::OkStatus();
+    return RoomFor(name, Mesh::EstimateMemoryBytes(vertices, faces), nullptr,
+                   absl::StrFormat(", estimated from its %u vertices and %u faces before it is "
+                                   "built",
+                                   vertices, faces));
+  };
+}
+
+absl::Status MeshRegistry::RoomFor(const std::string& name, uint64_t bytes, const Mesh* mesh,
+                                   const std::string& estimate) const {
   if (memory_limit_ == 0) return absl::OkStatus();
   // As resident_bytes counts: each mesh once, however many names. The room
   // kept for queries is the largest mesh's own bytes again: a field query's
   // scratch and answer on it take about as much as its arrays.
   absl::flat_hash_set<const Mesh*> counted;
-  uint64_t total = 0, largest = m.mesh->memory_bytes();
-  for (const auto& [name, other] : meshes_) {
+  uint64_t total = 0, largest = bytes;
+  for (const auto& [other_name, other] : meshes_) {
     if (counted.insert(other->mesh.get()).second) total += other->mesh->memory_bytes();
     largest = std::max<uint64_t>(largest, other->mesh->memory_bytes());
   }
-  if (counted.insert(m.mesh.get()).second) total += m.mesh->memory_bytes();
+  if (mesh == nullptr || counted.insert(mesh).second) total += bytes;
   if (total + largest <= memory_limit_) return absl::OkStatus();
   return absl::ResourceExhaustedError(absl::StrFormat(
-      "mesh '%s' (%u bytes) is refused: the registered meshes would then take %u bytes of the "
+      "mesh '%s' (%u bytes%s) is refused: the registered meshes would then take %u bytes of the "
       "server's memory limit (--memory-limit, %u bytes), leaving less than the %u bytes a query "
       "on the largest of them needs; unload a mesh or raise the limit",
-      Echo(m.name), m.mesh->memory_bytes(), total, memory_limit_, largest));
+      Echo(name), bytes, estimate, total, memory_limit_, largest));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Get(

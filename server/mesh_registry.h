@@ -143,6 +143,13 @@ class MeshRegistry {
   // RESOURCE_EXHAUSTED, naming the limit, when `m` under a new name does
   // not fit SetMemoryLimit's limit.
   absl::Status FitsMemoryLimit(const RegisteredMesh& m) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // The same for `bytes` of mesh `mesh` (null: not built yet); `estimate`
+  // says, in the refusal, how the bytes were had.
+  absl::Status RoomFor(const std::string& name, uint64_t bytes, const Mesh* mesh,
+                       const std::string& estimate) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // FitsMemoryLimit for a mesh about to be built from its counts, refused
+  // before its build rather than after.
+  std::function<absl::Status(uint64_t, uint64_t)> RoomToBuild(const std::string& name) const;
   // ALREADY_EXISTS when Insert would refuse `m`.
   absl::Status NameTakenByOther(const RegisteredMesh& m) const;
   // Loads the file at `path`, restoring it from a snapshot when there is one

@@ -272,6 +272,15 @@ uint64_t Mesh::memory_bytes() const {
          bytes(a_.flags);
 }
 
+uint64_t Mesh::EstimateMemoryBytes(uint64_t vertices, uint64_t faces) {
+  const uint64_t halfedges = 3 * faces, edges = halfedges / 2;
+  const uint64_t per_vertex = sizeof(Vec3) + sizeof(HalfedgeId) + sizeof(double) + sizeof(uint8_t);
+  // corners, twin, edge; length, corner_angle, polar_angle.
+  const uint64_t per_halfedge =
+      sizeof(VertexId) + sizeof(HalfedgeId) + sizeof(EdgeId) + 3 * sizeof(double);
+  return vertices * per_vertex + halfedges * per_halfedge + edges * sizeof(HalfedgeId);
+}
+
 absl::Status Mesh::CheckConsistency() const {
   // next and prev are arithmetic on ids, so only the stored arrays can
   // disagree. Faces are walked corner by corner: no division per half-edge.

@@ -142,6 +142,10 @@ class Mesh {
   absl::Status CheckConsistency() const;
   // Bytes the mesh's arrays hold, for memory budgets.
   uint64_t memory_bytes() const;
+  // About memory_bytes() of a mesh of this many vertices and faces, before
+  // it is built (a closed mesh's edge count): to refuse one that cannot fit
+  // a budget without building it.
+  static uint64_t EstimateMemoryBytes(uint64_t vertices, uint64_t faces);
 
   // Everything a built mesh holds, for saving it and restoring it without
   // rebuilding (core/mesh/mesh_snapshot.h).

@@ -28,6 +28,9 @@ VmHWM if larger) must stay within the limit + the overhead + SLACK. The cases:
    32 times their length, two of these fitted at once, each taking about 51 times its length:
    RSS reached 736 MiB, 170 MiB past the bound; at 64 times, without handing freed pages back
    as a reservation ends, a body was made beside the last one's pages: up to 584 MiB.)
+5. --memory-limit 256M: armadillo_loop2.ply (800K vertices) registered: refused from its
+   counts before it is built, naming the limit and the estimate (built first, it took RSS to
+   415 MiB before its refusal).
 
 In every case a light client sends 20 one-pair Distance calls on the bundled spot mesh beside
 the load: at least 18 must be answered (in case 2, also after the registrations).
@@ -61,6 +64,7 @@ from raw_http import read_response  # noqa: E402
 SHARED = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(SRC, "..", "shared"))
 MESHES = os.path.join(SHARED, "meshes")
 MIB = 1 << 20
+LARGE_MESH, LARGE_VERTICES = "armadillo_loop2.ply", 799810
 # What the peak may pass the limit + the idle overhead by: the stacks and malloc arenas of
 # the threads that calls running at once under load start (idle, the daemon has fewer), and
 # what one call holds before the gauges count it (a registration's parse: about 8 MiB here).
@@ -256,6 +260,29 @@ def case_registrations(limit):
     d.check_peak(case)
 
 
+def case_large_mesh(limit):
+    case = "(5) a mesh larger than the limit"
+    d = Guarded("large", limit)
+    try:
+        if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
+            return
+        d.load_starts()
+        beside = Beside(d.stub)
+        try:
+            d.stub.RegisterMesh(pb.RegisterMeshRequest(name="large", path=LARGE_MESH), timeout=60)
+            code, details = grpc.StatusCode.OK, ""
+        except grpc.RpcError as e:
+            code, details = e.code(), e.details() or ""
+        # Refused from its counts, before the build that took several times the file's bytes.
+        check(f"{case}: refused before it is built, naming --memory-limit and the estimate",
+              names_the_limit(code, details) and
+              f"estimated from its {LARGE_VERTICES} vertices" in details, (code.name, details))
+        beside.check(case)
+    finally:
+        d.stop()
+    d.check_peak(case)
+
+
 def retried(attempt, seconds):
     """attempt() -> (status, ...) repeated while it answers 503, for at most `seconds`."""
     deadline = time.time() + seconds
@@ -289,8 +316,7 @@ def case_geometry(limit):
     try:
         if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
             return
-        mesh = d.stub.RegisterMesh(pb.RegisterMeshRequest(name="big",
-                                                          path="armadillo_loop2.ply"),
+        mesh = d.stub.RegisterMesh(pb.RegisterMeshRequest(name="big", path=LARGE_MESH),
                                    timeout=120)
         vertices = mesh.diagnostics.vertices
         results = [None] * 8
@@ -406,7 +432,8 @@ def main():
             ("MANIFEST.md", "armadillo.obj", "armadillo_loop2.ply")), MESHES):
         return
     for run, limit in ((case_uploads, 256 * MIB), (case_registrations, 256 * MIB),
-                       (case_geometry, 512 * MIB), (case_bodies, 512 * MIB)):
+                       (case_geometry, 512 * MIB), (case_bodies, 512 * MIB),
+                       (case_large_mesh, 256 * MIB)):
         case_started = time.monotonic()
         run(limit)
         print(f"{run.__name__}: {time.monotonic() - case_started:.1f} s", flush=True)
