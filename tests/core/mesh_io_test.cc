@@ -104,6 +104,19 @@ TEST(MeshIoOnSharedMeshes, VertexOrderIsTheFileOrder) {
   }
 }
 
+// The estimate a registration is refused by before the build: within a few
+// percent of what the built mesh holds (the edge array's spare capacity).
+TEST(MeshIoOnSharedMeshes, MemoryEstimateFromCountsIsNearTheBuiltMesh) {
+  ASSERT_TRUE(SharedDataAvailable());
+  auto mesh = LoadMesh(SharedPath("meshes/armadillo.obj"));
+  ASSERT_OK(mesh);
+  const uint64_t built = mesh->memory_bytes();
+  const uint64_t estimate = Mesh::EstimateMemoryBytes(mesh->num_vertices(), mesh->num_faces());
+  ASSERT_GT(built, 0u);
+  EXPECT_LE(estimate, built);
+  EXPECT_GE(estimate, built * 0.9) << "estimate " << estimate << ", built " << built;
+}
+
 TEST(MeshIoOnSharedMeshes, MessyOgreDiagnosticsMatchTheManifest) {
   ASSERT_TRUE(SharedDataAvailable());
   MeshDiagnostics d;
