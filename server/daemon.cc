@@ -15,6 +15,7 @@
 #include "core/base/version.h"
 #include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "nlohmann/json.hpp"
+#include "server/answer_watch.h"
 #include "server/log.h"
 
 namespace geodesic::server {
@@ -364,6 +365,11 @@ int Daemon::ListenGrpc() {
   builder.SetMaxReceiveMessageSize(static_cast<int>(limits.max_message_bytes));
   builder.SetMaxSendMessageSize(static_cast<int>(limits.max_message_bytes));
   AddIdleArguments(builder);
+  // A unary answer its client does not take within --idle-seconds is
+  // cancelled (answer_watch.h), as streams are.
+  std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> watches;
+  watches.push_back(std::make_unique<AnswerWatchFactory>(&service_->watchdog()));
+  builder.experimental().SetInterceptorCreators(std::move(watches));
   grpc::ResourceQuota quota("geodesicd");
   quota.SetMaxThreads(ThreadQuota());
   builder.SetResourceQuota(quota);

@@ -87,6 +87,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   const Admission& admission() const { return admission_; }
   // Streams watched for idling, and how many were closed.
   const StreamWatchdog& watchdog() const { return watchdog_; }
+  StreamWatchdog& watchdog() { return watchdog_; }
   // Calls in a handler now: each holds one of gRPC's threads.
   int calls_in_progress() const { return calls_in_progress_.load(std::memory_order_relaxed); }
 

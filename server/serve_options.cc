@@ -192,8 +192,9 @@ void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {
                  "(health, listing, get and cancel keep their own threads)");
   app.add_option("--idle-seconds", limits.idle_seconds,
                  "a stream waiting this long on its client (an answer not read, an upload not "
-                 "sent) is closed, giving back its slot; gRPC connections with no call this "
-                 "long are closed too, and quiet ones probed (0: never)")
+                 "sent) is closed, giving back its slot, and so is a unary call whose answer "
+                 "its client does not take; gRPC connections with no call this long are "
+                 "closed too, and quiet ones probed (0: never)")
       ->check(CLI::Range(0.0, 86400.0));
   app.add_option("--max-inflight-per-client", limits.max_inflight_per_client,
                  "queries one client (its bearer token, else its address) may have admitted at "

@@ -50,6 +50,13 @@ StreamWatchdog::Watch StreamWatchdog::Add(std::string what, std::function<void()
   return Watch(this, entry);
 }
 
+StreamWatchdog::Watch StreamWatchdog::AddWaiting(std::string what, std::function<void()> cancel) {
+  auto* entry = new Entry{std::move(what), std::move(cancel), absl::Now()};
+  absl::MutexLock lock(&mu_);
+  entries_.insert(entry);
+  return Watch(this, entry);
+}
+
 int StreamWatchdog::watched() const {
   absl::MutexLock lock(&mu_);
   return static_cast<int>(entries_.size());

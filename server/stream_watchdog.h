@@ -72,6 +72,9 @@ class StreamWatchdog {
   // watchdog's thread while the Watch still lives. `what` names the stream
   // in the log.
   Watch Add(std::string what, std::function<void()> cancel);
+  // The same, waiting on its client from now until the Watch is destroyed:
+  // for a unary answer being sent.
+  Watch AddWaiting(std::string what, std::function<void()> cancel);
 
   absl::Duration idle() const { return idle_; }
   int watched() const;

@@ -10,6 +10,8 @@ Beside a well-behaved client sending light queries:
   (--max-streams-per-client) they are refused at once naming it, another client still opens
   its own, past them all a stream is refused naming --max-streams, listing and queries keep
   answering, and the capacity health status says NOT_SERVING while every stream slot is taken;
+- (f) a unary Matrix answer whose client stopped reading is cancelled after --idle-seconds,
+  giving back the thread that was sending it;
 - (e) forty registrations of a large mesh at once from one client: past its share of the
   changes in progress (registrations, unloads, graph requests) they are refused at once, and
   listing and queries keep their threads;
@@ -28,6 +30,8 @@ import hashlib
 import os
 import re
 import shutil
+import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -226,6 +230,55 @@ def ended_within(call, start, seconds):
     return None
 
 
+# A client that asks for a unary answer and then stops (a stopped or hung process): it reads
+# nothing, so its connection's flow-control window stays shut.
+STOPPED_CLIENT = """
+import sys, time
+sys.path.insert(0, sys.argv[2])
+import grpc
+from geodesic_client._stubs import pb, rpc
+channel = grpc.insecure_channel(sys.argv[1], options=[("grpc.http2.bdp_probe", 0)])
+grpc.channel_ready_future(channel).result(timeout=10)
+req = pb.MatrixRequest(exact=True, all_targets=True)
+req.graph.mesh = sys.argv[3]
+for v in range(4):
+    req.sources.add().vertex = 1000 * v
+call = rpc.GeodesicStub(channel).Matrix.future(req, timeout=120)
+print("asked", flush=True)
+time.sleep(120)
+"""
+
+
+def case_unread_answer(address, stub, metrics_port, log, idle):
+    # (f) a unary answer (4 exact rows of the grid, 320 KB: more than a flow-control window)
+    # whose client stopped as the server computed it: the synchronous server's thread waits
+    # until the answer is taken, so it is cancelled after --idle-seconds like a stream's
+    # message.
+    stub.RequestGraph(pb.RequestGraphRequest(mesh="grid"), timeout=10)
+    check("(f) the grid's default graph ready", wait_ready(stub, "grid"))
+    before = metrics(metrics_port).get("geodesicd_streams_idle_closed_total", 0)
+    client = subprocess.Popen([sys.executable, "-c", STOPPED_CLIENT, address,
+                               os.path.join(SRC, "client", "python"), "grid"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        asked = client.stdout.readline().strip() == "asked"
+        time.sleep(0.1)  # the request on its way; the exact rows take longer than this
+        client.send_signal(signal.SIGSTOP)
+        check("(f) the stopped client asked", asked)
+        start, closed = time.monotonic(), False
+        while not closed and time.monotonic() - start < idle + 8:
+            closed = metrics(metrics_port).get("geodesicd_streams_idle_closed_total", 0) > before
+            time.sleep(0.2)
+        check("(f) a unary answer nobody takes is cancelled after --idle-seconds", closed,
+              f"not after {idle + 8} s")
+        with open(log) as f:
+            check("(f) logged as the Matrix answer",
+                  "the answer of /geodesic.v1.Geodesic/Matrix" in f.read())
+    finally:
+        client.kill()
+        client.wait(timeout=10)
+
+
 def case_registrations(address, stub, mesh_root):
     # (e) one client asks to register a large mesh forty times at once: each waits for the
     # name, on a thread of its own. Past the client's share of the changes in progress they are
@@ -378,6 +431,7 @@ def main():
         stub = rpc.GeodesicStub(channel)
         if check("(d) the grid uploaded", upload_grid(address, stub, graph=False)):
             case_idle(address, stub, ports["metrics"], log, idle)
+            case_unread_answer(address, stub, ports["metrics"], log, idle)
     daemon_ports.stop(daemon)
     print(f"{time.monotonic() - started:.1f} s")
 
