@@ -218,6 +218,21 @@ def build_budget(stub):
           [(c.name, m) for c, m, _ in results])
 
 
+def post_distance(http_port, body, timeout):
+    """(status, text) of an HTTP distance request on spot with this JSON body; no status if
+    it timed out."""
+    request = urllib.request.Request(f"http://127.0.0.1:{http_port}/v1/meshes/spot/distance",
+                                     data=body, method="POST",
+                                     headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=timeout) as r:
+            return r.status, r.read().decode()
+    except urllib.error.HTTPError as e:
+        return e.code, e.read().decode()
+    except OSError as e:
+        return None, str(e)
+
+
 def small_things(stub, http_port):
     req = pb.DistanceFieldRequest(max_distance=-1)
     req.graph.mesh = "spot"
@@ -232,32 +247,16 @@ def small_things(stub, http_port):
           code == grpc.StatusCode.INVALID_ARGUMENT and "max_distance -1" in message,
           (code, message))
 
-    body = b'{"pairs": [["v:0", "v:1500"]], "pairs": [["v:0", "v:7"]]}'
-    request = urllib.request.Request(f"http://127.0.0.1:{http_port}/v1/meshes/spot/distance",
-                                     data=body, method="POST",
-                                     headers={"Content-Type": "application/json"})
-    try:
-        with urllib.request.urlopen(request, timeout=10) as r:
-            status, answer = r.status, r.read().decode()
-    except urllib.error.HTTPError as e:
-        status, answer = e.code, e.read().decode()
+    status, answer = post_distance(
+        http_port, b'{"pairs": [["v:0", "v:1500"]], "pairs": [["v:0", "v:7"]]}', 10)
     check("a JSON body giving a key twice is refused naming it",
           status == 400 and "pairs" in answer and "more than once" in answer,
           (status, answer))
 
     # 2 MiB of empty objects: the duplicate-key check once took quadratic time on these
     # (half a MiB: 11 s), holding an HTTP worker; now the body is refused as soon as read.
-    body = b'{"pairs": [' + b",".join([b"{}"] * (700 * 1024)) + b"]}"
-    request = urllib.request.Request(f"http://127.0.0.1:{http_port}/v1/meshes/spot/distance",
-                                     data=body, method="POST",
-                                     headers={"Content-Type": "application/json"})
-    try:
-        with urllib.request.urlopen(request, timeout=20) as r:
-            status, answer = r.status, r.read().decode()
-    except urllib.error.HTTPError as e:
-        status, answer = e.code, e.read().decode()
-    except OSError as e:  # timed out
-        status, answer = None, str(e)
+    status, answer = post_distance(
+        http_port, b'{"pairs": [' + b",".join([b"{}"] * (700 * 1024)) + b"]}", 20)
     check("an array of many empty objects is refused within the request's timeout",
           status == 400 and "pair 0" in answer, (status, answer[:200]))
 
