@@ -57,21 +57,21 @@ def ops(mesh, eps, vertices):
     def point(v):
         return pb.SurfacePoint(vertex=v % vertices)
 
-    def pairs(stub, seed):
+    def pairs(stub, seed, md):
         stub.Distance(pb.DistanceRequest(mesh=mesh, epsilon=eps, pairs=[
             pb.PointPair(**{"from": point(seed + k), "to": point(seed * 31 + k * 97)})
-            for k in range(8)]), timeout=120)
+            for k in range(8)]), timeout=120, metadata=md)
 
-    def field(stub, seed):
+    def field(stub, seed, md):
         for _ in stub.DistanceField(pb.DistanceFieldRequest(
-                mesh=mesh, epsilon=eps, sources=[point(seed)]), timeout=120):
+                mesh=mesh, epsilon=eps, sources=[point(seed)]), timeout=120, metadata=md):
             pass
 
-    def matrix(stub, seed):
+    def matrix(stub, seed, md):
         stub.Matrix(pb.MatrixRequest(mesh=mesh, epsilon=eps,
                                      sources=[point(seed + k) for k in range(3)],
                                      targets=[point(seed * 13 + k) for k in range(40)]),
-                    timeout=120)
+                    timeout=120, metadata=md)
 
     return {"pairs (8 per call)": pairs, "field": field, "matrix 3 x 40": matrix}
 
@@ -81,6 +81,9 @@ def run_cell(port, op, clients, seconds, pid):
     peak = [0]
 
     def client(i):
+        # Each a client of its own to the daemon's fair share (a bearer token
+        # of its own; the daemon asks for none), as separate processes are.
+        md = [("authorization", f"Bearer load-client-{i}")]
         with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
             stub = rpc.GeodesicStub(channel)
             n = 0
@@ -88,7 +91,7 @@ def run_cell(port, op, clients, seconds, pid):
                 n += 1
                 start = time.perf_counter()
                 try:
-                    op(stub, i * 7919 + n)
+                    op(stub, i * 7919 + n, md)
                     code = "OK"
                 except grpc.RpcError as e:
                     code = e.code().name
@@ -172,7 +175,7 @@ def main():
     out = ["## Load: concurrent clients on default admission flags\n",
            f"Regenerate: `{command}`. Machine: {os.cpu_count()} cores, {platform.platform()}. "
            f"Mesh {os.path.basename(args.mesh)} ({vertices} vertices), ε = {args.eps:g}, daemon on "
-           f"default flags (--max-inflight 64, --query-threads = cores, --max-streams 32) with "
+           f"default flags (--max-inflight 64, --query-threads = cores, --max-streams 64) with "
            f"--memory-limit {args.memory_limit}; each client a Python thread with its own "
            f"channel, {args.seconds:g} s per cell, on the same cores as the daemon. "
            + (args.note + " " if args.note else "") +
