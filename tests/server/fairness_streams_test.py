@@ -241,30 +241,32 @@ channel = grpc.insecure_channel(sys.argv[1], options=[("grpc.http2.bdp_probe", 0
 grpc.channel_ready_future(channel).result(timeout=10)
 req = pb.MatrixRequest(exact=True, all_targets=True)
 req.graph.mesh = sys.argv[3]
-for v in range(4):
-    req.sources.add().vertex = 1000 * v
+for v in range(16):
+    req.sources.add().vertex = 150 * v
 call = rpc.GeodesicStub(channel).Matrix.future(req, timeout=120)
 print("asked", flush=True)
 time.sleep(120)
 """
 
 
-def case_unread_answer(address, stub, metrics_port, log, idle):
-    # (f) a unary answer (4 exact rows of the grid, 320 KB: more than a flow-control window)
+def case_unread_answer(address, metrics_port, log, idle):
+    # (f) a unary answer (16 exact rows of spot, 375 KB: more than a flow-control window)
     # whose client stopped as the server computed it: the synchronous server's thread waits
     # until the answer is taken, so it is cancelled after --idle-seconds like a stream's
     # message.
-    stub.RequestGraph(pb.RequestGraphRequest(mesh="grid"), timeout=10)
-    check("(f) the grid's default graph ready", wait_ready(stub, "grid"))
     before = metrics(metrics_port).get("geodesicd_streams_idle_closed_total", 0)
     client = subprocess.Popen([sys.executable, "-c", STOPPED_CLIENT, address,
-                               os.path.join(SRC, "client", "python"), "grid"],
+                               os.path.join(SRC, "client", "python"), "spot"],
                               stdout=subprocess.PIPE, text=True)
     try:
         asked = client.stdout.readline().strip() == "asked"
-        time.sleep(0.1)  # the request on its way; the exact rows take longer than this
+        # Stopped while the server computes its rows: it never takes the answer.
+        deadline, computing = time.monotonic() + 20, False
+        while asked and not computing and time.monotonic() < deadline:
+            computing = metrics(metrics_port).get("geodesicd_queries_running", 0) > 0
         client.send_signal(signal.SIGSTOP)
-        check("(f) the stopped client asked", asked)
+        check("(f) the client asked, and was stopped while its answer was computed",
+              asked and computing)
         start, closed = time.monotonic(), False
         while not closed and time.monotonic() - start < idle + 8:
             closed = metrics(metrics_port).get("geodesicd_streams_idle_closed_total", 0) > before
@@ -423,15 +425,23 @@ def main():
             case_registrations(address, stub, mesh_root)
     daemon_ports.stop(daemon)
 
-    # (d): a short --idle-seconds.
+    # (f): a short --idle-seconds, the bundled mesh.
     idle = 2
+    daemon, ports, log = serve("answers", "--idle-seconds", str(idle))
+    address = f"127.0.0.1:{ports['grpc']}"
+    with grpc.insecure_channel(address) as channel:
+        stub = rpc.GeodesicStub(channel)
+        if check("(f) spot's graph ready", wait_ready(stub, "spot")):
+            case_unread_answer(address, ports["metrics"], log, idle)
+    daemon_ports.stop(daemon)
+
+    # (d): a short --idle-seconds.
     daemon, ports, log = serve("idle", "--no-sample", "--idle-seconds", str(idle))
     address = f"127.0.0.1:{ports['grpc']}"
     with grpc.insecure_channel(address) as channel:
         stub = rpc.GeodesicStub(channel)
         if check("(d) the grid uploaded", upload_grid(address, stub, graph=False)):
             case_idle(address, stub, ports["metrics"], log, idle)
-            case_unread_answer(address, stub, ports["metrics"], log, idle)
     daemon_ports.stop(daemon)
     print(f"{time.monotonic() - started:.1f} s")
 
