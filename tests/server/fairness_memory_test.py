@@ -40,6 +40,7 @@ without them it fails. Every daemon listens on 127.0.0.1 port 0, every call has 
 
 Usage: fairness_memory_test.py BUILD_BIN_DIR SOURCE_DIR
 """
+import contextlib
 import http.client
 import math
 import os
@@ -178,6 +179,21 @@ class Beside:
               len(latencies) >= 18, f"{len(latencies)} answered; errors {errors[:3]}")
 
 
+@contextlib.contextmanager
+def guarded(case, name, limit, http=False):
+    """A Guarded daemon for `case`, once its overhead is measured (None if spot never got
+    ready); stopped afterwards, and its peak checked if it was measured."""
+    d = Guarded(name, limit, http)
+    measured = False
+    try:
+        measured = check(f"{case}: spot ready, overhead measured", d.measure_overhead())
+        yield d if measured else None
+    finally:
+        d.stop()
+    if measured:
+        d.check_peak(case)
+
+
 def names_the_limit(code, details):
     return code in (grpc.StatusCode.RESOURCE_EXHAUSTED, grpc.StatusCode.UNAVAILABLE) and \
         "--memory-limit" in (details or "")
@@ -186,54 +202,51 @@ def names_the_limit(code, details):
 def case_uploads(limit):
     case = "(1) uploads left open"
     declared, streams = 240 * MIB, 8
-    d = Guarded("uploads", limit)
     release = threading.Event()
     channels = []
-    try:
-        if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
+    with guarded(case, "uploads", limit) as d:
+        if d is None:
             return
-        first = b"v 0 0 0\n" * (MIB // 8)  # a first message of 1 MiB
+        try:
+            first = b"v 0 0 0\n" * (MIB // 8)  # a first message of 1 MiB
 
-        def one_then_nothing(i):
-            yield pb.UploadMeshRequest(name=f"upload{i}", format="obj", total_bytes=declared,
-                                       sha256="0" * 64, data=first)
-            release.wait(60)
+            def one_then_nothing(i):
+                yield pb.UploadMeshRequest(name=f"upload{i}", format="obj", total_bytes=declared,
+                                           sha256="0" * 64, data=first)
+                release.wait(60)
 
-        meshes = metrics(d.ports["metrics"])["geodesicd_mesh_resident_bytes"]
-        fits = int((limit - meshes) // declared)
-        channels = [grpc.insecure_channel(d.address) for _ in range(streams)]
-        d.load_starts()
-        calls = [rpc.GeodesicStub(ch).UploadMesh.future(one_then_nothing(i), timeout=60)
-                 for i, ch in enumerate(channels)]
-        refused_streams(calls, streams - fits)
-        time.sleep(0.5)  # any more refusals in
-        beside = Beside(d.stub)
-        refused = [c for c in calls if c.done()]
-        details = [(c.code().name, c.details()) for c in refused]
-        print(f"{case}: {fits} of {streams} fit; refusals "
-              f"{sorted(set(code for code, _ in details))}, e.g. {details[:1]}", flush=True)
-        check(f"{case}: all but the {fits} that fit(s) refused",
-              fits >= 1 and len(refused) == streams - fits,
-              f"{len(refused)} of {streams} ended: {details[:2]}")
-        check(f"{case}: each refusal names --memory-limit",
-              refused and all(names_the_limit(c.code(), c.details()) for c in refused),
-              details[:2])
-        beside.check(case)
-        check(f"{case}: what fits is still held open",
-              sum(not c.done() for c in calls) == fits, f"{fits} fit")
-    finally:
-        release.set()
-        for ch in channels:
-            ch.close()
-        d.stop()
-    d.check_peak(case)
+            meshes = metrics(d.ports["metrics"])["geodesicd_mesh_resident_bytes"]
+            fits = int((limit - meshes) // declared)
+            channels = [grpc.insecure_channel(d.address) for _ in range(streams)]
+            d.load_starts()
+            calls = [rpc.GeodesicStub(ch).UploadMesh.future(one_then_nothing(i), timeout=60)
+                     for i, ch in enumerate(channels)]
+            refused_streams(calls, streams - fits)
+            time.sleep(0.5)  # any more refusals in
+            beside = Beside(d.stub)
+            refused = [c for c in calls if c.done()]
+            details = [(c.code().name, c.details()) for c in refused]
+            print(f"{case}: {fits} of {streams} fit; refusals "
+                  f"{sorted(set(code for code, _ in details))}, e.g. {details[:1]}", flush=True)
+            check(f"{case}: all but the {fits} that fit(s) refused",
+                  fits >= 1 and len(refused) == streams - fits,
+                  f"{len(refused)} of {streams} ended: {details[:2]}")
+            check(f"{case}: each refusal names --memory-limit",
+                  refused and all(names_the_limit(c.code(), c.details()) for c in refused),
+                  details[:2])
+            beside.check(case)
+            check(f"{case}: what fits is still held open",
+                  sum(not c.done() for c in calls) == fits, f"{fits} fit")
+        finally:
+            release.set()
+            for ch in channels:
+                ch.close()
 
 
 def case_registrations(limit):
     case = "(2) 60 registrations of one mesh"
-    d = Guarded("registrations", limit)
-    try:
-        if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
+    with guarded(case, "registrations", limit) as d:
+        if d is None:
             return
         d.load_starts()
         beside = Beside(d.stub)
@@ -255,16 +268,12 @@ def case_registrations(limit):
         check(f"{case}: queries keep being answered afterwards (at least 18 of "
               f"{LIGHT_QUERIES})", len(latencies) >= 18,
               f"{len(latencies)} answered; {errors[:3]}")
-    finally:
-        d.stop()
-    d.check_peak(case)
 
 
 def case_large_mesh(limit):
     case = "(5) a mesh larger than the limit"
-    d = Guarded("large", limit)
-    try:
-        if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
+    with guarded(case, "large", limit) as d:
+        if d is None:
             return
         d.load_starts()
         beside = Beside(d.stub)
@@ -278,9 +287,6 @@ def case_large_mesh(limit):
               names_the_limit(code, details) and
               f"estimated from its {LARGE_VERTICES} vertices" in details, (code.name, details))
         beside.check(case)
-    finally:
-        d.stop()
-    d.check_peak(case)
 
 
 def retried(attempt, seconds):
@@ -312,9 +318,8 @@ def get_geometry(port, name, timeout=60):
 
 def case_geometry(limit):
     case = "(3) concurrent geometry of the 800K mesh"
-    d = Guarded("geometry", limit, http=True)
-    try:
-        if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
+    with guarded(case, "geometry", limit, http=True) as d:
+        if d is None:
             return
         mesh = d.stub.RegisterMesh(pb.RegisterMeshRequest(name="big", path=LARGE_MESH),
                                    timeout=120)
@@ -343,9 +348,6 @@ def case_geometry(limit):
               all(r and (r[0] == 200 or (r[0] in (503, 413) and b"--memory-limit" in r[2]))
                   for r in results),
               [(r[0], r[2][:200]) for r in results if r and r[0] != 200])
-    finally:
-        d.stop()
-    d.check_peak(case)
 
 
 def pairs_body(size):
@@ -382,9 +384,8 @@ def post_body(port, path, body, timeout=30):
 
 def case_bodies(limit):
     case = "(4) concurrent 16 and 7 MiB bodies"
-    d = Guarded("bodies", limit, http=True)
-    try:
-        if not check(f"{case}: spot ready, overhead measured", d.measure_overhead()):
+    with guarded(case, "bodies", limit, http=True) as d:
+        if d is None:
             return
         never = pairs_body(16 * MIB)  # the gateway's body cap, 1 GiB reserved
         fits = pairs_body(7 * MIB)  # 448 MiB reserved: one at a time
@@ -420,9 +421,6 @@ def case_bodies(limit):
               all(r and (r[2] or (r[0] == 503 and b"--memory-limit" in r[1]))
                   for r in results[::2]),
               [(r[0], r[1][:200]) for r in results[::2] if r and not r[2]])
-    finally:
-        d.stop()
-    d.check_peak(case)
 
 
 def main():
