@@ -44,14 +44,14 @@ void StreamWatchdog::CloseIdle(absl::Time now) {
 }
 
 StreamWatchdog::Watch StreamWatchdog::Add(std::string what, std::function<void()> cancel) {
-  auto* entry = new Entry{std::move(what), std::move(cancel)};
-  absl::MutexLock lock(&mu_);
-  entries_.insert(entry);
-  return Watch(this, entry);
+  return Track(new Entry{std::move(what), std::move(cancel)});
 }
 
 StreamWatchdog::Watch StreamWatchdog::AddWaiting(std::string what, std::function<void()> cancel) {
-  auto* entry = new Entry{std::move(what), std::move(cancel), absl::Now()};
+  return Track(new Entry{std::move(what), std::move(cancel), absl::Now()});
+}
+
+StreamWatchdog::Watch StreamWatchdog::Track(Entry* entry) {
   absl::MutexLock lock(&mu_);
   entries_.insert(entry);
   return Watch(this, entry);

@@ -90,6 +90,8 @@ class StreamWatchdog {
     bool closed = false;
   };
 
+  // Watches `entry` (owned by the Watch returned).
+  Watch Track(Entry* entry);
   void Loop();
   // Cancels what waited on its client since before `now - idle_`.
   void CloseIdle(absl::Time now) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
