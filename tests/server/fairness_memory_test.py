@@ -179,6 +179,25 @@ class Beside:
               len(latencies) >= 18, f"{len(latencies)} answered; errors {errors[:3]}")
 
 
+def all_at_once_beside(d, case, n, attempt):
+    """attempt(0) .. attempt(n - 1) on threads of their own, all at once, with the light client
+    beside them from half a second in: their results, once its answers are checked."""
+    results = [None] * n
+
+    def run(k):
+        results[k] = attempt(k)
+
+    threads = [threading.Thread(target=run, args=(k,)) for k in range(n)]
+    for t in threads:
+        t.start()
+    time.sleep(0.5)
+    beside = Beside(d.stub)
+    for t in threads:
+        t.join(timeout=90)
+    beside.check(case)
+    return results
+
+
 @contextlib.contextmanager
 def guarded(case, name, limit, http=False):
     """A Guarded daemon for `case`, once its overhead is measured (None if spot never got
@@ -324,20 +343,9 @@ def case_geometry(limit):
         mesh = d.stub.RegisterMesh(pb.RegisterMeshRequest(name="big", path=LARGE_MESH),
                                    timeout=120)
         vertices = mesh.diagnostics.vertices
-        results = [None] * 8
         d.load_starts()
-
-        def fetch(k):
-            results[k] = retried(lambda: get_geometry(d.ports["http"], "big"), 20)
-
-        threads = [threading.Thread(target=fetch, args=(k,)) for k in range(8)]
-        for t in threads:
-            t.start()
-        time.sleep(0.5)
-        beside = Beside(d.stub)
-        for t in threads:
-            t.join(timeout=90)
-        beside.check(case)
+        results = all_at_once_beside(
+            d, case, 8, lambda k: retried(lambda: get_geometry(d.ports["http"], "big"), 20))
         statuses = [r[0] if r else None for r in results]
         whole = [r for r in results if r and r[0] == 200 and r[1] > 40 * MIB]
         print(f"{case}: {vertices} vertices; statuses {statuses}; bodies "
@@ -390,21 +398,11 @@ def case_bodies(limit):
         never = pairs_body(16 * MIB)  # the gateway's body cap, 1 GiB reserved
         fits = pairs_body(7 * MIB)  # 448 MiB reserved: one at a time
         path = "/v1/meshes/spot/distance"
-        results = [None] * 16
         d.load_starts()
-
-        def send(k):
-            body = never if k % 2 else fits
-            results[k] = retried(lambda: post_body(d.ports["http"], path, body), 30)
-
-        threads = [threading.Thread(target=send, args=(k,)) for k in range(16)]
-        for t in threads:
-            t.start()
-        time.sleep(0.5)
-        beside = Beside(d.stub)
-        for t in threads:
-            t.join(timeout=90)
-        beside.check(case)
+        results = all_at_once_beside(
+            d, case, 16,
+            lambda k: retried(lambda: post_body(d.ports["http"], path, never if k % 2 else fits),
+                              30))
         summary = [(r[0], r[2]) if r else None for r in results]
         print(f"{case}: (status, body sent) of the 16 MiB bodies {summary[1::2]}, of the "
               f"7 MiB ones {summary[::2]}", flush=True)
