@@ -14,6 +14,7 @@
 
 #include <algorithm>
 #include <cstdint>
+#include <vector>
 
 #include "core/base/bucket_queue.h"
 #include "core/base/node_heap.h"
@@ -82,6 +83,7 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fa
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
   uint64_t relaxed = 0;
+  std::vector<uint32_t> improvements;  // of u's edges, by index in its list
   while (!queue.empty()) {
     const uint32_t u = queue.Pop();
     const Visit what = visit(u);
@@ -103,16 +105,26 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fa
     }
     const double du = dist[u];
     relaxed += run.count;
+    if (improvements.size() < run.count) improvements.resize(run.count);
+    // Labels first, without a branch: whether an edge improves a label waits
+    // on that label's load, and a branch on it stalled on each load it
+    // mispredicted, where the loads of a whole run can be in flight at once.
+    // The improved targets are queued after, in the order found.
+    size_t found = 0;
     for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
       const DggEdge& e = edges[i];
-      const double nd = du + e.weight;
-      if (nd < dist[e.target]) {
-        dist[e.target] = nd;
-        if constexpr (kUseFans) fan[e.target] = e.fan;
-        improved(u, e.target);
-        queue.Push(e.target, nd);
-      }
+      const double nd = du + e.weight, old = dist[e.target];
+      const bool better = nd < old;
+      dist[e.target] = better ? nd : old;
+      improvements[found] = static_cast<uint32_t>(i - begin);
+      found += better;
       if (++i == end) i = begin;  // fans wrap past u's last edge
+    }
+    for (size_t k = 0; k < found; ++k) {
+      const DggEdge& e = edges[begin + improvements[k]];
+      if constexpr (kUseFans) fan[e.target] = e.fan;
+      improved(u, e.target);
+      queue.Push(e.target, dist[e.target]);
     }
   }
   return relaxed;
