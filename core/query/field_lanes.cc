@@ -27,12 +27,17 @@ void SetFans(LaneFans& fans, const LaneBits& which, FanRange f) {
   bits = which ? LaneBits{} + std::bit_cast<int64_t>(f) : bits;
   std::memcpy(static_cast<void*>(fans.fan), &bits, sizeof(bits));
 }
-
-double Lowest(const Lanes& l) {
-  double low = l[0];
-  for (int k = 1; k < kFieldLanes; ++k) low = std::min(low, l[k]);
-  return low;
+void SetFans(PackedLaneFans& fans, const LaneBits& which, FanRange f) {
+  typedef int32_t PackedBits __attribute__((vector_size(sizeof(PackedLaneFans))));
+  PackedBits bits;
+  std::memcpy(&bits, fans.fan, sizeof(bits));
+  bits = __builtin_convertvector(which, PackedBits) ? PackedBits{} + int32_t(PackFan(f)) : bits;
+  std::memcpy(fans.fan, &bits, sizeof(bits));
 }
+FanRange FanOf(const LaneFans& fans, int lane) { return fans.fan[lane]; }
+FanRange FanOf(const PackedLaneFans& fans, int lane) { return UnpackFan(fans.fan[lane]); }
+void SetFan(LaneFans& fans, int lane, FanRange f) { fans.fan[lane] = f; }
+void SetFan(PackedLaneFans& fans, int lane, FanRange f) { fans.fan[lane] = PackFan(f); }
 
 // The lanes whose bits are set, one bit each. Narrowed to a byte a lane, the
 // top bits gather by one multiplication: with AVX-512 the compiler keeps the
@@ -61,10 +66,11 @@ double LowestOf(const LaneLabels& l, uint32_t mask) {
 // already inside extends the run at whichever end adds fewer edges: not
 // always the shortest such run, but a pop costs a few comparisons, and
 // relaxing a little more than the fans is only more real paths tried.
-FanRange CoverFans(const LaneFans& fans, uint32_t mask, uint32_t degree) {
-  FanRange cover = fans.fan[std::countr_zero(mask)];
+template <typename Fans>
+FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree) {
+  FanRange cover = FanOf(fans, std::countr_zero(mask));
   for (mask &= mask - 1; mask; mask &= mask - 1) {
-    const FanRange f = fans.fan[std::countr_zero(mask)];
+    const FanRange f = FanOf(fans, std::countr_zero(mask));
     if (f.count >= degree) return {0, degree};
     // Where f starts, and where cover starts, each seen from the other.
     uint32_t ahead = f.begin - cover.begin, behind = cover.begin - f.begin;
@@ -82,26 +88,13 @@ FanRange CoverFans(const LaneFans& fans, uint32_t mask, uint32_t degree) {
   return cover;
 }
 
-}  // namespace
-
-// Eight lanes are one instruction each with AVX-512, whose mask registers
-// also hold the comparisons; without it (AVX2 was no faster) the compiler
-// splits them. The loader picks the clone the machine runs, through a
-// resolver that runs before ThreadSanitizer's runtime is up (and crashes
-// there), so a TSan build has the one portable version.
-#if defined(__SANITIZE_THREAD__)
-#define GEODESIC_LANE_CLONES
-#else
-#define GEODESIC_LANE_CLONES __attribute__((target_clones("arch=x86-64-v4", "default")))
-#endif
-GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
-    const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc,
+template <typename Fans>
+[[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
+    const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc, Fans* fan,
     absl::Span<const Endpoint> sources, double max_distance,
     const std::function<bool()>& cancelled) {
   const uint32_t nodes = g.num_nodes();
-  sc.PrepareLanes(nodes);
   LaneLabels* dist = sc.lane_dist.data();
-  LaneFans* fan = sc.lane_fan.data();
   uint8_t* dirty = sc.lane_dirty.data();
   const Lanes unreached = Lanes{} + kInfinity;
   for (uint32_t u = 0; u < nodes; ++u) AsLanes(dist[u]) = unreached;
@@ -114,7 +107,7 @@ GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
   auto seed = [&](uint32_t u, double d, int lane) {
     if (!(d < dist[u].dist[lane])) return;
     dist[u].dist[lane] = d;
-    fan[u].fan[lane] = AllEdges(g, u);
+    SetFan(fan[u], lane, AllEdges(g, u));
     if (!dirty[u]) seeds.push_back(u);
     dirty[u] |= 1u << lane;
     max_seed = std::max(max_seed, d);
@@ -132,6 +125,11 @@ GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
   const Lanes limit = Lanes{} + max_distance;
+  struct Improvement {
+    uint32_t edge;  // among u's
+    uint32_t lanes;
+  };
+  std::vector<Improvement> improvements;
   LaneStats stats;
   while (!queue.empty()) {
     const uint32_t u = queue.Pop();
@@ -151,30 +149,69 @@ GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = CoverFans(fan[u], active, end - begin);
     if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
-      const FanRange r = fan[next].fan[std::countr_zero(uint32_t(dirty[next]))];
+      const FanRange r = FanOf(fan[next], std::countr_zero(uint32_t(dirty[next])));
       const uint64_t list = offsets[next], list_end = offsets[next + 1];
       const uint64_t first = list + r.begin, last = first + r.count;
       if (r.count > 0 && first < list_end) PrefetchEdges(edges, first, std::min(last, list_end));
       __builtin_prefetch(&dist[next]);
     }
     stats.relaxed += run.count;
+    if (improvements.size() < run.count) improvements.resize(run.count);
+    // Labels first, without a branch: whether an edge improves a label waits
+    // on that label's load, and a branch on it stalled on every load it
+    // mispredicted, where the loads of a whole run can be in flight at once.
+    // The improved targets are queued after, with their lines in cache, in
+    // the order found.
+    size_t found = 0;
     for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
       const DggEdge& e = edges[i];
       const Lanes nd = du + e.weight;
       Lanes& dv = AsLanes(dist[e.target]);
       const LaneBits better = nd < dv;
+      dv = better ? nd : dv;
       const uint32_t improved = MaskOf(better);
-      if (improved) {
-        const uint32_t v = e.target;
-        dv = better ? nd : dv;
-        SetFans(fan[v], better, e.fan);
-        dirty[v] |= improved;
-        queue.Lower(v, Lowest(better ? nd : unreached));
-      }
+      improvements[found] = {static_cast<uint32_t>(i - begin), improved};
+      found += improved != 0;
       if (++i == end) i = begin;  // runs wrap past u's last edge
+    }
+    for (size_t k = 0; k < found; ++k) {
+      const auto [i, improved] = improvements[k];
+      const DggEdge& e = edges[begin + i];
+      const uint32_t v = e.target;
+      SetFans(fan[v], ((LaneBits{} + improved) & kLaneBit) != 0, e.fan);
+      dirty[v] |= improved;
+      queue.Lower(v, LowestOf(dist[v], improved));
     }
   }
   return stats;
+}
+
+}  // namespace
+
+// Eight lanes are one instruction each with AVX-512, whose mask registers
+// also hold the comparisons; without it (AVX2 was no faster) the compiler
+// splits them. The loader picks the clone the machine runs, through a
+// resolver that runs before ThreadSanitizer's runtime is up (and crashes
+// there), so a TSan build has the one portable version.
+#if defined(__SANITIZE_THREAD__)
+#define GEODESIC_LANE_CLONES
+#else
+#define GEODESIC_LANE_CLONES __attribute__((target_clones("arch=x86-64-v4", "default")))
+#endif
+GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
+    const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc,
+    absl::Span<const Endpoint> sources, double max_distance, const std::function<bool()>& cancelled,
+    LaneFanLayout layout) {
+  const auto offsets = g.offsets();
+  uint64_t max_degree = 0;
+  for (uint32_t u = 0; u < g.num_nodes(); ++u) {
+    max_degree = std::max(max_degree, offsets[u + 1] - offsets[u]);
+  }
+  const bool packed = layout == LaneFanLayout::kPackedWhereItFits && max_degree <= kMaxPackedDegree;
+  sc.PrepareLanes(g.num_nodes(), packed);
+  return packed ? Sweep(g, bucket_shape, sc, sc.lane_fan_packed.data(), sources, max_distance,
+                        cancelled)
+                : Sweep(g, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance, cancelled);
 }
 
 LaneLabels LaneDistancesTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end,

@@ -32,6 +32,11 @@ struct LaneStats {
   uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
 };
 
+// How a sweep keeps its lanes' fans: packed (PackedLaneFans) when every
+// node has fewer than 2^16 edges, else whole (LaneFans); or whole always,
+// so that tests reach that layout on small graphs too.
+enum class LaneFanLayout { kPackedWhereItFits, kWhole };
+
 // Lane k of sc.lane_dist[node] becomes the graph distance from sources[k]
 // (already joined to the graph); lanes past sources.size() stay +inf.
 // Labels above `max_distance` are not relaxed further, so they are upper
@@ -40,7 +45,8 @@ struct LaneStats {
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
                                           QueryScratch& sc, absl::Span<const Endpoint> sources,
                                           double max_distance,
-                                          const std::function<bool()>& cancelled);
+                                          const std::function<bool()>& cancelled,
+                                          LaneFanLayout layout = LaneFanLayout::kPackedWhereItFits);
 
 // Every lane's distance to an end point, as FieldDistanceTo reads a field:
 // at its node, or the best of its temporary edges; +inf beyond

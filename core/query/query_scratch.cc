@@ -33,12 +33,13 @@ void QueryScratch::PrepareField(size_t nodes) {
   }
 }
 
-void QueryScratch::PrepareLanes(size_t nodes) {
+void QueryScratch::PrepareLanes(size_t nodes, bool packed_fans) {
   if (lane_dist.size() < nodes) {
     lane_dist.resize(nodes);
-    lane_fan.resize(nodes);
     lane_dirty.resize(nodes);
   }
+  if (packed_fans && lane_fan_packed.size() < nodes) lane_fan_packed.resize(nodes);
+  if (!packed_fans && lane_fan.size() < nodes) lane_fan.resize(nodes);
 }
 
 uint64_t QueryScratch::bytes() const {
@@ -46,7 +47,7 @@ uint64_t QueryScratch::bytes() const {
   total += dist.capacity() * sizeof(double) + fan.capacity() * sizeof(FanRange) +
            label.capacity() * sizeof(uint32_t);
   total += lane_dist.capacity() * sizeof(LaneLabels) + lane_fan.capacity() * sizeof(LaneFans) +
-           lane_dirty.capacity();
+           lane_fan_packed.capacity() * sizeof(PackedLaneFans) + lane_dirty.capacity();
   if (exact) total += exact->memory_bytes();
   return total;
 }

@@ -34,6 +34,15 @@ struct alignas(64) LaneLabels {
 struct alignas(64) LaneFans {
   FanRange fan[kFieldLanes];
 };
+// The same fans in half the bytes, a fan's begin and count in 16 bits each,
+// for graphs whose nodes all have fewer than 2^16 edges: so that a node's
+// labels and fans both stay in a core's cache while a sweep works.
+struct alignas(32) PackedLaneFans {
+  uint32_t fan[kFieldLanes];
+};
+inline constexpr uint64_t kMaxPackedDegree = 0xffff;
+inline uint32_t PackFan(FanRange f) { return f.begin | f.count << 16; }
+inline FanRange UnpackFan(uint32_t packed) { return {packed & 0xffff, packed >> 16}; }
 
 // The records of the nodes one point-to-point query touches, kept in the
 // order they were first touched, and a per-node index into them. The index
@@ -104,7 +113,8 @@ struct QueryScratch {
   // node, each lane's label and fan, and the lanes improved since the node
   // was last taken out.
   std::vector<LaneLabels> lane_dist;
-  std::vector<LaneFans> lane_fan;
+  std::vector<LaneFans> lane_fan;  // or, for most graphs, these:
+  std::vector<PackedLaneFans> lane_fan_packed;
   std::vector<uint8_t> lane_dirty;
 
   PairTable pairs;
@@ -126,7 +136,7 @@ struct QueryScratch {
   const FaceFrames* frames = nullptr;
 
   void PrepareField(size_t nodes);
-  void PrepareLanes(size_t nodes);
+  void PrepareLanes(size_t nodes, bool packed_fans);
   ExactGeodesic& Exact(const Mesh& mesh) {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);
     exact->set_frames(frames);

@@ -13,7 +13,10 @@
 #include "core/dgg/dgg_graph_internal.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/augmented_graph.h"
+#include "core/query/field_lanes.h"
 #include "core/query/geodesic_engine.h"
+#include "core/query/graph_search.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {
@@ -702,6 +705,42 @@ TEST(QueriesTest, MatrixRowsEqualSingleSourceFieldsOnSpot) {
   for (size_t i = 0; i < n; ++i) {
     for (size_t j = 0; j < i; ++j) ASSERT_EQ((*m)[i * n + j], (*m)[j * n + i]) << i << " " << j;
   }
+}
+
+// A sweep keeps its lanes' fans packed when every node has fewer than 2^16
+// edges, as here, and whole on graphs with larger nodes: the same labels
+// either way, to the last bit, after the same work.
+TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  const BucketShape shape = BucketShapeOf(*graph);
+  QueryScratch sc;
+  std::vector<query_internal::Endpoint> sources;
+  for (const SurfacePoint& p : MixedPoints(*mesh, 5)) {
+    if (sources.size() == kFieldLanes) break;
+    auto end = query_internal::JoinToGraph(*mesh, *graph, sc, p, false);
+    ASSERT_OK(end);
+    sources.push_back(*std::move(end));
+  }
+  ASSERT_EQ(sources.size(), kFieldLanes);
+  const uint32_t nodes = graph->num_nodes();
+  auto packed = query_internal::SolveFieldLanes(*graph, shape, sc, sources, kInfinity, nullptr);
+  ASSERT_OK(packed);
+  const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
+  auto whole = query_internal::SolveFieldLanes(*graph, shape, sc, sources, kInfinity, nullptr,
+                                               query_internal::LaneFanLayout::kWhole);
+  ASSERT_OK(whole);
+  EXPECT_GT(packed->relaxed, nodes);
+  EXPECT_EQ(packed->relaxed, whole->relaxed);
+  EXPECT_EQ(packed->queue_pops, whole->queue_pops);
+  size_t finite = 0;
+  for (uint32_t u = 0; u < nodes; ++u) {
+    for (int k = 0; k < kFieldLanes; ++k) {
+      ASSERT_EQ(labels[u].dist[k], sc.lane_dist[u].dist[k]) << "node " << u << " lane " << k;
+      finite += std::isfinite(labels[u].dist[k]);
+    }
+  }
+  EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
 }
 
 // A radius keeps the entries within it, the same numbers as without one,
