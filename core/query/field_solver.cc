@@ -177,6 +177,41 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
   return absl::OkStatus();
 }
 
+// Sources in groups of kFieldLanes close together on the surface, for the
+// lanes of one sweep: the closer a group, the more its wavefronts move as
+// one, so that a node is taken out once for all its lanes and relaxes one
+// narrow run of edges (tight groups took a quarter fewer relaxations than
+// runs of the node order). `order` is in node order, which follows the
+// surface; each group is its first source not yet grouped and the nearest
+// others, in space, among the next kCandidates.
+std::vector<size_t> GroupNearby(const Mesh& mesh, absl::Span<const SurfacePoint> sources,
+                                absl::Span<const size_t> order) {
+  constexpr size_t kCandidates = 64;
+  std::vector<Vec3> at(order.size());
+  for (size_t i = 0; i < order.size(); ++i) at[i] = PositionOf(mesh, sources[order[i]]);
+  std::vector<uint8_t> grouped(order.size(), 0);
+  std::vector<size_t> out, near;
+  out.reserve(order.size());
+  for (size_t first = 0; first < order.size(); ++first) {
+    if (grouped[first]) continue;
+    near.clear();
+    for (size_t i = first + 1; i < order.size() && near.size() < kCandidates; ++i) {
+      if (!grouped[i]) near.push_back(i);
+    }
+    const size_t take = std::min(near.size(), size_t(kFieldLanes - 1));
+    std::partial_sort(near.begin(), near.begin() + take, near.end(), [&](size_t a, size_t b) {
+      return Distance(at[a], at[first]) < Distance(at[b], at[first]);
+    });
+    near.resize(take);
+    near.insert(near.begin(), first);
+    for (size_t i : near) {
+      grouped[i] = 1;
+      out.push_back(order[i]);
+    }
+  }
+  return out;
+}
+
 }  // namespace
 
 using query_internal::CheckPoint;
@@ -299,6 +334,7 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
     std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
       return node_near(sources[a]) < node_near(sources[b]);
     });
+    order = GroupNearby(mesh, sources, order);
     const size_t groups = (order.size() + kFieldLanes - 1) / kFieldLanes;
     RETURN_IF_ERROR(ForEachInParallel(groups, [&](size_t i) {
       const size_t first = i * kFieldLanes;
