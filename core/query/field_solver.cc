@@ -180,9 +180,9 @@ absl::Status MakeRowExact(ExactGeodesic& exact, const ExactLandmarks* landmarks,
 // Sources in groups of kFieldLanes close together on the surface, for the
 // lanes of one sweep: the closer a group, the more its wavefronts move as
 // one, so that a node is taken out once for all its lanes and relaxes one
-// narrow run of edges (tight groups took a quarter fewer relaxations than
-// runs of the node order). `order` is in node order, which follows the
-// surface; each group is its first source not yet grouped and the nearest
+// narrow run of edges (bench/notes.md, "Matrix lanes"). `order` is in node
+// order, which follows the surface, but a run of it can straddle a jump of
+// the curve: each group is its first source not yet grouped and the nearest
 // others, in space, among the next kCandidates.
 std::vector<size_t> GroupNearby(const Mesh& mesh, absl::Span<const SurfacePoint> sources,
                                 absl::Span<const size_t> order) {
