@@ -199,19 +199,14 @@ template <typename Fans>
 #define GEODESIC_LANE_CLONES __attribute__((target_clones("arch=x86-64-v4", "default")))
 #endif
 GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
-    const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc,
-    absl::Span<const Endpoint> sources, double max_distance, const std::function<bool()>& cancelled,
-    LaneFanLayout layout) {
-  const auto offsets = g.offsets();
-  uint64_t max_degree = 0;
-  for (uint32_t u = 0; u < g.num_nodes(); ++u) {
-    max_degree = std::max(max_degree, offsets[u + 1] - offsets[u]);
-  }
-  const bool packed = layout == LaneFanLayout::kPackedWhereItFits && max_degree <= kMaxPackedDegree;
-  sc.PrepareLanes(g.num_nodes(), packed);
-  return packed ? Sweep(g, bucket_shape, sc, sc.lane_fan_packed.data(), sources, max_distance,
-                        cancelled)
-                : Sweep(g, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance, cancelled);
+    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
+    absl::Span<const Endpoint> sources, double max_distance,
+    const std::function<bool()>& cancelled) {
+  sc.PrepareLanes(g.num_nodes(), layout);
+  return layout == LaneFanLayout::kPacked
+             ? Sweep(g, bucket_shape, sc, sc.lane_fan_packed.data(), sources, max_distance,
+                     cancelled)
+             : Sweep(g, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance, cancelled);
 }
 
 LaneLabels LaneDistancesTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end,

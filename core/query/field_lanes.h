@@ -32,21 +32,16 @@ struct LaneStats {
   uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
 };
 
-// How a sweep keeps its lanes' fans: packed (PackedLaneFans) when every
-// node has fewer than 2^16 edges, else whole (LaneFans); or whole always,
-// so that tests reach that layout on small graphs too.
-enum class LaneFanLayout { kPackedWhereItFits, kWhole };
-
 // Lane k of sc.lane_dist[node] becomes the graph distance from sources[k]
 // (already joined to the graph); lanes past sources.size() stay +inf.
 // Labels above `max_distance` are not relaxed further, so they are upper
 // bounds only: LaneDistanceTo reads them as +inf. CANCELLED when
-// `cancelled` says so.
+// `cancelled` says so. The lanes' fans are kept in `layout`
+// (LaneFanLayoutFor(g), or kWhole).
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
-                                          QueryScratch& sc, absl::Span<const Endpoint> sources,
-                                          double max_distance,
-                                          const std::function<bool()>& cancelled,
-                                          LaneFanLayout layout = LaneFanLayout::kPackedWhereItFits);
+                                          LaneFanLayout layout, QueryScratch& sc,
+                                          absl::Span<const Endpoint> sources, double max_distance,
+                                          const std::function<bool()>& cancelled);
 
 // Every lane's distance to an end point, as FieldDistanceTo reads a field:
 // at its node, or the best of its temporary edges; +inf beyond

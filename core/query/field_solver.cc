@@ -292,8 +292,8 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
         if (d.ok()) rows[k][j] = *d;
       }
     }
-    RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, *sc, ends, matrix_options.max_distance,
-                                    matrix_options.cancelled)
+    RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, lane_fans_, *sc, ends,
+                                    matrix_options.max_distance, matrix_options.cancelled)
                         .status());
     // Target by target: a target's lanes share a cache line.
     for (size_t j = 0; j < target_ends.size(); ++j) {

@@ -17,6 +17,7 @@ GeodesicEngine::GeodesicEngine(std::shared_ptr<const Mesh> mesh,
       graph_(std::move(graph)),
       scratch_(std::max<int>(2, std::thread::hardware_concurrency())) {
   buckets_ = BucketShapeOf(*graph_);
+  lane_fans_ = LaneFanLayoutFor(*graph_);
   node_xyz_.resize(graph_->num_nodes());
   for (uint32_t u = 0; u < node_xyz_.size(); ++u) {
     node_xyz_[u] = PositionOf(*mesh_, graph_->point_of_node(u));

@@ -279,6 +279,7 @@ class GeodesicEngine {
   // vertex order, scattered across the search.
   std::vector<Vec3> node_xyz_;
   BucketShape buckets_;
+  LaneFanLayout lane_fans_;  // of matrix sweeps
   mutable ScratchPool scratch_;
   mutable MadeOnce<Landmarks> landmarks_;
   mutable MadeOnce<ExactLandmarks> exact_landmarks_;

@@ -33,13 +33,23 @@ void QueryScratch::PrepareField(size_t nodes) {
   }
 }
 
-void QueryScratch::PrepareLanes(size_t nodes, bool packed_fans) {
+LaneFanLayout LaneFanLayoutFor(const DggGraph& g) {
+  const auto offsets = g.offsets();
+  for (uint32_t u = 0; u < g.num_nodes(); ++u) {
+    if (offsets[u + 1] - offsets[u] > kMaxPackedDegree) return LaneFanLayout::kWhole;
+  }
+  return LaneFanLayout::kPacked;
+}
+
+void QueryScratch::PrepareLanes(size_t nodes, LaneFanLayout layout) {
   if (lane_dist.size() < nodes) {
     lane_dist.resize(nodes);
     lane_dirty.resize(nodes);
   }
-  if (packed_fans && lane_fan_packed.size() < nodes) lane_fan_packed.resize(nodes);
-  if (!packed_fans && lane_fan.size() < nodes) lane_fan.resize(nodes);
+  if (layout == LaneFanLayout::kPacked && lane_fan_packed.size() < nodes) {
+    lane_fan_packed.resize(nodes);
+  }
+  if (layout == LaneFanLayout::kWhole && lane_fan.size() < nodes) lane_fan.resize(nodes);
 }
 
 uint64_t QueryScratch::bytes() const {

@@ -43,6 +43,11 @@ struct alignas(32) PackedLaneFans {
 inline constexpr uint64_t kMaxPackedDegree = 0xffff;
 inline uint32_t PackFan(FanRange f) { return f.begin | f.count << 16; }
 inline FanRange UnpackFan(uint32_t packed) { return {packed & 0xffff, packed >> 16}; }
+// Which of the two a sweep keeps. kPacked only where LaneFanLayoutFor
+// allows it; kWhole anywhere (tests choose it on small graphs too).
+enum class LaneFanLayout { kPacked, kWhole };
+// The smaller layout `g` allows: a scan of its nodes, made once per graph.
+LaneFanLayout LaneFanLayoutFor(const DggGraph& g);
 
 // The records of the nodes one point-to-point query touches, kept in the
 // order they were first touched, and a per-node index into them. The index
@@ -136,7 +141,7 @@ struct QueryScratch {
   const FaceFrames* frames = nullptr;
 
   void PrepareField(size_t nodes);
-  void PrepareLanes(size_t nodes, bool packed_fans);
+  void PrepareLanes(size_t nodes, LaneFanLayout layout);
   ExactGeodesic& Exact(const Mesh& mesh) {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);
     exact->set_frames(frames);

@@ -724,11 +724,13 @@ TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
   }
   ASSERT_EQ(sources.size(), kFieldLanes);
   const uint32_t nodes = graph->num_nodes();
-  auto packed = query_internal::SolveFieldLanes(*graph, shape, sc, sources, kInfinity, nullptr);
+  ASSERT_EQ(LaneFanLayoutFor(*graph), LaneFanLayout::kPacked);
+  auto packed = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, sc, sources,
+                                                kInfinity, nullptr);
   ASSERT_OK(packed);
   const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
-  auto whole = query_internal::SolveFieldLanes(*graph, shape, sc, sources, kInfinity, nullptr,
-                                               query_internal::LaneFanLayout::kWhole);
+  auto whole = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kWhole, sc, sources,
+                                               kInfinity, nullptr);
   ASSERT_OK(whole);
   EXPECT_GT(packed->relaxed, nodes);
   EXPECT_EQ(packed->relaxed, whole->relaxed);
