@@ -7,6 +7,17 @@
 #include "absl/status/statusor.h"
 #include "core/query/geodesic_engine.h"
 
+// The AVX-512 kernel is chosen at run time (__builtin_cpu_supports), not by
+// an ifunc, whose resolver runs before ThreadSanitizer's runtime is up and
+// crashes there; a TSan build keeps to the portable kernel all the same, as
+// its checks do not depend on the kernel.
+#if defined(__x86_64__) && !defined(__SANITIZE_THREAD__)
+#define GEODESIC_LANES_AVX512 1
+#include <immintrin.h>
+#else
+#define GEODESIC_LANES_AVX512 0
+#endif
+
 namespace geodesic::query_internal {
 namespace {
 
@@ -20,46 +31,157 @@ Lanes& AsLanes(LaneLabels& l) { return *reinterpret_cast<Lanes*>(l.dist); }
 static_assert(sizeof(LaneFans) == sizeof(LaneBits));
 static_assert(kFieldLanes == 8, "MaskOf and kLaneBit spell out eight lanes");
 
-// Sets the fans of the lanes of `which` to `f`, all in one write.
-void SetFans(LaneFans& fans, const LaneBits& which, FanRange f) {
-  LaneBits bits;
-  std::memcpy(&bits, static_cast<void*>(fans.fan), sizeof(bits));
-  bits = which ? LaneBits{} + std::bit_cast<int64_t>(f) : bits;
-  std::memcpy(static_cast<void*>(fans.fan), &bits, sizeof(bits));
-}
-void SetFans(PackedLaneFans& fans, const LaneBits& which, FanRange f) {
-  typedef int32_t PackedBits __attribute__((vector_size(sizeof(PackedLaneFans))));
-  PackedBits bits;
-  std::memcpy(&bits, fans.fan, sizeof(bits));
-  bits = __builtin_convertvector(which, PackedBits) ? PackedBits{} + int32_t(PackFan(f)) : bits;
-  std::memcpy(fans.fan, &bits, sizeof(bits));
-}
 FanRange FanOf(const LaneFans& fans, int lane) { return fans.fan[lane]; }
 FanRange FanOf(const PackedLaneFans& fans, int lane) { return UnpackFan(fans.fan[lane]); }
 void SetFan(LaneFans& fans, int lane, FanRange f) { fans.fan[lane] = f; }
 void SetFan(PackedLaneFans& fans, int lane, FanRange f) { fans.fan[lane] = PackFan(f); }
 
-// The lanes whose bits are set, one bit each. Narrowed to a byte a lane, the
-// top bits gather by one multiplication: with AVX-512 the compiler keeps the
-// comparison's mask register and narrows it in two instructions, where a
-// loop over the lanes took one extraction each.
-uint32_t MaskOf(const LaneBits& bits) {
-  typedef int8_t LaneBytes __attribute__((vector_size(kFieldLanes)));
-  const LaneBytes bytes = __builtin_convertvector(bits, LaneBytes);
-  uint64_t b;
-  std::memcpy(&b, &bytes, sizeof(b));
-  return static_cast<uint32_t>(((b & 0x8080808080808080ull) * 0x0002040810204081ull) >> 56);
-}
+template <typename Fans>
+FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree);
 
-// Lane k's bit of a lane mask, for spreading one over the lanes.
-constexpr LaneBits kLaneBit = {1, 2, 4, 8, 16, 32, 64, 128};
+// What the sweep does across lanes, in two kernels: GCC's vector extensions
+// for any machine, and AVX-512 intrinsics, where a comparison's lanes stay a
+// mask register that selects, stores and reduces without being spread back
+// over a vector and gathered again (bench/notes.md, "Matrix lanes").
+struct PortableLanes {
+  template <typename Fans>
+  static FanRange Cover(const Fans& fans, uint32_t mask, uint32_t degree) {
+    return CoverFans(fans, mask, degree);
+  }
+  // Lane k's bit of a lane mask, for spreading one over the lanes.
+  static constexpr LaneBits kLaneBit = {1, 2, 4, 8, 16, 32, 64, 128};
 
-// The smallest label among the lanes of `mask`: a queued node's key.
-double LowestOf(const LaneLabels& l, uint32_t mask) {
-  double low = kInfinity;
-  for (; mask; mask &= mask - 1) low = std::min(low, l.dist[std::countr_zero(mask)]);
-  return low;
-}
+  // The lanes whose bits are set, one bit each. Narrowed to a byte a lane,
+  // the top bits gather by one multiplication.
+  static uint32_t MaskOf(const LaneBits& bits) {
+    typedef int8_t LaneBytes __attribute__((vector_size(kFieldLanes)));
+    const LaneBytes bytes = __builtin_convertvector(bits, LaneBytes);
+    uint64_t b;
+    std::memcpy(&b, &bytes, sizeof(b));
+    return static_cast<uint32_t>(((b & 0x8080808080808080ull) * 0x0002040810204081ull) >> 56);
+  }
+
+  // Lowers each label of `dv` that `nd` improves; returns those lanes.
+  static uint32_t Relax(Lanes& dv, const Lanes& nd) {
+    const LaneBits better = nd < dv;
+    dv = better ? nd : dv;
+    return MaskOf(better);
+  }
+  // The lanes of `mask` whose labels are within `limit`; the others of `du`
+  // become +inf.
+  static uint32_t KeepWithin(Lanes& du, const Lanes& limit, uint32_t mask) {
+    const LaneBits keep = (du <= limit) & (((LaneBits{} + mask) & kLaneBit) != 0);
+    du = keep ? du : Lanes{} + kInfinity;
+    return MaskOf(keep);
+  }
+  // Sets the fans of the lanes of `mask` to `f`, all in one write.
+  static void SetFans(LaneFans& fans, uint32_t mask, FanRange f) {
+    LaneBits bits;
+    std::memcpy(&bits, static_cast<void*>(fans.fan), sizeof(bits));
+    bits = ((LaneBits{} + mask) & kLaneBit) != 0 ? LaneBits{} + std::bit_cast<int64_t>(f) : bits;
+    std::memcpy(static_cast<void*>(fans.fan), &bits, sizeof(bits));
+  }
+  static void SetFans(PackedLaneFans& fans, uint32_t mask, FanRange f) {
+    typedef int32_t PackedBits __attribute__((vector_size(sizeof(PackedLaneFans))));
+    PackedBits bits;
+    std::memcpy(&bits, fans.fan, sizeof(bits));
+    const LaneBits which = ((LaneBits{} + mask) & kLaneBit) != 0;
+    bits = __builtin_convertvector(which, PackedBits) ? PackedBits{} + int32_t(PackFan(f)) : bits;
+    std::memcpy(fans.fan, &bits, sizeof(bits));
+  }
+  // The smallest label among the lanes of `mask`: a queued node's key.
+  static double LowestOf(const LaneLabels& l, uint32_t mask) {
+    double low = kInfinity;
+    for (; mask; mask &= mask - 1) low = std::min(low, l.dist[std::countr_zero(mask)]);
+    return low;
+  }
+};
+
+#if GEODESIC_LANES_AVX512
+#define GEODESIC_AVX512 gnu::target("arch=x86-64-v4")
+// A lane's fan as begin and count, one int32 lane each.
+typedef int32_t LaneInts __attribute__((vector_size(kFieldLanes * sizeof(int32_t))));
+struct Avx512Lanes {
+  [[GEODESIC_AVX512]] static void BeginsAndCounts(const PackedLaneFans& fans, LaneInts& begin,
+                                                  LaneInts& count) {
+    LaneInts packed;
+    std::memcpy(&packed, fans.fan, sizeof(packed));
+    begin = packed & 0xffff;
+    count = (packed >> 16) & 0xffff;
+  }
+  [[GEODESIC_AVX512]] static void BeginsAndCounts(const LaneFans& fans, LaneInts& begin,
+                                                  LaneInts& count) {
+    typedef int32_t Pairs __attribute__((vector_size(2 * sizeof(LaneInts))));
+    Pairs pairs;
+    std::memcpy(&pairs, static_cast<const void*>(fans.fan), sizeof(pairs));
+    begin = __builtin_shufflevector(pairs, pairs, 0, 2, 4, 6, 8, 10, 12, 14);
+    count = __builtin_shufflevector(pairs, pairs, 1, 3, 5, 7, 9, 11, 13, 15);
+  }
+  // As CoverFans, without a branch: each fan placed, by its middle, within
+  // half a turn of the first lane's, and the run from the earliest start to
+  // the latest end.
+  template <typename Fans>
+  [[GEODESIC_AVX512]] static FanRange Cover(const Fans& fans, uint32_t mask, uint32_t degree) {
+    LaneInts begin, count;
+    BeginsAndCounts(fans, begin, count);
+    const LaneInts half = count >> 1, middle = begin + half;
+    const int32_t n = static_cast<int32_t>(degree), from = middle[std::countr_zero(mask)];
+    LaneInts at = middle - from;
+    at = at < 0 ? at + n : at;
+    at = at > n / 2 ? at - n : at;
+    at -= half;
+    const __mmask8 in = mask;
+    LaneInts first = LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(at)));
+    LaneInts last = LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(-n), in, __m256i(at + count)));
+    LaneInts other = __builtin_shufflevector(first, first, 4, 5, 6, 7, 0, 1, 2, 3);
+    first = other < first ? other : first;
+    other = __builtin_shufflevector(first, first, 2, 3, 0, 1, 6, 7, 4, 5);
+    first = other < first ? other : first;
+    other = __builtin_shufflevector(first, first, 1, 0, 3, 2, 5, 4, 7, 6);
+    first = other < first ? other : first;
+    other = __builtin_shufflevector(last, last, 4, 5, 6, 7, 0, 1, 2, 3);
+    last = other > last ? other : last;
+    other = __builtin_shufflevector(last, last, 2, 3, 0, 1, 6, 7, 4, 5);
+    last = other > last ? other : last;
+    other = __builtin_shufflevector(last, last, 1, 0, 3, 2, 5, 4, 7, 6);
+    last = other > last ? other : last;
+    const int32_t run = last[0] - first[0];
+    if (run >= n) return {0, degree};
+    int32_t start = from + first[0];
+    start += start < 0 ? n : 0;
+    start -= start >= n ? n : 0;
+    return {static_cast<uint32_t>(start), static_cast<uint32_t>(run)};
+  }
+  [[GEODESIC_AVX512]] static uint32_t Relax(Lanes& dv, const Lanes& nd) {
+    const __mmask8 better = _mm512_cmp_pd_mask(__m512d(nd), __m512d(dv), _CMP_LT_OQ);
+    dv = Lanes(_mm512_mask_mov_pd(__m512d(dv), better, __m512d(nd)));
+    return better;
+  }
+  [[GEODESIC_AVX512]] static uint32_t KeepWithin(Lanes& du, const Lanes& limit, uint32_t mask) {
+    const __mmask8 keep = _mm512_mask_cmp_pd_mask(mask, __m512d(du), __m512d(limit), _CMP_LE_OQ);
+    du = Lanes(_mm512_mask_mov_pd(_mm512_set1_pd(kInfinity), keep, __m512d(du)));
+    return keep;
+  }
+  [[GEODESIC_AVX512]] static void SetFans(LaneFans& fans, uint32_t mask, FanRange f) {
+    _mm512_mask_storeu_epi64(fans.fan, mask, _mm512_set1_epi64(std::bit_cast<int64_t>(f)));
+  }
+  [[GEODESIC_AVX512]] static void SetFans(PackedLaneFans& fans, uint32_t mask, FanRange f) {
+    _mm256_mask_storeu_epi32(fans.fan, mask, _mm256_set1_epi32(int32_t(PackFan(f))));
+  }
+  [[GEODESIC_AVX512]] static double LowestOf(const LaneLabels& l, uint32_t mask) {
+    // In three halvings (GCC 12's _mm512_mask_reduce_min_pd draws a false
+    // warning of an uninitialised value).
+    Lanes v = Lanes(_mm512_mask_mov_pd(_mm512_set1_pd(kInfinity), mask, _mm512_load_pd(l.dist)));
+    Lanes w = __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
+    v = w < v ? w : v;
+    w = __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
+    v = w < v ? w : v;
+    w = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
+    v = w < v ? w : v;
+    return v[0];
+  }
+};
+#endif
 
 // A run of a node's `degree` angle-sorted edges that holds the fans of the
 // lanes of `mask` (each a run that may wrap past the end). Each fan not
@@ -88,7 +210,7 @@ FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree) {
   return cover;
 }
 
-template <typename Fans>
+template <typename Simd, typename Fans>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
     const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc, Fans* fan,
     absl::Span<const Endpoint> sources, double max_distance,
@@ -120,7 +242,7 @@ template <typename Fans>
   // a little apart, and narrower buckets take fewer nodes out twice.
   BucketQueue& queue = sc.buckets;
   queue.Reset(nodes, bucket_shape.width / 2, std::max(bucket_shape.max_step, max_seed));
-  for (uint32_t u : seeds) queue.Lower(u, LowestOf(dist[u], dirty[u]));
+  for (uint32_t u : seeds) queue.Lower(u, Simd::LowestOf(dist[u], dirty[u]));
 
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
@@ -142,12 +264,10 @@ template <typename Fans>
     // Only the lanes that improved relax: the others did so with these
     // labels already. Labels past the limit stop there.
     Lanes du = AsLanes(dist[u]);
-    const LaneBits keep = (du <= limit) & (((LaneBits{} + mask) & kLaneBit) != 0);
-    du = keep ? du : unreached;
-    const uint32_t active = MaskOf(keep);
+    const uint32_t active = Simd::KeepWithin(du, limit, mask);
     if (!active) continue;
     const uint64_t begin = offsets[u], end = offsets[u + 1];
-    const FanRange run = CoverFans(fan[u], active, end - begin);
+    const FanRange run = Simd::Cover(fan[u], active, end - begin);
     if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
       const FanRange r = FanOf(fan[next], std::countr_zero(uint32_t(dirty[next])));
       const uint64_t list = offsets[next], list_end = offsets[next + 1];
@@ -165,11 +285,7 @@ template <typename Fans>
     size_t found = 0;
     for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
       const DggEdge& e = edges[i];
-      const Lanes nd = du + e.weight;
-      Lanes& dv = AsLanes(dist[e.target]);
-      const LaneBits better = nd < dv;
-      dv = better ? nd : dv;
-      const uint32_t improved = MaskOf(better);
+      const uint32_t improved = Simd::Relax(AsLanes(dist[e.target]), du + e.weight);
       improvements[found] = {static_cast<uint32_t>(i - begin), improved};
       found += improved != 0;
       if (++i == end) i = begin;  // runs wrap past u's last edge
@@ -178,35 +294,67 @@ template <typename Fans>
       const auto [i, improved] = improvements[k];
       const DggEdge& e = edges[begin + i];
       const uint32_t v = e.target;
-      SetFans(fan[v], ((LaneBits{} + improved) & kLaneBit) != 0, e.fan);
+      Simd::SetFans(fan[v], improved, e.fan);
       dirty[v] |= improved;
-      queue.Lower(v, LowestOf(dist[v], improved));
+      queue.Lower(v, Simd::LowestOf(dist[v], improved));
     }
   }
   return stats;
 }
 
-}  // namespace
-
-// Eight lanes are one instruction each with AVX-512, whose mask registers
-// also hold the comparisons; without it (AVX2 was no faster) the compiler
-// splits them. The loader picks the clone the machine runs, through a
-// resolver that runs before ThreadSanitizer's runtime is up (and crashes
-// there), so a TSan build has the one portable version.
-#if defined(__SANITIZE_THREAD__)
-#define GEODESIC_LANE_CLONES
-#else
-#define GEODESIC_LANE_CLONES __attribute__((target_clones("arch=x86-64-v4", "default")))
-#endif
-GEODESIC_LANE_CLONES absl::StatusOr<LaneStats> SolveFieldLanes(
+template <typename Simd>
+[[gnu::always_inline]] inline absl::StatusOr<LaneStats> SweepLayout(
     const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
     absl::Span<const Endpoint> sources, double max_distance,
     const std::function<bool()>& cancelled) {
-  sc.PrepareLanes(g.num_nodes(), layout);
   return layout == LaneFanLayout::kPacked
-             ? Sweep(g, bucket_shape, sc, sc.lane_fan_packed.data(), sources, max_distance,
-                     cancelled)
-             : Sweep(g, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance, cancelled);
+             ? Sweep<Simd>(g, bucket_shape, sc, sc.lane_fan_packed.data(), sources, max_distance,
+                           cancelled)
+             : Sweep<Simd>(g, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance,
+                           cancelled);
+}
+
+absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bucket_shape,
+                                        LaneFanLayout layout, QueryScratch& sc,
+                                        absl::Span<const Endpoint> sources, double max_distance,
+                                        const std::function<bool()>& cancelled) {
+  return SweepLayout<PortableLanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+}
+
+#if GEODESIC_LANES_AVX512
+// Flattened, so that the kernel's helpers (compiled for AVX-512, which the
+// rest of the sweep's code is not) are inlined here, where they may be.
+[[GEODESIC_AVX512, gnu::flatten]] absl::StatusOr<LaneStats> SweepAvx512(
+    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
+    absl::Span<const Endpoint> sources, double max_distance,
+    const std::function<bool()>& cancelled) {
+  return SweepLayout<Avx512Lanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+}
+#endif
+
+}  // namespace
+
+bool LaneKernelHasAvx512() {
+#if GEODESIC_LANES_AVX512
+  static const bool has = __builtin_cpu_supports("x86-64-v4");
+  return has;
+#else
+  return false;
+#endif
+}
+
+absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
+                                          LaneFanLayout layout, QueryScratch& sc,
+                                          absl::Span<const Endpoint> sources, double max_distance,
+                                          const std::function<bool()>& cancelled,
+                                          LaneKernel kernel) {
+  sc.PrepareLanes(g.num_nodes(), layout);
+#if GEODESIC_LANES_AVX512
+  if (kernel == LaneKernel::kBest && LaneKernelHasAvx512()) {
+    return SweepAvx512(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+  }
+#endif
+  return SweepPortable(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
 }
 
 LaneLabels LaneDistancesTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end,

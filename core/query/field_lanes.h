@@ -32,6 +32,11 @@ struct LaneStats {
   uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
 };
 
+// The code that runs a sweep: the best this machine has (AVX-512 when it
+// has it), or the portable one (tests compare the two).
+enum class LaneKernel { kBest, kPortable };
+bool LaneKernelHasAvx512();
+
 // Lane k of sc.lane_dist[node] becomes the graph distance from sources[k]
 // (already joined to the graph); lanes past sources.size() stay +inf.
 // Labels above `max_distance` are not relaxed further, so they are upper
@@ -41,7 +46,8 @@ struct LaneStats {
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
                                           LaneFanLayout layout, QueryScratch& sc,
                                           absl::Span<const Endpoint> sources, double max_distance,
-                                          const std::function<bool()>& cancelled);
+                                          const std::function<bool()>& cancelled,
+                                          LaneKernel kernel = LaneKernel::kBest);
 
 // Every lane's distance to an end point, as FieldDistanceTo reads a field:
 // at its node, or the best of its temporary edges; +inf beyond

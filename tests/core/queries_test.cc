@@ -8,6 +8,7 @@
 #include <sstream>
 #include <thread>
 
+#include "absl/strings/str_format.h"
 #include "core/base/node_heap.h"
 #include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_graph_internal.h"
@@ -710,18 +711,25 @@ TEST(QueriesTest, MatrixRowsEqualSingleSourceFieldsOnSpot) {
 // A sweep keeps its lanes' fans packed when every node has fewer than 2^16
 // edges, as here, and whole on graphs with larger nodes: the same labels
 // either way, to the last bit, after the same work.
+// A full sweep's sources: vertices, edge and face points.
+std::vector<query_internal::Endpoint> LaneSources(const Mesh& mesh, const DggGraph& graph,
+                                                  QueryScratch& sc) {
+  std::vector<query_internal::Endpoint> sources;
+  for (const SurfacePoint& p : MixedPoints(mesh, 5)) {
+    if (sources.size() == kFieldLanes) break;
+    auto end = query_internal::JoinToGraph(mesh, graph, sc, p, false);
+    EXPECT_OK(end);
+    if (end.ok()) sources.push_back(*std::move(end));
+  }
+  return sources;
+}
+
 TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
   auto [mesh, graph] = SpotAndGraph(1e-3);
   ASSERT_NE(graph, nullptr);
   const BucketShape shape = BucketShapeOf(*graph);
   QueryScratch sc;
-  std::vector<query_internal::Endpoint> sources;
-  for (const SurfacePoint& p : MixedPoints(*mesh, 5)) {
-    if (sources.size() == kFieldLanes) break;
-    auto end = query_internal::JoinToGraph(*mesh, *graph, sc, p, false);
-    ASSERT_OK(end);
-    sources.push_back(*std::move(end));
-  }
+  const std::vector<query_internal::Endpoint> sources = LaneSources(*mesh, *graph, sc);
   ASSERT_EQ(sources.size(), kFieldLanes);
   const uint32_t nodes = graph->num_nodes();
   ASSERT_EQ(LaneFanLayoutFor(*graph), LaneFanLayout::kPacked);
@@ -743,6 +751,53 @@ TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
     }
   }
   EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
+}
+
+// The AVX-512 kernel and the portable one find the same labels, to the last
+// bit, with fans packed or whole, with and without a limit (their runs of
+// edges may differ: each finds its own cover of the lanes' fans, so labels
+// past a limit, which are bounds only, may differ too).
+TEST(QueriesTest, LaneKernelsFindTheSameLabels) {
+  if (!query_internal::LaneKernelHasAvx512()) {
+    GTEST_SKIP() << "this machine has no AVX-512: only the portable kernel runs";
+  }
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  const BucketShape shape = BucketShapeOf(*graph);
+  QueryScratch sc;
+  const std::vector<query_internal::Endpoint> sources = LaneSources(*mesh, *graph, sc);
+  ASSERT_EQ(sources.size(), kFieldLanes);
+  const uint32_t nodes = graph->num_nodes();
+  for (LaneFanLayout layout : {LaneFanLayout::kPacked, LaneFanLayout::kWhole}) {
+    for (double limit : {kInfinity, 0.3}) {
+      SCOPED_TRACE(absl::StrFormat("layout %d, limit %g", int(layout), limit));
+      using query_internal::LaneKernel;
+      auto best = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
+                                                  nullptr, LaneKernel::kBest);
+      ASSERT_OK(best);
+      const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
+      auto portable = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
+                                                      nullptr, LaneKernel::kPortable);
+      ASSERT_OK(portable);
+      EXPECT_GT(best->relaxed, nodes);
+      EXPECT_GT(portable->relaxed, nodes);
+      // Labels past the limit are only bounds, and differ with the runs.
+      auto read = [limit](double d) { return d <= limit ? d : kInfinity; };
+      size_t within = 0;
+      for (uint32_t u = 0; u < nodes; ++u) {
+        for (int k = 0; k < kFieldLanes; ++k) {
+          ASSERT_EQ(read(labels[u].dist[k]), read(sc.lane_dist[u].dist[k]))
+              << "node " << u << " lane " << k;
+          within += labels[u].dist[k] <= limit;
+        }
+      }
+      // Both sides real: many labels within the limit, and with one, not all.
+      EXPECT_GT(within, size_t{nodes} / 4);
+      if (limit < kInfinity) {
+        EXPECT_LT(within, size_t{nodes} * kFieldLanes);
+      }
+    }
+  }
 }
 
 // A radius keeps the entries within it, the same numbers as without one,
