@@ -153,8 +153,10 @@ struct Avx512Lanes {
     return {static_cast<uint32_t>(start), static_cast<uint32_t>(run)};
   }
   [[GEODESIC_AVX512]] static uint32_t Relax(Lanes& dv, const Lanes& nd) {
+    // Only the improved lanes are written: most relaxations improve none,
+    // and leave the line clean.
     const __mmask8 better = _mm512_cmp_pd_mask(__m512d(nd), __m512d(dv), _CMP_LT_OQ);
-    dv = Lanes(_mm512_mask_mov_pd(__m512d(dv), better, __m512d(nd)));
+    _mm512_mask_store_pd(&dv, better, __m512d(nd));
     return better;
   }
   [[GEODESIC_AVX512]] static uint32_t KeepWithin(Lanes& du, const Lanes& limit, uint32_t mask) {
@@ -283,13 +285,18 @@ template <typename Simd, typename Fans>
     // The improved targets are queued after, with their lines in cache, in
     // the order found.
     size_t found = 0;
-    for (uint64_t k = 0, i = begin + run.begin; k < run.count; ++k) {
-      const DggEdge& e = edges[i];
-      const uint32_t improved = Simd::Relax(AsLanes(dist[e.target]), du + e.weight);
-      improvements[found] = {static_cast<uint32_t>(i - begin), improved};
-      found += improved != 0;
-      if (++i == end) i = begin;  // runs wrap past u's last edge
-    }
+    Improvement* const improved_at = improvements.data();
+    auto relax = [&](uint64_t from, uint64_t to) {
+      for (uint64_t i = from; i < to; ++i) {
+        const uint32_t improved = Simd::Relax(AsLanes(dist[edges[i].target]), du + edges[i].weight);
+        improved_at[found] = {static_cast<uint32_t>(i - begin), improved};
+        found += improved != 0;
+      }
+    };
+    // A run may wrap past u's last edge: then it is two.
+    const uint64_t first = begin + run.begin, stop = first + run.count;
+    relax(first, std::min(stop, end));
+    if (stop > end) relax(begin, begin + (stop - end));
     for (size_t k = 0; k < found; ++k) {
       const auto [i, improved] = improvements[k];
       const DggEdge& e = edges[begin + i];
