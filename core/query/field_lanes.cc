@@ -267,6 +267,11 @@ template <typename Simd, typename Fans>
     // labels already. Labels past the limit stop there.
     Lanes du = AsLanes(dist[u]);
     const uint32_t active = Simd::KeepWithin(du, limit, mask);
+    // An improved node's key: its improved labels are du + an edge's
+    // weight, so the least of du plus the weight is a key at most theirs
+    // (taken out no later than due, the label-correcting search's only
+    // need), without reading the lanes again for each.
+    const double du_low = Simd::LowestOf(dist[u], active);
     if (!active) continue;
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = Simd::Cover(fan[u], active, end - begin);
@@ -303,7 +308,7 @@ template <typename Simd, typename Fans>
       const uint32_t v = e.target;
       Simd::SetFans(fan[v], improved, e.fan);
       dirty[v] |= improved;
-      queue.Lower(v, Simd::LowestOf(dist[v], improved));
+      queue.Lower(v, du_low + e.weight);
     }
   }
   return stats;

@@ -6,7 +6,9 @@
 //
 // The search is SolveField's label-correcting one with a lane per source.
 // A node is queued while any lane improved since it was taken out, keyed by
-// the smallest such label, and then relaxes, for the lanes that
+// about the smallest such label (the least label of the node that improved
+// it, plus the edge: at most that, and found without a look at the lanes),
+// and then relaxes, for the lanes that
 // improved, one run of its edges covering each lane's fan. Relaxing more than a lane's fan only
 // tries more real paths, so every label still ends as the graph distance: the same number as
 // SolveField's, since both are the least sum of the same float weights added in double (exact for
