@@ -14,6 +14,7 @@
 #define GEODESIC_CORE_QUERY_MATRIX_FILES_H_
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -30,8 +31,13 @@ enum class MatrixDtype { kFloat32, kFloat64 };
 const char* NpyDescr(MatrixDtype dtype);
 size_t BytesPerEntry(MatrixDtype dtype);
 
+class BackgroundWriteOut;
+
 class DenseMatrixFile {
  public:
+  DenseMatrixFile(DenseMatrixFile&&) noexcept;
+  ~DenseMatrixFile();
+
   // Creates the temporary file beside `path` (.npy) and sizes it for
   // rows x cols entries.
   static absl::StatusOr<DenseMatrixFile> Create(const std::string& path, uint64_t rows,
@@ -46,17 +52,15 @@ class DenseMatrixFile {
 
  private:
   DenseMatrixFile(std::string path, AtomicFileWriter file, uint64_t data_offset, uint64_t cols,
-                  MatrixDtype dtype)
-      : path_(std::move(path)),
-        file_(std::move(file)),
-        data_offset_(data_offset),
-        cols_(cols),
-        dtype_(dtype) {}
+                  MatrixDtype dtype);
 
   std::string path_;
   AtomicFileWriter file_;
   uint64_t data_offset_, cols_;
   MatrixDtype dtype_;
+  // Starts the disk writes of the rows while later rows are computed, so
+  // that Commit's fsync does not wait for all of them after the last.
+  std::unique_ptr<BackgroundWriteOut> write_out_;
 };
 
 class SparseMatrixFile {
