@@ -348,7 +348,13 @@ absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bu
 
 bool LaneKernelHasAvx512() {
 #if GEODESIC_LANES_AVX512
-  static const bool has = __builtin_cpu_supports("x86-64-v4");
+  // x86-64-v4's features, named one by one (clang 14 knows no level names).
+  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+                          __builtin_cpu_supports("avx512cd") &&
+                          __builtin_cpu_supports("avx512dq") &&
+                          __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx2") &&
+                          __builtin_cpu_supports("bmi") && __builtin_cpu_supports("bmi2") &&
+                          __builtin_cpu_supports("fma");
   return has;
 #else
   return false;
