@@ -102,6 +102,18 @@ struct PortableLanes {
 // A lane's fan as begin and count, one int32 lane each.
 typedef int32_t LaneInts __attribute__((vector_size(kFieldLanes * sizeof(int32_t))));
 struct Avx512Lanes {
+  // The least of eight lanes, in three halvings (GCC 12's masked reductions
+  // draw a false warning of an uninitialised value).
+  template <typename V>
+  [[GEODESIC_AVX512]] static auto Least(V v) {
+    V w = __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
+    v = w < v ? w : v;
+    w = __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
+    v = w < v ? w : v;
+    w = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
+    v = w < v ? w : v;
+    return v[0];
+  }
   [[GEODESIC_AVX512]] static void BeginsAndCounts(const PackedLaneFans& fans, LaneInts& begin,
                                                   LaneInts& count) {
     LaneInts packed;
@@ -131,23 +143,13 @@ struct Avx512Lanes {
     at = at > n / 2 ? at - n : at;
     at -= half;
     const __mmask8 in = mask;
-    LaneInts first = LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(at)));
-    LaneInts last = LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(-n), in, __m256i(at + count)));
-    LaneInts other = __builtin_shufflevector(first, first, 4, 5, 6, 7, 0, 1, 2, 3);
-    first = other < first ? other : first;
-    other = __builtin_shufflevector(first, first, 2, 3, 0, 1, 6, 7, 4, 5);
-    first = other < first ? other : first;
-    other = __builtin_shufflevector(first, first, 1, 0, 3, 2, 5, 4, 7, 6);
-    first = other < first ? other : first;
-    other = __builtin_shufflevector(last, last, 4, 5, 6, 7, 0, 1, 2, 3);
-    last = other > last ? other : last;
-    other = __builtin_shufflevector(last, last, 2, 3, 0, 1, 6, 7, 4, 5);
-    last = other > last ? other : last;
-    other = __builtin_shufflevector(last, last, 1, 0, 3, 2, 5, 4, 7, 6);
-    last = other > last ? other : last;
-    const int32_t run = last[0] - first[0];
+    const int32_t first =
+        Least(LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(at))));
+    const int32_t last =
+        -Least(LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(-at - count))));
+    const int32_t run = last - first;
     if (run >= n) return {0, degree};
-    int32_t start = from + first[0];
+    int32_t start = from + first;
     start += start < 0 ? n : 0;
     start -= start >= n ? n : 0;
     return {static_cast<uint32_t>(start), static_cast<uint32_t>(run)};
@@ -171,16 +173,8 @@ struct Avx512Lanes {
     _mm256_mask_storeu_epi32(fans.fan, mask, _mm256_set1_epi32(int32_t(PackFan(f))));
   }
   [[GEODESIC_AVX512]] static double LowestOf(const LaneLabels& l, uint32_t mask) {
-    // In three halvings (GCC 12's _mm512_mask_reduce_min_pd draws a false
-    // warning of an uninitialised value).
-    Lanes v = Lanes(_mm512_mask_mov_pd(_mm512_set1_pd(kInfinity), mask, _mm512_load_pd(l.dist)));
-    Lanes w = __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
-    v = w < v ? w : v;
-    w = __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
-    v = w < v ? w : v;
-    w = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
-    v = w < v ? w : v;
-    return v[0];
+    return Least(
+        Lanes(_mm512_mask_mov_pd(_mm512_set1_pd(kInfinity), mask, _mm512_load_pd(l.dist))));
   }
 };
 #endif
