@@ -711,27 +711,35 @@ TEST(QueriesTest, MatrixRowsEqualSingleSourceFieldsOnSpot) {
 // A sweep keeps its lanes' fans packed when every node has fewer than 2^16
 // edges, as here, and whole on graphs with larger nodes: the same labels
 // either way, to the last bit, after the same work.
-// A full sweep's sources: vertices, edge and face points.
-std::vector<query_internal::Endpoint> LaneSources(const Mesh& mesh, const DggGraph& graph,
-                                                  QueryScratch& sc) {
+// Spot's graph at 1e-3 and a full sweep's sources on it: vertices, edge and
+// face points.
+struct SpotLaneSweep {
+  std::shared_ptr<const Mesh> mesh;
+  std::shared_ptr<const DggGraph> graph;
+  BucketShape shape;
+  QueryScratch sc;
   std::vector<query_internal::Endpoint> sources;
-  for (const SurfacePoint& p : MixedPoints(mesh, 5)) {
-    if (sources.size() == kFieldLanes) break;
-    auto end = query_internal::JoinToGraph(mesh, graph, sc, p, false);
-    EXPECT_OK(end);
-    if (end.ok()) sources.push_back(*std::move(end));
+  uint32_t nodes = 0;
+
+  SpotLaneSweep() {
+    std::tie(mesh, graph) = SpotAndGraph(1e-3);
+    if (!graph) return;
+    shape = BucketShapeOf(*graph);
+    nodes = graph->num_nodes();
+    for (const SurfacePoint& p : MixedPoints(*mesh, 5)) {
+      if (sources.size() == kFieldLanes) break;
+      auto end = query_internal::JoinToGraph(*mesh, *graph, sc, p, false);
+      EXPECT_OK(end);
+      if (end.ok()) sources.push_back(*std::move(end));
+    }
   }
-  return sources;
-}
+  bool ok() const { return graph && sources.size() == kFieldLanes; }
+};
 
 TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
-  auto [mesh, graph] = SpotAndGraph(1e-3);
-  ASSERT_NE(graph, nullptr);
-  const BucketShape shape = BucketShapeOf(*graph);
-  QueryScratch sc;
-  const std::vector<query_internal::Endpoint> sources = LaneSources(*mesh, *graph, sc);
-  ASSERT_EQ(sources.size(), kFieldLanes);
-  const uint32_t nodes = graph->num_nodes();
+  SpotLaneSweep spot;
+  ASSERT_TRUE(spot.ok());
+  auto& [mesh, graph, shape, sc, sources, nodes] = spot;
   ASSERT_EQ(LaneFanLayoutFor(*graph), LaneFanLayout::kPacked);
   auto packed = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, sc, sources,
                                                 kInfinity, nullptr);
@@ -761,13 +769,9 @@ TEST(QueriesTest, LaneKernelsFindTheSameLabels) {
   if (!query_internal::LaneKernelHasAvx512()) {
     GTEST_SKIP() << "this machine has no AVX-512: only the portable kernel runs";
   }
-  auto [mesh, graph] = SpotAndGraph(1e-3);
-  ASSERT_NE(graph, nullptr);
-  const BucketShape shape = BucketShapeOf(*graph);
-  QueryScratch sc;
-  const std::vector<query_internal::Endpoint> sources = LaneSources(*mesh, *graph, sc);
-  ASSERT_EQ(sources.size(), kFieldLanes);
-  const uint32_t nodes = graph->num_nodes();
+  SpotLaneSweep spot;
+  ASSERT_TRUE(spot.ok());
+  auto& [mesh, graph, shape, sc, sources, nodes] = spot;
   for (LaneFanLayout layout : {LaneFanLayout::kPacked, LaneFanLayout::kWhole}) {
     for (double limit : {kInfinity, 0.3}) {
       SCOPED_TRACE(absl::StrFormat("layout %d, limit %g", int(layout), limit));
