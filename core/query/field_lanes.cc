@@ -36,8 +36,32 @@ FanRange FanOf(const PackedLaneFans& fans, int lane) { return UnpackFan(fans.fan
 void SetFan(LaneFans& fans, int lane, FanRange f) { fans.fan[lane] = f; }
 void SetFan(PackedLaneFans& fans, int lane, FanRange f) { fans.fan[lane] = PackFan(f); }
 
+// A run of a node's `degree` angle-sorted edges that holds the fans of the
+// lanes of `mask` (each a run that may wrap past the end). Each fan not
+// already inside extends the run at whichever end adds fewer edges: not
+// always the shortest such run, but a pop costs a few comparisons, and
+// relaxing a little more than the fans is only more real paths tried.
 template <typename Fans>
-FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree);
+FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree) {
+  FanRange cover = FanOf(fans, std::countr_zero(mask));
+  for (mask &= mask - 1; mask; mask &= mask - 1) {
+    const FanRange f = FanOf(fans, std::countr_zero(mask));
+    if (f.count >= degree) return {0, degree};
+    // Where f starts, and where cover starts, each seen from the other.
+    uint32_t ahead = f.begin - cover.begin, behind = cover.begin - f.begin;
+    if (f.begin < cover.begin) ahead += degree;
+    if (cover.begin < f.begin) behind += degree;
+    if (ahead + f.count <= cover.count) continue;  // inside already
+    const uint32_t forward = ahead + f.count, backward = behind + cover.count;
+    if (forward <= backward) {
+      cover.count = forward;
+    } else {
+      cover = {f.begin, std::max(backward, f.count)};
+    }
+    if (cover.count >= degree) return {0, degree};
+  }
+  return cover;
+}
 
 // What the sweep does across lanes, in two kernels: GCC's vector extensions
 // for any machine, and AVX-512 intrinsics, where a comparison's lanes stay a
@@ -149,10 +173,9 @@ struct Avx512Lanes {
         -Least(LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(-at - count))));
     const int32_t run = last - first;
     if (run >= n) return {0, degree};
-    int32_t start = from + first;
-    start += start < 0 ? n : 0;
-    start -= start >= n ? n : 0;
-    return {static_cast<uint32_t>(start), static_cast<uint32_t>(run)};
+    // first <= the first lane's own start, so start <= its begin < n.
+    const int32_t start = from + first;
+    return {static_cast<uint32_t>(start < 0 ? start + n : start), static_cast<uint32_t>(run)};
   }
   [[GEODESIC_AVX512]] static uint32_t Relax(Lanes& dv, const Lanes& nd) {
     // Only the improved lanes are written: most relaxations improve none,
@@ -178,33 +201,6 @@ struct Avx512Lanes {
   }
 };
 #endif
-
-// A run of a node's `degree` angle-sorted edges that holds the fans of the
-// lanes of `mask` (each a run that may wrap past the end). Each fan not
-// already inside extends the run at whichever end adds fewer edges: not
-// always the shortest such run, but a pop costs a few comparisons, and
-// relaxing a little more than the fans is only more real paths tried.
-template <typename Fans>
-FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree) {
-  FanRange cover = FanOf(fans, std::countr_zero(mask));
-  for (mask &= mask - 1; mask; mask &= mask - 1) {
-    const FanRange f = FanOf(fans, std::countr_zero(mask));
-    if (f.count >= degree) return {0, degree};
-    // Where f starts, and where cover starts, each seen from the other.
-    uint32_t ahead = f.begin - cover.begin, behind = cover.begin - f.begin;
-    if (f.begin < cover.begin) ahead += degree;
-    if (cover.begin < f.begin) behind += degree;
-    if (ahead + f.count <= cover.count) continue;  // inside already
-    const uint32_t forward = ahead + f.count, backward = behind + cover.count;
-    if (forward <= backward) {
-      cover.count = forward;
-    } else {
-      cover = {f.begin, std::max(backward, f.count)};
-    }
-    if (cover.count >= degree) return {0, degree};
-  }
-  return cover;
-}
 
 template <typename Simd, typename Fans>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
@@ -261,12 +257,12 @@ template <typename Simd, typename Fans>
     // labels already. Labels past the limit stop there.
     Lanes du = AsLanes(dist[u]);
     const uint32_t active = Simd::KeepWithin(du, limit, mask);
+    if (!active) continue;
     // An improved node's key: its improved labels are du + an edge's
     // weight, so the least of du plus the weight is a key at most theirs
     // (taken out no later than due, the label-correcting search's only
     // need), without reading the lanes again for each.
     const double du_low = Simd::LowestOf(dist[u], active);
-    if (!active) continue;
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = Simd::Cover(fan[u], active, end - begin);
     if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
