@@ -7,15 +7,15 @@
 #include "absl/status/statusor.h"
 #include "core/query/geodesic_engine.h"
 
-// The AVX-512 kernel is chosen at run time (__builtin_cpu_supports), not by
+// The x86 kernels are chosen at run time (__builtin_cpu_supports), not by
 // an ifunc, whose resolver runs before ThreadSanitizer's runtime is up and
 // crashes there; a TSan build keeps to the portable kernel all the same, as
 // its checks do not depend on the kernel.
 #if defined(__x86_64__) && !defined(__SANITIZE_THREAD__)
-#define GEODESIC_LANES_AVX512 1
+#define GEODESIC_LANES_X86 1
 #include <immintrin.h>
 #else
-#define GEODESIC_LANES_AVX512 0
+#define GEODESIC_LANES_X86 0
 #endif
 
 namespace geodesic::query_internal {
@@ -63,10 +63,11 @@ FanRange CoverFans(const Fans& fans, uint32_t mask, uint32_t degree) {
   return cover;
 }
 
-// What the sweep does across lanes, in two kernels: GCC's vector extensions
-// for any machine, and AVX-512 intrinsics, where a comparison's lanes stay a
-// mask register that selects, stores and reduces without being spread back
-// over a vector and gathered again (bench/notes.md, "Matrix lanes").
+// What the sweep does across lanes, in three kernels: GCC's vector
+// extensions for any machine; AVX-512 intrinsics, where a comparison's lanes
+// stay a mask register that selects, stores and reduces without being spread
+// back over a vector and gathered again (bench/notes.md, "Matrix lanes");
+// and AVX2 intrinsics, for x86 machines without AVX-512.
 struct PortableLanes {
   template <typename Fans>
   static FanRange Cover(const Fans& fans, uint32_t mask, uint32_t degree) {
@@ -121,62 +122,77 @@ struct PortableLanes {
   }
 };
 
-#if GEODESIC_LANES_AVX512
+#if GEODESIC_LANES_X86
 #define GEODESIC_AVX512 gnu::target("arch=x86-64-v4")
+#define GEODESIC_AVX2 gnu::target("avx2,bmi,bmi2,fma")
 // A lane's fan as begin and count, one int32 lane each.
 typedef int32_t LaneInts __attribute__((vector_size(kFieldLanes * sizeof(int32_t))));
+
+// Helpers of both x86 kernels, in GCC's vector extensions, compiled for
+// the kernel whose (flattened) sweep inlines them. Vectors go by reference:
+// a vector argument's ABI depends on the target.
+
+// The least of eight lanes, in three halvings (GCC 12's masked reductions
+// draw a false warning of an uninitialised value).
+template <typename V>
+[[gnu::always_inline]] inline auto Least(const V& lanes) {
+  V v = lanes;
+  V w = __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
+  v = w < v ? w : v;
+  w = __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
+  v = w < v ? w : v;
+  w = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
+  v = w < v ? w : v;
+  return v[0];
+}
+[[gnu::always_inline]] inline void BeginsAndCounts(const PackedLaneFans& fans, LaneInts& begin,
+                                                   LaneInts& count) {
+  LaneInts packed;
+  std::memcpy(&packed, fans.fan, sizeof(packed));
+  begin = packed & 0xffff;
+  count = (packed >> 16) & 0xffff;
+}
+[[gnu::always_inline]] inline void BeginsAndCounts(const LaneFans& fans, LaneInts& begin,
+                                                   LaneInts& count) {
+  typedef int32_t Pairs __attribute__((vector_size(2 * sizeof(LaneInts))));
+  Pairs pairs;
+  std::memcpy(&pairs, static_cast<const void*>(fans.fan), sizeof(pairs));
+  begin = __builtin_shufflevector(pairs, pairs, 0, 2, 4, 6, 8, 10, 12, 14);
+  count = __builtin_shufflevector(pairs, pairs, 1, 3, 5, 7, 9, 11, 13, 15);
+}
+// As CoverFans, without a branch: each fan placed, by its middle, within
+// half a turn of the first lane's, and the run from the earliest start to
+// the latest end. Simd::LeastWithin(mask, v, n) is the least lane of `v`
+// in `mask` (at most n).
+template <typename Simd, typename Fans>
+[[gnu::always_inline]] inline FanRange CoverByMiddles(const Fans& fans, uint32_t mask,
+                                                      uint32_t degree) {
+  LaneInts begin, count;
+  BeginsAndCounts(fans, begin, count);
+  const LaneInts half = count >> 1, middle = begin + half;
+  const int32_t n = static_cast<int32_t>(degree), from = middle[std::countr_zero(mask)];
+  LaneInts at = middle - from;
+  at = at < 0 ? at + n : at;
+  at = at > n / 2 ? at - n : at;
+  at -= half;
+  const int32_t first = Simd::LeastWithin(mask, at, n);
+  const int32_t last = -Simd::LeastWithin(mask, -at - count, n);
+  const int32_t run = last - first;
+  if (run >= n) return {0, degree};
+  // first <= the first lane's own start, so start <= its begin < n.
+  const int32_t start = from + first;
+  return {static_cast<uint32_t>(start < 0 ? start + n : start), static_cast<uint32_t>(run)};
+}
+
 struct Avx512Lanes {
-  // The least of eight lanes, in three halvings (GCC 12's masked reductions
-  // draw a false warning of an uninitialised value).
-  template <typename V>
-  [[GEODESIC_AVX512]] static auto Least(V v) {
-    V w = __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
-    v = w < v ? w : v;
-    w = __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
-    v = w < v ? w : v;
-    w = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
-    v = w < v ? w : v;
-    return v[0];
-  }
-  [[GEODESIC_AVX512]] static void BeginsAndCounts(const PackedLaneFans& fans, LaneInts& begin,
-                                                  LaneInts& count) {
-    LaneInts packed;
-    std::memcpy(&packed, fans.fan, sizeof(packed));
-    begin = packed & 0xffff;
-    count = (packed >> 16) & 0xffff;
-  }
-  [[GEODESIC_AVX512]] static void BeginsAndCounts(const LaneFans& fans, LaneInts& begin,
-                                                  LaneInts& count) {
-    typedef int32_t Pairs __attribute__((vector_size(2 * sizeof(LaneInts))));
-    Pairs pairs;
-    std::memcpy(&pairs, static_cast<const void*>(fans.fan), sizeof(pairs));
-    begin = __builtin_shufflevector(pairs, pairs, 0, 2, 4, 6, 8, 10, 12, 14);
-    count = __builtin_shufflevector(pairs, pairs, 1, 3, 5, 7, 9, 11, 13, 15);
-  }
-  // As CoverFans, without a branch: each fan placed, by its middle, within
-  // half a turn of the first lane's, and the run from the earliest start to
-  // the latest end.
   template <typename Fans>
   [[GEODESIC_AVX512]] static FanRange Cover(const Fans& fans, uint32_t mask, uint32_t degree) {
-    LaneInts begin, count;
-    BeginsAndCounts(fans, begin, count);
-    const LaneInts half = count >> 1, middle = begin + half;
-    const int32_t n = static_cast<int32_t>(degree), from = middle[std::countr_zero(mask)];
-    LaneInts at = middle - from;
-    at = at < 0 ? at + n : at;
-    at = at > n / 2 ? at - n : at;
-    at -= half;
-    const __mmask8 in = mask;
-    const int32_t first =
-        Least(LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(at))));
-    const int32_t last =
-        -Least(LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), in, __m256i(-at - count))));
-    const int32_t run = last - first;
-    if (run >= n) return {0, degree};
-    // first <= the first lane's own start, so start <= its begin < n.
-    const int32_t start = from + first;
-    return {static_cast<uint32_t>(start < 0 ? start + n : start), static_cast<uint32_t>(run)};
+    return CoverByMiddles<Avx512Lanes>(fans, mask, degree);
   }
+  [[GEODESIC_AVX512]] static int32_t LeastWithin(uint32_t mask, const LaneInts& v, int32_t n) {
+    return Least(LaneInts(_mm256_mask_mov_epi32(_mm256_set1_epi32(n), mask, __m256i(v))));
+  }
+
   [[GEODESIC_AVX512]] static uint32_t Relax(Lanes& dv, const Lanes& nd) {
     // Only the improved lanes are written: most relaxations improve none,
     // and leave the line clean.
@@ -198,6 +214,80 @@ struct Avx512Lanes {
   [[GEODESIC_AVX512]] static double LowestOf(const LaneLabels& l, uint32_t mask) {
     return Least(
         Lanes(_mm512_mask_mov_pd(_mm512_set1_pd(kInfinity), mask, _mm512_load_pd(l.dist))));
+  }
+};
+
+// The same on AVX2: a node's labels are two registers, and a comparison's
+// lanes are gathered into a mask by movemask and spread back for a masked
+// store. Relax writes only improved labels, as Avx512Lanes does: a full
+// store would dirty every line a sweep reads.
+struct Avx2Lanes {
+  template <typename Fans>
+  [[GEODESIC_AVX2]] static FanRange Cover(const Fans& fans, uint32_t mask, uint32_t degree) {
+    return CoverByMiddles<Avx2Lanes>(fans, mask, degree);
+  }
+  [[GEODESIC_AVX2]] static int32_t LeastWithin(uint32_t mask, const LaneInts& v, int32_t n) {
+    return Least(LaneInts(_mm256_blendv_epi8(_mm256_set1_epi32(n), __m256i(v), Spread32(mask))));
+  }
+
+  // The lanes of `mask` as all-ones 64-bit lanes: lanes 0-3 for `half` 0,
+  // lanes 4-7 for 1.
+  [[GEODESIC_AVX2]] static __m256i Spread64(uint32_t mask, int half) {
+    const __m256i bit =
+        half == 0 ? _mm256_setr_epi64x(1, 2, 4, 8) : _mm256_setr_epi64x(16, 32, 64, 128);
+    return _mm256_cmpeq_epi64(_mm256_and_si256(_mm256_set1_epi64x(mask), bit), bit);
+  }
+  [[GEODESIC_AVX2]] static __m256i Spread32(uint32_t mask) {
+    const __m256i bit = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+    return _mm256_cmpeq_epi32(_mm256_and_si256(_mm256_set1_epi32(mask), bit), bit);
+  }
+  [[GEODESIC_AVX2]] static uint32_t MaskOf(__m256d lo, __m256d hi) {
+    return _mm256_movemask_pd(lo) | _mm256_movemask_pd(hi) << 4;
+  }
+  [[GEODESIC_AVX2]] static double LeastOfTwo(__m256d lo, __m256d hi) {
+    __m256d v = _mm256_min_pd(lo, hi);
+    v = _mm256_min_pd(v, _mm256_permute2f128_pd(v, v, 1));
+    v = _mm256_min_pd(v, _mm256_permute_pd(v, 0b0101));
+    return _mm256_cvtsd_f64(v);
+  }
+  [[GEODESIC_AVX2]] static uint32_t Relax(Lanes& dv, const Lanes& nd) {
+    double* d = reinterpret_cast<double*>(&dv);
+    const double* n = reinterpret_cast<const double*>(&nd);
+    const __m256d n_lo = _mm256_loadu_pd(n), n_hi = _mm256_loadu_pd(n + 4);
+    const __m256d better_lo = _mm256_cmp_pd(n_lo, _mm256_load_pd(d), _CMP_LT_OQ);
+    const __m256d better_hi = _mm256_cmp_pd(n_hi, _mm256_load_pd(d + 4), _CMP_LT_OQ);
+    _mm256_maskstore_pd(d, _mm256_castpd_si256(better_lo), n_lo);
+    _mm256_maskstore_pd(d + 4, _mm256_castpd_si256(better_hi), n_hi);
+    return MaskOf(better_lo, better_hi);
+  }
+  [[GEODESIC_AVX2]] static uint32_t KeepWithin(Lanes& du, const Lanes& limit, uint32_t mask) {
+    double* d = reinterpret_cast<double*>(&du);
+    const double* l = reinterpret_cast<const double*>(&limit);
+    const __m256d inf = _mm256_set1_pd(kInfinity);
+    const __m256d d_lo = _mm256_loadu_pd(d), d_hi = _mm256_loadu_pd(d + 4);
+    const __m256d keep_lo = _mm256_and_pd(_mm256_cmp_pd(d_lo, _mm256_loadu_pd(l), _CMP_LE_OQ),
+                                          _mm256_castsi256_pd(Spread64(mask, 0)));
+    const __m256d keep_hi = _mm256_and_pd(_mm256_cmp_pd(d_hi, _mm256_loadu_pd(l + 4), _CMP_LE_OQ),
+                                          _mm256_castsi256_pd(Spread64(mask, 1)));
+    _mm256_storeu_pd(d, _mm256_blendv_pd(inf, d_lo, keep_lo));
+    _mm256_storeu_pd(d + 4, _mm256_blendv_pd(inf, d_hi, keep_hi));
+    return MaskOf(keep_lo, keep_hi);
+  }
+  [[GEODESIC_AVX2]] static void SetFans(LaneFans& fans, uint32_t mask, FanRange f) {
+    auto* at = reinterpret_cast<long long*>(fans.fan);
+    const __m256i fan = _mm256_set1_epi64x(std::bit_cast<int64_t>(f));
+    _mm256_maskstore_epi64(at, Spread64(mask, 0), fan);
+    _mm256_maskstore_epi64(at + 4, Spread64(mask, 1), fan);
+  }
+  [[GEODESIC_AVX2]] static void SetFans(PackedLaneFans& fans, uint32_t mask, FanRange f) {
+    _mm256_maskstore_epi32(reinterpret_cast<int*>(fans.fan), Spread32(mask),
+                           _mm256_set1_epi32(int32_t(PackFan(f))));
+  }
+  [[GEODESIC_AVX2]] static double LowestOf(const LaneLabels& l, uint32_t mask) {
+    const __m256d inf = _mm256_set1_pd(kInfinity);
+    return LeastOfTwo(
+        _mm256_blendv_pd(inf, _mm256_load_pd(l.dist), _mm256_castsi256_pd(Spread64(mask, 0))),
+        _mm256_blendv_pd(inf, _mm256_load_pd(l.dist + 4), _mm256_castsi256_pd(Spread64(mask, 1))));
   }
 };
 #endif
@@ -323,7 +413,7 @@ absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bu
   return SweepLayout<PortableLanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
 }
 
-#if GEODESIC_LANES_AVX512
+#if GEODESIC_LANES_X86
 // Flattened, so that the kernel's helpers (compiled for AVX-512, which the
 // rest of the sweep's code is not) are inlined here, where they may be.
 [[GEODESIC_AVX512, gnu::flatten]] absl::StatusOr<LaneStats> SweepAvx512(
@@ -332,23 +422,40 @@ absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bu
     const std::function<bool()>& cancelled) {
   return SweepLayout<Avx512Lanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
 }
+
+[[GEODESIC_AVX2, gnu::flatten]] absl::StatusOr<LaneStats> SweepAvx2(
+    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
+    absl::Span<const Endpoint> sources, double max_distance,
+    const std::function<bool()>& cancelled) {
+  return SweepLayout<Avx2Lanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+}
 #endif
 
 }  // namespace
 
-bool LaneKernelHasAvx512() {
-#if GEODESIC_LANES_AVX512
-  // x86-64-v4's features, named one by one (clang 14 knows no level names).
-  static const bool has = __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
-                          __builtin_cpu_supports("avx512cd") &&
-                          __builtin_cpu_supports("avx512dq") &&
-                          __builtin_cpu_supports("avx512vl") && __builtin_cpu_supports("avx2") &&
-                          __builtin_cpu_supports("bmi") && __builtin_cpu_supports("bmi2") &&
-                          __builtin_cpu_supports("fma");
-  return has;
+bool LaneKernelRuns(LaneKernel kernel) {
+#if GEODESIC_LANES_X86
+  // The features each kernel is compiled for, named one by one (clang 14
+  // knows no level names).
+  static const bool avx2 = __builtin_cpu_supports("avx2") && __builtin_cpu_supports("bmi") &&
+                           __builtin_cpu_supports("bmi2") && __builtin_cpu_supports("fma");
+  static const bool avx512 =
+      avx2 && __builtin_cpu_supports("avx512f") && __builtin_cpu_supports("avx512bw") &&
+      __builtin_cpu_supports("avx512cd") && __builtin_cpu_supports("avx512dq") &&
+      __builtin_cpu_supports("avx512vl");
 #else
-  return false;
+  constexpr bool avx2 = false, avx512 = false;
 #endif
+  switch (kernel) {
+    case LaneKernel::kAvx512:
+      return avx512;
+    case LaneKernel::kAvx2:
+      return avx2;
+    case LaneKernel::kBest:
+    case LaneKernel::kPortable:
+      return true;
+  }
+  return false;
 }
 
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
@@ -356,10 +463,21 @@ absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& 
                                           absl::Span<const Endpoint> sources, double max_distance,
                                           const std::function<bool()>& cancelled,
                                           LaneKernel kernel) {
+  if (!LaneKernelRuns(kernel)) {
+    return absl::FailedPreconditionError("this machine cannot run the lane kernel asked for");
+  }
   sc.PrepareLanes(g.num_nodes(), layout);
-#if GEODESIC_LANES_AVX512
-  if (kernel == LaneKernel::kBest && LaneKernelHasAvx512()) {
+#if GEODESIC_LANES_X86
+  if (kernel == LaneKernel::kBest) {
+    kernel = LaneKernelRuns(LaneKernel::kAvx512) ? LaneKernel::kAvx512
+             : LaneKernelRuns(LaneKernel::kAvx2) ? LaneKernel::kAvx2
+                                                 : LaneKernel::kPortable;
+  }
+  if (kernel == LaneKernel::kAvx512) {
     return SweepAvx512(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+  }
+  if (kernel == LaneKernel::kAvx2) {
+    return SweepAvx2(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
   }
 #endif
   return SweepPortable(g, bucket_shape, layout, sc, sources, max_distance, cancelled);

@@ -34,10 +34,12 @@ struct LaneStats {
   uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
 };
 
-// The code that runs a sweep: the best this machine has (AVX-512 when it
-// has it), or the portable one (tests compare the two).
-enum class LaneKernel { kBest, kPortable };
-bool LaneKernelHasAvx512();
+// The code that runs a sweep: the best this machine has, or a named one
+// (tests compare them): AVX-512, AVX2 (for x86 machines without AVX-512),
+// or the portable kernel, which runs on any.
+enum class LaneKernel { kBest, kAvx512, kAvx2, kPortable };
+// Whether this machine (and this build) runs `kernel`.
+bool LaneKernelRuns(LaneKernel kernel);
 
 // Lane k of sc.lane_dist[node] becomes the graph distance from sources[k]
 // (already joined to the graph); lanes past sources.size() stay +inf.

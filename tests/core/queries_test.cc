@@ -761,44 +761,52 @@ TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
   EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
 }
 
-// The AVX-512 kernel and the portable one find the same labels, to the last
-// bit, with fans packed or whole, with and without a limit (their runs of
-// edges may differ: each finds its own cover of the lanes' fans, so labels
-// past a limit, which are bounds only, may differ too).
+// Each x86 kernel this machine runs (AVX-512, and the portable code for
+// AVX2) finds the same labels as the portable kernel, to the last bit, with
+// fans packed or whole, with and without a limit (their runs of edges may
+// differ: each finds its own cover of the lanes' fans, so labels past a
+// limit, which are bounds only, may differ too).
 TEST(QueriesTest, LaneKernelsFindTheSameLabels) {
-  if (!query_internal::LaneKernelHasAvx512()) {
-    GTEST_SKIP() << "this machine has no AVX-512: only the portable kernel runs";
+  using query_internal::LaneKernel;
+  std::vector<LaneKernel> kernels;
+  for (LaneKernel k : {LaneKernel::kAvx512, LaneKernel::kAvx2}) {
+    if (query_internal::LaneKernelRuns(k)) kernels.push_back(k);
+  }
+  if (kernels.empty()) {
+    GTEST_SKIP() << "this machine (or build) runs only the portable kernel";
   }
   SpotLaneSweep spot;
   ASSERT_TRUE(spot.ok());
   auto& [mesh, graph, shape, sc, sources, nodes] = spot;
-  for (LaneFanLayout layout : {LaneFanLayout::kPacked, LaneFanLayout::kWhole}) {
-    for (double limit : {kInfinity, 0.3}) {
-      SCOPED_TRACE(absl::StrFormat("layout %d, limit %g", int(layout), limit));
-      using query_internal::LaneKernel;
-      auto best = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
-                                                  nullptr, LaneKernel::kBest);
-      ASSERT_OK(best);
-      const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
-      auto portable = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
-                                                      nullptr, LaneKernel::kPortable);
-      ASSERT_OK(portable);
-      EXPECT_GT(best->relaxed, nodes);
-      EXPECT_GT(portable->relaxed, nodes);
-      // Labels past the limit are only bounds, and differ with the runs.
-      auto read = [limit](double d) { return d <= limit ? d : kInfinity; };
-      size_t within = 0;
-      for (uint32_t u = 0; u < nodes; ++u) {
-        for (int k = 0; k < kFieldLanes; ++k) {
-          ASSERT_EQ(read(labels[u].dist[k]), read(sc.lane_dist[u].dist[k]))
-              << "node " << u << " lane " << k;
-          within += labels[u].dist[k] <= limit;
+  for (LaneKernel kernel : kernels) {
+    for (LaneFanLayout layout : {LaneFanLayout::kPacked, LaneFanLayout::kWhole}) {
+      for (double limit : {kInfinity, 0.3}) {
+        SCOPED_TRACE(
+            absl::StrFormat("kernel %d, layout %d, limit %g", int(kernel), int(layout), limit));
+        auto fast = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
+                                                    nullptr, kernel);
+        ASSERT_OK(fast);
+        const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
+        auto portable = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
+                                                        nullptr, LaneKernel::kPortable);
+        ASSERT_OK(portable);
+        EXPECT_GT(fast->relaxed, nodes);
+        EXPECT_GT(portable->relaxed, nodes);
+        // Labels past the limit are only bounds, and differ with the runs.
+        auto read = [limit](double d) { return d <= limit ? d : kInfinity; };
+        size_t within = 0;
+        for (uint32_t u = 0; u < nodes; ++u) {
+          for (int k = 0; k < kFieldLanes; ++k) {
+            ASSERT_EQ(read(labels[u].dist[k]), read(sc.lane_dist[u].dist[k]))
+                << "node " << u << " lane " << k;
+            within += labels[u].dist[k] <= limit;
+          }
         }
-      }
-      // Both sides real: many labels within the limit, and with one, not all.
-      EXPECT_GT(within, size_t{nodes} / 4);
-      if (limit < kInfinity) {
-        EXPECT_LT(within, size_t{nodes} * kFieldLanes);
+        // Both sides real: many labels within the limit, and with one, not all.
+        EXPECT_GT(within, size_t{nodes} / 4);
+        if (limit < kInfinity) {
+          EXPECT_LT(within, size_t{nodes} * kFieldLanes);
+        }
       }
     }
   }
