@@ -15,7 +15,10 @@
 #include "core/dgg/graph_file.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/augmented_graph.h"
+#include "core/query/field_lanes.h"
 #include "core/query/geodesic_engine.h"
+#include "core/query/graph_search.h"
 #include "tests/core/radix_heap_workload.h"
 
 namespace geodesic {
@@ -147,6 +150,40 @@ void BM_Field(benchmark::State& state) {
                          benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
 BENCHMARK(BM_Field)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
+
+// One sweep of kFieldLanes vertex sources next to each other in node order,
+// as a matrix groups them (its unit of work), by the kernel of
+// query_internal::LaneKernel's value Arg; one the machine cannot run is
+// skipped.
+void BM_LaneSweep(benchmark::State& state) {
+  using query_internal::LaneKernel;
+  const auto kernel = static_cast<LaneKernel>(state.range(0));
+  const char* names[] = {"best", "avx512", "avx2", "portable"};
+  state.SetLabel(names[state.range(0)]);
+  if (!query_internal::LaneKernelRuns(kernel)) {
+    state.SkipWithError("this machine does not run this kernel");
+    return;
+  }
+  const Fixture& f = Shared();
+  const BucketShape shape = BucketShapeOf(*f.graph);
+  const LaneFanLayout layout = LaneFanLayoutFor(*f.graph);
+  QueryScratch sc;
+  int64_t i = 0;
+  for (auto _ : state) {
+    std::vector<query_internal::Endpoint> sources;
+    const uint32_t first = SourceAt(i++, *f.mesh) % (f.mesh->num_vertices() - kFieldLanes);
+    for (uint32_t k = 0; k < kFieldLanes; ++k) {
+      const SurfacePoint p = SurfacePoint::Vertex(f.graph->vertex_of_node(first + k));
+      sources.push_back(OrExit(query_internal::JoinToGraph(*f.mesh, *f.graph, sc, p, false)));
+    }
+    benchmark::DoNotOptimize(query_internal::SolveFieldLanes(*f.graph, shape, layout, sc, sources,
+                                                             kInfinity, nullptr, kernel));
+  }
+  state.counters["ns/vertex/source"] =
+      benchmark::Counter(double(f.mesh->num_vertices()) * kFieldLanes * state.iterations(),
+                         benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
+}
+BENCHMARK(BM_LaneSweep)->DenseRange(0, 3)->Unit(benchmark::kMillisecond);
 
 // Point-to-point between random face points. Arg: 1 bidirectional A*,
 // 0 bidirectional Dijkstra; counter: nodes settled per query.
