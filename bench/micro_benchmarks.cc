@@ -169,6 +169,7 @@ void BM_LaneSweep(benchmark::State& state) {
   const LaneFanLayout layout = LaneFanLayoutFor(*f.graph);
   QueryScratch sc;
   int64_t i = 0;
+  uint64_t pops = 0, relaxed = 0;
   for (auto _ : state) {
     std::vector<query_internal::Endpoint> sources;
     const uint32_t first = SourceAt(i++, *f.mesh) % (f.mesh->num_vertices() - kFieldLanes);
@@ -176,9 +177,14 @@ void BM_LaneSweep(benchmark::State& state) {
       const SurfacePoint p = SurfacePoint::Vertex(f.graph->vertex_of_node(first + k));
       sources.push_back(OrExit(query_internal::JoinToGraph(*f.mesh, *f.graph, sc, p, false)));
     }
-    benchmark::DoNotOptimize(query_internal::SolveFieldLanes(*f.graph, shape, layout, sc, sources,
-                                                             kInfinity, nullptr, kernel));
+    auto stats = query_internal::SolveFieldLanes(*f.graph, shape, layout, sc, sources, kInfinity,
+                                                 nullptr, kernel);
+    if (!stats.ok()) std::exit(1);
+    pops += stats->queue_pops;
+    relaxed += stats->relaxed;
   }
+  state.counters["pops/sweep"] = double(pops) / state.iterations();
+  state.counters["relaxed/sweep"] = double(relaxed) / state.iterations();
   state.counters["ns/vertex/source"] =
       benchmark::Counter(double(f.mesh->num_vertices()) * kFieldLanes * state.iterations(),
                          benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
