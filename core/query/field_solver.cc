@@ -295,13 +295,21 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
     RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, lane_fans_, *sc, ends,
                                     matrix_options.max_distance, matrix_options.cancelled)
                         .status());
-    // Target by target: a target's lanes share a cache line.
+    // Target by target: a target's lanes share a cache line. A vertex's
+    // labels are read in place: copying the line out, its wide store read
+    // back lane by lane, was most of the rows' extraction (bench/notes.md).
+    const double max_distance = matrix_options.max_distance;
     for (size_t j = 0; j < target_ends.size(); ++j) {
-      const LaneLabels d =
-          LaneDistancesTo(*graph_, *sc, target_ends[j], matrix_options.max_distance);
+      const Endpoint& target = target_ends[j];
+      LaneLabels joined;
+      const double* labels =
+          target.is_node ? sc->lane_dist[target.node].dist
+                         : (joined = LaneDistancesTo(*graph_, *sc, target, max_distance)).dist;
       for (size_t k = 0; k < group.size(); ++k) {
-        rows[k][j] = std::min(rows[k][j], d.dist[k]);
-        if (rows[k][j] > matrix_options.max_distance) rows[k][j] = kInfinity;
+        // The least of the row's direct geodesic and the graph's distance,
+        // +inf past the limit (past it, labels are bounds only).
+        const double d = std::min(rows[k][j], labels[k]);
+        rows[k][j] = d > max_distance ? kInfinity : d;
       }
     }
     for (size_t k = 0; k < group.size(); ++k) {
