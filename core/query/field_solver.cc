@@ -212,12 +212,34 @@ std::vector<size_t> GroupNearby(const Mesh& mesh, absl::Span<const SurfacePoint>
   return out;
 }
 
+// Lowers each entry of rows[k] (a lane's row, holding its source's direct
+// geodesics, else +inf) to lane k's distance to that target after a sweep;
+// +inf past `max_distance` (past it, labels are bounds only). Target by
+// target: a target's lanes share a cache line. A vertex's labels are read in
+// place: copying the line out, its wide store read back lane by lane, was
+// most of the rows' extraction (bench/notes.md).
+void LowerRowsToLanes(const DggGraph& g, const QueryScratch& sc,
+                      absl::Span<const query_internal::Endpoint> targets, double max_distance,
+                      std::vector<std::vector<double>>& rows) {
+  for (size_t j = 0; j < targets.size(); ++j) {
+    const query_internal::Endpoint& target = targets[j];
+    LaneLabels joined;
+    const double* labels =
+        target.is_node
+            ? sc.lane_dist[target.node].dist
+            : (joined = query_internal::LaneDistancesTo(g, sc, target, max_distance)).dist;
+    for (size_t k = 0; k < rows.size(); ++k) {
+      const double d = std::min(rows[k][j], labels[k]);
+      rows[k][j] = d > max_distance ? kInfinity : d;
+    }
+  }
+}
+
 }  // namespace
 
 using query_internal::CheckPoint;
 using query_internal::Endpoint;
 using query_internal::JoinToGraph;
-using query_internal::LaneDistancesTo;
 using query_internal::SolveField;
 using query_internal::SolveFieldLanes;
 
@@ -295,23 +317,7 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
     RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, lane_fans_, *sc, ends,
                                     matrix_options.max_distance, matrix_options.cancelled)
                         .status());
-    // Target by target: a target's lanes share a cache line. A vertex's
-    // labels are read in place: copying the line out, its wide store read
-    // back lane by lane, was most of the rows' extraction (bench/notes.md).
-    const double max_distance = matrix_options.max_distance;
-    for (size_t j = 0; j < target_ends.size(); ++j) {
-      const Endpoint& target = target_ends[j];
-      LaneLabels joined;
-      const double* labels =
-          target.is_node ? sc->lane_dist[target.node].dist
-                         : (joined = LaneDistancesTo(*graph_, *sc, target, max_distance)).dist;
-      for (size_t k = 0; k < group.size(); ++k) {
-        // The least of the row's direct geodesic and the graph's distance,
-        // +inf past the limit (past it, labels are bounds only).
-        const double d = std::min(rows[k][j], labels[k]);
-        rows[k][j] = d > max_distance ? kInfinity : d;
-      }
-    }
+    LowerRowsToLanes(*graph_, *sc, target_ends, matrix_options.max_distance, rows);
     for (size_t k = 0; k < group.size(); ++k) {
       std::vector<double>& row = rows[k];
       if (matrix_options.exact) {
