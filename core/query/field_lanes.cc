@@ -414,8 +414,9 @@ absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bu
 }
 
 #if GEODESIC_LANES_X86
-// Flattened, so that the kernel's helpers (compiled for AVX-512, which the
-// rest of the sweep's code is not) are inlined here, where they may be.
+// Each x86 sweep is flattened, so that its kernel's helpers (compiled for
+// the kernel's target, which the rest of the sweep's code is not) are
+// inlined into it, where they may be.
 [[GEODESIC_AVX512, gnu::flatten]] absl::StatusOr<LaneStats> SweepAvx512(
     const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
     absl::Span<const Endpoint> sources, double max_distance,

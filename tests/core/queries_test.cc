@@ -761,8 +761,8 @@ TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
   EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
 }
 
-// Each x86 kernel this machine runs (AVX-512, and the portable code for
-// AVX2) finds the same labels as the portable kernel, to the last bit, with
+// Each x86 kernel this machine runs (AVX-512, AVX2) finds the same labels
+// as the portable kernel, to the last bit, with
 // fans packed or whole, with and without a limit (their runs of edges may
 // differ: each finds its own cover of the lanes' fans, so labels past a
 // limit, which are bounds only, may differ too).

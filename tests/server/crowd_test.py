@@ -45,14 +45,16 @@ SPOT_VERTICES = 2930
 BUILDING_EPS = 5e-6
 FINE_SUBDIVISIONS = 2
 
+GAUGES = ("geodesicd_queue_depth", "geodesicd_queries_running", "geodesicd_queries_waiting",
+          "geodesicd_streams_open", "geodesicd_reserved_bytes")
+
 
 def write_fine_spot(path):
+    """spot.obj subdivided FINE_SUBDIVISIONS times, as a PLY at `path`."""
     vertices, faces = read_obj(os.path.join(SRC, "data", "spot.obj"))
     for _ in range(FINE_SUBDIVISIONS):
         vertices, faces = subdivide(vertices, faces)
     write_ply(path, vertices, faces)
-GAUGES = ("geodesicd_queue_depth", "geodesicd_queries_running", "geodesicd_queries_waiting",
-          "geodesicd_streams_open", "geodesicd_reserved_bytes")
 
 
 SERVING, NOT_SERVING = 1, 2  # grpc.health.v1.HealthCheckResponse.ServingStatus
