@@ -9,6 +9,12 @@ import argparse
 import os
 import re
 
+# Lines that say why a test failed, in our shell tests (FAIL), GoogleTest,
+# Python's unittest and ctest's own verdicts; repeated last, since the tails
+# above can be longer than what a CI log keeps of its end.
+VERDICT = re.compile(r"^FAIL\b|^\[  FAILED  \]|Failure$|^Expected|^  Actual|^Value of|^Which is|"
+                     r"Error\b|^Traceback|Timeout|did not")
+
 
 def failed_outputs(build_dir):
     """Each failed test's output in the last run (LastTest.log is written anew
@@ -30,13 +36,22 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--lines", type=int, default=60, help="lines of each output kept")
     parser.add_argument("build_dirs", nargs="+")
+    parser.add_argument("--verdicts", type=int, default=6,
+                        help="lines saying why, kept of each failed test")
     args = parser.parse_args()
+    verdicts = []
     for build_dir in args.build_dirs:
         for name, output in failed_outputs(build_dir).items():
             lines = output.splitlines()
             print(f"=== failed in {build_dir}: {name} (its last {args.lines} lines of "
                   f"{len(lines)})")
             print("\n".join(lines[-args.lines:]))
+            why = [line for line in lines if VERDICT.search(line)][:args.verdicts]
+            verdicts.append(f"{build_dir}: {name}")
+            verdicts.extend("  " + line[:200] for line in why)
+    if verdicts:
+        print("=== why they failed")
+        print("\n".join(verdicts))
 
 
 if __name__ == "__main__":
