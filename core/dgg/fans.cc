@@ -28,8 +28,8 @@ namespace {
 // The first pass tries the paths of at most two edges: a scan of each
 // node's two-edge neighbourhood. The optional second (exact_fans) searches
 // from each node, along the first pass's fans (already sound), to its exact
-// distances inside that neighbourhood, and keeps only the turns nothing
-// there beats.
+// distances inside that neighbourhood, up to its longest listed turn, and
+// keeps only the turns nothing there beats.
 
 // Only turns at least this much (relative) longer than a shortcut are left
 // out, so that the rounding of a search's sums cannot make a left-out turn
@@ -77,32 +77,52 @@ class FanBuilder {
       if (sc.exact.size() < nodes_) {
         sc.exact.assign(nodes_, kUnknown);
         sc.fan.resize(nodes_);
+        sc.queued_in.assign(nodes_, kNotQueued);
+        sc.buckets.resize(kSearchBuckets + 1);
       }
       CollectTurns(sc, u);
+      // Only a path shorter than a listed turn can drop it, and such a
+      // path's nodes are all nearer than the longest: nothing further is
+      // queued.
+      const double bound = LongestListedTurn(sc, u);
       auto inside = [&](uint32_t y) { return sc.best[y] != kUnknown; };
-      auto later = std::greater<std::pair<double, uint32_t>>();
-      auto reach = [&](uint32_t y, double d, FanRange fan) {
+      // Label-correcting, in buckets over [0, bound] (a binary heap's
+      // sifting was most of the pass): a node taken out before its label is
+      // final is queued again when it improves, and relaxes then along the
+      // fan of its new label.
+      const double per_bucket = bound > 0 ? kSearchBuckets / bound : 0;
+      auto reach = [&](uint32_t y, double d, FanRange fan, uint32_t current) {
         sc.exact[y] = d;
         sc.fan[y] = fan;
-        sc.heap.push_back({d, y});
-        std::push_heap(sc.heap.begin(), sc.heap.end(), later);
+        const uint32_t b =
+            std::max(current, uint32_t(std::min<double>(kSearchBuckets, d * per_bucket)));
+        if (sc.queued_in[y] <= b) return;  // taken out no later
+        sc.queued_in[y] = b;
+        sc.buckets[b].push_back(y);
       };
-      reach(u, 0, {0, static_cast<uint32_t>(of(u).size())});
-      while (!sc.heap.empty()) {
-        std::pop_heap(sc.heap.begin(), sc.heap.end(), later);
-        const auto [d, x] = sc.heap.back();
-        sc.heap.pop_back();
-        if (d > sc.exact[x]) continue;
-        const auto list = of(x);
-        const FanRange fan = sc.fan[x];
-        for (uint32_t k = 0, j = fan.begin; k < fan.count; ++k) {
-          const DggEdge& e = list[j];
-          const double nd = d + e.weight;
-          if (inside(e.target) && nd < sc.exact[e.target]) reach(e.target, nd, e.fan);
-          if (++j == list.size()) j = 0;
+      reach(u, 0, {0, static_cast<uint32_t>(of(u).size())}, 0);
+      for (uint32_t b = 0; b <= kSearchBuckets; ++b) {
+        std::vector<uint32_t>& bucket = sc.buckets[b];
+        for (size_t q = 0; q < bucket.size(); ++q) {
+          const uint32_t x = bucket[q];
+          if (sc.queued_in[x] != b) continue;  // moved to a lower bucket
+          sc.queued_in[x] = kNotQueued;
+          const double d = sc.exact[x];
+          const auto list = of(x);
+          const FanRange fan = sc.fan[x];
+          for (uint32_t k = 0, j = fan.begin; k < fan.count; ++k) {
+            const DggEdge& e = list[j];
+            const double nd = d + e.weight;
+            if (inside(e.target) && nd < sc.exact[e.target] && nd <= bound) {
+              reach(e.target, nd, e.fan, b);
+            }
+            if (++j == list.size()) j = 0;
+          }
         }
+        bucket.clear();
       }
-      // A node the fan-restricted search missed keeps its two-edge bound.
+      // A node the fan-restricted search missed, or did not reach by the
+      // bound, keeps its two-edge bound.
       for (uint32_t y : sc.ring_nodes()) sc.exact[y] = std::min(sc.exact[y], sc.best[y]);
       KeepTurns(sc, u, sc.exact, [&](uint64_t i, FanRange fan) { fans[i] = fan; });
       for (uint32_t y : sc.ring_nodes()) sc.exact[y] = kUnknown;
@@ -114,6 +134,9 @@ class FanBuilder {
 
  private:
   static constexpr double kUnknown = std::numeric_limits<double>::infinity();
+  // Buckets of the exact pass's search, the last one for labels at the bound.
+  static constexpr uint32_t kSearchBuckets = 64;
+  static constexpr uint32_t kNotQueued = ~0u;
 
   struct Scratch {
     // Per node, valid for the nodes in `ring`: the shortest path of at most
@@ -131,7 +154,10 @@ class FanBuilder {
     std::span<const uint32_t> ring_nodes() const { return {ring.data(), ring_size}; }
     std::vector<double> exact;  // the exact pass only
     std::vector<FanRange> fan;  // the exact pass only
-    std::vector<std::pair<double, uint32_t>> heap;
+    // The exact pass's queue: nodes by bucket, and each node's bucket
+    // (kNotQueued outside the queue).
+    std::vector<std::vector<uint32_t>> buckets;
+    std::vector<uint32_t> queued_in;
   };
 
   std::span<const DggEdge> of(uint32_t u) const {
@@ -180,6 +206,19 @@ class FanBuilder {
       sc.listed_end[i] = listed;
     }
     sc.ring_size = ring;
+  }
+
+  double LongestListedTurn(const Scratch& sc, uint32_t u) const {
+    const auto edges = of(u);
+    double longest = 0;
+    size_t t = 0;
+    for (uint32_t i = 0; i < edges.size(); ++i) {
+      const auto next = of(edges[i].target);
+      for (; t < sc.listed_end[i]; ++t) {
+        longest = std::max(longest, double{edges[i].weight} + next[sc.turns[t]].weight);
+      }
+    }
+    return longest;
   }
 
   // The fans of u's edges, each passed to store(edge index, fan): each keeps
