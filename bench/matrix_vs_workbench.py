@@ -4,9 +4,12 @@
 Runs, in one process tree and one after the other on the same surface:
   geodesicd build   SURFACE --eps EPS
   geodesicd matrix  --sources all --targets all --dtype float32 --threads T
+  geodesicd build   SURFACE --eps EPS --exact-fans, and the same matrix on it
   wb_command -surface-geodesic-distance-all-to-all SURFACE OUT.dconn.nii
 and prints a Markdown table (wall seconds, peak RSS, error against exact
-fields where ../shared/truth has them) with the time ratio of the same run.
+fields where ../shared/truth has them) with the time ratios of the same run.
+Exact fans give the same distances (the two matrices are checked equal)
+from smaller fans, for a longer build.
 The surface is a GIFTI .surf.gii (what Workbench reads); an .off or .obj is
 converted to one first (with nibabel). wb_command is Debian's
 connectome-workbench; without it only geodesicd's side is measured.
@@ -112,17 +115,26 @@ def main() -> None:
             surface = work / (args.mesh.stem + ".surf.gii")
             to_gifti(args.mesh, surface)
         stem = re.sub(r"\.surf$", "", surface.stem)
-        graph, ours = work / "g.dgg", work / "D.npy"
-        build_s, _, _ = timed([args.geodesicd, "build", str(surface), "--eps", str(args.eps),
-                               "--out", str(graph), "--quiet", "--json"])
-        ours_s, ours_rss, out = timed([
-            args.geodesicd, "matrix", "--mesh", str(surface), "--graph", str(graph),
-            "--sources", "all", "--targets", "all", "--dtype", "float32",
-            "--out", str(ours), "--threads", str(args.threads), "--json"])
-        report = json.loads(out)
+        def build_and_solve(name, flags):
+            """(build s, matrix s, matrix peak RSS, matrix report, .npy path)"""
+            graph, matrix = work / f"{name}.dgg", work / f"{name}.npy"
+            build_s, _, _ = timed([args.geodesicd, "build", str(surface), "--eps",
+                                   str(args.eps), "--out", str(graph), "--quiet", "--json"]
+                                  + flags)
+            solve_s, rss, out = timed([
+                args.geodesicd, "matrix", "--mesh", str(surface), "--graph", str(graph),
+                "--sources", "all", "--targets", "all", "--dtype", "float32",
+                "--out", str(matrix), "--threads", str(args.threads), "--json"])
+            return build_s, solve_s, rss, json.loads(out), matrix
+
+        build_s, ours_s, ours_rss, report, ours = build_and_solve("g", [])
+        xbuild_s, xours_s, xours_rss, _, xours = build_and_solve("xf", ["--exact-fans"])
         D = np.load(ours, mmap_mode="r")
         n = D.shape[0]
         assert D.shape == (n, n) and n > 0
+        X = np.load(xours, mmap_mode="r")
+        assert X.shape == D.shape
+        same = all(np.array_equal(D[i:i + 512], X[i:i + 512]) for i in range(0, n, 512))
         # Symmetric where the graph is: sampled blocks against their transposes.
         rng = np.random.default_rng(1)
         rows = np.sort(rng.choice(n, size=min(n, 256), replace=False))
@@ -162,14 +174,20 @@ def main() -> None:
         print("|---|---:|---:|---:|")
         print(f"| geodesicd matrix, float32 .npy | {ours_s:.1f} | {ours_rss / 2**20:.0f} | "
               f"{err('ours')} |")
+        print(f"| the same on a graph built --exact-fans | {xours_s:.1f} | "
+              f"{xours_rss / 2**20:.0f} | {err('ours') if same else 'differs'} |")
         if wb_s is not None:
             print(f"| wb_command -surface-geodesic-distance-all-to-all | {wb_s:.1f} | "
                   f"{wb_rss / 2**20:.0f} | {err('wb')} |")
             print()
             print(f"wb_command / geodesicd wall time: {wb_s / ours_s:.1f}x "
-                  f"(with the graph build: {wb_s / (ours_s + build_s):.1f}x)")
+                  f"(with the graph build: {wb_s / (ours_s + build_s):.1f}x); "
+                  f"on the --exact-fans graph: {wb_s / xours_s:.1f}x "
+                  f"(with its build, {xbuild_s:.1f} s: {wb_s / (xours_s + xbuild_s):.1f}x)")
         print(f"largest |D - D^T| over {len(rows)}^2 sampled entries: {asym:.3g}; "
-              f"matrix reported {report['seconds']:.1f} s, {report['bytes']} bytes")
+              f"matrix reported {report['seconds']:.1f} s, {report['bytes']} bytes; "
+              f"the --exact-fans matrix is {'the same' if same else 'NOT the same'}")
+        assert same, "exact fans changed the matrix"
     finally:
         if not args.keep:
             shutil.rmtree(work, ignore_errors=True)
