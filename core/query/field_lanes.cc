@@ -355,11 +355,17 @@ template <typename Simd, typename Fans>
     const double du_low = Simd::LowestOf(dist[u], active);
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = Simd::Cover(fan[u], active, end - begin);
+    // The edges of the run the node a few pops ahead will relax, as its
+    // lanes stand now: not only its first lane's fan, since the first
+    // loads of a run were where a sweep waited most.
     if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
-      const FanRange r = FanOf(fan[next], std::countr_zero(uint32_t(dirty[next])));
       const uint64_t list = offsets[next], list_end = offsets[next + 1];
+      const FanRange r = Simd::Cover(fan[next], dirty[next], list_end - list);
       const uint64_t first = list + r.begin, last = first + r.count;
-      if (r.count > 0 && first < list_end) PrefetchEdges(edges, first, std::min(last, list_end));
+      if (r.count > 0) {
+        PrefetchEdges(edges, first, std::min(last, list_end));
+        if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
+      }
       __builtin_prefetch(&dist[next]);
     }
     stats.relaxed += run.count;
