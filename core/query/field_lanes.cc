@@ -292,6 +292,21 @@ struct Avx2Lanes {
 };
 #endif
 
+// Asks for the edges of the run node u will relax for the lanes of `mask`
+// (a wrapping run as two), as its fans stand now: for a node a few pops
+// ahead, since the first loads of a run were where a sweep waited most. Its
+// whole cover, not its first lane's fan alone (bench/notes.md).
+template <typename Simd, typename Fans>
+[[gnu::always_inline]] inline void PrefetchRun(const DggGraph& g, const Fans& fans, uint32_t mask,
+                                               uint32_t u) {
+  const uint64_t list = g.offsets()[u], list_end = g.offsets()[u + 1];
+  const FanRange r = Simd::Cover(fans, mask, list_end - list);
+  const uint64_t first = list + r.begin, last = first + r.count;
+  if (r.count == 0) return;
+  PrefetchEdges(g.edges().data(), first, std::min(last, list_end));
+  if (last > list_end) PrefetchEdges(g.edges().data(), list, list + (last - list_end));
+}
+
 template <typename Simd, typename Fans>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
     const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc, Fans* fan,
@@ -355,17 +370,8 @@ template <typename Simd, typename Fans>
     const double du_low = Simd::LowestOf(dist[u], active);
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = Simd::Cover(fan[u], active, end - begin);
-    // The edges of the run the node a few pops ahead will relax, as its
-    // lanes stand now: not only its first lane's fan, since the first
-    // loads of a run were where a sweep waited most.
     if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
-      const uint64_t list = offsets[next], list_end = offsets[next + 1];
-      const FanRange r = Simd::Cover(fan[next], dirty[next], list_end - list);
-      const uint64_t first = list + r.begin, last = first + r.count;
-      if (r.count > 0) {
-        PrefetchEdges(edges, first, std::min(last, list_end));
-        if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
-      }
+      PrefetchRun<Simd>(g, fan[next], dirty[next], next);
       __builtin_prefetch(&dist[next]);
     }
     stats.relaxed += run.count;
