@@ -62,9 +62,14 @@ wait_replica() {
     { echo "replica $1 did not start"; cat "$work/replica$1.log"; exit 1; }
   hports[$1]=$(wait_port_file "${pids[$1]}" "$work/ports$1" http)
 }
-nginx_workers() { pgrep -P "$(cat "$work/nginx.pid" 2>/dev/null || echo 0)" | sort -n | paste -sd ' ' -; }
+nginx_workers() {  # none while nginx has written no pid (pgrep -P 0 would list the kernel's)
+  local master
+  master=$(cat "$work/nginx.pid" 2>/dev/null) || return 0
+  pgrep -P "$master" | sort -n | paste -sd ' ' -
+}
 only_new_workers() {  # only_new_workers "PID...": nginx has workers, none of them these
-  local now=" $(nginx_workers) "
+  local now
+  now=" $(nginx_workers) "
   [ "$now" != "  " ] || return 1
   for p in $1; do [[ "$now" != *" $p "* ]] || return 1; done
 }
