@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <functional>
 #include <limits>
 #include <numeric>
@@ -235,6 +236,75 @@ void LowerRowsToLanes(const DggGraph& g, const QueryScratch& sc,
   }
 }
 
+// Rows of float32 entries straight from a sweep's lanes, for sources that
+// are all graph nodes (so their rows hold nothing before the sweep): row k,
+// at rows[k * targets.size()], is lane k's distance to each target rounded
+// to float32, as rounding LowerRowsToLanes's row would give; +inf past
+// `max_distance`.
+void Float32RowsFromLanes(const DggGraph& g, const QueryScratch& sc,
+                          absl::Span<const query_internal::Endpoint> targets, double max_distance,
+                          size_t lanes, absl::Span<float> rows) {
+  const size_t n = targets.size();
+  // Each target's label line is a miss (the sweep's edges have gone
+  // through the cache since); a few targets ahead, its line is asked for.
+  constexpr size_t kAhead = 16;
+  for (size_t j = 0; j < n; ++j) {
+    if (j + kAhead < n && targets[j + kAhead].is_node) {
+      __builtin_prefetch(&sc.lane_dist[targets[j + kAhead].node]);
+    }
+    const query_internal::Endpoint& target = targets[j];
+    LaneLabels joined;
+    const double* labels =
+        target.is_node
+            ? sc.lane_dist[target.node].dist
+            : (joined = query_internal::LaneDistancesTo(g, sc, target, max_distance)).dist;
+    // All eight lanes at once, in SIMD; only the sources' rows are kept.
+    typedef double Doubles __attribute__((vector_size(sizeof(LaneLabels))));
+    typedef float Floats __attribute__((vector_size(kFieldLanes * sizeof(float))));
+    Doubles d;
+    std::memcpy(&d, labels, sizeof(d));
+    d = d > max_distance ? Doubles{} + kInfinity : d;
+    const Floats rounded = __builtin_convertvector(d, Floats);
+    for (size_t k = 0; k < lanes; ++k) rows[k * n + j] = rounded[k];
+  }
+}
+
+// Hands a sweep's rows (group[k] in lane k) to `sink`: rows of float32
+// straight from the lanes, for a float32 sink when no row holds anything
+// before the sweep; else `rows` (empty if none does), lowered to the lanes,
+// made exact by `make_exact` if given, and rounded for a float32 sink.
+using RowFix = std::function<absl::Status(size_t k, absl::Span<double> row)>;
+absl::Status DeliverRows(const DggGraph& g, const QueryScratch& sc,
+                         absl::Span<const query_internal::Endpoint> targets,
+                         absl::Span<const size_t> group, const MatrixOptions& options,
+                         const RowFix& make_exact, std::vector<std::vector<double>>& rows,
+                         const MatrixRowSink& sink) {
+  const size_t n = targets.size();
+  std::vector<float> rounded;
+  if (sink.float32_row && rows.empty() && !make_exact) {
+    rounded.resize(group.size() * n);
+    Float32RowsFromLanes(g, sc, targets, options.max_distance, group.size(),
+                         absl::MakeSpan(rounded));
+    for (size_t k = 0; k < group.size(); ++k) {
+      RETURN_IF_ERROR(sink.float32_row(group[k], absl::MakeConstSpan(rounded).subspan(k * n, n)));
+    }
+    return absl::OkStatus();
+  }
+  if (rows.empty()) rows.assign(group.size(), std::vector<double>(n, kInfinity));
+  LowerRowsToLanes(g, sc, targets, options.max_distance, rows);
+  for (size_t k = 0; k < group.size(); ++k) {
+    std::vector<double>& row = rows[k];
+    if (make_exact) RETURN_IF_ERROR(make_exact(k, absl::MakeSpan(row)));
+    if (!sink.float32_row) {
+      RETURN_IF_ERROR(sink.row(group[k], row));
+      continue;
+    }
+    rounded.assign(row.begin(), row.end());
+    RETURN_IF_ERROR(sink.float32_row(group[k], rounded));
+  }
+  return absl::OkStatus();
+}
+
 }  // namespace
 
 using query_internal::CheckPoint;
@@ -300,16 +370,19 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
   // move together.
   auto solve_group = [&](absl::Span<const size_t> group) -> absl::Status {
     ScratchPool::Lease sc = AcquireScratch();
+    const size_t n = target_ends.size();
     std::vector<Endpoint> ends;
-    std::vector<std::vector<double>> rows(group.size(),
-                                          std::vector<double>(target_ends.size(), kInfinity));
+    // Float64 rows, made once a source needs one: each holds its source's
+    // direct geodesics (a source that is not a vertex), else +inf.
+    std::vector<std::vector<double>> rows;
     for (size_t k = 0; k < group.size(); ++k) {
       ASSIGN_OR_RETURN(ends.emplace_back(),
                        JoinToGraph(mesh, *graph_, *sc, sources[group[k]], true));
-      // The direct geodesics of a source that is not a vertex, while the
-      // scratch's exact engine still holds its propagation.
+      // The direct geodesics, while the scratch's exact engine still holds
+      // the source's propagation.
       if (ends.back().is_node) continue;
-      for (size_t j = 0; j < target_ends.size(); ++j) {
+      if (rows.empty()) rows.assign(group.size(), std::vector<double>(n, kInfinity));
+      for (size_t j = 0; j < n; ++j) {
         auto d = sc->Exact(mesh).DistanceTo(target_ends[j].point);
         if (d.ok()) rows[k][j] = *d;
       }
@@ -317,16 +390,12 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
     RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, lane_fans_, *sc, ends,
                                     matrix_options.max_distance, matrix_options.cancelled)
                         .status());
-    LowerRowsToLanes(*graph_, *sc, target_ends, matrix_options.max_distance, rows);
-    for (size_t k = 0; k < group.size(); ++k) {
-      std::vector<double>& row = rows[k];
-      if (matrix_options.exact) {
-        RETURN_IF_ERROR(MakeRowExact(sc->Exact(mesh), exact_landmarks_.get(), ends[k].point,
-                                     target_ends, matrix_options, absl::MakeSpan(row)));
-      }
-      RETURN_IF_ERROR(sink.row(group[k], row));
-    }
-    return absl::OkStatus();
+    auto make_exact = [&](size_t k, absl::Span<double> row) {
+      return MakeRowExact(sc->Exact(mesh), exact_landmarks_.get(), ends[k].point, target_ends,
+                          matrix_options, row);
+    };
+    return DeliverRows(*graph_, *sc, target_ends, group, matrix_options,
+                       matrix_options.exact ? make_exact : RowFix(), rows, sink);
   };
   auto node_near = [&](const SurfacePoint& p) {
     switch (p.kind) {

@@ -144,6 +144,11 @@ struct MatrixRowSink {
   // Row i (one entry per target), called from the thread that computed it,
   // rows of a batch in no particular order. The span lives for the call only.
   std::function<absl::Status(size_t i, absl::Span<const double> row)> row;
+  // Or, for a sink that keeps float32 only, the same rows rounded to
+  // float32 (to nearest): when set, it is called instead of `row`, and rows
+  // from vertex sources go straight from the sweep to float32, never held
+  // as float64 (half the bytes a row moves).
+  std::function<absl::Status(size_t i, absl::Span<const float> row)> float32_row;
   // Sources are solved in batches of this many rows (0: one batch of all),
   // and batch_done(end) runs on the calling thread once every row before
   // `end` has been delivered: a sink that must append rows in order then

@@ -226,17 +226,31 @@ absl::StatusOr<DenseMatrixFile> DenseMatrixFile::Create(const std::string& path,
   return DenseMatrixFile(path, std::move(file), preamble.size(), cols, dtype);
 }
 
-absl::Status DenseMatrixFile::WriteRow(uint64_t i, absl::Span<const double> row) const {
-  if (row.size() != cols_) {
-    return absl::InternalError(
-        absl::StrFormat("matrix row of %u values for %u columns", row.size(), cols_));
-  }
-  std::vector<float> narrow;
-  const absl::Span<const char> bytes = AsDtype(row, dtype_, narrow);
+absl::Status DenseMatrixFile::CheckColumns(size_t values) const {
+  if (values == cols_) return absl::OkStatus();
+  return absl::InternalError(
+      absl::StrFormat("matrix row of %u values for %u columns", values, cols_));
+}
+
+absl::Status DenseMatrixFile::WriteRowBytes(uint64_t i, absl::Span<const char> bytes) const {
   RETURN_IF_ERROR(WriteAt(file_.fd(), bytes.data(), bytes.size(),
                           data_offset_ + i * cols_ * BytesPerEntry(dtype_), path_));
   write_out_->Wrote(bytes.size());
   return absl::OkStatus();
+}
+
+absl::Status DenseMatrixFile::WriteRow(uint64_t i, absl::Span<const double> row) const {
+  RETURN_IF_ERROR(CheckColumns(row.size()));
+  std::vector<float> narrow;
+  return WriteRowBytes(i, AsDtype(row, dtype_, narrow));
+}
+
+absl::Status DenseMatrixFile::WriteRow(uint64_t i, absl::Span<const float> row) const {
+  RETURN_IF_ERROR(CheckColumns(row.size()));
+  if (dtype_ != MatrixDtype::kFloat32) {
+    return absl::InternalError(absl::StrFormat("%s: a float32 row for a float64 matrix", path_));
+  }
+  return WriteRowBytes(i, {reinterpret_cast<const char*>(row.data()), row.size() * sizeof(float)});
 }
 
 absl::StatusOr<uint64_t> DenseMatrixFile::Commit() && {

@@ -46,6 +46,8 @@ class DenseMatrixFile {
   // Writes row i (cols values, float32 ones rounded to nearest). Safe from
   // several threads at once, each writing its own rows.
   absl::Status WriteRow(uint64_t i, absl::Span<const double> row) const;
+  // The same for a row already rounded to float32: a float32 file only.
+  absl::Status WriteRow(uint64_t i, absl::Span<const float> row) const;
 
   // Renames the file into place; returns its size in bytes.
   absl::StatusOr<uint64_t> Commit() &&;
@@ -53,6 +55,8 @@ class DenseMatrixFile {
  private:
   DenseMatrixFile(std::string path, AtomicFileWriter file, uint64_t data_offset, uint64_t cols,
                   MatrixDtype dtype);
+  absl::Status CheckColumns(size_t values) const;
+  absl::Status WriteRowBytes(uint64_t i, absl::Span<const char> bytes) const;
 
   std::string path_;
   AtomicFileWriter file_;

@@ -111,9 +111,10 @@ struct Layout {
         row_of.size() == rows && sources.points.size() == rows && targets.points.size() == columns;
   }
   // A computed row as the file's; `row` itself when they are the same.
-  absl::Span<const double> Expand(absl::Span<const double> row, std::vector<double>& out) const {
+  template <typename T>
+  absl::Span<const T> Expand(absl::Span<const T> row, std::vector<T>& out) const {
     if (identity) return row;
-    out.assign(columns, kInfinity);
+    out.assign(columns, static_cast<T>(kInfinity));
     for (size_t j = 0; j < columns; ++j) {
       if (column_slot[j] != kNone) out[j] = row[column_slot[j]];
     }
@@ -133,11 +134,16 @@ absl::StatusOr<Written> WriteDense(const GeodesicEngine& engine,
                                    const std::string& path, MatrixDtype dtype) {
   ASSIGN_OR_RETURN(DenseMatrixFile file,
                    DenseMatrixFile::Create(path, layout.rows, layout.columns, dtype));
-  MatrixRowSink sink;
-  sink.row = [&](size_t i, absl::Span<const double> row) {
-    std::vector<double> expanded;
+  auto write = [&]<typename T>(size_t i, absl::Span<const T> row) {
+    std::vector<T> expanded;
     return file.WriteRow(layout.row_of[i], layout.Expand(row, expanded));
   };
+  MatrixRowSink sink;
+  if (dtype == MatrixDtype::kFloat32) {
+    sink.float32_row = [&](size_t i, absl::Span<const float> row) { return write(i, row); };
+  } else {
+    sink.row = [&](size_t i, absl::Span<const double> row) { return write(i, row); };
+  }
   RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, MatrixOptions{}, sink));
   if (layout.row_of.size() < layout.rows) {
     const std::vector<double> outside(layout.columns, kInfinity);

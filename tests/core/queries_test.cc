@@ -1,6 +1,7 @@
 // Point-to-point queries and paths on a DGG against the independent exact
 // solver's pairs (../shared/truth/<mesh>.p2p.*) and our exact engine.
 #include <atomic>
+#include <bit>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
@@ -705,6 +706,54 @@ TEST(QueriesTest, MatrixRowsEqualSingleSourceFieldsOnSpot) {
   EXPECT_GT(finite, n);
   for (size_t i = 0; i < n; ++i) {
     for (size_t j = 0; j < i; ++j) ASSERT_EQ((*m)[i * n + j], (*m)[j * n + i]) << i << " " << j;
+  }
+}
+
+// A sink of float32 rows gets each float64 row rounded, to the last bit:
+// rows of vertex sources, which go from the sweep's lanes straight to
+// float32, and rows of edge and face points, which hold direct geodesics
+// first; with and without a distance limit.
+TEST(QueriesTest, Float32RowsAreFloat64RowsRounded) {
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
+  std::vector<SurfacePoint> vertices, targets = MixedPoints(*mesh, 11);
+  for (VertexId v = 0; v < mesh->num_vertices(); v += 13)
+    vertices.push_back(SurfacePoint::Vertex(v));
+  targets.insert(targets.end(), vertices.begin(), vertices.end());
+  for (const std::vector<SurfacePoint>& sources : {vertices, MixedPoints(*mesh, 5)}) {
+    for (double limit : {kInfinity, 0.5}) {
+      MatrixOptions options;
+      options.max_distance = limit;
+      auto wide = engine.Matrix(sources, targets, options);
+      ASSERT_OK(wide);
+      {
+        SCOPED_TRACE(absl::StrFormat("%u sources, limit %g", sources.size(), limit));
+        const size_t cols = targets.size();
+        std::vector<float> rounded(sources.size() * cols, -1);
+        MatrixRowSink sink;
+        sink.float32_row = [&](size_t i, absl::Span<const float> row) {
+          EXPECT_EQ(row.size(), cols);
+          std::copy(row.begin(), row.end(), rounded.begin() + i * cols);
+          return absl::OkStatus();
+        };
+        ASSERT_OK(engine.StreamMatrix(sources, targets, options, sink));
+        size_t finite = 0, beyond = 0;
+        for (size_t e = 0; e < rounded.size(); ++e) {
+          ASSERT_EQ(std::bit_cast<uint32_t>(rounded[e]),
+                    std::bit_cast<uint32_t>(static_cast<float>((*wide)[e])))
+              << "entry " << e << ": " << rounded[e] << " against " << (*wide)[e];
+          finite += std::isfinite(rounded[e]);
+          beyond += std::isinf(rounded[e]);
+        }
+        EXPECT_GT(finite, rounded.size() / 8);
+        if (limit < kInfinity) {
+          EXPECT_GT(beyond, rounded.size() / 8);
+        } else {
+          EXPECT_EQ(finite, rounded.size());
+        }
+      }
+    }
   }
 }
 
