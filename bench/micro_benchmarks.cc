@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <optional>
 #include <random>
 
 #include "core/base/radix_heap.h"
@@ -153,8 +154,9 @@ BENCHMARK(BM_Field)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 
 // One sweep of kFieldLanes vertex sources next to each other in node order,
 // as a matrix groups them (its unit of work), by the kernel of
-// query_internal::LaneKernel's value Arg; one the machine cannot run is
-// skipped.
+// query_internal::LaneKernel's value (first arg; one the machine cannot run
+// is skipped), from the graph's edges (second arg 0) or a compact copy (1),
+// as `geodesicd matrix` reads them.
 void BM_LaneSweep(benchmark::State& state) {
   using query_internal::LaneKernel;
   const auto kernel = static_cast<LaneKernel>(state.range(0));
@@ -167,6 +169,9 @@ void BM_LaneSweep(benchmark::State& state) {
   const Fixture& f = Shared();
   const BucketShape shape = BucketShapeOf(*f.graph);
   const LaneFanLayout layout = LaneFanLayoutFor(*f.graph);
+  std::optional<query_internal::CompactLaneEdges> compact;
+  if (state.range(1) != 0) compact = query_internal::CompactLaneEdges::Of(*f.graph);
+  const query_internal::CompactLaneEdges* compact_edges = compact ? &*compact : nullptr;
   QueryScratch sc;
   int64_t i = 0;
   uint64_t pops = 0, relaxed = 0;
@@ -177,8 +182,8 @@ void BM_LaneSweep(benchmark::State& state) {
       const SurfacePoint p = SurfacePoint::Vertex(f.graph->vertex_of_node(first + k));
       sources.push_back(OrExit(query_internal::JoinToGraph(*f.mesh, *f.graph, sc, p, false)));
     }
-    auto stats = query_internal::SolveFieldLanes(*f.graph, shape, layout, sc, sources, kInfinity,
-                                                 nullptr, kernel);
+    auto stats = query_internal::SolveFieldLanes(*f.graph, shape, layout, compact_edges, sc,
+                                                 sources, kInfinity, nullptr, kernel);
     if (!stats.ok()) std::exit(1);
     pops += stats->queue_pops;
     relaxed += stats->relaxed;
@@ -189,7 +194,7 @@ void BM_LaneSweep(benchmark::State& state) {
       benchmark::Counter(double(f.mesh->num_vertices()) * kFieldLanes * state.iterations(),
                          benchmark::Counter::kIsRate | benchmark::Counter::kInvert);
 }
-BENCHMARK(BM_LaneSweep)->DenseRange(0, 3)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_LaneSweep)->ArgsProduct({{0, 1, 2, 3}, {0, 1}})->Unit(benchmark::kMillisecond);
 
 // Point-to-point between random face points. Arg: 1 bidirectional A*,
 // 0 bidirectional Dijkstra; counter: nodes settled per query.

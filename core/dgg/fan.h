@@ -10,8 +10,10 @@
 #include <cmath>
 #include <cstdint>
 #include <numbers>
+#include <span>
 
 #include "core/base/vec.h"
+#include "core/dgg/dgg_graph.h"
 
 namespace geodesic {
 
@@ -41,6 +43,26 @@ inline bool InFan(double arrival, double departure, double period, bool boundary
   if (turns.hi - turns.lo >= period) return true;
   const double turn = WrapAngle((departure - arrival) * (period / kTwoPi), period);
   return turn >= turns.lo && turn <= turns.hi;
+}
+
+// A turn u -> v -> w is left out of the fan of u -> v only when some path
+// from u to w is shorter than |uv| + |vw| by at least this factor, so that
+// the rounding of a search's sums cannot make a left-out turn the only
+// shortest way on.
+inline constexpr double kStrictlyShorter = 1 - 1e-9;
+
+// The shortest circular range of `degree` indices holding every index in
+// `kept` (sorted): it starts after the widest gap.
+inline FanRange CircularHull(std::span<const uint32_t> kept, uint32_t degree) {
+  if (kept.empty()) return {};
+  uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
+  for (size_t q = 1; q < kept.size(); ++q) {
+    if (kept[q] - kept[q - 1] > widest) {
+      widest = kept[q] - kept[q - 1];
+      start = kept[q];
+    }
+  }
+  return {start, degree - widest + 1};
 }
 
 }  // namespace geodesic

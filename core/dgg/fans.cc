@@ -31,25 +31,6 @@ namespace {
 // distances inside that neighbourhood, up to its longest listed turn, and
 // keeps only the turns nothing there beats.
 
-// Only turns at least this much (relative) longer than a shortcut are left
-// out, so that the rounding of a search's sums cannot make a left-out turn
-// the only shortest way on.
-constexpr double kStrictlyShorter = 1 - 1e-9;
-
-// The shortest circular range of `degree` indices holding every index in
-// `kept` (sorted): it starts after the widest gap.
-FanRange CircularHull(std::span<const uint32_t> kept, uint32_t degree) {
-  if (kept.empty()) return {};
-  uint32_t widest = kept.front() + degree - kept.back(), start = kept.front();
-  for (size_t q = 1; q < kept.size(); ++q) {
-    if (kept[q] - kept[q - 1] > widest) {
-      widest = kept[q] - kept[q - 1];
-      start = kept[q];
-    }
-  }
-  return {start, degree - widest + 1};
-}
-
 class FanBuilder {
  public:
   explicit FanBuilder(DggGraphArrays& a) : a_(a), nodes_(a.offsets.size() - 1) {}

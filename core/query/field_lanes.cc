@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "absl/status/statusor.h"
+#include "core/dgg/fan.h"
 #include "core/query/geodesic_engine.h"
 
 // The x86 kernels are chosen at run time (__builtin_cpu_supports), not by
@@ -32,6 +33,9 @@ static_assert(sizeof(LaneFans) == sizeof(LaneBits));
 static_assert(kFieldLanes == 8, "MaskOf and kLaneBit spell out eight lanes");
 
 FanRange FanOf(const LaneFans& fans, int lane) { return fans.fan[lane]; }
+// The fan an edge hands its target.
+FanRange FanOf(const DggEdge& e) { return e.fan; }
+FanRange FanOf(const CompactLaneEdges::Edge& e) { return e.Fan(); }
 FanRange FanOf(const PackedLaneFans& fans, int lane) { return UnpackFan(fans.fan[lane]); }
 void SetFan(LaneFans& fans, int lane, FanRange f) { fans.fan[lane] = f; }
 void SetFan(PackedLaneFans& fans, int lane, FanRange f) { fans.fan[lane] = PackFan(f); }
@@ -296,21 +300,21 @@ struct Avx2Lanes {
 // (a wrapping run as two), as its fans stand now: for a node a few pops
 // ahead, since the first loads of a run were where a sweep waited most. Its
 // whole cover, not its first lane's fan alone (bench/notes.md).
-template <typename Simd, typename Fans>
-[[gnu::always_inline]] inline void PrefetchRun(const DggGraph& g, const Fans& fans, uint32_t mask,
-                                               uint32_t u) {
+template <typename Simd, typename Edge, typename Fans>
+[[gnu::always_inline]] inline void PrefetchRun(const DggGraph& g, const Edge* edges,
+                                               const Fans& fans, uint32_t mask, uint32_t u) {
   const uint64_t list = g.offsets()[u], list_end = g.offsets()[u + 1];
   const FanRange r = Simd::Cover(fans, mask, list_end - list);
   const uint64_t first = list + r.begin, last = first + r.count;
   if (r.count == 0) return;
-  PrefetchEdges(g.edges().data(), first, std::min(last, list_end));
-  if (last > list_end) PrefetchEdges(g.edges().data(), list, list + (last - list_end));
+  PrefetchEdges(edges, first, std::min(last, list_end));
+  if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
 }
 
-template <typename Simd, typename Fans>
+template <typename Simd, typename Edge, typename Fans>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
-    const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc, Fans* fan,
-    absl::Span<const Endpoint> sources, double max_distance,
+    const DggGraph& g, const Edge* edges, const BucketShape& bucket_shape, QueryScratch& sc,
+    Fans* fan, absl::Span<const Endpoint> sources, double max_distance,
     const std::function<bool()>& cancelled) {
   const uint32_t nodes = g.num_nodes();
   LaneLabels* dist = sc.lane_dist.data();
@@ -342,7 +346,6 @@ template <typename Simd, typename Fans>
   for (uint32_t u : seeds) queue.Lower(u, Simd::LowestOf(dist[u], dirty[u]));
 
   const auto offsets = g.offsets();
-  const DggEdge* edges = g.edges().data();
   const Lanes limit = Lanes{} + max_distance;
   struct Improvement {
     uint32_t edge;  // among u's
@@ -371,7 +374,7 @@ template <typename Simd, typename Fans>
     const uint64_t begin = offsets[u], end = offsets[u + 1];
     const FanRange run = Simd::Cover(fan[u], active, end - begin);
     if (const uint32_t next = queue.Peek(kNone, 4); next != kNone && dirty[next]) {
-      PrefetchRun<Simd>(g, fan[next], dirty[next], next);
+      PrefetchRun<Simd>(g, edges, fan[next], dirty[next], next);
       __builtin_prefetch(&dist[next]);
     }
     stats.relaxed += run.count;
@@ -396,9 +399,9 @@ template <typename Simd, typename Fans>
     if (stop > end) relax(begin, begin + (stop - end));
     for (size_t k = 0; k < found; ++k) {
       const auto [i, improved] = improvements[k];
-      const DggEdge& e = edges[begin + i];
+      const Edge& e = edges[begin + i];
       const uint32_t v = e.target;
-      Simd::SetFans(fan[v], improved, e.fan);
+      Simd::SetFans(fan[v], improved, FanOf(e));
       dirty[v] |= improved;
       queue.Lower(v, du_low + e.weight);
     }
@@ -408,21 +411,28 @@ template <typename Simd, typename Fans>
 
 template <typename Simd>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> SweepLayout(
-    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
-    absl::Span<const Endpoint> sources, double max_distance,
-    const std::function<bool()>& cancelled) {
+    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout,
+    const CompactLaneEdges* compact, QueryScratch& sc, absl::Span<const Endpoint> sources,
+    double max_distance, const std::function<bool()>& cancelled) {
+  if (compact) {
+    return Sweep<Simd>(g, compact->data(), bucket_shape, sc, sc.lane_fan_packed.data(), sources,
+                       max_distance, cancelled);
+  }
+  const DggEdge* edges = g.edges().data();
   return layout == LaneFanLayout::kPacked
-             ? Sweep<Simd>(g, bucket_shape, sc, sc.lane_fan_packed.data(), sources, max_distance,
-                           cancelled)
-             : Sweep<Simd>(g, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance,
+             ? Sweep<Simd>(g, edges, bucket_shape, sc, sc.lane_fan_packed.data(), sources,
+                           max_distance, cancelled)
+             : Sweep<Simd>(g, edges, bucket_shape, sc, sc.lane_fan.data(), sources, max_distance,
                            cancelled);
 }
 
 absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bucket_shape,
-                                        LaneFanLayout layout, QueryScratch& sc,
-                                        absl::Span<const Endpoint> sources, double max_distance,
+                                        LaneFanLayout layout, const CompactLaneEdges* compact,
+                                        QueryScratch& sc, absl::Span<const Endpoint> sources,
+                                        double max_distance,
                                         const std::function<bool()>& cancelled) {
-  return SweepLayout<PortableLanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+  return SweepLayout<PortableLanes>(g, bucket_shape, layout, compact, sc, sources, max_distance,
+                                    cancelled);
 }
 
 #if GEODESIC_LANES_X86
@@ -430,17 +440,19 @@ absl::StatusOr<LaneStats> SweepPortable(const DggGraph& g, const BucketShape& bu
 // the kernel's target, which the rest of the sweep's code is not) are
 // inlined into it, where they may be.
 [[GEODESIC_AVX512, gnu::flatten]] absl::StatusOr<LaneStats> SweepAvx512(
-    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
-    absl::Span<const Endpoint> sources, double max_distance,
-    const std::function<bool()>& cancelled) {
-  return SweepLayout<Avx512Lanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout,
+    const CompactLaneEdges* compact, QueryScratch& sc, absl::Span<const Endpoint> sources,
+    double max_distance, const std::function<bool()>& cancelled) {
+  return SweepLayout<Avx512Lanes>(g, bucket_shape, layout, compact, sc, sources, max_distance,
+                                  cancelled);
 }
 
 [[GEODESIC_AVX2, gnu::flatten]] absl::StatusOr<LaneStats> SweepAvx2(
-    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout, QueryScratch& sc,
-    absl::Span<const Endpoint> sources, double max_distance,
-    const std::function<bool()>& cancelled) {
-  return SweepLayout<Avx2Lanes>(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+    const DggGraph& g, const BucketShape& bucket_shape, LaneFanLayout layout,
+    const CompactLaneEdges* compact, QueryScratch& sc, absl::Span<const Endpoint> sources,
+    double max_distance, const std::function<bool()>& cancelled) {
+  return SweepLayout<Avx2Lanes>(g, bucket_shape, layout, compact, sc, sources, max_distance,
+                                cancelled);
 }
 #endif
 
@@ -471,13 +483,59 @@ bool LaneKernelRuns(LaneKernel kernel) {
   return false;
 }
 
+std::optional<CompactLaneEdges> CompactLaneEdges::Of(const DggGraph& g) {
+  if (LaneFanLayoutFor(g) != LaneFanLayout::kPacked) return std::nullopt;
+  const auto edges = g.edges();
+  CompactLaneEdges compact;
+  compact.count_ = edges.size();
+  compact.edges_ = std::make_unique_for_overwrite<Edge[]>(edges.size());
+  for (uint64_t i = 0; i < edges.size(); ++i) {
+    Edge& e = compact.edges_[i];
+    e.target = edges[i].target;
+    e.weight = edges[i].weight;
+    e.fan.store(PackFan(edges[i].fan), std::memory_order_relaxed);
+  }
+  return compact;
+}
+
+uint64_t CompactLaneEdges::NarrowFans(const DggGraph& g, uint32_t p,
+                                      absl::Span<const LaneLabels> labels, int lane) {
+  const auto offsets = g.offsets();
+  std::vector<uint32_t> kept;
+  uint64_t dropped = 0;
+  for (uint64_t i = offsets[p]; i < offsets[p + 1]; ++i) {
+    Edge& e = edges_[i];
+    const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
+    kept.resize(degree);
+    // Kept turns move to the front without a branch (whether one is kept is
+    // close to random).
+    uint32_t count = 0;
+    for (uint32_t k = 0; k < degree; ++k) {
+      const Edge& next = edges_[list + k];
+      const double length = double{e.weight} + next.weight;
+      kept[count] = k;
+      count += labels[next.target].dist[lane] >= length * kStrictlyShorter;
+    }
+    const FanRange narrowed = CircularHull({kept.data(), count}, static_cast<uint32_t>(degree));
+    const FanRange before = e.Fan();
+    if (narrowed.count >= before.count) continue;
+    dropped += before.count - narrowed.count;
+    e.fan.store(PackFan(narrowed), std::memory_order_relaxed);
+  }
+  return dropped;
+}
+
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
-                                          LaneFanLayout layout, QueryScratch& sc,
-                                          absl::Span<const Endpoint> sources, double max_distance,
+                                          LaneFanLayout layout, const CompactLaneEdges* compact,
+                                          QueryScratch& sc, absl::Span<const Endpoint> sources,
+                                          double max_distance,
                                           const std::function<bool()>& cancelled,
                                           LaneKernel kernel) {
   if (!LaneKernelRuns(kernel)) {
     return absl::FailedPreconditionError("this machine cannot run the lane kernel asked for");
+  }
+  if (compact && layout != LaneFanLayout::kPacked) {
+    return absl::InvalidArgumentError("compact edges go with packed lane fans");
   }
   sc.PrepareLanes(g.num_nodes(), layout);
 #if GEODESIC_LANES_X86
@@ -487,13 +545,13 @@ absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& 
                                                  : LaneKernel::kPortable;
   }
   if (kernel == LaneKernel::kAvx512) {
-    return SweepAvx512(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+    return SweepAvx512(g, bucket_shape, layout, compact, sc, sources, max_distance, cancelled);
   }
   if (kernel == LaneKernel::kAvx2) {
-    return SweepAvx2(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+    return SweepAvx2(g, bucket_shape, layout, compact, sc, sources, max_distance, cancelled);
   }
 #endif
-  return SweepPortable(g, bucket_shape, layout, sc, sources, max_distance, cancelled);
+  return SweepPortable(g, bucket_shape, layout, compact, sc, sources, max_distance, cancelled);
 }
 
 LaneLabels LaneDistancesTo(const DggGraph& g, const QueryScratch& sc, const Endpoint& end,

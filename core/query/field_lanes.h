@@ -18,7 +18,10 @@
 #ifndef GEODESIC_CORE_QUERY_FIELD_LANES_H_
 #define GEODESIC_CORE_QUERY_FIELD_LANES_H_
 
+#include <atomic>
 #include <functional>
+#include <memory>
+#include <optional>
 
 #include "absl/status/status.h"
 #include "absl/types/span.h"
@@ -34,6 +37,46 @@ struct LaneStats {
   uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
 };
 
+// A graph's edges as a sweep can read them instead of the graph's own
+// records: 12 bytes each, the fan packed as in PackedLaneFans, where a
+// DggEdge takes 16. A copy, made for a matrix of many rows and freed after
+// it, so its fans can be narrowed as the rows come in (NarrowFans).
+class CompactLaneEdges {
+ public:
+  struct Edge {
+    uint32_t target;
+    float weight;
+    // PackFan. Atomic (read and written relaxed) because NarrowFans may
+    // rewrite it while other threads sweep: a sweep reads each fan whole,
+    // the old one or the new, and both are sound.
+    std::atomic<uint32_t> fan;
+    FanRange Fan() const { return UnpackFan(fan.load(std::memory_order_relaxed)); }
+  };
+  static_assert(sizeof(Edge) == 12);
+
+  // Nothing for a graph with a node of 2^16 edges or more, whose fans do
+  // not pack (LaneFanLayoutFor).
+  static std::optional<CompactLaneEdges> Of(const DggGraph& g);
+
+  const Edge* data() const { return edges_.get(); }
+  uint64_t bytes() const { return count_ * sizeof(Edge); }
+
+  // Narrows the fans of node p's edges to the turns a shortest path takes,
+  // from p's graph distance to every node: lane `lane` of a sweep's
+  // `labels` whose source in that lane was p, with no distance limit. The
+  // turn p -> u -> w stays unless a path from p to w is shorter than |pu| +
+  // |uw| (by kStrictlyShorter, as the build's fans), which only a complete
+  // row knows: the build's exact pass searches only near p, and its default
+  // pass tries only paths of two edges. Every sweep after it, from any
+  // source, that arrives at u along p -> u relaxes those turns alone.
+  // Returns how many fewer edges the fans now hold.
+  uint64_t NarrowFans(const DggGraph& g, uint32_t p, absl::Span<const LaneLabels> labels, int lane);
+
+ private:
+  std::unique_ptr<Edge[]> edges_;
+  uint64_t count_ = 0;
+};
+
 // The code that runs a sweep: the best this machine has, or a named one
 // (tests compare them): AVX-512, AVX2 (for x86 machines without AVX-512),
 // or the portable kernel, which runs on any.
@@ -46,10 +89,12 @@ bool LaneKernelRuns(LaneKernel kernel);
 // Labels above `max_distance` are not relaxed further, so they are upper
 // bounds only: LaneDistanceTo reads them as +inf. CANCELLED when
 // `cancelled` says so. The lanes' fans are kept in `layout`
-// (LaneFanLayoutFor(g), or kWhole).
+// (LaneFanLayoutFor(g), or kWhole). The edges are read from `compact`
+// (g's, with `layout` kPacked) or, when it is null, from g.
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,
-                                          LaneFanLayout layout, QueryScratch& sc,
-                                          absl::Span<const Endpoint> sources, double max_distance,
+                                          LaneFanLayout layout, const CompactLaneEdges* compact,
+                                          QueryScratch& sc, absl::Span<const Endpoint> sources,
+                                          double max_distance,
                                           const std::function<bool()>& cancelled,
                                           LaneKernel kernel = LaneKernel::kBest);
 

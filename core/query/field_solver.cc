@@ -365,6 +365,13 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
       ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
     }
   }
+  // The copy costs about a sweep, and pays back over many.
+  constexpr size_t kNarrowingRows = 16 * kFieldLanes;
+  std::optional<query_internal::CompactLaneEdges> compact;
+  if (matrix_options.narrow_fans && matrix_options.max_distance == kInfinity &&
+      sources.size() >= kNarrowingRows) {
+    compact = query_internal::CompactLaneEdges::Of(*graph_);
+  }
   // Sources go in lanes of one sweep (core/query/field_lanes.h), grouped
   // by graph node: node order follows the surface, so a group's wavefronts
   // move together.
@@ -387,9 +394,17 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
         if (d.ok()) rows[k][j] = *d;
       }
     }
-    RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, lane_fans_, *sc, ends,
-                                    matrix_options.max_distance, matrix_options.cancelled)
+    RETURN_IF_ERROR(SolveFieldLanes(*graph_, buckets_, lane_fans_, compact ? &*compact : nullptr,
+                                    *sc, ends, matrix_options.max_distance,
+                                    matrix_options.cancelled)
                         .status());
+    // A vertex source's complete row tells which turns its edges' shortest
+    // paths take: every later sweep relaxes only those.
+    if (compact) {
+      for (size_t k = 0; k < ends.size(); ++k) {
+        if (ends[k].is_node) compact->NarrowFans(*graph_, ends[k].node, sc->lane_dist, k);
+      }
+    }
     auto make_exact = [&](size_t k, absl::Span<double> row) {
       return MakeRowExact(sc->Exact(mesh), exact_landmarks_.get(), ends[k].point, target_ends,
                           matrix_options, row);

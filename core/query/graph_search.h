@@ -62,8 +62,9 @@ inline FanRange AllEdges(const DggGraph& g, uint32_t u) {
 enum class Visit { kRelax, kSkip, kStop };
 
 // Asks for the cache lines of edges [begin, end), begin < end.
-inline void PrefetchEdges(const DggEdge* edges, uint64_t begin, uint64_t end) {
-  constexpr uint64_t kPerLine = 64 / sizeof(DggEdge);
+template <typename Edge>
+inline void PrefetchEdges(const Edge* edges, uint64_t begin, uint64_t end) {
+  constexpr uint64_t kPerLine = 64 / sizeof(Edge);
   // Steps of a line from begin, the last one moved back to end - 1: that
   // covers the last line when begin is not aligned.
   for (uint64_t i = begin; i < end + kPerLine - 1; i += kPerLine) {

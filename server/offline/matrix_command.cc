@@ -144,7 +144,11 @@ absl::StatusOr<Written> WriteDense(const GeodesicEngine& engine,
   } else {
     sink.row = [&](size_t i, absl::Span<const double> row) { return write(i, row); };
   }
-  RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, MatrixOptions{}, sink));
+  // One matrix is all this process makes: the copy of the edges whose fans
+  // narrow is held only while it is made.
+  MatrixOptions options;
+  options.narrow_fans = true;
+  RETURN_IF_ERROR(engine.StreamMatrix(sources, targets, options, sink));
   if (layout.row_of.size() < layout.rows) {
     const std::vector<double> outside(layout.columns, kInfinity);
     std::vector<bool> computed(layout.rows, false);

@@ -712,7 +712,8 @@ TEST(QueriesTest, MatrixRowsEqualSingleSourceFieldsOnSpot) {
 // A sink of float32 rows gets each float64 row rounded, to the last bit:
 // rows of vertex sources, which go from the sweep's lanes straight to
 // float32, and rows of edge and face points, which hold direct geodesics
-// first; with and without a distance limit.
+// first; with and without a distance limit. Narrowing the fans as rows come
+// in changes none of them.
 TEST(QueriesTest, Float32RowsAreFloat64RowsRounded) {
   auto [mesh, graph] = SpotAndGraph(1e-3);
   ASSERT_NE(graph, nullptr);
@@ -727,8 +728,15 @@ TEST(QueriesTest, Float32RowsAreFloat64RowsRounded) {
       options.max_distance = limit;
       auto wide = engine.Matrix(sources, targets, options);
       ASSERT_OK(wide);
-      {
-        SCOPED_TRACE(absl::StrFormat("%u sources, limit %g", sources.size(), limit));
+      for (bool narrow_fans : {false, true}) {
+        SCOPED_TRACE(absl::StrFormat("%u sources, limit %g, fans narrowed %d", sources.size(),
+                                     limit, narrow_fans));
+        options.narrow_fans = narrow_fans;
+        if (narrow_fans) {
+          auto narrowed = engine.Matrix(sources, targets, options);
+          ASSERT_OK(narrowed);
+          ASSERT_EQ(*narrowed, *wide);
+        }
         const size_t cols = targets.size();
         std::vector<float> rounded(sources.size() * cols, -1);
         MatrixRowSink sink;
@@ -757,9 +765,6 @@ TEST(QueriesTest, Float32RowsAreFloat64RowsRounded) {
   }
 }
 
-// A sweep keeps its lanes' fans packed when every node has fewer than 2^16
-// edges, as here, and whole on graphs with larger nodes: the same labels
-// either way, to the last bit, after the same work.
 // Spot's graph at 1e-3 and a full sweep's sources on it: vertices, edge and
 // face points.
 struct SpotLaneSweep {
@@ -785,21 +790,90 @@ struct SpotLaneSweep {
   bool ok() const { return graph && sources.size() == kFieldLanes; }
 };
 
-TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
+// A sweep keeps its lanes' fans packed when every node has fewer than 2^16
+// edges, as here, and whole on graphs with larger nodes, and reads the
+// graph's edges or a compact copy (packed fans only): the same labels
+// either way, to the last bit, after the same work.
+TEST(QueriesTest, LaneSweepsAreTheSameWhateverTheFansAndEdgesLayout) {
   SpotLaneSweep spot;
   ASSERT_TRUE(spot.ok());
   auto& [mesh, graph, shape, sc, sources, nodes] = spot;
   ASSERT_EQ(LaneFanLayoutFor(*graph), LaneFanLayout::kPacked);
-  auto packed = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, sc, sources,
-                                                kInfinity, nullptr);
+  auto packed = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, nullptr, sc,
+                                                sources, kInfinity, nullptr);
   ASSERT_OK(packed);
   const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
-  auto whole = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kWhole, sc, sources,
-                                               kInfinity, nullptr);
-  ASSERT_OK(whole);
   EXPECT_GT(packed->relaxed, nodes);
-  EXPECT_EQ(packed->relaxed, whole->relaxed);
-  EXPECT_EQ(packed->queue_pops, whole->queue_pops);
+  size_t finite = 0;
+  for (uint32_t u = 0; u < nodes; ++u) {
+    for (int k = 0; k < kFieldLanes; ++k) finite += std::isfinite(labels[u].dist[k]);
+  }
+  EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
+  // The same sweep with fans whole, and with the graph's edges copied
+  // compact (packed fans only).
+  const std::optional<query_internal::CompactLaneEdges> compact =
+      query_internal::CompactLaneEdges::Of(*graph);
+  ASSERT_TRUE(compact.has_value());
+  EXPECT_EQ(compact->bytes(), graph->edges().size() * 12);
+  EXPECT_EQ(query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kWhole, &*compact, sc,
+                                            sources, kInfinity, nullptr)
+                .status()
+                .code(),
+            absl::StatusCode::kInvalidArgument);
+  for (const auto& [layout, edges] :
+       {std::pair{LaneFanLayout::kWhole, (const query_internal::CompactLaneEdges*)nullptr},
+        std::pair{LaneFanLayout::kPacked, &*compact}}) {
+    SCOPED_TRACE(edges ? "compact edges" : "fans whole");
+    auto other = query_internal::SolveFieldLanes(*graph, shape, layout, edges, sc, sources,
+                                                 kInfinity, nullptr);
+    ASSERT_OK(other);
+    EXPECT_EQ(packed->relaxed, other->relaxed);
+    EXPECT_EQ(packed->queue_pops, other->queue_pops);
+    for (uint32_t u = 0; u < nodes; ++u) {
+      for (int k = 0; k < kFieldLanes; ++k) {
+        ASSERT_EQ(labels[u].dist[k], sc.lane_dist[u].dist[k]) << "node " << u << " lane " << k;
+      }
+    }
+  }
+}
+
+// Once every vertex's row has narrowed its edges' fans, a sweep from any
+// points (vertices, edge and face points) finds the same labels to the last
+// bit, relaxing far fewer edges.
+TEST(QueriesTest, NarrowedFansKeepEveryLabelAndRelaxFewerEdges) {
+  SpotLaneSweep spot;
+  ASSERT_TRUE(spot.ok());
+  auto& [mesh, graph, shape, sc, sources, nodes] = spot;
+  std::optional<query_internal::CompactLaneEdges> compact =
+      query_internal::CompactLaneEdges::Of(*graph);
+  ASSERT_TRUE(compact.has_value());
+  auto before = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, &*compact,
+                                                sc, sources, kInfinity, nullptr);
+  ASSERT_OK(before);
+  const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
+
+  uint64_t dropped = 0;
+  for (VertexId first = 0; first < mesh->num_vertices(); first += kFieldLanes) {
+    std::vector<query_internal::Endpoint> group;
+    for (VertexId v = first; v < std::min<VertexId>(first + kFieldLanes, mesh->num_vertices());
+         ++v) {
+      auto end = query_internal::JoinToGraph(*mesh, *graph, sc, SurfacePoint::Vertex(v), false);
+      ASSERT_OK(end);
+      group.push_back(*std::move(end));
+    }
+    ASSERT_OK(query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, &*compact, sc,
+                                              group, kInfinity, nullptr));
+    for (size_t k = 0; k < group.size(); ++k) {
+      dropped += compact->NarrowFans(*graph, group[k].node, sc.lane_dist, k);
+    }
+  }
+  EXPECT_GT(dropped, graph->edges().size());
+
+  auto after = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, &*compact, sc,
+                                               sources, kInfinity, nullptr);
+  ASSERT_OK(after);
+  EXPECT_GT(after->relaxed, nodes);
+  EXPECT_LT(after->relaxed, before->relaxed * 3 / 4);
   size_t finite = 0;
   for (uint32_t u = 0; u < nodes; ++u) {
     for (int k = 0; k < kFieldLanes; ++k) {
@@ -811,8 +885,8 @@ TEST(QueriesTest, LaneSweepsAreTheSameWithFansPackedOrWhole) {
 }
 
 // Each x86 kernel this machine runs (AVX-512, AVX2) finds the same labels
-// as the portable kernel, to the last bit, with
-// fans packed or whole, with and without a limit (their runs of edges may
+// as the portable kernel, to the last bit, with fans packed or whole, the
+// graph's edges or a compact copy, with and without a limit (their runs of edges may
 // differ: each finds its own cover of the lanes' fans, so labels past a
 // limit, which are bounds only, may differ too).
 TEST(QueriesTest, LaneKernelsFindTheSameLabels) {
@@ -827,17 +901,23 @@ TEST(QueriesTest, LaneKernelsFindTheSameLabels) {
   SpotLaneSweep spot;
   ASSERT_TRUE(spot.ok());
   auto& [mesh, graph, shape, sc, sources, nodes] = spot;
+  const std::optional<query_internal::CompactLaneEdges> compact =
+      query_internal::CompactLaneEdges::Of(*graph);
+  ASSERT_TRUE(compact.has_value());
+  using Layout = std::pair<LaneFanLayout, const query_internal::CompactLaneEdges*>;
   for (LaneKernel kernel : kernels) {
-    for (LaneFanLayout layout : {LaneFanLayout::kPacked, LaneFanLayout::kWhole}) {
+    for (const auto& [layout, edges] :
+         {Layout{LaneFanLayout::kPacked, nullptr}, Layout{LaneFanLayout::kWhole, nullptr},
+          Layout{LaneFanLayout::kPacked, &*compact}}) {
       for (double limit : {kInfinity, 0.3}) {
-        SCOPED_TRACE(
-            absl::StrFormat("kernel %d, layout %d, limit %g", int(kernel), int(layout), limit));
-        auto fast = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
-                                                    nullptr, kernel);
+        SCOPED_TRACE(absl::StrFormat("kernel %d, layout %d, compact edges %d, limit %g",
+                                     int(kernel), int(layout), edges != nullptr, limit));
+        auto fast = query_internal::SolveFieldLanes(*graph, shape, layout, edges, sc, sources,
+                                                    limit, nullptr, kernel);
         ASSERT_OK(fast);
         const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
-        auto portable = query_internal::SolveFieldLanes(*graph, shape, layout, sc, sources, limit,
-                                                        nullptr, LaneKernel::kPortable);
+        auto portable = query_internal::SolveFieldLanes(*graph, shape, layout, edges, sc, sources,
+                                                        limit, nullptr, LaneKernel::kPortable);
         ASSERT_OK(portable);
         EXPECT_GT(fast->relaxed, nodes);
         EXPECT_GT(portable->relaxed, nodes);
