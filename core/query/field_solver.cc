@@ -213,22 +213,28 @@ std::vector<size_t> GroupNearby(const Mesh& mesh, absl::Span<const SurfacePoint>
   return out;
 }
 
+// A sweep's labels of every lane at `target`: a vertex's read in place
+// (copying the line out, its wide store read back lane by lane, was most of
+// the rows' extraction; bench/notes.md), another point's joined through its
+// temporary edges into `joined`.
+const double* LaneLabelsAt(const DggGraph& g, const QueryScratch& sc,
+                           const query_internal::Endpoint& target, double max_distance,
+                           LaneLabels& joined) {
+  if (target.is_node) return sc.lane_dist[target.node].dist;
+  joined = query_internal::LaneDistancesTo(g, sc, target, max_distance);
+  return joined.dist;
+}
+
 // Lowers each entry of rows[k] (a lane's row, holding its source's direct
 // geodesics, else +inf) to lane k's distance to that target after a sweep;
 // +inf past `max_distance` (past it, labels are bounds only). Target by
-// target: a target's lanes share a cache line. A vertex's labels are read in
-// place: copying the line out, its wide store read back lane by lane, was
-// most of the rows' extraction (bench/notes.md).
+// target: a target's lanes share a cache line.
 void LowerRowsToLanes(const DggGraph& g, const QueryScratch& sc,
                       absl::Span<const query_internal::Endpoint> targets, double max_distance,
                       std::vector<std::vector<double>>& rows) {
   for (size_t j = 0; j < targets.size(); ++j) {
-    const query_internal::Endpoint& target = targets[j];
     LaneLabels joined;
-    const double* labels =
-        target.is_node
-            ? sc.lane_dist[target.node].dist
-            : (joined = query_internal::LaneDistancesTo(g, sc, target, max_distance)).dist;
+    const double* labels = LaneLabelsAt(g, sc, targets[j], max_distance, joined);
     for (size_t k = 0; k < rows.size(); ++k) {
       const double d = std::min(rows[k][j], labels[k]);
       rows[k][j] = d > max_distance ? kInfinity : d;
@@ -252,12 +258,8 @@ void Float32RowsFromLanes(const DggGraph& g, const QueryScratch& sc,
     if (j + kAhead < n && targets[j + kAhead].is_node) {
       __builtin_prefetch(&sc.lane_dist[targets[j + kAhead].node]);
     }
-    const query_internal::Endpoint& target = targets[j];
     LaneLabels joined;
-    const double* labels =
-        target.is_node
-            ? sc.lane_dist[target.node].dist
-            : (joined = query_internal::LaneDistancesTo(g, sc, target, max_distance)).dist;
+    const double* labels = LaneLabelsAt(g, sc, targets[j], max_distance, joined);
     // All eight lanes at once, in SIMD; only the sources' rows are kept.
     typedef double Doubles __attribute__((vector_size(sizeof(LaneLabels))));
     typedef float Floats __attribute__((vector_size(kFieldLanes * sizeof(float))));
