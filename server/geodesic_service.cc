@@ -183,19 +183,6 @@ size_t PackedBytes(v1::MatrixDtype dtype) {
   }
 }
 
-// Appends `row` to `out` as float32 (rounded to nearest, as numpy's astype
-// does) or float64 bytes, without a staging copy.
-void PackRow(absl::Span<const double> row, bool narrow, char* out) {
-  if (!narrow) {
-    std::memcpy(out, row.data(), row.size() * sizeof(double));
-    return;
-  }
-  for (size_t j = 0; j < row.size(); ++j) {
-    const float value = static_cast<float>(row[j]);
-    std::memcpy(out + j * sizeof(float), &value, sizeof(float));
-  }
-}
-
 // A sparse row's entries within the radius, as the chunk's bytes will
 // hold them; +inf (unreachable) is never within a finite radius.
 struct SparseRow {
@@ -1110,10 +1097,18 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
       base = packed->data();
     }
     MatrixRowSink sink;
-    sink.row = [&](size_t i, absl::Span<const double> row) {
-      PackRow(row, narrow, base + i * row_bytes);
-      return absl::OkStatus();
-    };
+    if (narrow) {
+      // Rounded already, most straight from the sweep.
+      sink.float32_row = [&](size_t i, absl::Span<const float> row) {
+        std::memcpy(base + i * row_bytes, row.data(), row.size() * sizeof(float));
+        return absl::OkStatus();
+      };
+    } else {
+      sink.row = [&](size_t i, absl::Span<const double> row) {
+        std::memcpy(base + i * row_bytes, row.data(), row.size() * sizeof(double));
+        return absl::OkStatus();
+      };
+    }
     if (req->exact()) {
       // Exact rows go a lane group per core at a time, each batch a slice
       // after which a waiting client's query may run.
@@ -1192,15 +1187,25 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
     };
     MatrixRowSink sink;
     sink.batch_rows = block_rows;
-    sink.row = [&](size_t i, absl::Span<const double> row) {
-      const size_t k = i % block_rows;
-      if (sparse) {
-        staged[k] = WithinRadius(row, req->radius(), narrow);
-      } else {
-        PackRow(row, narrow, dense + k * row.size() * (narrow ? sizeof(float) : sizeof(double)));
-      }
-      return absl::OkStatus();
-    };
+    if (!sparse && narrow) {
+      // Rounded already, most straight from the sweep.
+      sink.float32_row = [&](size_t i, absl::Span<const float> row) {
+        std::memcpy(dense + (i % block_rows) * row.size() * sizeof(float), row.data(),
+                    row.size() * sizeof(float));
+        return absl::OkStatus();
+      };
+    } else {
+      sink.row = [&](size_t i, absl::Span<const double> row) {
+        const size_t k = i % block_rows;
+        if (sparse) {
+          staged[k] = WithinRadius(row, req->radius(), narrow);
+        } else {
+          std::memcpy(dense + k * row.size() * sizeof(double), row.data(),
+                      row.size() * sizeof(double));
+        }
+        return absl::OkStatus();
+      };
+    }
     sink.batch_done = [&](size_t end) -> absl::Status {
       if (sparse) MoveSparseRows(staged, &chunk);
       {
