@@ -223,6 +223,36 @@ void MoveSparseRows(std::vector<SparseRow>& staged, v1::MatrixRowsChunk* chunk) 
   }
 }
 
+// Where a MatrixRows block's rows go as they are computed, row i to its
+// place in a block of `block_rows`: with a `radius` (> 0), the entries
+// within it staged; else into `dense` (the chunk's values, as the block
+// being filled sets it): float32 rows as they come, rounded already (most
+// straight from the sweep), float64 ones copied.
+MatrixRowSink BlockSink(size_t block_rows, double radius, bool narrow, char* const& dense,
+                        std::vector<SparseRow>& staged) {
+  MatrixRowSink sink;
+  sink.batch_rows = block_rows;
+  if (radius > 0) {
+    sink.row = [=, &staged](size_t i, absl::Span<const double> row) {
+      staged[i % block_rows] = WithinRadius(row, radius, narrow);
+      return absl::OkStatus();
+    };
+  } else if (narrow) {
+    sink.float32_row = [=, &dense](size_t i, absl::Span<const float> row) {
+      std::memcpy(dense + (i % block_rows) * row.size() * sizeof(float), row.data(),
+                  row.size() * sizeof(float));
+      return absl::OkStatus();
+    };
+  } else {
+    sink.row = [=, &dense](size_t i, absl::Span<const double> row) {
+      std::memcpy(dense + (i % block_rows) * row.size() * sizeof(double), row.data(),
+                  row.size() * sizeof(double));
+      return absl::OkStatus();
+    };
+  }
+  return sink;
+}
+
 // Serialized sizes, a little over: a double takes 9 bytes with its tag
 // unless packed, a message adds its tag and length, and the echo and
 // framing stay under a kilobyte.
@@ -1185,27 +1215,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
         dense = packed->data();
       }
     };
-    MatrixRowSink sink;
-    sink.batch_rows = block_rows;
-    if (!sparse && narrow) {
-      // Rounded already, most straight from the sweep.
-      sink.float32_row = [&](size_t i, absl::Span<const float> row) {
-        std::memcpy(dense + (i % block_rows) * row.size() * sizeof(float), row.data(),
-                    row.size() * sizeof(float));
-        return absl::OkStatus();
-      };
-    } else {
-      sink.row = [&](size_t i, absl::Span<const double> row) {
-        const size_t k = i % block_rows;
-        if (sparse) {
-          staged[k] = WithinRadius(row, req->radius(), narrow);
-        } else {
-          std::memcpy(dense + k * row.size() * sizeof(double), row.data(),
-                      row.size() * sizeof(double));
-        }
-        return absl::OkStatus();
-      };
-    }
+    MatrixRowSink sink = BlockSink(block_rows, sparse ? req->radius() : 0, narrow, dense, staged);
     sink.batch_done = [&](size_t end) -> absl::Status {
       if (sparse) MoveSparseRows(staged, &chunk);
       {
