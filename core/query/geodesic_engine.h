@@ -136,10 +136,11 @@ struct MatrixOptions {
   // Entries farther than this are +inf, and the search stops there: a
   // neighbourhood matrix costs what its neighbourhoods hold.
   double max_distance = kInfinity;
-  // A matrix of many rows, without a distance limit, narrows its edges'
-  // fans as its rows come in, so that later sweeps relax fewer edges
-  // (CompactLaneEdges::NarrowFans): the same numbers, for a copy of the
-  // edges (12 bytes each) held while the matrix is made.
+  // A matrix of many rows, from at least half the graph's nodes and
+  // without a distance limit, narrows its edges' fans as its rows come in,
+  // so that later sweeps relax fewer edges (CompactLaneEdges::NarrowFans):
+  // the same numbers, for a copy of the edges (12 bytes each) held while
+  // the matrix is made.
   bool narrow_fans = false;
 };
 
