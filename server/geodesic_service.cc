@@ -223,21 +223,13 @@ void MoveSparseRows(std::vector<SparseRow>& staged, v1::MatrixRowsChunk* chunk) 
   }
 }
 
-// Where a MatrixRows block's rows go as they are computed, row i to its
-// place in a block of `block_rows`: with a `radius` (> 0), the entries
-// within it staged; else into `dense` (the chunk's values, as the block
-// being filled sets it): float32 rows as they come, rounded already (most
-// straight from the sweep), float64 ones copied.
-MatrixRowSink BlockSink(size_t block_rows, double radius, bool narrow, char* const& dense,
-                        std::vector<SparseRow>& staged) {
+// Where the rows of a dense matrix go as they are computed: row i to
+// `dense` (the reply's values, or the block's, as the block being filled
+// sets it) at row i % block_rows, float32 rows as they come, rounded
+// already (most straight from the sweep), float64 ones copied.
+MatrixRowSink DenseSink(size_t block_rows, bool narrow, char* const& dense) {
   MatrixRowSink sink;
-  sink.batch_rows = block_rows;
-  if (radius > 0) {
-    sink.row = [=, &staged](size_t i, absl::Span<const double> row) {
-      staged[i % block_rows] = WithinRadius(row, radius, narrow);
-      return absl::OkStatus();
-    };
-  } else if (narrow) {
+  if (narrow) {
     sink.float32_row = [=, &dense](size_t i, absl::Span<const float> row) {
       std::memcpy(dense + (i % block_rows) * row.size() * sizeof(float), row.data(),
                   row.size() * sizeof(float));
@@ -250,6 +242,24 @@ MatrixRowSink BlockSink(size_t block_rows, double radius, bool narrow, char* con
       return absl::OkStatus();
     };
   }
+  return sink;
+}
+
+// Where a MatrixRows block's rows go as they are computed, in a block of
+// `block_rows`: with a `radius` (> 0), the entries within it staged; else
+// as DenseSink puts them.
+MatrixRowSink BlockSink(size_t block_rows, double radius, bool narrow, char* const& dense,
+                        std::vector<SparseRow>& staged) {
+  MatrixRowSink sink;
+  if (radius > 0) {
+    sink.row = [=, &staged](size_t i, absl::Span<const double> row) {
+      staged[i % block_rows] = WithinRadius(row, radius, narrow);
+      return absl::OkStatus();
+    };
+  } else {
+    sink = DenseSink(block_rows, narrow, dense);
+  }
+  sink.batch_rows = block_rows;
   return sink;
 }
 
@@ -1116,7 +1126,6 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
     // belongs.
     char* base = nullptr;
     const bool narrow = req->dtype() == v1::MATRIX_DTYPE_FLOAT32;
-    const size_t row_bytes = targets.size() * (value_bytes > 0 ? value_bytes : sizeof(double));
     if (value_bytes == 0) {
       resp->mutable_distances()->Resize(static_cast<int>(sources.size() * targets.size()), 0.0);
       base = reinterpret_cast<char*>(resp->mutable_distances()->mutable_data());
@@ -1126,19 +1135,7 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
       packed->resize(sources.size() * targets.size() * value_bytes);
       base = packed->data();
     }
-    MatrixRowSink sink;
-    if (narrow) {
-      // Rounded already, most straight from the sweep.
-      sink.float32_row = [&](size_t i, absl::Span<const float> row) {
-        std::memcpy(base + i * row_bytes, row.data(), row.size() * sizeof(float));
-        return absl::OkStatus();
-      };
-    } else {
-      sink.row = [&](size_t i, absl::Span<const double> row) {
-        std::memcpy(base + i * row_bytes, row.data(), row.size() * sizeof(double));
-        return absl::OkStatus();
-      };
-    }
+    MatrixRowSink sink = DenseSink(std::max<size_t>(1, sources.size()), narrow, base);
     if (req->exact()) {
       // Exact rows go a lane group per core at a time, each batch a slice
       // after which a waiting client's query may run.
