@@ -33,12 +33,12 @@ static_assert(sizeof(LaneFans) == sizeof(LaneBits));
 static_assert(kFieldLanes == 8, "MaskOf and kLaneBit spell out eight lanes");
 
 FanRange FanOf(const LaneFans& fans, int lane) { return fans.fan[lane]; }
-// The fan an edge hands its target.
-FanRange FanOf(const DggEdge& e) { return e.fan; }
-FanRange FanOf(const CompactLaneEdges::Edge& e) { return e.Fan(); }
 FanRange FanOf(const PackedLaneFans& fans, int lane) { return UnpackFan(fans.fan[lane]); }
 void SetFan(LaneFans& fans, int lane, FanRange f) { fans.fan[lane] = f; }
 void SetFan(PackedLaneFans& fans, int lane, FanRange f) { fans.fan[lane] = PackFan(f); }
+// The fan an edge hands its target.
+FanRange FanOf(const DggEdge& e) { return e.fan; }
+FanRange FanOf(const CompactLaneEdges::Edge& e) { return e.Fan(); }
 
 // A run of a node's `degree` angle-sorted edges that holds the fans of the
 // lanes of `mask` (each a run that may wrap past the end). Each fan not
