@@ -506,19 +506,24 @@ uint64_t CompactLaneEdges::NarrowFans(const DggGraph& g, uint32_t p,
   for (uint64_t i = offsets[p]; i < offsets[p + 1]; ++i) {
     Edge& e = edges_[i];
     const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
-    kept.resize(degree);
-    // Kept turns move to the front without a branch (whether one is kept is
+    // Only the fan's own turns are tried: it already holds every turn a
+    // shortest path takes, in a small part of the node's edges.
+    const FanRange before = e.Fan();
+    kept.resize(before.count);
+    // Kept turns, counted from the fan's start so that they stay sorted when
+    // it wraps, move to the front without a branch (whether one is kept is
     // close to random).
     uint32_t count = 0;
-    for (uint32_t k = 0; k < degree; ++k) {
-      const Edge& next = edges_[list + k];
+    for (uint32_t k = 0; k < before.count; ++k) {
+      const uint32_t turn = before.begin + k;
+      const Edge& next = edges_[list + (turn < degree ? turn : turn - degree)];
       const double length = double{e.weight} + next.weight;
       kept[count] = k;
       count += labels[next.target].dist[lane] >= length * kStrictlyShorter;
     }
-    const FanRange narrowed = CircularHull({kept.data(), count}, static_cast<uint32_t>(degree));
-    const FanRange before = e.Fan();
+    FanRange narrowed = CircularHull({kept.data(), count}, static_cast<uint32_t>(degree));
     if (narrowed.count >= before.count) continue;
+    narrowed.begin = (narrowed.begin + before.begin) % degree;
     dropped += before.count - narrowed.count;
     e.fan.store(PackFan(narrowed), std::memory_order_relaxed);
   }
