@@ -320,8 +320,18 @@ template <typename Simd, typename Edge, typename Fans>
   LaneLabels* dist = sc.lane_dist.data();
   uint8_t* dirty = sc.lane_dirty.data();
   const Lanes unreached = Lanes{} + kInfinity;
-  for (uint32_t u = 0; u < nodes; ++u) AsLanes(dist[u]) = unreached;
-  std::memset(dirty, 0, nodes);
+  if (sc.lanes_clear_but_reached) {
+    for (uint32_t u : sc.lane_reached) AsLanes(dist[u]) = unreached;
+  } else {
+    for (uint32_t u = 0; u < nodes; ++u) AsLanes(dist[u]) = unreached;
+    std::memset(dirty, 0, nodes);
+  }
+  // A bounded sweep lists the nodes it takes out, which are all it labels
+  // (each label it lowers queues its node, and the queue runs dry), for
+  // the next sweep to reset. Not an unbounded one: it reaches every node.
+  const bool bounded = max_distance < kInfinity;
+  sc.lane_reached.clear();
+  sc.lanes_clear_but_reached = false;
 
   // Vertex sources at 0, other points through their temporary edges; a
   // seed relaxes all its edges, as in SolveField.
@@ -361,6 +371,7 @@ template <typename Simd, typename Edge, typename Fans>
       return absl::CancelledError("field cancelled");
     }
     ++stats.queue_pops;
+    if (bounded) sc.lane_reached.push_back(u);
     // Only the lanes that improved relax: the others did so with these
     // labels already. Labels past the limit stop there.
     Lanes du = AsLanes(dist[u]);
@@ -406,6 +417,8 @@ template <typename Simd, typename Edge, typename Fans>
       queue.Lower(v, du_low + e.weight);
     }
   }
+  // Every node taken out has clean lanes again.
+  sc.lanes_clear_but_reached = bounded;
   return stats;
 }
 

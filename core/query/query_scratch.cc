@@ -45,6 +45,7 @@ void QueryScratch::PrepareLanes(size_t nodes, LaneFanLayout layout) {
   if (lane_dist.size() < nodes) {
     lane_dist.resize(nodes);
     lane_dirty.resize(nodes);
+    lanes_clear_but_reached = false;  // the new nodes' lanes are not +inf
   }
   if (layout == LaneFanLayout::kPacked && lane_fan_packed.size() < nodes) {
     lane_fan_packed.resize(nodes);
@@ -57,7 +58,8 @@ uint64_t QueryScratch::bytes() const {
   total += dist.capacity() * sizeof(double) + fan.capacity() * sizeof(FanRange) +
            label.capacity() * sizeof(uint32_t);
   total += lane_dist.capacity() * sizeof(LaneLabels) + lane_fan.capacity() * sizeof(LaneFans) +
-           lane_fan_packed.capacity() * sizeof(PackedLaneFans) + lane_dirty.capacity();
+           lane_fan_packed.capacity() * sizeof(PackedLaneFans) + lane_dirty.capacity() +
+           lane_reached.capacity() * sizeof(uint32_t);
   if (exact) total += exact->memory_bytes();
   return total;
 }

@@ -121,6 +121,12 @@ struct QueryScratch {
   std::vector<LaneFans> lane_fan;  // or, for most graphs, these:
   std::vector<PackedLaneFans> lane_fan_packed;
   std::vector<uint8_t> lane_dirty;
+  // When `lanes_clear_but_reached`, every node's lanes are +inf and clean
+  // except those of the nodes listed in `lane_reached` (the nodes a bounded
+  // sweep took out, duplicates and all): the next sweep resets only those, so
+  // that a sweep near its sources costs what it reaches, not the graph.
+  std::vector<uint32_t> lane_reached;
+  bool lanes_clear_but_reached = false;
 
   PairTable pairs;
   // The forward (0) and backward (1) searches' queues, with their slots in

@@ -884,6 +884,82 @@ TEST(QueriesTest, NarrowedFansKeepEveryLabelAndRelaxFewerEdges) {
   EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
 }
 
+// A sweep with a limit resets, before it, only the nodes the scratch's last
+// bounded sweep reached: whatever ran on the scratch before (bounded sweeps
+// of other sources and limits, a full sweep, a cancelled one), every node's
+// labels come out as from a fresh scratch, to the last bit.
+TEST(QueriesTest, BoundedSweepsResetWhatTheLastOneReached) {
+  SpotLaneSweep spot;
+  ASSERT_TRUE(spot.ok());
+  auto& [mesh, graph, shape, sc, sources, nodes] = spot;
+  // A limit that leaves most nodes out: the distance to the nearest tenth
+  // of the nodes from the first source.
+  double reach = 0;
+  {
+    QueryScratch full;
+    ASSERT_OK(query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, nullptr, full,
+                                              sources, kInfinity, nullptr));
+    std::vector<double> first;
+    for (uint32_t u = 0; u < nodes; ++u) first.push_back(full.lane_dist[u].dist[0]);
+    std::nth_element(first.begin(), first.begin() + nodes / 10, first.end());
+    reach = first[nodes / 10];
+    ASSERT_GT(reach, 0);
+  }
+  std::vector<query_internal::Endpoint> others;
+  for (const SurfacePoint& p : MixedPoints(*mesh, 9)) {
+    if (others.size() == 3) break;
+    auto end = query_internal::JoinToGraph(*mesh, *graph, sc, p, false);
+    ASSERT_OK(end);
+    others.push_back(*std::move(end));
+  }
+  const std::function<bool()> cancel_at_once = [] { return true; };
+  struct Step {
+    const char* what;
+    const std::vector<query_internal::Endpoint>* ends;
+    double limit;
+    const std::function<bool()>* cancelled;
+  };
+  const Step steps[] = {
+      {"bounded", &sources, reach, nullptr},
+      {"bounded, other sources and limit", &others, 2 * reach, nullptr},
+      {"bounded again", &sources, reach, nullptr},
+      {"cancelled", &others, reach, &cancel_at_once},
+      {"bounded after a cancelled one", &sources, reach, nullptr},
+      {"full", &others, kInfinity, nullptr},
+      {"bounded after a full one", &sources, 2 * reach, nullptr},
+  };
+  for (const Step& step : steps) {
+    SCOPED_TRACE(step.what);
+    auto swept = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, nullptr, sc,
+                                                 *step.ends, step.limit,
+                                                 step.cancelled ? *step.cancelled : nullptr);
+    if (step.cancelled) {
+      EXPECT_EQ(swept.status().code(), absl::StatusCode::kCancelled);
+      EXPECT_FALSE(sc.lanes_clear_but_reached);
+      continue;
+    }
+    ASSERT_OK(swept);
+    EXPECT_EQ(sc.lanes_clear_but_reached, step.limit < kInfinity);
+    QueryScratch fresh;
+    ASSERT_OK(query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, nullptr, fresh,
+                                              *step.ends, step.limit, nullptr));
+    size_t finite = 0;
+    for (uint32_t u = 0; u < nodes; ++u) {
+      for (int k = 0; k < kFieldLanes; ++k) {
+        ASSERT_EQ(fresh.lane_dist[u].dist[k], sc.lane_dist[u].dist[k])
+            << "node " << u << " lane " << k;
+        finite += std::isfinite(fresh.lane_dist[u].dist[k]);
+      }
+    }
+    EXPECT_GT(finite, 0u);
+    if (step.limit < kInfinity) {
+      EXPECT_LT(finite, size_t{nodes} * kFieldLanes);
+    } else {
+      EXPECT_EQ(finite, size_t{nodes} * step.ends->size());
+    }
+  }
+}
+
 // Each x86 kernel this machine runs (AVX-512, AVX2) finds the same labels
 // as the portable kernel, to the last bit, with fans packed or whole, the
 // graph's edges or a compact copy, with and without a limit (their runs of edges may
