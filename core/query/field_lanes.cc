@@ -5,6 +5,7 @@
 #include <cstring>
 
 #include "absl/status/statusor.h"
+#include "core/base/status.h"
 #include "core/dgg/fan.h"
 #include "core/query/geodesic_engine.h"
 
@@ -540,6 +541,47 @@ uint64_t CompactLaneEdges::NarrowFans(const DggGraph& g, uint32_t p,
     dropped += before.count - narrowed.count;
     e.fan.store(PackFan(narrowed), std::memory_order_relaxed);
   }
+  return dropped;
+}
+
+double CompactLaneEdges::LongestTurn(const DggGraph& g, uint32_t p) const {
+  const auto offsets = g.offsets();
+  double longest = 0;
+  for (uint64_t i = offsets[p]; i < offsets[p + 1]; ++i) {
+    const Edge& e = edges_[i];
+    const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
+    const FanRange fan = e.Fan();
+    float next = 0;
+    for (uint32_t k = 0; k < fan.count; ++k) {
+      const uint32_t turn = fan.begin + k;
+      next = std::max(next, edges_[list + (turn < degree ? turn : turn - degree)].weight);
+    }
+    longest = std::max(longest, double{e.weight} + next);
+  }
+  return longest;
+}
+
+absl::StatusOr<uint64_t> CompactLaneEdges::NarrowFansNear(const DggGraph& g,
+                                                          const BucketShape& bucket_shape,
+                                                          QueryScratch& sc,
+                                                          absl::Span<const uint32_t> nodes,
+                                                          const std::function<bool()>& cancelled) {
+  // How far the sweep goes, as a share of the longest turn: most turns a
+  // row drops are beaten by a path well inside it, and the sweep's cost
+  // grows as the square of its reach (bench/notes.md, "Matrix lanes").
+  constexpr double kReach = 0.3;
+  std::vector<Endpoint> ends(std::min<size_t>(nodes.size(), kFieldLanes));
+  double longest = 0;
+  for (size_t k = 0; k < ends.size(); ++k) {
+    ends[k].is_node = true;
+    ends[k].node = nodes[k];
+    longest = std::max(longest, LongestTurn(g, nodes[k]));
+  }
+  RETURN_IF_ERROR(SolveFieldLanes(g, bucket_shape, LaneFanLayout::kPacked, this, sc, ends,
+                                  kReach * longest, cancelled)
+                      .status());
+  uint64_t dropped = 0;
+  for (size_t k = 0; k < ends.size(); ++k) dropped += NarrowFans(g, nodes[k], sc.lane_dist, k);
   return dropped;
 }
 

@@ -24,6 +24,7 @@
 #include <optional>
 
 #include "absl/status/status.h"
+#include "absl/status/statusor.h"
 #include "absl/types/span.h"
 #include "core/dgg/dgg_graph.h"
 #include "core/query/augmented_graph.h"
@@ -72,7 +73,21 @@ class CompactLaneEdges {
   // Returns how many fewer edges the fans now hold.
   uint64_t NarrowFans(const DggGraph& g, uint32_t p, absl::Span<const LaneLabels> labels, int lane);
 
+  // Narrows the fans of the edges of `nodes` (at most kFieldLanes) as
+  // NarrowFans does, from one sweep around them that stops short of their
+  // longest turns, in `sc`. Any label it leaves is the length of a real
+  // path, so a turn longer than one to its end goes as soundly as with a
+  // complete row, and most that a row would drop do. Before a matrix's first
+  // row, so that every sweep gains, not only those after a source's row.
+  // Returns how many fewer edges the fans hold.
+  absl::StatusOr<uint64_t> NarrowFansNear(const DggGraph& g, const BucketShape& bucket_shape,
+                                          QueryScratch& sc, absl::Span<const uint32_t> nodes,
+                                          const std::function<bool()>& cancelled);
+
  private:
+  // The longest turn p -> u -> w the fans of p's edges hold: |pu| + |uw|.
+  double LongestTurn(const DggGraph& g, uint32_t p) const;
+
   std::unique_ptr<Edge[]> edges_;
   uint64_t count_ = 0;
 };

@@ -1,6 +1,8 @@
 #include "core/query/field_solver.h"
 
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <cmath>
 #include <cstring>
 #include <functional>
@@ -322,6 +324,40 @@ std::optional<query_internal::CompactLaneEdges> EdgesToNarrow(const DggGraph& g,
   return query_internal::CompactLaneEdges::Of(g);
 }
 
+// Narrows the fans of every node's edges before a matrix's first row
+// (CompactLaneEdges::NarrowFansNear), a short sweep from each run of nodes
+// in node order, which lie close together. Only while a sweep reaches a
+// small share of the graph: on a mesh of few vertices a turn spans much of
+// it, and the sweeps would cost about what the rows gain. A sample of runs
+// spread over the graph decides.
+absl::Status NarrowFansAhead(const DggGraph& g, const BucketShape& bucket_shape,
+                             query_internal::CompactLaneEdges& compact,
+                             const std::function<ScratchPool::Lease()>& lease,
+                             const std::function<bool()>& cancelled) {
+  constexpr size_t kSampleRuns = 16;
+  constexpr double kMostReached = 0.25;
+  const uint32_t nodes = g.num_nodes();
+  const size_t runs = (nodes + kFieldLanes - 1) / kFieldLanes;
+  std::atomic<uint64_t> reached{0};
+  auto narrow = [&](size_t i) {
+    std::array<uint32_t, kFieldLanes> run;
+    const uint32_t first = static_cast<uint32_t>(i * kFieldLanes);
+    const uint32_t count = std::min<uint32_t>(kFieldLanes, nodes - first);
+    std::iota(run.begin(), run.begin() + count, first);
+    ScratchPool::Lease sc = lease();
+    RETURN_IF_ERROR(
+        compact
+            .NarrowFansNear(g, bucket_shape, *sc, absl::MakeConstSpan(run.data(), count), cancelled)
+            .status());
+    reached += sc->lane_reached.size();
+    return absl::OkStatus();
+  };
+  const size_t sample = std::min(runs, kSampleRuns);
+  RETURN_IF_ERROR(ForEachInParallel(sample, [&](size_t j) { return narrow(j * runs / sample); }));
+  if (double(reached) > kMostReached * double(sample) * nodes) return absl::OkStatus();
+  return ForEachInParallel(runs, narrow);
+}
+
 }  // namespace
 
 using query_internal::CheckPoint;
@@ -384,6 +420,11 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
   }
   std::optional<query_internal::CompactLaneEdges> compact =
       EdgesToNarrow(*graph_, sources.size(), matrix_options);
+  if (compact) {
+    RETURN_IF_ERROR(NarrowFansAhead(
+        *graph_, buckets_, *compact, [this] { return AcquireScratch(); },
+        matrix_options.cancelled));
+  }
   // Sources go in lanes of one sweep (core/query/field_lanes.h), grouped
   // by graph node: node order follows the surface, so a group's wavefronts
   // move together.

@@ -884,6 +884,49 @@ TEST(QueriesTest, NarrowedFansKeepEveryLabelAndRelaxFewerEdges) {
   EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
 }
 
+// Fans narrowed by short sweeps around every node, before any row (as a
+// matrix starts), keep every label of a sweep from any points, to the last
+// bit, and leave it fewer edges to relax.
+TEST(QueriesTest, FansNarrowedNearbyKeepEveryLabelAndRelaxFewerEdges) {
+  SpotLaneSweep spot;
+  ASSERT_TRUE(spot.ok());
+  auto& [mesh, graph, shape, sc, sources, nodes] = spot;
+  std::optional<query_internal::CompactLaneEdges> compact =
+      query_internal::CompactLaneEdges::Of(*graph);
+  ASSERT_TRUE(compact.has_value());
+  auto before = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, &*compact,
+                                                sc, sources, kInfinity, nullptr);
+  ASSERT_OK(before);
+  const std::vector<LaneLabels> labels(sc.lane_dist.begin(), sc.lane_dist.begin() + nodes);
+
+  uint64_t dropped = 0;
+  for (uint32_t first = 0; first < nodes; first += kFieldLanes) {
+    std::vector<uint32_t> run;
+    for (uint32_t u = first; u < std::min<uint32_t>(first + kFieldLanes, nodes); ++u) {
+      run.push_back(u);
+    }
+    auto narrowed = compact->NarrowFansNear(*graph, shape, sc, run, nullptr);
+    ASSERT_OK(narrowed);
+    dropped += *narrowed;
+    EXPECT_TRUE(sc.lanes_clear_but_reached);
+  }
+  EXPECT_GT(dropped, graph->edges().size());
+
+  auto after = query_internal::SolveFieldLanes(*graph, shape, LaneFanLayout::kPacked, &*compact, sc,
+                                               sources, kInfinity, nullptr);
+  ASSERT_OK(after);
+  EXPECT_GT(after->relaxed, nodes);
+  EXPECT_LT(after->relaxed, before->relaxed * 3 / 4);
+  size_t finite = 0;
+  for (uint32_t u = 0; u < nodes; ++u) {
+    for (int k = 0; k < kFieldLanes; ++k) {
+      ASSERT_EQ(labels[u].dist[k], sc.lane_dist[u].dist[k]) << "node " << u << " lane " << k;
+      finite += std::isfinite(labels[u].dist[k]);
+    }
+  }
+  EXPECT_EQ(finite, size_t{nodes} * kFieldLanes);
+}
+
 // A sweep with a limit resets, before it, only the nodes the scratch's last
 // bounded sweep reached: whatever ran on the scratch before (bounded sweeps
 // of other sources and limits, a full sweep, a cancelled one), every node's
