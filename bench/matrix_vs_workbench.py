@@ -6,12 +6,16 @@ Runs, in one process tree and one after the other on the same surface:
   geodesicd matrix  --sources all --targets all --dtype float32 --threads T
   geodesicd build   SURFACE --eps EPS --exact-fans, and the same matrix on it
   wb_command -surface-geodesic-distance-all-to-all SURFACE OUT.dconn.nii
-and prints a Markdown table (wall seconds, peak RSS, error against exact
-fields where ../shared/truth has them) with the time ratios of the same run.
+and prints a Markdown table (wall and CPU seconds, peak RSS, error against
+exact fields) with the time ratios of the same run. The exact fields are
+../shared/truth's where it has the surface's, else four from geodesicd's
+own exact engine (`geodesicd exact`, from seeded random vertices).
 Exact fans give the same distances (the two matrices are checked equal)
 from smaller fans, for a longer build.
 The surface is a GIFTI .surf.gii (what Workbench reads); an .off or .obj is
-converted to one first (with nibabel). wb_command is Debian's
+converted to one first (with nibabel), and a .surf.gii whose pointset names
+no anatomical structure is copied with one (bench/folded_sphere.py makes a
+cortex-like surface). wb_command is Debian's
 connectome-workbench; without it only geodesicd's side is measured.
 
   bench/matrix_vs_workbench.py MESH [--eps 1e-3] [--threads 2] [--geodesicd PATH]
@@ -75,17 +79,39 @@ def to_gifti(mesh: Path, out: Path) -> None:
     nib.save(img, str(out))
 
 
-def timed(cmd):
-    """(wall seconds, peak RSS bytes, stdout) of a command, through GNU time."""
-    with tempfile.NamedTemporaryFile("r", suffix=".time") as t:
-        start = time.monotonic()
-        r = subprocess.run(["/usr/bin/time", "-f", "%M", "-o", t.name] + cmd,
-                           capture_output=True, text=True)
-        wall = time.monotonic() - start
-        if r.returncode != 0:
-            sys.exit(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
-        rss_kb = int(t.read().strip().split("\n")[-1])
-    return wall, rss_kb * 1024, r.stdout
+def with_structure(surface: Path, work: Path) -> Path:
+    """The surface, or a copy of it whose pointset names a structure.
+
+    Workbench copies the pointset's AnatomicalStructurePrimary into its
+    CIFTI output, which nibabel refuses to read without one.
+    """
+    import nibabel as nib
+    img = nib.load(str(surface))
+    points = [a for a in img.darrays if a.intent == nib.nifti1.intent_codes["NIFTI_INTENT_POINTSET"]]
+    assert points, f"{surface}: no pointset"
+    if "AnatomicalStructurePrimary" in points[0].meta:
+        return surface
+    points[0].meta["AnatomicalStructurePrimary"] = "CortexLeft"
+    copy = work / surface.name
+    nib.save(img, str(copy))
+    return copy
+
+
+class Run:
+    """What one command took: wall and CPU seconds, peak RSS, its stdout."""
+
+    def __init__(self, cmd):
+        with tempfile.NamedTemporaryFile("r", suffix=".time") as t:
+            start = time.monotonic()
+            r = subprocess.run(["/usr/bin/time", "-f", "%M %U %S", "-o", t.name] + cmd,
+                               capture_output=True, text=True)
+            self.wall = time.monotonic() - start
+            if r.returncode != 0:
+                sys.exit(f"{' '.join(cmd)} failed ({r.returncode}):\n{r.stderr[-2000:]}")
+            rss_kb, user, system = t.read().strip().split("\n")[-1].split()
+        self.rss = int(rss_kb) * 1024
+        self.cpu = float(user) + float(system)
+        self.stdout = r.stdout
 
 
 def row_errors(row: np.ndarray, exact: np.ndarray, source: int):
@@ -111,28 +137,30 @@ def main() -> None:
     work = Path(tempfile.mkdtemp(prefix="matrix-bench-", dir=args.keep))
     try:
         surface = args.mesh
-        if not surface.name.endswith(".gii"):
+        if surface.name.endswith(".gii"):
+            surface = with_structure(surface, work)
+        else:
             surface = work / (args.mesh.stem + ".surf.gii")
             to_gifti(args.mesh, surface)
         stem = re.sub(r"\.surf$", "", surface.stem)
         def build_and_solve(name, flags):
-            """(build s, matrix s, matrix peak RSS, matrix report, .npy path)"""
+            """(build s, the matrix's Run, its report, its .npy path)"""
             graph, matrix = work / f"{name}.dgg", work / f"{name}.npy"
-            build_s, _, _ = timed([args.geodesicd, "build", str(surface), "--eps",
-                                   str(args.eps), "--out", str(graph), "--quiet", "--json"]
-                                  + flags)
-            solve_s, rss, out = timed([
+            build = Run([args.geodesicd, "build", str(surface), "--eps", str(args.eps),
+                         "--out", str(graph), "--quiet", "--json"] + flags)
+            solve = Run([
                 args.geodesicd, "matrix", "--mesh", str(surface), "--graph", str(graph),
                 "--sources", "all", "--targets", "all", "--dtype", "float32",
                 "--out", str(matrix), "--threads", str(args.threads), "--json"])
-            return build_s, solve_s, rss, json.loads(out), matrix
+            return build.wall, solve, json.loads(solve.stdout), matrix
 
-        build_s, ours_s, ours_rss, report, ours = build_and_solve("g", [])
-        xbuild_s, xours_s, xours_rss, _, xours = build_and_solve("xf", ["--exact-fans"])
-        D = np.load(ours, mmap_mode="r")
+        build_s, ours, report, ours_npy = build_and_solve("g", [])
+        xbuild_s, xours, _, xours_npy = build_and_solve("xf", ["--exact-fans"])
+        ours_s, xours_s = ours.wall, xours.wall
+        D = np.load(ours_npy, mmap_mode="r")
         n = D.shape[0]
         assert D.shape == (n, n) and n > 0
-        X = np.load(xours, mmap_mode="r")
+        X = np.load(xours_npy, mmap_mode="r")
         assert X.shape == D.shape
         same = all(np.array_equal(D[i:i + 512], X[i:i + 512]) for i in range(0, n, 512))
         # Symmetric where the graph is: sampled blocks against their transposes.
@@ -142,18 +170,22 @@ def main() -> None:
         assert np.isfinite(block).all()
         asym = float(np.max(np.abs(block - block.T)))
 
-        wb = shutil.which("wb_command")
-        wb_s = wb_rss = None
-        W = None
-        if wb:
+        wb_path = shutil.which("wb_command")
+        wb = W = None
+        if wb_path:
             dconn = work / "wb.dconn.nii"
-            wb_s, wb_rss, _ = timed([wb, "-surface-geodesic-distance-all-to-all", str(surface),
-                                     str(dconn)])
+            wb = Run([wb_path, "-surface-geodesic-distance-all-to-all", str(surface), str(dconn)])
             import nibabel as nib
             W = nib.load(str(dconn)).dataobj
 
         errors = {"ours": [], "wb": []}
-        for f in sorted(args.truth.glob(f"{stem}.exact.s*.f64")):
+        fields = sorted(args.truth.glob(f"{stem}.exact.s*.f64"))
+        if not fields:
+            for s in np.random.default_rng(7).choice(n, size=min(n, 4), replace=False):
+                fields.append(work / f"{stem}.exact.s{s}.f64")
+                Run([args.geodesicd, "exact", "--mesh", str(surface), "--source", f"v:{s}",
+                     "--out", str(fields[-1])])
+        for f in fields:
             s = int(re.search(r"\.s(\d+)\.f64$", f.name).group(1))
             exact = np.fromfile(f, dtype="<f8")
             assert exact.size == n, f"{f}: {exact.size} values for {n} vertices"
@@ -163,27 +195,25 @@ def main() -> None:
 
         def err(name):
             e = errors[name]
-            if not e:
-                return "no exact fields"
             return f"{100 * max(x[0] for x in e):.3g}% / {100 * np.mean([x[1] for x in e]):.3g}%"
 
         print(f"All pairs of {surface.name} ({n} vertices), eps {args.eps:g}, "
               f"geodesicd on {args.threads} threads; graph built in {build_s:.1f} s")
         print()
-        print("| tool | wall s | peak RSS MiB | max / mean error vs exact |")
-        print("|---|---:|---:|---:|")
-        print(f"| geodesicd matrix, float32 .npy | {ours_s:.1f} | {ours_rss / 2**20:.0f} | "
-              f"{err('ours')} |")
-        print(f"| the same on a graph built --exact-fans | {xours_s:.1f} | "
-              f"{xours_rss / 2**20:.0f} | {err('ours') if same else 'differs'} |")
-        if wb_s is not None:
-            print(f"| wb_command -surface-geodesic-distance-all-to-all | {wb_s:.1f} | "
-                  f"{wb_rss / 2**20:.0f} | {err('wb')} |")
+        print("| tool | wall s | CPU s | peak RSS MiB | max / mean error vs exact |")
+        print("|---|---:|---:|---:|---:|")
+        print(f"| geodesicd matrix, float32 .npy | {ours.wall:.1f} | {ours.cpu:.1f} | "
+              f"{ours.rss / 2**20:.0f} | {err('ours')} |")
+        print(f"| the same on a graph built --exact-fans | {xours.wall:.1f} | {xours.cpu:.1f} | "
+              f"{xours.rss / 2**20:.0f} | {err('ours') if same else 'differs'} |")
+        if wb is not None:
+            print(f"| wb_command -surface-geodesic-distance-all-to-all | {wb.wall:.1f} | "
+                  f"{wb.cpu:.1f} | {wb.rss / 2**20:.0f} | {err('wb')} |")
             print()
-            print(f"wb_command / geodesicd wall time: {wb_s / ours_s:.1f}x "
-                  f"(with the graph build: {wb_s / (ours_s + build_s):.1f}x); "
-                  f"on the --exact-fans graph: {wb_s / xours_s:.1f}x "
-                  f"(with its build, {xbuild_s:.1f} s: {wb_s / (xours_s + xbuild_s):.1f}x)")
+            print(f"wb_command / geodesicd wall time: {wb.wall / ours_s:.1f}x "
+                  f"(with the graph build: {wb.wall / (ours_s + build_s):.1f}x); "
+                  f"on the --exact-fans graph: {wb.wall / xours_s:.1f}x "
+                  f"(with its build, {xbuild_s:.1f} s: {wb.wall / (xours_s + xbuild_s):.1f}x)")
         print(f"largest |D - D^T| over {len(rows)}^2 sampled entries: {asym:.3g}; "
               f"matrix reported {report['seconds']:.1f} s, {report['bytes']} bytes; "
               f"the --exact-fans matrix is {'the same' if same else 'NOT the same'}")
