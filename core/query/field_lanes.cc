@@ -312,27 +312,34 @@ template <typename Simd, typename Edge, typename Fans>
   if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
 }
 
+// Every node's lanes +inf and clean, for a sweep to start from: only those
+// of the nodes the scratch's last sweep listed, when it was a bounded one
+// that ran to its end. It listed the nodes it took out, which are all it
+// labelled: each label it lowered queued its node, and the queue ran dry.
+void ResetLanes(QueryScratch& sc, uint32_t nodes) {
+  const Lanes unreached = Lanes{} + kInfinity;
+  if (sc.lanes_clear_but_reached) {
+    for (uint32_t u : sc.lane_reached) AsLanes(sc.lane_dist[u]) = unreached;
+  } else {
+    for (uint32_t u = 0; u < nodes; ++u) AsLanes(sc.lane_dist[u]) = unreached;
+    std::memset(sc.lane_dirty.data(), 0, nodes);
+  }
+  sc.lane_reached.clear();
+  sc.lanes_clear_but_reached = false;
+}
+
 template <typename Simd, typename Edge, typename Fans>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
     const DggGraph& g, const Edge* edges, const BucketShape& bucket_shape, QueryScratch& sc,
     Fans* fan, absl::Span<const Endpoint> sources, double max_distance,
     const std::function<bool()>& cancelled) {
   const uint32_t nodes = g.num_nodes();
+  ResetLanes(sc, nodes);
   LaneLabels* dist = sc.lane_dist.data();
   uint8_t* dirty = sc.lane_dirty.data();
-  const Lanes unreached = Lanes{} + kInfinity;
-  if (sc.lanes_clear_but_reached) {
-    for (uint32_t u : sc.lane_reached) AsLanes(dist[u]) = unreached;
-  } else {
-    for (uint32_t u = 0; u < nodes; ++u) AsLanes(dist[u]) = unreached;
-    std::memset(dirty, 0, nodes);
-  }
-  // A bounded sweep lists the nodes it takes out, which are all it labels
-  // (each label it lowers queues its node, and the queue runs dry), for
-  // the next sweep to reset. Not an unbounded one: it reaches every node.
+  // Only a bounded sweep lists the nodes it takes out: an unbounded one
+  // reaches every node.
   const bool bounded = max_distance < kInfinity;
-  sc.lane_reached.clear();
-  sc.lanes_clear_but_reached = false;
 
   // Vertex sources at 0, other points through their temporary edges; a
   // seed relaxes all its edges, as in SolveField.
