@@ -536,8 +536,7 @@ uint64_t CompactLaneEdges::NarrowFans(const DggGraph& g, uint32_t p,
     // close to random).
     uint32_t count = 0;
     for (uint32_t k = 0; k < before.count; ++k) {
-      const uint32_t turn = before.begin + k;
-      const Edge& next = edges_[list + (turn < degree ? turn : turn - degree)];
+      const Edge& next = TurnOf(list, degree, before, k);
       const double length = double{e.weight} + next.weight;
       kept[count] = k;
       count += labels[next.target].dist[lane] >= length * kStrictlyShorter;
@@ -559,10 +558,8 @@ double CompactLaneEdges::LongestTurn(const DggGraph& g, uint32_t p) const {
     const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
     const FanRange fan = e.Fan();
     float next = 0;
-    for (uint32_t k = 0; k < fan.count; ++k) {
-      const uint32_t turn = fan.begin + k;
-      next = std::max(next, edges_[list + (turn < degree ? turn : turn - degree)].weight);
-    }
+    for (uint32_t k = 0; k < fan.count; ++k)
+      next = std::max(next, TurnOf(list, degree, fan, k).weight);
     longest = std::max(longest, double{e.weight} + next);
   }
   return longest;

@@ -41,7 +41,8 @@ struct LaneStats {
 // A graph's edges as a sweep can read them instead of the graph's own
 // records: 12 bytes each, the fan packed as in PackedLaneFans, where a
 // DggEdge takes 16. A copy, made for a matrix of many rows and freed after
-// it, so its fans can be narrowed as the rows come in (NarrowFans).
+// it, so its fans can be narrowed, before the rows and as they come in
+// (NarrowFansNear, NarrowFans).
 class CompactLaneEdges {
  public:
   struct Edge {
@@ -62,14 +63,15 @@ class CompactLaneEdges {
   const Edge* data() const { return edges_.get(); }
   uint64_t bytes() const { return count_ * sizeof(Edge); }
 
-  // Narrows the fans of node p's edges to the turns a shortest path takes,
-  // from p's graph distance to every node: lane `lane` of a sweep's
-  // `labels` whose source in that lane was p, with no distance limit. The
-  // turn p -> u -> w stays unless a path from p to w is shorter than |pu| +
-  // |uw| (by kStrictlyShorter, as the build's fans), which only a complete
-  // row knows: the build's exact pass searches only near p, and its default
-  // pass tries only paths of two edges. Every sweep after it, from any
-  // source, that arrives at u along p -> u relaxes those turns alone.
+  // Narrows the fans of node p's edges towards the turns a shortest path
+  // takes, from lane `lane` of a sweep's `labels` whose source in that lane
+  // was p: each label the length of a real path from p. The turn p -> u ->
+  // w stays unless that path to w is shorter than |pu| + |uw| (by
+  // kStrictlyShorter, as the build's fans). A complete row (no distance
+  // limit) drops every turn no shortest path takes, which the build cannot
+  // know: its exact pass searches only near p, and its default pass tries
+  // only paths of two edges. Every sweep after it, from any source, that
+  // arrives at u along p -> u relaxes the turns left alone.
   // Returns how many fewer edges the fans now hold.
   uint64_t NarrowFans(const DggGraph& g, uint32_t p, absl::Span<const LaneLabels> labels, int lane);
 
@@ -87,6 +89,12 @@ class CompactLaneEdges {
  private:
   // The longest turn p -> u -> w the fans of p's edges hold: |pu| + |uw|.
   double LongestTurn(const DggGraph& g, uint32_t p) const;
+  // Turn k of `fan`, a run (that may wrap) of the `degree` edges from
+  // `list` on.
+  const Edge& TurnOf(uint64_t list, uint64_t degree, FanRange fan, uint32_t k) const {
+    const uint64_t turn = uint64_t{fan.begin} + k;
+    return edges_[list + (turn < degree ? turn : turn - degree)];
+  }
 
   std::unique_ptr<Edge[]> edges_;
   uint64_t count_ = 0;

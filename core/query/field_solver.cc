@@ -309,11 +309,11 @@ absl::Status DeliverRows(const DggGraph& g, const QueryScratch& sc,
   return absl::OkStatus();
 }
 
-// The copy of the edges whose fans a matrix of `rows` narrows as they come
-// in, if it narrows them. Only the sources' own edges narrow, and only
-// later sweeps gain: the copy (about a sweep's time, 12 bytes an edge) pays
+// The copy of the edges whose fans a matrix of `rows` narrows, if it
+// narrows them. The copy (about a sweep's time, 12 bytes an edge) and the
+// pass ahead of the rows (NarrowFansAhead, sweeps around every node) pay
 // for many rows from a good share of the graph's nodes, such as all pairs,
-// not for a few rows of a large mesh; and only complete rows narrow.
+// not for a few rows of a large mesh; and only complete rows narrow further.
 std::optional<query_internal::CompactLaneEdges> EdgesToNarrow(const DggGraph& g, size_t rows,
                                                               const MatrixOptions& options) {
   constexpr size_t kNarrowingRows = 16 * kFieldLanes;
