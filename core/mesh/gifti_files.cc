@@ -201,8 +201,13 @@ const GiftiArrayKind kGiftiPoints = {NIFTI_INTENT_POINTSET,
                                      "NIFTI_INTENT_POINTSET",
                                      {NIFTI_TYPE_FLOAT32, NIFTI_TYPE_FLOAT64},
                                      "float32 or float64"};
-const GiftiArrayKind kGiftiTriangles = {
-    NIFTI_INTENT_TRIANGLE, "triangle", "NIFTI_INTENT_TRIANGLE", {NIFTI_TYPE_INT32}, "int32"};
+// GIFTI names int32 only, but nibabel writes numpy's default int64 (and
+// uint32 comes from other writers) without a word: read them all.
+const GiftiArrayKind kGiftiTriangles = {NIFTI_INTENT_TRIANGLE,
+                                        "triangle",
+                                        "NIFTI_INTENT_TRIANGLE",
+                                        {NIFTI_TYPE_INT32, NIFTI_TYPE_INT64, NIFTI_TYPE_UINT32},
+                                        "int32, int64 or uint32"};
 
 // What can be checked before the data is read: present, N x 3, a known type
 // and order, its data in this file, and no more of it than the file can hold.
@@ -322,6 +327,18 @@ T GiftiAt(const giiDataArray& da, int64_t row, int col) {
   return value;
 }
 
+// Corner `col` of triangle `row`, widened from the array's integer type.
+int64_t GiftiIndexAt(const giiDataArray& da, int64_t row, int col) {
+  switch (da.datatype) {
+    case NIFTI_TYPE_INT64:
+      return GiftiAt<int64_t>(da, row, col);
+    case NIFTI_TYPE_UINT32:
+      return GiftiAt<uint32_t>(da, row, col);
+    default:
+      return GiftiAt<int32_t>(da, row, col);
+  }
+}
+
 absl::Status CheckGiftiData(const giiDataArray& da, const GiftiArrayKind& kind,
                             std::string_view name) {
   if (da.data == nullptr || da.nvals != int64_t{3} * da.dims[0]) {
@@ -348,8 +365,8 @@ absl::StatusOr<TriangleSoup> GiftiToSoup(const giiDataArray& points, const giiDa
   soup.triangles.resize(triangles.dims[0]);
   for (int64_t f = 0; f < triangles.dims[0]; ++f) {
     for (int k = 0; k < 3; ++k) {
-      const int32_t index = GiftiAt<int32_t>(triangles, f, k);
-      if (index < 0) {
+      const int64_t index = GiftiIndexAt(triangles, f, k);
+      if (index < 0 || index > std::numeric_limits<VertexId>::max()) {
         return absl::InvalidArgumentError(
             absl::StrFormat("%s: face %d refers to vertex %d", name, f, index));
       }

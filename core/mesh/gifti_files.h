@@ -2,8 +2,9 @@
 // surfaces read as a TriangleSoup, and per-vertex values written as a metric.
 //
 // A surface (x.surf.gii) is one NIFTI_INTENT_POINTSET array (float32 or
-// float64, N x 3) and one NIFTI_INTENT_TRIANGLE array (int32, M x 3), row-
-// or column-major, in ASCII, Base64Binary or GZipBase64Binary encoding.
+// float64, N x 3) and one NIFTI_INTENT_TRIANGLE array (int32, M x 3; int64
+// and uint32 are read too), row- or column-major, in ASCII, Base64Binary or
+// GZipBase64Binary encoding.
 // Reading goes through Debian's libgiftiio, after an expat pass that refuses
 // what libgiftiio would read wrongly or only complain about on stderr:
 // external-file data (a file naming another file on the server's disk must

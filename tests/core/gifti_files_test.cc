@@ -22,6 +22,7 @@ extern "C" {
 
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
+#include "absl/strings/str_replace.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/result_files.h"
 #include "tests/core/test_util.h"
@@ -57,6 +58,7 @@ struct Layout {
   int encoding;
   bool column_major;
   bool float64;
+  int triangle_type = NIFTI_TYPE_INT32;  // int64 as nibabel writes numpy's default
 };
 
 // `rows` x 3 values of `data` (row-major) stored into `da`'s own buffer in its
@@ -90,7 +92,8 @@ void SetArray(giiDataArray* da, int intent, int datatype, int rows, const Layout
 // ASCII by hand: libgiftiio writes ASCII floats with six decimals, which
 // would test its writer's rounding rather than the reader. Nine significant
 // digits hold any float32.
-void WriteAsciiSurface(const std::string& path, const SmallSurface& s, bool column_major) {
+void WriteAsciiSurface(const std::string& path, const SmallSurface& s, bool column_major,
+                       int triangle_type) {
   const size_t nv = s.xyz.size() / 3, nf = s.faces.size() / 3;
   auto array = [&](const char* intent, const char* type, size_t rows, auto&& value) {
     std::string text = absl::StrFormat(
@@ -109,7 +112,7 @@ void WriteAsciiSurface(const std::string& path, const SmallSurface& s, bool colu
              "<GIFTI Version=\"1.0\" NumberOfDataArrays=\"2\">\n" +
                  array("NIFTI_INTENT_POINTSET", "NIFTI_TYPE_FLOAT32", nv,
                        [&](size_t i) { return absl::StrFormat("%.9g", s.xyz[i]); }) +
-                 array("NIFTI_INTENT_TRIANGLE", "NIFTI_TYPE_INT32", nf,
+                 array("NIFTI_INTENT_TRIANGLE", gifti_datatype2str(triangle_type), nf,
                        [&](size_t i) { return absl::StrCat(s.faces[i]); }) +
                  "</GIFTI>\n");
 }
@@ -119,7 +122,7 @@ void WriteAsciiSurface(const std::string& path, const SmallSurface& s, bool colu
 void WriteSurface(const std::string& path, const SmallSurface& s, const Layout& layout,
                   bool with_triangles = true) {
   if (layout.encoding == GIFTI_ENCODING_ASCII && !layout.float64 && with_triangles) {
-    WriteAsciiSurface(path, s, layout.column_major);
+    WriteAsciiSurface(path, s, layout.column_major, layout.triangle_type);
     return;
   }
   gifti_set_verb(0);
@@ -139,8 +142,17 @@ void WriteSurface(const std::string& path, const SmallSurface& s, const Layout& 
   }
   if (with_triangles) {
     giiDataArray* triangles = image->darray[1];
-    SetArray(triangles, NIFTI_INTENT_TRIANGLE, NIFTI_TYPE_INT32, nf, layout);
-    Fill<int32_t>(triangles, s.faces, nf);
+    SetArray(triangles, NIFTI_INTENT_TRIANGLE, layout.triangle_type, nf, layout);
+    switch (layout.triangle_type) {
+      case NIFTI_TYPE_INT64:
+        Fill<int64_t>(triangles, s.faces, nf);
+        break;
+      case NIFTI_TYPE_UINT32:
+        Fill<uint32_t>(triangles, s.faces, nf);
+        break;
+      default:
+        Fill<int32_t>(triangles, s.faces, nf);
+    }
   }
   ASSERT_EQ(gifti_write_image(image, path.c_str(), 1), 0) << path;
   gifti_free_image(image);
@@ -190,21 +202,25 @@ TEST_P(GiftiLayoutTest, ReadsBackBitForBitFromPathAndMemory) {
 
 std::string LayoutName(const ::testing::TestParamInfo<Layout>& info) {
   const char* names[] = {"Undef", "Ascii", "Base64", "GzipBase64", "External"};
-  return absl::StrFormat("%s%s%s", names[info.param.encoding],
+  const char* triangles = info.param.triangle_type == NIFTI_TYPE_INT64    ? "Int64"
+                          : info.param.triangle_type == NIFTI_TYPE_UINT32 ? "Uint32"
+                                                                          : "";
+  return absl::StrFormat("%s%s%s%s", names[info.param.encoding],
                          info.param.column_major ? "ColumnMajor" : "RowMajor",
-                         info.param.float64 ? "Float64" : "Float32");
+                         info.param.float64 ? "Float64" : "Float32", triangles);
 }
 
-INSTANTIATE_TEST_SUITE_P(Encodings, GiftiLayoutTest,
-                         ::testing::Values(Layout{GIFTI_ENCODING_ASCII, false, false},
-                                           Layout{GIFTI_ENCODING_B64BIN, false, false},
-                                           Layout{GIFTI_ENCODING_B64GZ, false, false},
-                                           Layout{GIFTI_ENCODING_B64GZ, true, false},
-                                           Layout{GIFTI_ENCODING_B64BIN, true, false},
-                                           Layout{GIFTI_ENCODING_ASCII, true, false},
-                                           Layout{GIFTI_ENCODING_B64GZ, false, true},
-                                           Layout{GIFTI_ENCODING_B64BIN, true, true}),
-                         LayoutName);
+INSTANTIATE_TEST_SUITE_P(
+    Encodings, GiftiLayoutTest,
+    ::testing::Values(
+        Layout{GIFTI_ENCODING_ASCII, false, false}, Layout{GIFTI_ENCODING_B64BIN, false, false},
+        Layout{GIFTI_ENCODING_B64GZ, false, false}, Layout{GIFTI_ENCODING_B64GZ, true, false},
+        Layout{GIFTI_ENCODING_B64BIN, true, false}, Layout{GIFTI_ENCODING_ASCII, true, false},
+        Layout{GIFTI_ENCODING_B64GZ, false, true}, Layout{GIFTI_ENCODING_B64BIN, true, true},
+        Layout{GIFTI_ENCODING_B64GZ, false, true, NIFTI_TYPE_INT64},
+        Layout{GIFTI_ENCODING_ASCII, false, false, NIFTI_TYPE_INT64},
+        Layout{GIFTI_ENCODING_B64BIN, true, false, NIFTI_TYPE_UINT32}),
+    LayoutName);
 
 // A hand-written surface, ASCII: the triangle array's attributes and values
 // are `triangle_attributes` and `triangle_text`.
@@ -287,6 +303,14 @@ std::vector<BadFile> BadFiles() {
        "refers to vertex 3"},
       {"negative index", AsciiSurface(kPoints, kTriangleAttributes, "0 -1 2"),
        "refers to vertex -1"},
+      {"int64 index past any vertex id",
+       absl::StrReplaceAll(AsciiSurface(kPoints, kTriangleAttributes, "0 1 4294967298"),
+                           {{"NIFTI_TYPE_INT32", "NIFTI_TYPE_INT64"}}),
+       "refers to vertex 4294967298"},
+      {"int16 triangles",
+       absl::StrReplaceAll(AsciiSurface(kPoints, kTriangleAttributes, "0 1 2"),
+                           {{"NIFTI_TYPE_INT32", "NIFTI_TYPE_INT16"}}),
+       "holds NIFTI_TYPE_INT16, not int32, int64 or uint32"},
       {"nan coordinate", AsciiSurface("0 0 0 1 nan 0 0 1 0", kTriangleAttributes, "0 1 2"),
        "non-finite coordinate"},
       {"ASCII data short of Dim0", AsciiSurface(kPoints, kTriangleAttributes, "0 1"),
