@@ -190,17 +190,19 @@ struct SparseRow {
   uint64_t count = 0;
 };
 
-SparseRow WithinRadius(absl::Span<const double> row, double radius, bool narrow) {
+// A row's entries within `radius` (exact rows come with every finite entry:
+// their search has no limit).
+SparseRow WithinRadius(absl::Span<const uint32_t> columns, absl::Span<const double> values,
+                       double radius, bool narrow) {
   SparseRow kept;
-  for (size_t j = 0; j < row.size(); ++j) {
-    if (!(row[j] <= radius)) continue;
-    const uint32_t column = static_cast<uint32_t>(j);
-    kept.indices.append(reinterpret_cast<const char*>(&column), sizeof column);
+  for (size_t e = 0; e < columns.size(); ++e) {
+    if (!(values[e] <= radius)) continue;
+    kept.indices.append(reinterpret_cast<const char*>(&columns[e]), sizeof(uint32_t));
     if (narrow) {
-      const float value = static_cast<float>(row[j]);
+      const float value = static_cast<float>(values[e]);
       kept.values.append(reinterpret_cast<const char*>(&value), sizeof value);
     } else {
-      kept.values.append(reinterpret_cast<const char*>(&row[j]), sizeof(double));
+      kept.values.append(reinterpret_cast<const char*>(&values[e]), sizeof(double));
     }
     ++kept.count;
   }
@@ -252,8 +254,9 @@ MatrixRowSink BlockSink(size_t block_rows, double radius, bool narrow, char* con
                         std::vector<SparseRow>& staged) {
   MatrixRowSink sink;
   if (radius > 0) {
-    sink.row = [=, &staged](size_t i, absl::Span<const double> row) {
-      staged[i % block_rows] = WithinRadius(row, radius, narrow);
+    sink.sparse_row = [=, &staged](size_t i, absl::Span<const uint32_t> columns,
+                                   absl::Span<const double> values) {
+      staged[i % block_rows] = WithinRadius(columns, values, radius, narrow);
       return absl::OkStatus();
     };
   } else {

@@ -273,16 +273,108 @@ void Float32RowsFromLanes(const DggGraph& g, const QueryScratch& sc,
   }
 }
 
+// For each graph node, the indices of the targets at it: a neighbourhood
+// row's entries are then read from the nodes its sweep reached. Empty
+// unless every target is a node.
+class TargetsAtNodes {
+ public:
+  TargetsAtNodes() = default;
+  TargetsAtNodes(uint32_t nodes, absl::Span<const query_internal::Endpoint> targets) {
+    for (const query_internal::Endpoint& t : targets) {
+      if (!t.is_node) return;
+    }
+    first_.assign(nodes + 1, 0);
+    for (const query_internal::Endpoint& t : targets) ++first_[t.node + 1];
+    std::partial_sum(first_.begin(), first_.end(), first_.begin());
+    targets_.resize(targets.size());
+    std::vector<uint32_t> next(first_.begin(), first_.end() - 1);
+    for (size_t j = 0; j < targets.size(); ++j) targets_[next[targets[j].node]++] = j;
+  }
+  bool empty() const { return first_.empty(); }
+  absl::Span<const uint32_t> At(uint32_t node) const {
+    return absl::MakeConstSpan(targets_).subspan(first_[node], first_[node + 1] - first_[node]);
+  }
+
+ private:
+  std::vector<uint32_t> first_;  // CSR offsets by node
+  std::vector<uint32_t> targets_;
+};
+
+// A row's entries within `max_distance` (finite), as (column, distance).
+using SparseEntries = std::vector<std::pair<uint32_t, double>>;
+
+// Lane k's entries for the nodes a bounded sweep reached (sc.lane_reached:
+// every node it labelled, since each label it lowered queued its node).
+std::vector<SparseEntries> EntriesFromReached(const QueryScratch& sc,
+                                              const TargetsAtNodes& targets_at, size_t lanes,
+                                              double max_distance) {
+  std::vector<uint32_t> reached(sc.lane_reached);
+  std::sort(reached.begin(), reached.end());
+  reached.erase(std::unique(reached.begin(), reached.end()), reached.end());
+  std::vector<SparseEntries> entries(lanes);
+  for (uint32_t u : reached) {
+    const double* labels = sc.lane_dist[u].dist;
+    for (uint32_t j : targets_at.At(u)) {
+      for (size_t k = 0; k < lanes; ++k) {
+        if (labels[k] <= max_distance) entries[k].emplace_back(j, labels[k]);
+      }
+    }
+  }
+  for (SparseEntries& e : entries) std::sort(e.begin(), e.end());
+  return entries;
+}
+
+using RowFix = std::function<absl::Status(size_t k, absl::Span<double> row)>;
+
+// Hands a sweep's rows to a sparse sink: from the nodes it reached, when
+// its sources are nodes and `targets_at` lists every target; else from the
+// whole rows, as DeliverRows makes them.
+absl::Status DeliverSparseRows(const DggGraph& g, const QueryScratch& sc,
+                               absl::Span<const query_internal::Endpoint> targets,
+                               const TargetsAtNodes& targets_at, absl::Span<const size_t> group,
+                               const MatrixOptions& options, const RowFix& make_exact,
+                               std::vector<std::vector<double>>& rows, const MatrixRowSink& sink) {
+  std::vector<SparseEntries> entries;
+  if (!targets_at.empty() && rows.empty() && !make_exact && options.max_distance < kInfinity) {
+    entries = EntriesFromReached(sc, targets_at, group.size(), options.max_distance);
+  } else {
+    if (rows.empty()) rows.assign(group.size(), std::vector<double>(targets.size(), kInfinity));
+    LowerRowsToLanes(g, sc, targets, options.max_distance, rows);
+    entries.resize(group.size());
+    for (size_t k = 0; k < group.size(); ++k) {
+      if (make_exact) RETURN_IF_ERROR(make_exact(k, absl::MakeSpan(rows[k])));
+      for (size_t j = 0; j < targets.size(); ++j) {
+        const double d = rows[k][j];
+        if (d <= options.max_distance && d < kInfinity) entries[k].emplace_back(j, d);
+      }
+    }
+  }
+  std::vector<uint32_t> columns;
+  std::vector<double> values;
+  for (size_t k = 0; k < group.size(); ++k) {
+    columns.clear();
+    values.clear();
+    for (const auto& [j, d] : entries[k]) {
+      columns.push_back(j);
+      values.push_back(d);
+    }
+    RETURN_IF_ERROR(sink.sparse_row(group[k], columns, values));
+  }
+  return absl::OkStatus();
+}
+
 // Hands a sweep's rows (group[k] in lane k) to `sink`: rows of float32
 // straight from the lanes, for a float32 sink when no row holds anything
 // before the sweep; else `rows` (empty if none does), lowered to the lanes,
 // made exact by `make_exact` if given, and rounded for a float32 sink.
-using RowFix = std::function<absl::Status(size_t k, absl::Span<double> row)>;
 absl::Status DeliverRows(const DggGraph& g, const QueryScratch& sc,
                          absl::Span<const query_internal::Endpoint> targets,
-                         absl::Span<const size_t> group, const MatrixOptions& options,
-                         const RowFix& make_exact, std::vector<std::vector<double>>& rows,
-                         const MatrixRowSink& sink) {
+                         const TargetsAtNodes& targets_at, absl::Span<const size_t> group,
+                         const MatrixOptions& options, const RowFix& make_exact,
+                         std::vector<std::vector<double>>& rows, const MatrixRowSink& sink) {
+  if (sink.sparse_row) {
+    return DeliverSparseRows(g, sc, targets, targets_at, group, options, make_exact, rows, sink);
+  }
   const size_t n = targets.size();
   std::vector<float> rounded;
   if (sink.float32_row && rows.empty() && !make_exact) {
@@ -418,6 +510,10 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
       ASSIGN_OR_RETURN(target_ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, t, false));
     }
   }
+  // Only a bounded sweep lists the nodes it reached.
+  const TargetsAtNodes targets_at = sink.sparse_row && matrix_options.max_distance < kInfinity
+                                        ? TargetsAtNodes(graph_->num_nodes(), target_ends)
+                                        : TargetsAtNodes();
   std::optional<query_internal::CompactLaneEdges> compact =
       EdgesToNarrow(*graph_, sources.size(), matrix_options);
   if (compact) {
@@ -462,7 +558,7 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
       return MakeRowExact(sc->Exact(mesh), exact_landmarks_.get(), ends[k].point, target_ends,
                           matrix_options, row);
     };
-    return DeliverRows(*graph_, *sc, target_ends, group, matrix_options,
+    return DeliverRows(*graph_, *sc, target_ends, targets_at, group, matrix_options,
                        matrix_options.exact ? make_exact : RowFix(), rows, sink);
   };
   auto node_near = [&](const SurfacePoint& p) {

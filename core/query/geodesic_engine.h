@@ -155,6 +155,15 @@ struct MatrixRowSink {
   // from vertex sources go straight from the sweep to float32, never held
   // as float64 (half the bytes a row moves).
   std::function<absl::Status(size_t i, absl::Span<const float> row)> float32_row;
+  // Or, for a neighbourhood matrix, only the entries within
+  // MatrixOptions::max_distance (the finite ones, without a limit): their
+  // columns, ascending, and distances. When set, it is called instead of
+  // `row` and `float32_row`. Where the sources and targets are vertices, a
+  // row is then read from the nodes its sweep reached, not from every
+  // target, and costs what its neighbourhood holds.
+  std::function<absl::Status(size_t i, absl::Span<const uint32_t> columns,
+                             absl::Span<const double> values)>
+      sparse_row;
   // Sources are solved in batches of this many rows (0: one batch of all),
   // and batch_done(end) runs on the calling thread once every row before
   // `end` has been delivered: a sink that must append rows in order then

@@ -3,6 +3,7 @@
 #include <sys/resource.h>
 #include <tbb/info.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -93,6 +94,11 @@ absl::Status CheckOutput(const MatrixFlags& f) {
   return absl::OkStatus();
 }
 
+struct SparseRow {
+  std::vector<int32_t> columns;
+  std::vector<double> values;
+};
+
 // Where the computed matrix goes in the one written: they differ only with
 // --parent-ids, where `all` lists parent vertices outside the region, whose
 // rows and columns are +inf (absent from a sparse matrix), never computed.
@@ -100,6 +106,7 @@ struct Layout {
   size_t rows = 0, columns = 0;
   std::vector<size_t> row_of;         // per computed row, its row in the file
   std::vector<uint32_t> column_slot;  // per file column, its computed column or kNone
+  std::vector<size_t> file_column;    // per computed column, its file column
   bool identity = true;
 
   Layout(const WorkPoints& sources, const WorkPoints& targets)
@@ -109,6 +116,10 @@ struct Layout {
     }
     identity =
         row_of.size() == rows && sources.points.size() == rows && targets.points.size() == columns;
+    file_column.resize(targets.points.size());
+    for (size_t j = 0; j < columns; ++j) {
+      if (column_slot[j] != kNone) file_column[column_slot[j]] = j;
+    }
   }
   // A computed row as the file's; `row` itself when they are the same.
   template <typename T>
@@ -119,6 +130,22 @@ struct Layout {
       if (column_slot[j] != kNone) out[j] = row[column_slot[j]];
     }
     return out;
+  }
+  // A computed row's entries (columns ascending) in the file's columns,
+  // ascending too.
+  SparseRow InFileColumns(absl::Span<const uint32_t> columns,
+                          absl::Span<const double> values) const {
+    std::vector<std::pair<size_t, double>> entries;
+    for (size_t e = 0; e < columns.size(); ++e) {
+      entries.emplace_back(identity ? columns[e] : file_column[columns[e]], values[e]);
+    }
+    if (!identity) std::sort(entries.begin(), entries.end());
+    SparseRow row;
+    for (const auto& [j, d] : entries) {
+      row.columns.push_back(static_cast<int32_t>(j));
+      row.values.push_back(d);
+    }
+    return row;
   }
 };
 
@@ -161,22 +188,6 @@ absl::StatusOr<Written> WriteDense(const GeodesicEngine& engine,
   return Written{bytes, 0};
 }
 
-struct SparseRow {
-  std::vector<int32_t> columns;
-  std::vector<double> values;
-};
-
-SparseRow WithinRadius(absl::Span<const double> row, double radius) {
-  SparseRow kept;
-  for (size_t j = 0; j < row.size(); ++j) {
-    if (row[j] <= radius) {
-      kept.columns.push_back(static_cast<int32_t>(j));
-      kept.values.push_back(row[j]);
-    }
-  }
-  return kept;
-}
-
 // The .npz's rows must be appended in order, so rows are computed in
 // batches: each batch's rows, kept within the radius, wait in memory until
 // the batch is done, then go to the file in order.
@@ -196,9 +207,9 @@ absl::StatusOr<Written> WriteSparse(const GeodesicEngine& engine,
   };
   MatrixRowSink sink;
   sink.batch_rows = batch_rows;
-  sink.row = [&](size_t i, absl::Span<const double> row) {
-    std::vector<double> expanded;
-    batch[i % batch_rows] = WithinRadius(layout.Expand(row, expanded), radius);
+  sink.sparse_row = [&](size_t i, absl::Span<const uint32_t> columns,
+                        absl::Span<const double> values) {
+    batch[i % batch_rows] = layout.InFileColumns(columns, values);
     return absl::OkStatus();
   };
   sink.batch_done = [&](size_t end) -> absl::Status {

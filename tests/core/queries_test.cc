@@ -1086,6 +1086,70 @@ TEST(QueriesTest, MatrixWithinARadiusIsTheMatrixThresholded) {
   EXPECT_LT(kept, dense->size());
 }
 
+// A sparse sink gets each row's entries within the radius, columns
+// ascending, bit for bit the dense rows' (those also +inf past it): read
+// from the nodes a sweep reached when sources and targets are vertices (a
+// target listed twice included), else from whole rows.
+TEST(QueriesTest, SparseRowsAreTheDenseRowsWithinTheRadius) {
+  auto [mesh, graph] = SpotAndGraph(1e-3);
+  ASSERT_NE(graph, nullptr);
+  GeodesicEngine engine(mesh, graph);
+  std::vector<SurfacePoint> vertices;
+  for (VertexId v = 0; v < mesh->num_vertices(); ++v) vertices.push_back(SurfacePoint::Vertex(v));
+  vertices.push_back(SurfacePoint::Vertex(3));
+  std::vector<SurfacePoint> some_vertices;
+  for (VertexId v = 0; v < mesh->num_vertices(); v += 23) {
+    some_vertices.push_back(SurfacePoint::Vertex(v));
+  }
+  const std::vector<SurfacePoint> mixed = MixedPoints(*mesh, 5);
+  auto rows_from_vertex = engine.Matrix({SurfacePoint::Vertex(0)}, vertices);
+  ASSERT_OK(rows_from_vertex);
+  std::vector<double> finite;
+  for (double d : *rows_from_vertex) {
+    if (std::isfinite(d)) finite.push_back(d);
+  }
+  ASSERT_GT(finite.size(), size_t{100});
+  std::nth_element(finite.begin(), finite.begin() + finite.size() / 10, finite.end());
+  MatrixOptions within;
+  within.max_distance = finite[finite.size() / 10];
+
+  const std::vector<std::pair<const std::vector<SurfacePoint>*, const std::vector<SurfacePoint>*>>
+      cases = {{&some_vertices, &vertices}, {&mixed, &vertices}, {&some_vertices, &mixed}};
+  for (const auto& [sources, targets] : cases) {
+    SCOPED_TRACE(absl::StrFormat("%u sources, %u targets", sources->size(), targets->size()));
+    auto dense = engine.Matrix(*sources, *targets, within);
+    ASSERT_OK(dense);
+    std::vector<std::vector<uint32_t>> columns(sources->size());
+    std::vector<std::vector<double>> values(sources->size());
+    MatrixRowSink sink;
+    sink.sparse_row = [&](size_t i, absl::Span<const uint32_t> c, absl::Span<const double> v) {
+      columns[i].assign(c.begin(), c.end());
+      values[i].assign(v.begin(), v.end());
+      return absl::OkStatus();
+    };
+    ASSERT_OK(engine.StreamMatrix(*sources, *targets, within, sink));
+    size_t kept = 0;
+    for (size_t i = 0; i < sources->size(); ++i) {
+      std::vector<uint32_t> expected_columns;
+      std::vector<uint64_t> expected_bits, bits;
+      for (size_t j = 0; j < targets->size(); ++j) {
+        const double d = (*dense)[i * targets->size() + j];
+        if (d == kInfinity) continue;
+        ASSERT_LE(d, within.max_distance);
+        expected_columns.push_back(j);
+        expected_bits.push_back(std::bit_cast<uint64_t>(d));
+      }
+      for (double d : values[i]) bits.push_back(std::bit_cast<uint64_t>(d));
+      EXPECT_EQ(columns[i], expected_columns) << "row " << i;
+      EXPECT_EQ(bits, expected_bits) << "row " << i;
+      kept += expected_columns.size();
+    }
+    // Both sides real: entries kept, and not all of them.
+    EXPECT_GT(kept, sources->size());
+    EXPECT_LT(kept, sources->size() * targets->size() / 2);
+  }
+}
+
 // Exact rows equal exact pairs and our exact engine's whole field, and are
 // never above the graph's entries.
 TEST(QueriesTest, ExactMatrixRowsEqualExactPairsOnSpot) {

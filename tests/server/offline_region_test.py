@@ -143,6 +143,16 @@ with tempfile.TemporaryDirectory() as work:
     check("sparse in parent ids: the dense entries within the radius",
           within.any() and np.array_equal(sparse.toarray()[within], dense[within]) and
           np.count_nonzero(got[~within]) == 0 and sparse.nnz == within.sum())
+    # A row over every parent vertex: the region's columns, put in the
+    # parent's order.
+    run("matrix", *common, *region, "--parent-ids", "--sources", f"v:{v}", "--targets", "all",
+        "--dtype", "float64", "--radius", "0.5", "--out", path("sparse_row.npz"))
+    sparse_row = scipy.sparse.load_npz(path("sparse_row.npz")).toarray()
+    near = row <= 0.5
+    check("a sparse parent-id row over all targets: the dense row's entries within the radius",
+          sparse_row.shape == row.shape and near.any() and not near.all() and
+          np.array_equal(sparse_row[near], row[near]) and
+          np.count_nonzero(sparse_row[~near]) == 0)
 
     # 6. Mistakes, named.
     o = int(outside[0])
