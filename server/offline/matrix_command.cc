@@ -135,12 +135,17 @@ struct Layout {
   // ascending too.
   SparseRow InFileColumns(absl::Span<const uint32_t> columns,
                           absl::Span<const double> values) const {
+    SparseRow row;
+    if (identity) {
+      row.columns.assign(columns.begin(), columns.end());
+      row.values.assign(values.begin(), values.end());
+      return row;
+    }
     std::vector<std::pair<size_t, double>> entries;
     for (size_t e = 0; e < columns.size(); ++e) {
-      entries.emplace_back(identity ? columns[e] : file_column[columns[e]], values[e]);
+      entries.emplace_back(file_column[columns[e]], values[e]);
     }
-    if (!identity) std::sort(entries.begin(), entries.end());
-    SparseRow row;
+    std::sort(entries.begin(), entries.end());
     for (const auto& [j, d] : entries) {
       row.columns.push_back(static_cast<int32_t>(j));
       row.values.push_back(d);
