@@ -407,6 +407,19 @@ absl::Status DeliverRows(const DggGraph& g, const QueryScratch& sc,
   return absl::OkStatus();
 }
 
+// A graph node at or next to `p`: sources are grouped by it.
+uint32_t NodeNear(const Mesh& mesh, const DggGraph& g, const SurfacePoint& p) {
+  switch (p.kind) {
+    case SurfacePoint::Kind::kVertex:
+      return g.node_of_vertex(p.id);
+    case SurfacePoint::Kind::kEdge:
+      return g.node_of_vertex(mesh.tail(mesh.edge_halfedge(p.id)));
+    case SurfacePoint::Kind::kFace:
+      break;
+  }
+  return g.node_of_vertex(mesh.face_vertex(p.id, 0));
+}
+
 // The copy of the edges whose fans a matrix of `rows` narrows, if it
 // narrows them. The copy (about a sweep's time, 12 bytes an edge) and the
 // pass ahead of the rows (NarrowFansAhead, sweeps around every node) pay
@@ -567,17 +580,6 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
     return DeliverRows(*graph_, *sc, target_ends, targets_at, group, matrix_options,
                        matrix_options.exact ? make_exact : RowFix(), rows, sink);
   };
-  auto node_near = [&](const SurfacePoint& p) {
-    switch (p.kind) {
-      case SurfacePoint::Kind::kVertex:
-        return graph_->node_of_vertex(p.id);
-      case SurfacePoint::Kind::kEdge:
-        return graph_->node_of_vertex(mesh.tail(mesh.edge_halfedge(p.id)));
-      case SurfacePoint::Kind::kFace:
-        break;
-    }
-    return graph_->node_of_vertex(mesh.face_vertex(p.id, 0));
-  };
   const size_t batch = sink.batch_rows > 0 ? sink.batch_rows : std::max<size_t>(sources.size(), 1);
   std::vector<size_t> order;
   for (size_t begin = 0; begin < sources.size(); begin += batch) {
@@ -585,7 +587,7 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
     order.resize(end - begin);
     std::iota(order.begin(), order.end(), begin);
     std::stable_sort(order.begin(), order.end(), [&](size_t a, size_t b) {
-      return node_near(sources[a]) < node_near(sources[b]);
+      return NodeNear(mesh, *graph_, sources[a]) < NodeNear(mesh, *graph_, sources[b]);
     });
     order = GroupNearby(mesh, sources, order);
     const size_t groups = (order.size() + kFieldLanes - 1) / kFieldLanes;
