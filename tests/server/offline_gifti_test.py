@@ -92,6 +92,19 @@ with tempfile.TemporaryDirectory() as work:
     info = json.loads(run("info", b64, "--json").stdout)
     check("Base64Binary surface reads", info["vertices"] == len(vertices), info)
 
+    # nibabel's defaults, as a pipeline saves numpy arrays without naming a
+    # type: float64 points and int64 triangles.
+    defaults = os.path.join(work, "defaults.surf.gii")
+    nib.save(nib.gifti.GiftiImage(darrays=[
+        nib.gifti.GiftiDataArray(vertices, "NIFTI_INTENT_POINTSET"),
+        nib.gifti.GiftiDataArray(faces.astype(np.int64), "NIFTI_INTENT_TRIANGLE")]), defaults)
+    written = [a.data.dtype for a in nib.load(defaults).darrays]
+    graphs[defaults] = graphs[gii]  # the same mesh, so the same graph
+    field(defaults, os.path.join(work, "defaults.f64"), *sources)
+    from_defaults = np.fromfile(os.path.join(work, "defaults.f64"), dtype="<f8")
+    check("a float64 / int64 .surf.gii (nibabel's defaults) gives the .obj's field, bit for bit",
+          written == [np.float64, np.int64] and np.array_equal(from_defaults, from_obj), written)
+
     truncated = os.path.join(work, "torn.surf.gii")
     with open(gii, "rb") as f, open(truncated, "wb") as out:
         out.write(f.read()[: os.path.getsize(gii) // 2])
