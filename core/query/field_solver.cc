@@ -340,6 +340,23 @@ SparseRows RowsFromReached(const QueryScratch& sc,
 
 using RowFix = std::function<absl::Status(size_t k, absl::Span<double> row)>;
 
+// Makes a sweep's whole rows, `rows` (empty if no row holds anything before
+// the sweep) lowered to its lanes, and hands row k to `done` once
+// `make_exact`, if given, has made it exact.
+absl::Status ForEachWholeRow(
+    const DggGraph& g, const QueryScratch& sc, absl::Span<const query_internal::Endpoint> targets,
+    size_t lanes, const MatrixOptions& options, const RowFix& make_exact,
+    std::vector<std::vector<double>>& rows,
+    const std::function<absl::Status(size_t k, std::vector<double>& row)>& done) {
+  if (rows.empty()) rows.assign(lanes, std::vector<double>(targets.size(), kInfinity));
+  LowerRowsToLanes(g, sc, targets, options.max_distance, rows);
+  for (size_t k = 0; k < lanes; ++k) {
+    if (make_exact) RETURN_IF_ERROR(make_exact(k, absl::MakeSpan(rows[k])));
+    RETURN_IF_ERROR(done(k, rows[k]));
+  }
+  return absl::OkStatus();
+}
+
 // Hands a sweep's rows to a sparse sink: from the nodes it reached, when
 // its sources are nodes and `targets_at` lists every target; else from the
 // whole rows, as DeliverRows makes them.
@@ -352,16 +369,15 @@ absl::Status DeliverSparseRows(const DggGraph& g, const QueryScratch& sc,
   if (!targets_at.empty() && rows.empty() && !make_exact && options.max_distance < kInfinity) {
     sparse = RowsFromReached(sc, targets, targets_at, group.size(), options.max_distance);
   } else {
-    if (rows.empty()) rows.assign(group.size(), std::vector<double>(targets.size(), kInfinity));
-    LowerRowsToLanes(g, sc, targets, options.max_distance, rows);
     sparse.emplace(group.size());
-    for (size_t k = 0; k < group.size(); ++k) {
-      if (make_exact) RETURN_IF_ERROR(make_exact(k, absl::MakeSpan(rows[k])));
-      for (size_t j = 0; j < targets.size(); ++j) {
-        const double d = rows[k][j];
-        if (d <= options.max_distance && d < kInfinity) sparse->Add(k, j, d);
+    auto keep_within = [&](size_t k, std::vector<double>& row) {
+      for (size_t j = 0; j < row.size(); ++j) {
+        if (row[j] <= options.max_distance && row[j] < kInfinity) sparse->Add(k, j, row[j]);
       }
-    }
+      return absl::OkStatus();
+    };
+    RETURN_IF_ERROR(
+        ForEachWholeRow(g, sc, targets, group.size(), options, make_exact, rows, keep_within));
   }
   for (size_t k = 0; k < group.size(); ++k) {
     RETURN_IF_ERROR(sink.sparse_row(group[k], sparse->columns[k], sparse->values[k]));
@@ -392,19 +408,12 @@ absl::Status DeliverRows(const DggGraph& g, const QueryScratch& sc,
     }
     return absl::OkStatus();
   }
-  if (rows.empty()) rows.assign(group.size(), std::vector<double>(n, kInfinity));
-  LowerRowsToLanes(g, sc, targets, options.max_distance, rows);
-  for (size_t k = 0; k < group.size(); ++k) {
-    std::vector<double>& row = rows[k];
-    if (make_exact) RETURN_IF_ERROR(make_exact(k, absl::MakeSpan(row)));
-    if (!sink.float32_row) {
-      RETURN_IF_ERROR(sink.row(group[k], row));
-      continue;
-    }
-    rounded.assign(row.begin(), row.end());
-    RETURN_IF_ERROR(sink.float32_row(group[k], rounded));
-  }
-  return absl::OkStatus();
+  return ForEachWholeRow(g, sc, targets, group.size(), options, make_exact, rows,
+                         [&](size_t k, std::vector<double>& row) {
+                           if (!sink.float32_row) return sink.row(group[k], row);
+                           rounded.assign(row.begin(), row.end());
+                           return sink.float32_row(group[k], rounded);
+                         });
 }
 
 // A graph node at or next to `p`: sources are grouped by it.
