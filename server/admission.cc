@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <utility>
 
+#include "absl/cleanup/cleanup.h"
+#include "absl/strings/cord.h"
 #include "absl/strings/str_format.h"
 
 namespace geodesic::server {
@@ -37,8 +39,10 @@ Admission::Admission(AdmissionOptions options) : options_(std::move(options)) {}
 
 absl::Status Admission::Refuse(const std::string& what, int64_t retry_after_ms) {
   refusals_.fetch_add(1, std::memory_order_relaxed);
-  return absl::ResourceExhaustedError(
+  absl::Status refusal = absl::ResourceExhaustedError(
       absl::StrFormat("server overloaded: %s; retry after %d ms", what, retry_after_ms));
+  refusal.SetPayload(kRetryAfterMsTrailer, absl::Cord(std::to_string(retry_after_ms)));
+  return refusal;
 }
 
 int Admission::InflightPerClient() const {
@@ -46,15 +50,68 @@ int Admission::InflightPerClient() const {
   return std::max(1, options_.max_inflight / 2);
 }
 
-absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& client) {
+struct Admission::AdmitWaiter {
+  std::string client;
+  absl::CondVar cv;
+  bool granted = false;
+};
+
+bool Admission::MayTakeSlotLocked(const std::string& client) const {
+  if (clients_.at(client).admitted < InflightPerClient()) return true;
+  for (const auto& [key, c] : clients_) {
+    if (key != client && (c.admitted > 0 || c.admit_waiting > 0)) return false;
+  }
+  return true;
+}
+
+void Admission::AdmitLocked(const std::string& client) {
+  ++admitted_;
+  ++clients_[client].admitted;
+}
+
+void Admission::GrantLocked() {
+  while (admitted_ < options_.max_inflight) {
+    AdmitWaiter* best = nullptr;
+    for (AdmitWaiter* w : admit_waiters_) {
+      if (w->granted || !MayTakeSlotLocked(w->client)) continue;
+      if (best == nullptr || clients_.at(w->client).admitted < clients_.at(best->client).admitted) {
+        best = w;
+      }
+    }
+    if (best == nullptr) return;
+    best->granted = true;
+    AdmitLocked(best->client);
+    best->cv.Signal();
+  }
+}
+
+absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& client,
+                                                        absl::Time wait_until,
+                                                        const std::function<bool()>& cancelled) {
   std::string what;
   {
     absl::MutexLock lock(&mu_);
     Client& c = clients_[client];
-    if (admitted_ < options_.max_inflight && c.admitted < InflightPerClient()) {
-      ++admitted_;
-      ++c.admitted;
+    // Nobody passes those already waiting.
+    if (admit_waiters_.empty() && admitted_ < options_.max_inflight && MayTakeSlotLocked(client)) {
+      AdmitLocked(client);
       return Ticket(this, Kind::kQuery, client, 0, 0);
+    }
+    if (absl::Now() < wait_until &&
+        admit_waiters_.size() < static_cast<size_t>(options_.max_inflight)) {
+      AdmitWaiter waiter;
+      waiter.client = client;
+      admit_waiters_.push_back(&waiter);
+      ++c.admit_waiting;
+      GrantLocked();
+      while (!waiter.granted && absl::Now() < wait_until && !(cancelled && cancelled())) {
+        waiter.cv.WaitWithDeadline(&mu_, std::min(wait_until, absl::Now() + kCancelPoll));
+      }
+      admit_waiters_.erase(std::find(admit_waiters_.begin(), admit_waiters_.end(), &waiter));
+      --c.admit_waiting;
+      if (waiter.granted) return Ticket(this, Kind::kQuery, client, 0, 0);
+      // Its leaving may end another client's wait for its share.
+      GrantLocked();
     }
     last_refusal_ = absl::Now();
     what = admitted_ >= options_.max_inflight
@@ -136,10 +193,15 @@ void Admission::LeaveQueueLocked(const std::string& client, uint64_t number) {
   if (!c.waiting.empty()) turns_.push_back(client);
 }
 
+void Admission::WakeNextLocked() {
+  if (auto it = run_waiters_.find(NextLocked()); it != run_waiters_.end()) it->second->Signal();
+}
+
 void Admission::ForgetIfIdleLocked(const std::string& client) {
   auto it = clients_.find(client);
   if (it != clients_.end() && it->second.admitted == 0 && it->second.running == 0 &&
-      it->second.streams == 0 && it->second.changes == 0 && it->second.waiting.empty()) {
+      it->second.streams == 0 && it->second.changes == 0 && it->second.admit_waiting == 0 &&
+      it->second.waiting.empty()) {
     clients_.erase(it);
   }
 }
@@ -174,10 +236,13 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
   self.waiting.push_back(number);
   ++waiting_;
   if (std::find(turns_.begin(), turns_.end(), client) == turns_.end()) turns_.push_back(client);
+  absl::CondVar turn;
+  run_waiters_[number] = &turn;
+  absl::Cleanup forget_turn = [&] { run_waiters_.erase(number); };
   auto leave = [&] {
     LeaveQueueLocked(client, number);
     ForgetIfIdleLocked(client);
-    changed_.SignalAll();
+    WakeNextLocked();
   };
   while (true) {
     // Only the query whose turn it is asks for memory: the held() callbacks
@@ -193,7 +258,7 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
       reserved_answer_ += answer_bytes;
       reserved_scratch_ += scratch_bytes;
       // The next in line may fit beside this one.
-      changed_.SignalAll();
+      WakeNextLocked();
       Ticket t(this, Kind::kRun, client, answer_bytes, scratch_bytes);
       t.start_ = absl::Now();
       return t;
@@ -211,7 +276,7 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
                                     running_, waiting_),
                     RetryAfterMsLocked());
     }
-    changed_.WaitWithDeadline(&mu_, std::min(deadline, now + kCancelPoll));
+    turn.WaitWithDeadline(&mu_, std::min(deadline, now + kCancelPoll));
   }
 }
 
@@ -243,6 +308,7 @@ void Admission::Release(const Ticket& t) {
       --admitted_;
       --clients_[t.client_].admitted;
       ForgetIfIdleLocked(t.client_);
+      GrantLocked();
       break;
     case Kind::kStream:
       --streams_;
@@ -256,7 +322,7 @@ void Admission::Release(const Ticket& t) {
       break;
     case Kind::kAnswer:
       reserved_answer_ -= t.answer_;
-      changed_.SignalAll();
+      WakeNextLocked();
       break;
     case Kind::kRun: {
       --running_;
@@ -266,7 +332,7 @@ void Admission::Release(const Ticket& t) {
       reserved_scratch_ -= t.scratch_;
       const double seconds = absl::ToDoubleSeconds(absl::Now() - t.start_);
       mean_run_seconds_ = 0.9 * mean_run_seconds_ + 0.1 * seconds;
-      changed_.SignalAll();
+      WakeNextLocked();
       break;
     }
   }
@@ -287,6 +353,11 @@ int64_t Admission::RetryAfterMsLocked() const {
 int Admission::admitted() const {
   absl::MutexLock lock(&mu_);
   return admitted_;
+}
+
+int Admission::admission_waiting() const {
+  absl::MutexLock lock(&mu_);
+  return static_cast<int>(admit_waiters_.size());
 }
 
 int Admission::running() const {

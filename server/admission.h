@@ -10,15 +10,22 @@
 // memory stay bounded however many clients wait. Calls that are neither
 // (health, listing, get, cancel, unload) pass untouched.
 //
-// Fair share: queries are keyed by client (the service passes the bearer
-// token, else the peer's address). Each client's waiting queries run in the
-// order it sent them, and free slots go to the waiting clients in turn, so
-// one client's heavy calls do not hold up another's light ones: while other
-// clients wait, a client runs at most its share of the slots, and it is
-// admitted at most max_inflight_per_client queries, and may open at most
-// max_streams_per_client streams, at any time. Long calls
-// give their slot back between slices and ask again (Run), which puts them
-// behind the other clients' turns.
+// Fair share: queries are keyed by client (client_key.h). Each client's
+// waiting queries run in the order it sent them, and free slots go to the
+// waiting clients in turn, so one client's heavy calls do not hold up
+// another's light ones. Shares are work-conserving: they bind only while
+// another client is there. A client alone may have every admission slot
+// and every run slot; while other clients have queries admitted, a client
+// is admitted at most max_inflight_per_client queries, and while they wait,
+// it runs at most its share of the slots. A query that finds admission full
+// waits a short, bounded time for a slot rather than being refused at once
+// (a crowd's goodput would otherwise collapse into retries), and a slot
+// given back goes straight to the waiting client with the fewest admitted,
+// not to whoever asks next. Each waiter is woken alone when its turn comes,
+// never the whole crowd at once. Long calls give their slot back between
+// slices and ask again (Run), which puts them behind the other clients'
+// turns. Streams and changes are bounded per client too
+// (max_streams_per_client, half the changes).
 #ifndef GEODESIC_SERVER_ADMISSION_H_
 #define GEODESIC_SERVER_ADMISSION_H_
 
@@ -35,6 +42,10 @@
 #include "absl/time/time.h"
 
 namespace geodesic::server {
+
+// The trailing metadata (and the absl::Status payload that becomes it) of a
+// refusal a client should retry: how many milliseconds to wait first.
+inline constexpr char kRetryAfterMsTrailer[] = "retry-after-ms";
 
 struct AdmissionOptions {
   int max_inflight = 64;  // queries admitted, waiting or running
@@ -100,10 +111,14 @@ class Admission {
   Admission(const Admission&) = delete;
   Admission& operator=(const Admission&) = delete;
 
-  // A query's place among the admitted: RESOURCE_EXHAUSTED "server
-  // overloaded: ..." when max_inflight are admitted already, or the client's
-  // share of them.
-  absl::StatusOr<Ticket> AdmitQuery(const std::string& client = "");
+  // A query's place among the admitted. When max_inflight are admitted
+  // already (or, while other clients have queries admitted, the client's
+  // share of them), waits for a slot until `wait_until` (or `cancelled`),
+  // then RESOURCE_EXHAUSTED "server overloaded: ..."; with `wait_until` past,
+  // or max_inflight queries waiting already, refuses at once.
+  absl::StatusOr<Ticket> AdmitQuery(const std::string& client = "",
+                                    absl::Time wait_until = absl::InfinitePast(),
+                                    const std::function<bool()>& cancelled = {});
   // A stream's place: RESOURCE_EXHAUSTED when max_streams are open, or the
   // client's share of them.
   absl::StatusOr<Ticket> OpenStream(const std::string& client = "");
@@ -139,6 +154,8 @@ class Admission {
   int64_t RetryAfterMs() const;
 
   int admitted() const;
+  // Queries waiting for admission (AdmitQuery), not yet admitted.
+  int admission_waiting() const;
   int running() const;
   int waiting() const;
   int streams() const;
@@ -155,6 +172,16 @@ class Admission {
   int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
   int InflightPerClient() const;
+  struct AdmitWaiter;
+  // Whether `client` may take a free admission slot: below its share, or
+  // alone (no other client has queries admitted or waiting for admission).
+  bool MayTakeSlotLocked(const std::string& client) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  void AdmitLocked(const std::string& client) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Hands free admission slots to the waiters, the client with the fewest
+  // admitted first (the oldest of its waiters).
+  void GrantLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Wakes the query whose turn it is to run, alone.
+  void WakeNextLocked() ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   // A slot of a pool bounded in all (`open` of `max`) and per client (the
   // client's `mine` of `max_mine`); `what` names the pool in refusals.
   absl::StatusOr<Ticket> OpenSlot(Kind kind, const std::string& client, int max, int max_mine,
@@ -171,7 +198,10 @@ class Admission {
 
   const AdmissionOptions options_;
   mutable absl::Mutex mu_;
-  absl::CondVar changed_;  // a run slot or memory was given back, or a waiter left
+  // Queries waiting for admission, in arrival order, and those admitted and
+  // waiting to run, by number: each waits on a condition of its own.
+  std::deque<AdmitWaiter*> admit_waiters_ ABSL_GUARDED_BY(mu_);
+  std::map<uint64_t, absl::CondVar*> run_waiters_ ABSL_GUARDED_BY(mu_);
   int admitted_ ABSL_GUARDED_BY(mu_) = 0;
   int running_ ABSL_GUARDED_BY(mu_) = 0;
   int streams_ ABSL_GUARDED_BY(mu_) = 0;
@@ -183,7 +213,8 @@ class Admission {
     int running = 0;
     int streams = 0;
     int changes = 0;
-    std::deque<uint64_t> waiting;  // its queries' numbers, in arrival order
+    int admit_waiting = 0;         // its queries waiting for admission
+    std::deque<uint64_t> waiting;  // its admitted queries' numbers waiting to run, in order
   };
   std::map<std::string, Client> clients_ ABSL_GUARDED_BY(mu_);
   // The clients with queries waiting, in the order their turns come.

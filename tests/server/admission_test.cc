@@ -406,19 +406,74 @@ TEST(AdmissionTest, AClientRunsAtMostItsShareOfTheSlotsWhileOthersWait) {
   EXPECT_EQ(admission.running(), 0);
 }
 
-TEST(AdmissionTest, AClientIsAdmittedAtMostItsShareOfMaxInflight) {
-  Admission admission(Limits(4, 1));
-  auto a = admission.AdmitQuery("flood");
-  auto b = admission.AdmitQuery("flood");
-  ASSERT_TRUE(a.ok() && b.ok());
-  auto c = admission.AdmitQuery("flood");
-  ASSERT_EQ(c.status().code(), absl::StatusCode::kResourceExhausted);
-  EXPECT_THAT(c.status().message(), HasSubstr("--max-inflight-per-client"));
-  // Another client still finds room.
-  auto d = admission.AdmitQuery("other");
-  EXPECT_TRUE(d.ok()) << d.status();
-  a->Release();
+TEST(AdmissionTest, AClientAloneMayTakeEverySlotAndItsShareBindsOnceAnotherIsThere) {
+  // A share of 3 (half of max_inflight).
+  Admission admission(Limits(6, 1));
+  std::vector<Admission::Ticket> flood;
+  for (int k = 0; k < 4; ++k) {
+    auto t = admission.AdmitQuery("flood");
+    ASSERT_TRUE(t.ok()) << "alone, query " << k << ": " << t.status();
+    flood.push_back(std::move(*t));
+  }
+  // Another client finds room, and from then on the flood is held to its
+  // share although slots are free.
+  auto other = admission.AdmitQuery("other");
+  ASSERT_TRUE(other.ok()) << other.status();
+  auto past_share = admission.AdmitQuery("flood");
+  ASSERT_EQ(past_share.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_THAT(past_share.status().message(), HasSubstr("--max-inflight-per-client"));
+  EXPECT_EQ(std::string(*past_share.status().GetPayload(kRetryAfterMsTrailer)).empty(), false);
+  // Once the other client is gone, the flood has the whole server again.
+  other->Release();
   EXPECT_TRUE(admission.AdmitQuery("flood").ok());
+}
+
+TEST(AdmissionTest, AQueryFindingAdmissionFullWaitsAndASlotGoesToTheClientWithFewest) {
+  Admission admission(Limits(2, 1));
+  auto a1 = admission.AdmitQuery("a");
+  auto a2 = admission.AdmitQuery("a");
+  ASSERT_TRUE(a1.ok() && a2.ok());
+  // Full: without time to wait, refused at once.
+  EXPECT_EQ(admission.AdmitQuery("b").status().code(), absl::StatusCode::kResourceExhausted);
+  // With time, a's third query and then b's wait; the slot a gives back
+  // goes to b, which has none, although a asked first.
+  std::atomic<bool> a3_admitted{false}, b_admitted{false};
+  std::thread a3([&] {
+    auto t = admission.AdmitQuery("a", Soon());
+    a3_admitted = t.ok();
+  });
+  while (admission.admission_waiting() < 1) absl::SleepFor(absl::Milliseconds(1));
+  Admission::Ticket b_ticket;
+  std::thread b([&] {
+    auto t = admission.AdmitQuery("b", Soon());
+    b_admitted = t.ok();
+    if (t.ok()) b_ticket = std::move(*t);
+  });
+  while (admission.admission_waiting() < 2) absl::SleepFor(absl::Milliseconds(1));
+  a1->Release();
+  b.join();
+  EXPECT_TRUE(b_admitted);
+  EXPECT_FALSE(a3_admitted);
+  EXPECT_EQ(admission.admitted(), 2);
+  b_ticket.Release();
+  a3.join();
+  EXPECT_TRUE(a3_admitted);
+  EXPECT_EQ(admission.admission_waiting(), 0);
+}
+
+TEST(AdmissionTest, AWaitForAdmissionEndsAtItsTimeOrWhenCancelled) {
+  Admission admission(Limits(1, 1));
+  auto held = admission.AdmitQuery("a");
+  ASSERT_TRUE(held.ok());
+  const absl::Time start = absl::Now();
+  auto late = admission.AdmitQuery("b", start + absl::Milliseconds(100));
+  EXPECT_EQ(late.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_GE(absl::Now() - start, absl::Milliseconds(100));
+  auto cancelled = admission.AdmitQuery("b", Soon(), [] { return true; });
+  EXPECT_EQ(cancelled.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_EQ(admission.admission_waiting(), 0);
+  held->Release();
+  EXPECT_TRUE(admission.AdmitQuery("b").ok());
 }
 
 TEST(AdmissionTest, OthersWaitingSeesOnlyOtherClients) {
