@@ -3,6 +3,7 @@
 #include <random>
 
 #include "absl/strings/str_format.h"
+#include "server/constant_time.h"
 
 namespace geodesic::server {
 namespace {
@@ -38,7 +39,36 @@ std::string HttpClientValue(std::string_view address) {
   return absl::StrFormat("%s %s", ProcessSecret(), std::string(address));
 }
 
-std::string ClientKey(const grpc::ServerContext& ctx) {
+int ClientIdentity::TokenIndex(const grpc::ServerContext& ctx) const {
+  if (ctx.client_metadata().count("authorization") != 1) return -1;
+  constexpr std::string_view kBearer = "Bearer ";
+  const std::string_view auth = FirstMetadata(ctx, "authorization");
+  if (!auth.starts_with(kBearer)) return -1;
+  const std::string_view sent = auth.substr(kBearer.size());
+  // Every token is compared, so that the time taken says nothing of which
+  // one (or how much of one) matched.
+  int found = -1;
+  for (size_t i = 0; i < tokens_.size(); ++i) {
+    if (ConstantTimeEquals(sent, tokens_[i])) found = static_cast<int>(i);
+  }
+  return found;
+}
+
+absl::Status ClientIdentity::Authenticate(const grpc::ServerContext& ctx) const {
+  if (tokens_.empty()) return absl::OkStatus();
+  const size_t headers = ctx.client_metadata().count("authorization");
+  if (headers > 1) {
+    return absl::UnauthenticatedError(absl::StrFormat(
+        "%u authorization headers: send exactly one, 'authorization: Bearer <token>'", headers));
+  }
+  if (TokenIndex(ctx) < 0) {
+    return absl::UnauthenticatedError(
+        "missing or wrong bearer token: send metadata 'authorization: Bearer <token>'");
+  }
+  return absl::OkStatus();
+}
+
+std::string ClientIdentity::Key(const grpc::ServerContext& ctx) const {
   std::string key = WithoutPort(ctx.peer());
   const std::string secret = ProcessSecret() + " ";
   if (const std::string_view http = FirstMetadata(ctx, kHttpClientMetadata);
@@ -46,12 +76,8 @@ std::string ClientKey(const grpc::ServerContext& ctx) {
     key = "http ";
     key += http.substr(secret.size());
   }
-  constexpr std::string_view kBearer = "Bearer ";
-  if (const std::string_view auth = FirstMetadata(ctx, "authorization");
-      auth.starts_with(kBearer)) {
-    key += " token ";
-    key += auth.substr(kBearer.size());
-  }
+  if (tokens_.empty()) return key;
+  if (const int token = TokenIndex(ctx); token >= 0) key += absl::StrFormat(" token %d", token);
   return key;
 }
 

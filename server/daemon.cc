@@ -118,7 +118,7 @@ int Daemon::Start() {
   RegisterSample();
   service_ =
       std::make_unique<GeodesicService>(meshes_.get(), graphs_.get(), &metrics_, options_.limits);
-  if (!options_.token.empty()) service_->RequireBearerToken(options_.token);
+  if (!options_.tokens.empty()) service_->RequireBearerTokens(options_.tokens);
   // Beside the meshes and the running queries' reservations; graphs make
   // room, being evictable.
   memory_ = std::make_unique<MemoryLedger>(options_.memory_limit, [this] {
@@ -139,7 +139,7 @@ int Daemon::Start() {
                options_.tls_cert.empty()        ? "plaintext"
                : options_.tls_client_ca.empty() ? "TLS"
                                                 : "mutual TLS",
-               options_.token.empty() ? "" : ", bearer token required", options_.graph_dir.c_str(),
+               options_.tokens.empty() ? "" : ", bearer token required", options_.graph_dir.c_str(),
                options_.mesh_root.empty() ? "(none)" : options_.mesh_root.c_str());
   signal(SIGTERM, OnSignal);
   signal(SIGINT, OnSignal);
@@ -390,7 +390,8 @@ int Daemon::ListenGrpc() {
 
 // The synchronous server holds a thread per call in progress, and answers
 // "Server Threadpool Exhausted" when the quota has none left: the quota
-// covers every admitted query (running or waiting), every stream (streamed
+// covers every admitted query (running or waiting), every query waiting for
+// admission (at most max_inflight of them, admission.h), every stream (streamed
 // queries hold a stream slot throughout, and a query slot only while they
 // compute their first answer), the HTTP gateway's workers (whose calls come in
 // through the in-process channel), the control calls and gRPC's own
@@ -400,7 +401,8 @@ int Daemon::ListenGrpc() {
 int Daemon::ThreadQuota() const {
   const ServiceLimits& limits = options_.limits;
   const int http_workers = options_.http_listen.empty() ? 0 : options_.http_limits.workers;
-  return limits.max_inflight + limits.max_streams + http_workers + kControlThreads + kPollerThreads;
+  return 2 * limits.max_inflight + limits.max_streams + http_workers + kControlThreads +
+         kPollerThreads;
 }
 
 // A connection with no call for --idle-seconds is closed (a client
@@ -443,7 +445,7 @@ int Daemon::ListenHttp() {
   gateway.tls_cert = options_.tls_cert;
   gateway.tls_key = options_.tls_key;
   gateway.tls_client_ca = options_.tls_client_ca;
-  gateway.bearer_token = options_.token;
+  gateway.bearer_tokens = options_.tokens;
   gateway.cors_origin = options_.http_cors_origin;
   gateway.limits = options_.http_limits;
   gateway.memory = memory_.get();

@@ -12,12 +12,13 @@
 
 #include "absl/cleanup/cleanup.h"
 #include "absl/status/status.h"
+#include "absl/strings/cord.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/time/time.h"
 #include "core/base/status.h"
 #include "core/dgg/dgg_build.h"
 #include "server/client_key.h"
-#include "server/constant_time.h"
 #include "server/convert.h"
 #include "server/log.h"
 #include "server/upload.h"
@@ -40,22 +41,29 @@ bool InProgress(GraphState s) {
          s == GraphState::kPersisting;
 }
 
+// When a wait must end for its refusal (an overload, a graph still being
+// made) to reach the client before the call's deadline, as a retryable
+// answer rather than DEADLINE_EXCEEDED: a tenth of the time left, between
+// 20 ms and a quarter of a second, before the deadline.
+absl::Time ReplyBy(const grpc::ServerContext* ctx) {
+  const absl::Time deadline = absl::FromChrono(ctx->deadline());
+  const absl::Duration margin =
+      std::clamp((deadline - absl::Now()) / 10, absl::Milliseconds(20), absl::Milliseconds(250));
+  return deadline - margin;
+}
+
+// A graph still being made, in an UNAVAILABLE refusal's trailing metadata:
+// its state's name and its progress in [0, 1].
+constexpr char kGraphStateTrailer[] = "graph-state";
+constexpr char kGraphProgressTrailer[] = "graph-progress";
+
+// How long a query waits for admission when it is full, at most: long
+// beside a light query's run, short beside a client's patience.
+constexpr absl::Duration kAdmissionWait = absl::Seconds(1);
+
 // Polled by long solves: the client went away or its deadline passed.
 std::function<bool()> Cancelled(grpc::ServerContext* ctx) {
   return [ctx] { return ctx->IsCancelled() || ctx->deadline() < std::chrono::system_clock::now(); };
-}
-
-bool HasBearerToken(const grpc::ServerContext& ctx, std::string_view token) {
-  constexpr std::string_view kPrefix = "Bearer ";
-  const auto& metadata = ctx.client_metadata();
-  auto [begin, end] = metadata.equal_range("authorization");
-  for (auto it = begin; it != end; ++it) {
-    std::string_view value(it->second.data(), it->second.size());
-    if (value.starts_with(kPrefix) && ConstantTimeEquals(value.substr(kPrefix.size()), token)) {
-      return true;
-    }
-  }
-  return false;
 }
 
 // How long a slice of a long call (exact pairs, sampling) holds its run
@@ -315,18 +323,24 @@ StreamWatchdog::Watch GeodesicService::WatchStream(const char* method, grpc::Ser
                        [ctx] { ctx->TryCancel(); });
 }
 
+absl::StatusOr<Admission::Ticket> GeodesicService::AdmitQuery(grpc::ServerContext* ctx,
+                                                              const std::string& client) {
+  return admission_.AdmitQuery(client, std::min(ReplyBy(ctx), absl::Now() + kAdmissionWait),
+                               Cancelled(ctx));
+}
+
 absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContext* ctx,
                                                               uint64_t answer_bytes,
                                                               uint64_t scratch_bytes) {
   // A refusal sent a little before the deadline reaches the client as an
   // overload, with its retry hint, not as DEADLINE_EXCEEDED.
-  const absl::Time deadline = absl::FromChrono(ctx->deadline()) - absl::Milliseconds(20);
-  return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx), ClientKey(*ctx));
+  const absl::Time deadline = ReplyBy(ctx);
+  return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx), identity_.Key(*ctx));
 }
 
 absl::Status GeodesicService::NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run,
                                         absl::Time& slice_start, uint64_t scratch_bytes) {
-  if (absl::Now() - slice_start < kSlice || !admission_.OthersWaiting(ClientKey(*ctx))) {
+  if (absl::Now() - slice_start < kSlice || !admission_.OthersWaiting(identity_.Key(*ctx))) {
     return absl::OkStatus();
   }
   // The answer built so far stays reserved while the call waits its turn.
@@ -519,8 +533,9 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
   RETURN_IF_ERROR(FindMesh(key.mesh).status());
   auto engine = graphs_->Acquire(key);
   if (engine.ok()) return engine;
-  const absl::Time deadline = std::min(absl::FromChrono(ctx->deadline()),
-                                       absl::Now() + absl::Seconds(limits_.build_wait_seconds));
+  const absl::Time started = absl::Now();
+  const absl::Time deadline =
+      std::min(ReplyBy(ctx), absl::Now() + absl::Seconds(limits_.build_wait_seconds));
   if (catalog_ && !graphs_->Get(key).ok()) {
     // Requested on another replica, perhaps: follow the catalog.
     RETURN_IF_ERROR(catalog_->ReconcileIfChanged());
@@ -549,7 +564,7 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
       // Found again under the name: the mesh may have been unloaded or
       // registered anew while this call waited for it.
       ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> mesh, FindMesh(key.mesh));
-      RETURN_IF_ERROR(StartGraph(key, mesh, ClientKey(*ctx)).status());
+      RETURN_IF_ERROR(StartGraph(key, mesh, identity_.Key(*ctx)).status());
     }
   }
   // Queued, built, mapped (an evicted graph is mapped again by Acquire):
@@ -568,11 +583,22 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
   const std::string which = key.max_error > 0
                                 ? absl::StrFormat("certified to max error %g", key.max_error)
                                 : absl::StrFormat("at epsilon %g", key.params.epsilon);
-  return absl::UnavailableError(
+  absl::Status unavailable = absl::UnavailableError(
       absl::StrFormat("the graph of mesh '%s' %s%s is still %s (%s, %.0f%%) after waiting what the "
                       "call allows: retry, or follow it with WatchGraph",
                       key.mesh, which, key.params.pseudo_vertices ? " with pseudo vertices" : "",
                       GraphStateName(status->state), status->phase, 100 * status->progress));
+  // What a client needs to retry without reading the prose (Handle sends
+  // these as trailing metadata): the graph's state and progress, and a hint
+  // as long as the call waited, at least a second at most ten.
+  const absl::Duration waited = absl::Now() - started;
+  unavailable.SetPayload(kRetryAfterMsTrailer,
+                         absl::Cord(std::to_string(absl::ToInt64Milliseconds(
+                             std::clamp(waited, absl::Seconds(1), absl::Seconds(10))))));
+  unavailable.SetPayload(kGraphStateTrailer, absl::Cord(GraphStateName(status->state)));
+  unavailable.SetPayload(kGraphProgressTrailer,
+                         absl::Cord(absl::StrFormat("%.4f", status->progress)));
+  return unavailable;
 }
 
 template <typename Body>
@@ -581,34 +607,34 @@ grpc::Status GeodesicService::Handle(const char* method, grpc::ServerContext* ct
   const auto start = std::chrono::steady_clock::now();
   calls_in_progress_.fetch_add(1, std::memory_order_relaxed);
   absl::Cleanup left = [this] { calls_in_progress_.fetch_sub(1, std::memory_order_relaxed); };
-  grpc::Status status;
+  absl::Status result;
   // Given back when the handler returns.
   absl::StatusOr<Admission::Ticket> query, stream, change;
-  if (!bearer_token_.empty() && !HasBearerToken(*ctx, bearer_token_)) {
-    status = grpc::Status(grpc::StatusCode::UNAUTHENTICATED,
-                          "missing or wrong bearer token: send metadata "
-                          "'authorization: Bearer <token>'");
-  } else if (is_query && !(query = admission_.AdmitQuery(ClientKey(*ctx))).ok()) {
-    status = ToGrpc(query.status());
-  } else if (IsStream(method) && !(stream = admission_.OpenStream(ClientKey(*ctx))).ok()) {
-    status = ToGrpc(stream.status());
-  } else if (IsChange(method) && !(change = admission_.StartChange(ClientKey(*ctx))).ok()) {
-    status = ToGrpc(change.status());
+  const std::string client = identity_.Key(*ctx);
+  if (absl::Status known = identity_.Authenticate(*ctx); !known.ok()) {
+    result = known;
+  } else if (is_query && !(query = AdmitQuery(ctx, client)).ok()) {
+    result = query.status();
+  } else if (IsStream(method) && !(stream = admission_.OpenStream(client)).ok()) {
+    result = stream.status();
+  } else if (IsChange(method) && !(change = admission_.StartChange(client)).ok()) {
+    result = change.status();
   } else {
-    status = ToGrpc(body());
+    result = body();
     // A solve stopped because the call's deadline passed reports that, not a
     // cancellation by the client.
-    if (status.error_code() == grpc::StatusCode::CANCELLED && !ctx->IsCancelled() &&
+    if (absl::IsCancelled(result) && !ctx->IsCancelled() &&
         ctx->deadline() < std::chrono::system_clock::now()) {
-      status = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED,
-                            "deadline exceeded: " + status.error_message());
+      result = absl::DeadlineExceededError(absl::StrCat("deadline exceeded: ", result.message()));
     }
   }
+  // What a refusal tells a client beyond its prose (a retry hint, a graph's
+  // progress) travels as trailing metadata named by the payload.
+  result.ForEachPayload([ctx](absl::string_view trailer, const absl::Cord& value) {
+    ctx->AddTrailingMetadata(std::string(trailer), std::string(value));
+  });
+  grpc::Status status = ToGrpc(result);
   if (!status.ok()) {
-    if (status.error_code() == grpc::StatusCode::RESOURCE_EXHAUSTED &&
-        status.error_message().starts_with("server overloaded")) {
-      ctx->AddTrailingMetadata("retry-after-ms", std::to_string(admission_.RetryAfterMs()));
-    }
     status = grpc::Status(status.error_code(), CapMessage(status.error_message(), mesh));
   }
   const double seconds =
@@ -810,7 +836,7 @@ grpc::Status GeodesicService::RequestGraph(grpc::ServerContext* ctx,
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto m = FindMesh(key.mesh);
     if (!m.ok()) return m.status();
-    ASSIGN_OR_RETURN(const GraphStatus started, StartGraph(key, *m, ClientKey(*ctx)));
+    ASSIGN_OR_RETURN(const GraphStatus started, StartGraph(key, *m, identity_.Key(*ctx)));
     ToProto(started, resp);
     return absl::OkStatus();
   });
@@ -887,7 +913,7 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
   // A query, admitted in the body: the stream gives its place back once the
   // field is computed.
   return Handle("DistanceField", ctx, graph.mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery(ClientKey(*ctx)));
+    ASSIGN_OR_RETURN(Admission::Ticket admitted, AdmitQuery(ctx, identity_.Key(*ctx)));
     if (req->sources_size() == 0) return absl::InvalidArgumentError("a field needs a source");
     if (req->sources_size() > limits_.max_sources) {
       return absl::ResourceExhaustedError(absl::StrFormat(
@@ -1155,7 +1181,7 @@ grpc::Status GeodesicService::MatrixRows(grpc::ServerContext* ctx, const v1::Mat
   // A query, admitted in the body: the stream gives its place back once its
   // first block is computed.
   return Handle("MatrixRows", ctx, graph.mesh(), false, [&]() -> absl::Status {
-    ASSIGN_OR_RETURN(Admission::Ticket admitted, admission_.AdmitQuery(ClientKey(*ctx)));
+    ASSIGN_OR_RETURN(Admission::Ticket admitted, AdmitQuery(ctx, identity_.Key(*ctx)));
     RETURN_IF_ERROR(CheckMatrixLimits(*req, /*streamed=*/true));
     ASSIGN_OR_RETURN(MatrixQuery q, PrepareMatrix(*req, ctx));
     const std::vector<SurfacePoint>& sources = q.sources;

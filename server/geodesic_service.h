@@ -7,11 +7,13 @@
 #include <functional>
 #include <map>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "server/admission.h"
 #include "server/catalog_sync.h"
+#include "server/client_key.h"
 #include "server/graph_cache.h"
 #include "server/memory_ledger.h"
 #include "server/mesh_registry.h"
@@ -92,9 +94,12 @@ class GeodesicService final : public v1::Geodesic::Service {
   int calls_in_progress() const { return calls_in_progress_.load(std::memory_order_relaxed); }
 
   // From now on every call must carry the metadata "authorization: Bearer
-  // <token>"; others fail with UNAUTHENTICATED. Health checks and reflection
-  // are separate services and stay open, so that probes need no secret.
-  void RequireBearerToken(std::string token) { bearer_token_ = std::move(token); }
+  // <token>" with one of `tokens`, each a client of its own (client_key.h);
+  // others fail with UNAUTHENTICATED. Health checks and reflection are
+  // separate services and stay open, so that probes need no secret.
+  void RequireBearerTokens(std::vector<std::string> tokens) {
+    identity_ = ClientIdentity(std::move(tokens));
+  }
   // Records registrations and graph requests in the catalog before
   // answering, and follows it for meshes and graphs this daemon lacks
   // (registered through another replica, or before a restart).
@@ -142,6 +147,9 @@ class GeodesicService final : public v1::Geodesic::Service {
   // Waits for an admitted query's turn to run with `answer_bytes` and
   // `scratch_bytes` reserved (Admission::Run), until shortly before the
   // call's deadline.
+  // A query's place among the admitted, waiting for one a short while
+  // when admission is full (admission.h).
+  absl::StatusOr<Admission::Ticket> AdmitQuery(grpc::ServerContext* ctx, const std::string& client);
   absl::StatusOr<Admission::Ticket> StartQuery(grpc::ServerContext* ctx, uint64_t answer_bytes,
                                                uint64_t scratch_bytes);
   // The stream `ctx` watched for idling (--idle-seconds) until the result
@@ -211,7 +219,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   GraphCache* graphs_;
   Metrics* metrics_;
   ServiceLimits limits_;
-  std::string bearer_token_;
+  ClientIdentity identity_;
   CatalogSync* catalog_ = nullptr;
   NameLocks names_;  // a mesh's changes, one at a time
   // The client that started each graph (for the per-client build budget);

@@ -1330,7 +1330,7 @@ struct HttpGateway::Impl {
       if (maybe_file) return std::nullopt;
       return NotFound(head);
     }
-    if (std::holds_alternative<Page>(route->handler) || options.bearer_token.empty()) {
+    if (std::holds_alternative<Page>(route->handler) || options.bearer_tokens.empty()) {
       return std::nullopt;
     }
     // Exactly one header: with two, a proxy and this server could each
@@ -1341,8 +1341,11 @@ struct HttpGateway::Impl {
                                         "more than one Authorization header: send exactly one, "
                                         "'Authorization: Bearer <token>'"));
     }
-    if (count == 0 ||
-        !ConstantTimeEquals(head.header("Authorization"), "Bearer " + options.bearer_token)) {
+    bool known = false;
+    for (const std::string& token : options.bearer_tokens) {
+      known |= count == 1 && ConstantTimeEquals(head.header("Authorization"), "Bearer " + token);
+    }
+    if (!known) {
       return ErrorResponse(grpc::Status(
           grpc::StatusCode::UNAUTHENTICATED,
           "missing or wrong bearer token: send the header 'Authorization: Bearer <token>'"));

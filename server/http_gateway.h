@@ -29,6 +29,7 @@
 #include <chrono>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "absl/status/statusor.h"
 #include "grpcpp/server.h"
@@ -47,10 +48,10 @@ struct HttpGatewayOptions {
   std::string web_root;
   std::string three_root = "/usr/share/javascript/three";  // Debian's libjs-three
   size_t max_body_bytes = size_t{16} << 20;
-  // The gRPC service's token (empty: none). The gateway checks it as soon as
-  // a request's headers are in, before reading its body; the service checks
-  // it again on every call.
-  std::string bearer_token;
+  // The gRPC service's tokens (empty: none). The gateway checks them as soon
+  // as a request's headers are in, before reading its body; the service
+  // checks them again on every call.
+  std::vector<std::string> bearer_tokens;
   // A web origin (https://app.example.com, or * for any) whose pages may call
   // the /v1 API from the browser: answers carry Access-Control-Allow-Origin
   // and preflight OPTIONS requests are answered. Empty: same origin only.

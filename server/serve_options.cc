@@ -14,6 +14,9 @@
 #include <vector>
 
 #include "CLI/CLI.hpp"
+#include "absl/strings/ascii.h"
+#include "absl/strings/match.h"
+#include "absl/strings/str_split.h"
 #include "grpcpp/security/server_credentials.h"
 #include "server/byte_size.h"
 #include "server/log.h"
@@ -302,8 +305,9 @@ void AddRunFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
                  "PEM CA: require client certificates signed by it (mutual TLS)")
       ->check(CLI::ExistingFile);
   app.add_option("--auth-token-file", f.auth_token_file,
-                 "file holding a bearer token every geodesic.v1 call must send as "
-                 "'authorization: Bearer <token>' (health and reflection stay open)")
+                 "file of bearer tokens, one a line, each a client of its own: every "
+                 "geodesic.v1 call must send one as 'authorization: Bearer <token>' "
+                 "(health and reflection stay open)")
       ->check(CLI::ExistingFile);
 }
 
@@ -373,11 +377,14 @@ bool ResolveSecurity(const ServeFlags& f, ServeOptions& o) {
   o.credentials = ServerCredentials(o);
   if (!o.credentials) return false;
   if (f.auth_token_file.empty()) return true;
-  if (!ReadSecretFile("--auth-token-file", f.auth_token_file, &o.token)) return false;
-  while (!o.token.empty() && std::isspace(static_cast<unsigned char>(o.token.back()))) {
-    o.token.pop_back();
+  std::string text;
+  if (!ReadSecretFile("--auth-token-file", f.auth_token_file, &text)) return false;
+  // One token a line, each a client of its own (client_key.h).
+  for (absl::string_view line : absl::StrSplit(text, '\n')) {
+    line = absl::StripAsciiWhitespace(line);
+    if (!line.empty() && !absl::StartsWith(line, "#")) o.tokens.emplace_back(line);
   }
-  if (o.token.empty()) {
+  if (o.tokens.empty()) {
     std::fprintf(stderr, "geodesicd serve: --auth-token-file %s holds only whitespace\n",
                  f.auth_token_file.c_str());
     return false;

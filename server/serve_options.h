@@ -9,6 +9,7 @@
 #include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "grpcpp/security/server_credentials.h"
 #include "server/config_file.h"
@@ -47,11 +48,11 @@ struct ServeOptions {
   double drain_seconds = 10;
 
   // TLS files as given (the HTTP gateway reads them again), the gRPC
-  // listener's credentials made from them, and the bearer token (empty:
-  // none).
+  // listener's credentials made from them, and the bearer tokens, one a
+  // client (empty: none required).
   std::string tls_cert, tls_key, tls_client_ca;
   std::shared_ptr<grpc::ServerCredentials> credentials;
-  std::string token;
+  std::vector<std::string> tokens;
 };
 
 // Reads `geodesicd serve`'s arguments into *out, and sets the log level and

@@ -15,26 +15,39 @@
 namespace geodesic::server {
 namespace {
 
-using ::testing::StartsWith;
+using ::testing::HasSubstr;
 
-// A service whose ListMeshes records who called.
+// A service whose ListMeshes records who called, as `identity` tells.
 class RecordsCallers final : public v1::Geodesic::Service {
  public:
   grpc::Status ListMeshes(grpc::ServerContext* ctx, const v1::ListMeshesRequest*,
                           v1::ListMeshesResponse*) override {
     absl::MutexLock lock(&mu_);
-    last_ = ClientKey(*ctx);
+    last_ = identity_.Key(*ctx);
+    authenticated_ = identity_.Authenticate(*ctx);
     return grpc::Status::OK;
+  }
+  void set_identity(ClientIdentity identity) {
+    absl::MutexLock lock(&mu_);
+    identity_ = std::move(identity);
   }
   std::string last() {
     absl::MutexLock lock(&mu_);
     return last_;
   }
+  absl::Status authenticated() {
+    absl::MutexLock lock(&mu_);
+    return authenticated_;
+  }
 
  private:
   absl::Mutex mu_;
+  ClientIdentity identity_;
   std::string last_;
+  absl::Status authenticated_;
 };
+
+using Metadata = std::vector<std::pair<std::string, std::string>>;
 
 class ClientKeyTest : public ::testing::Test {
  protected:
@@ -52,8 +65,7 @@ class ClientKeyTest : public ::testing::Test {
   void TearDown() override { server_->Shutdown(); }
 
   // The key of one call through `stub` with `metadata`.
-  std::string KeyOf(v1::Geodesic::Stub& stub,
-                    const std::vector<std::pair<std::string, std::string>>& metadata) {
+  std::string KeyOf(v1::Geodesic::Stub& stub, const Metadata& metadata) {
     grpc::ClientContext ctx;
     for (const auto& [k, v] : metadata) ctx.AddMetadata(k, v);
     v1::ListMeshesResponse resp;
@@ -61,23 +73,46 @@ class ClientKeyTest : public ::testing::Test {
     EXPECT_TRUE(status.ok()) << status.error_message();
     return service_.last();
   }
+  // Whether a call with `metadata` authenticates.
+  absl::Status AuthenticationOf(const Metadata& metadata) {
+    KeyOf(*tcp_, metadata);
+    return service_.authenticated();
+  }
 
   RecordsCallers service_;
   std::unique_ptr<grpc::Server> server_;
   std::unique_ptr<v1::Geodesic::Stub> tcp_, inproc_;
 };
 
-TEST_F(ClientKeyTest, TheAddressWithoutItsPortAndTheTokenTellClientsApart) {
+TEST_F(ClientKeyTest, WithoutTokensAHostIsOneClientWhateverItSends) {
   const std::string anonymous = KeyOf(*tcp_, {});
   EXPECT_EQ(anonymous, "ipv4:127.0.0.1");
   // Another connection from the host is the same client.
   EXPECT_EQ(KeyOf(*tcp_, {}), anonymous);
-  const std::string a = KeyOf(*tcp_, {{"authorization", "Bearer a"}});
-  const std::string b = KeyOf(*tcp_, {{"authorization", "Bearer b"}});
-  EXPECT_THAT(a, StartsWith(anonymous));
-  EXPECT_THAT(b, StartsWith(anonymous));
-  EXPECT_NE(a, b);
-  EXPECT_NE(a, anonymous);
+  // Made-up tokens mint no new clients.
+  EXPECT_EQ(KeyOf(*tcp_, {{"authorization", "Bearer a"}}), anonymous);
+  EXPECT_EQ(KeyOf(*tcp_, {{"authorization", "Bearer b"}}), anonymous);
+  EXPECT_TRUE(AuthenticationOf({{"authorization", "Bearer b"}}).ok());
+}
+
+TEST_F(ClientKeyTest, WithTokensEachTokenThatAuthenticatesIsAClient) {
+  service_.set_identity(ClientIdentity({"alpha", "beta"}));
+  const std::string a = KeyOf(*tcp_, {{"authorization", "Bearer alpha"}});
+  const std::string b = KeyOf(*tcp_, {{"authorization", "Bearer beta"}});
+  EXPECT_EQ(a, "ipv4:127.0.0.1 token 0");
+  EXPECT_EQ(b, "ipv4:127.0.0.1 token 1");
+  EXPECT_TRUE(AuthenticationOf({{"authorization", "Bearer beta"}}).ok());
+  // A wrong token, none, or a forged one beside the real one: refused, and
+  // no key names a token it did not authenticate with.
+  EXPECT_EQ(AuthenticationOf({{"authorization", "Bearer gamma"}}).code(),
+            absl::StatusCode::kUnauthenticated);
+  EXPECT_EQ(AuthenticationOf({}).code(), absl::StatusCode::kUnauthenticated);
+  const Metadata forged = {{"authorization", "Bearer random"}, {"authorization", "Bearer alpha"}};
+  const absl::Status twice = AuthenticationOf(forged);
+  EXPECT_EQ(twice.code(), absl::StatusCode::kUnauthenticated);
+  EXPECT_THAT(std::string(twice.message()), HasSubstr("exactly one"));
+  EXPECT_EQ(KeyOf(*tcp_, forged), "ipv4:127.0.0.1");
+  EXPECT_EQ(KeyOf(*tcp_, {{"authorization", "Bearer gamma"}}), "ipv4:127.0.0.1");
 }
 
 TEST_F(ClientKeyTest, TheHttpClientsAddressCountsOnlyWithThisProcesssSecret) {
@@ -88,9 +123,10 @@ TEST_F(ClientKeyTest, TheHttpClientsAddressCountsOnlyWithThisProcesssSecret) {
   EXPECT_EQ(KeyOf(*inproc_, {{kHttpClientMetadata, HttpClientValue("203.0.113.9")}}),
             "http 203.0.113.9");
   EXPECT_EQ(KeyOf(*inproc_, {{kHttpClientMetadata, HttpClientValue("::1")}}), "http ::1");
+  service_.set_identity(ClientIdentity({"t"}));
   EXPECT_EQ(KeyOf(*inproc_,
                   {{kHttpClientMetadata, HttpClientValue("::1")}, {"authorization", "Bearer t"}}),
-            "http ::1 token t");
+            "http ::1 token 0");
 }
 
 }  // namespace

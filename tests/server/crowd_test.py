@@ -1,7 +1,7 @@
 #!/usr/bin/python3
 """A crowd of clients against a daemon on default flags: the documented limits are the real ones.
 
-- 64 concurrent clients (--max-inflight's default; each sends a token of its own) doing pairs,
+- 64 concurrent clients (--max-inflight's default; each with a token of its own) doing pairs,
   fields and small matrices get no error at all, while 16 WatchGraph streams are held open on a building graph and listing,
   GetGraph, CancelGraph and health each answer within a second;
 - past the limit, the only error is a clean RESOURCE_EXHAUSTED "server overloaded" with a
@@ -95,10 +95,9 @@ def vertex(v):
 
 
 class AsClient:
-    """A stub whose calls carry a bearer token of their own: the daemon tells
-    clients apart by it (else by address, which every thread here shares),
-    and a single client gets only its share of --max-inflight. The daemon
-    wants no token: it checks none."""
+    """A stub whose calls carry a bearer token of their own: a daemon that
+    requires tokens tells clients apart by them (else by address, which every
+    thread here shares). A daemon that requires none ignores them."""
 
     def __init__(self, stub, token):
         self.stub, self.metadata = stub, [("authorization", f"Bearer {token}")]
@@ -178,9 +177,9 @@ class DefaultFlagsTest(unittest.TestCase):
             BIN, cls.work, ["--graph-dir", f"{cls.work}/graphs", "--log-level", "warning",
                             # The watched graph must build for the whole crowd.
                             "--min-epsilon", "1e-6", "--mesh-root", cls.work],
-            metrics=True)
+            metrics=True, tokens=["main"] + [f"crowd-{i}" for i in range(96)])
         cls.port, cls.metrics_port = ports["grpc"], ports["metrics"]
-        cls.channel = grpc.insecure_channel(f"127.0.0.1:{cls.port}")
+        cls.channel = daemon_ports.authed(grpc.insecure_channel(f"127.0.0.1:{cls.port}"), "main")
         cls.stub = rpc.GeodesicStub(cls.channel)
         cls.health = health_check(cls.channel)
         wait_for_spot(cls.stub)

@@ -6,6 +6,7 @@ Picking a "free" port by binding and closing a socket races with other tests;
 the daemon's --port-file names the ports it really listens on.
 """
 import atexit
+import collections
 import itertools
 import json
 import os
@@ -14,6 +15,8 @@ import signal
 import subprocess
 import time
 import urllib.request
+
+import grpc
 
 _started = []
 _starts = itertools.count(1)
@@ -50,10 +53,17 @@ def wait_for_ports(process, port_file, timeout=60, log=None):
 
 
 def start_daemon(bin_dir, work, args, stderr=subprocess.DEVNULL, metrics=False, http=False,
-                 timeout=60):
+                 timeout=60, tokens=None):
     """Returns (process, ports): ports["grpc"], and ports["metrics"] and
-    ports["http"] when asked for (or listened on by `args`)."""
+    ports["http"] when asked for (or listened on by `args`). With `tokens`, the
+    daemon requires one of them on every call, each a client of its own (the
+    way tests on one host tell clients apart)."""
     os.makedirs(work, exist_ok=True)
+    if tokens:
+        token_file = os.path.join(work, f"tokens.{next(_starts)}")
+        with open(token_file, "w") as f:
+            f.write("".join(f"{t}\n" for t in tokens))
+        args = list(args) + ["--auth-token-file", token_file]
     # One file per start: a restarted daemon's file is never taken for the
     # last one's, and daemons sharing `work` each have their own.
     port_file = os.path.join(work, f"ports.{next(_starts)}.json")
@@ -65,6 +75,51 @@ def start_daemon(bin_dir, work, args, stderr=subprocess.DEVNULL, metrics=False, 
         command += ["--http-listen", "127.0.0.1:0"]
     daemon = watch(subprocess.Popen(command, stderr=stderr))
     return daemon, wait_for_ports(daemon, port_file, timeout, getattr(stderr, "name", None))
+
+
+def bearer(token):
+    """The metadata that authenticates a call as `token`'s client."""
+    return [("authorization", f"Bearer {token}")]
+
+
+class _DefaultToken(grpc.UnaryUnaryClientInterceptor, grpc.UnaryStreamClientInterceptor,
+                    grpc.StreamUnaryClientInterceptor, grpc.StreamStreamClientInterceptor):
+    """Adds `token` to every call that names no token of its own."""
+
+    def __init__(self, token):
+        self.token = token
+
+    def _with_token(self, details):
+        metadata = list(details.metadata or [])
+        if not any(k == "authorization" for k, _ in metadata):
+            metadata += bearer(self.token)
+        return details._replace(metadata=metadata) if hasattr(details, "_replace") else \
+            _CallDetails(details.method, details.timeout, metadata, details.credentials,
+                         getattr(details, "wait_for_ready", None),
+                         getattr(details, "compression", None))
+
+    def intercept_unary_unary(self, continuation, details, request):
+        return continuation(self._with_token(details), request)
+
+    def intercept_unary_stream(self, continuation, details, request):
+        return continuation(self._with_token(details), request)
+
+    def intercept_stream_unary(self, continuation, details, requests):
+        return continuation(self._with_token(details), requests)
+
+    def intercept_stream_stream(self, continuation, details, requests):
+        return continuation(self._with_token(details), requests)
+
+
+class _CallDetails(collections.namedtuple(
+        "_CallDetails", ("method", "timeout", "metadata", "credentials", "wait_for_ready",
+                         "compression")), grpc.ClientCallDetails):
+    pass
+
+
+def authed(channel, token):
+    """`channel` with `token` sent on every call that names none of its own."""
+    return grpc.intercept_channel(channel, _DefaultToken(token))
 
 
 def stop(process, sig=signal.SIGTERM, timeout=30):

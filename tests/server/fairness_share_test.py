@@ -3,7 +3,7 @@
 for --exact-landmarks 0 (their background fields would share the cores with
 the clients timed here):
 
-- two clients (told apart by their bearer tokens; the daemon wants none)
+- two clients (told apart by their bearer tokens, each a line of the daemon's token file)
   each keep three exact Distance batches running, several seconds each, while
   a third client sends 20 light queries: at least 18 are answered and their
   p99 is under a second; the same with batches of 10,000 graph pairs;
@@ -48,6 +48,8 @@ HEAVY_PAIRS = 250
 # Graph pairs per heavy batch: --max-pairs' default, about a second of work.
 GRAPH_PAIRS = 10000
 LIGHT_QUERIES = 20
+# The clients: a token each (calls naming none are the light client's).
+TOKENS = ["light", "heavy-a", "heavy-b", "small", "flood"] + [f"crowd-{k}" for k in range(12)]
 
 
 def bearer(token):
@@ -223,7 +225,8 @@ def post_distance(http_port, body, timeout):
     it timed out."""
     request = urllib.request.Request(f"http://127.0.0.1:{http_port}/v1/meshes/spot/distance",
                                      data=body, method="POST",
-                                     headers={"Content-Type": "application/json"})
+                                     headers={"Content-Type": "application/json",
+                                              "Authorization": "Bearer light"})
     try:
         with urllib.request.urlopen(request, timeout=timeout) as r:
             return r.status, r.read().decode()
@@ -271,9 +274,10 @@ def main():
     log = open(os.path.join(work, "daemon.log"), "w")
     daemon, ports = start_daemon(BIN, work, ["--graph-dir", f"{work}/graphs", "--log-level",
                                              "warning", "--exact-landmarks", "0"],
-                                 stderr=log, http=True)
+                                 stderr=log, http=True, tokens=TOKENS)
     try:
-        stub = rpc.GeodesicStub(grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}"))
+        stub = rpc.GeodesicStub(daemon_ports.authed(
+            grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}"), "light"))
         if not check("the sample mesh's default graph is ready", wait_default_graph(stub)):
             check.finish()
         started = time.time()

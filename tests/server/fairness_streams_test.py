@@ -60,13 +60,25 @@ check = Checklist()
 work = tempfile.mkdtemp(prefix="fairness-streams-")
 
 
-def serve(name, *extra):
+# The clients of cases (c) and (e), a token each (their daemons require one):
+# clients on one host are one client unless their tokens tell them apart.
+# Calls naming none are MAIN's.
+MAIN = "main"
+TOKENS = [MAIN, "flood", "other", "third", "registrar"]
+
+
+def serve(name, *extra, tokens=None):
     log = open(os.path.join(work, f"{name}.log"), "w")
     daemon, ports = start_daemon(BIN, os.path.join(work, name),
                                  ["--graph-dir", os.path.join(work, name, "graphs"),
                                   "--log-level", "info", *extra],
-                                 stderr=log, metrics=True)
+                                 stderr=log, metrics=True, tokens=tokens)
     return daemon, ports, log.name
+
+
+def main_channel(address):
+    """A channel whose calls are MAIN's unless they name another token."""
+    return daemon_ports.authed(grpc.insecure_channel(address), MAIN)
 
 
 def metrics(port):
@@ -103,7 +115,7 @@ def grid(side):
 def upload_grid(address, stub, graph=True):
     """A GRID x GRID wavy grid, its graph at GRID_EPS built if `graph`."""
     vertices, faces = grid(GRID)
-    with Client(address, timeout=60) as client:
+    with Client(address, timeout=60, token=MAIN) as client:
         client.upload_mesh("grid", vertices=vertices, faces=faces)
     if not graph:
         return True
@@ -394,7 +406,7 @@ def main():
     # (a), (b): two query threads, as on a two-core machine by default.
     daemon, ports, _ = serve("queries", "--query-threads", "2")
     address = f"127.0.0.1:{ports['grpc']}"
-    with grpc.insecure_channel(address) as channel:
+    with main_channel(address) as channel:
         stub = rpc.GeodesicStub(channel)
         if check("spot's graph ready", wait_ready(stub, "spot")) and \
                 check("the grid uploaded, its graph ready", upload_grid(address, stub)):
@@ -404,9 +416,9 @@ def main():
     # (c): a small thread quota (--max-inflight + --max-streams + the control threads).
     max_streams = 4
     daemon, ports, _ = serve("geometry", "--query-threads", "2", "--max-inflight", "4",
-                             "--max-streams", str(max_streams))
+                             "--max-streams", str(max_streams), tokens=TOKENS)
     address = f"127.0.0.1:{ports['grpc']}"
-    with grpc.insecure_channel(address) as channel:
+    with main_channel(address) as channel:
         stub = rpc.GeodesicStub(channel)
         if check("(c) spot's graph ready", wait_ready(stub, "spot")) and \
                 check("(c) the grid uploaded", upload_grid(address, stub)):
@@ -417,9 +429,9 @@ def main():
     mesh_root = os.path.join(work, "meshes")
     os.makedirs(mesh_root, exist_ok=True)
     daemon, ports, _ = serve("registrations", "--max-inflight", "4", "--max-streams", "4",
-                             "--mesh-root", mesh_root)
+                             "--mesh-root", mesh_root, tokens=TOKENS)
     address = f"127.0.0.1:{ports['grpc']}"
-    with grpc.insecure_channel(address) as channel:
+    with main_channel(address) as channel:
         stub = rpc.GeodesicStub(channel)
         if check("(e) spot's graph ready", wait_ready(stub, "spot")):
             case_registrations(address, stub, mesh_root)
@@ -429,7 +441,7 @@ def main():
     idle = 2
     daemon, ports, log = serve("answers", "--idle-seconds", str(idle))
     address = f"127.0.0.1:{ports['grpc']}"
-    with grpc.insecure_channel(address) as channel:
+    with main_channel(address) as channel:
         stub = rpc.GeodesicStub(channel)
         if check("(f) spot's graph ready", wait_ready(stub, "spot")):
             case_unread_answer(address, ports["metrics"], log, idle)
@@ -438,7 +450,7 @@ def main():
     # (d): a short --idle-seconds.
     daemon, ports, log = serve("idle", "--no-sample", "--idle-seconds", str(idle))
     address = f"127.0.0.1:{ports['grpc']}"
-    with grpc.insecure_channel(address) as channel:
+    with main_channel(address) as channel:
         stub = rpc.GeodesicStub(channel)
         if check("(d) the grid uploaded", upload_grid(address, stub, graph=False)):
             case_idle(address, stub, ports["metrics"], log, idle)
