@@ -1,5 +1,6 @@
 #include "core/mesh/region.h"
 
+#include <algorithm>
 #include <utility>
 
 #include "absl/status/status.h"
@@ -9,10 +10,9 @@
 namespace geodesic {
 namespace {
 
-// The parent faces the mask keeps, as a flag per parent face.
-absl::StatusOr<std::vector<bool>> KeptFaces(const Mesh& parent, RegionMask kind,
-                                            absl::Span<const uint32_t> ids,
-                                            std::string_view source) {
+// The mask as a flag per parent vertex (or face).
+absl::StatusOr<std::vector<bool>> MaskOf(const Mesh& parent, RegionMask kind,
+                                         absl::Span<const uint32_t> ids, std::string_view source) {
   const bool by_vertex = kind == RegionMask::kVertices;
   const size_t limit = by_vertex ? parent.num_vertices() : parent.num_faces();
   std::vector<bool> in_mask(limit, false);
@@ -24,7 +24,15 @@ absl::StatusOr<std::vector<bool>> KeptFaces(const Mesh& parent, RegionMask kind,
     }
     in_mask[id] = true;
   }
-  if (!by_vertex) return in_mask;
+  return in_mask;
+}
+
+// The parent faces the mask keeps, as a flag per parent face.
+absl::StatusOr<std::vector<bool>> KeptFaces(const Mesh& parent, RegionMask kind,
+                                            absl::Span<const uint32_t> ids,
+                                            std::string_view source) {
+  ASSIGN_OR_RETURN(std::vector<bool> in_mask, MaskOf(parent, kind, ids, source));
+  if (kind == RegionMask::kFaces) return in_mask;
   std::vector<bool> kept(parent.num_faces(), false);
   for (FaceId f = 0; f < parent.num_faces(); ++f) {
     kept[f] = in_mask[parent.face_vertex(f, 0)] && in_mask[parent.face_vertex(f, 1)] &&
@@ -64,17 +72,42 @@ absl::Status CheckSingleFans(const Mesh& parent, const std::vector<bool>& kept,
 
 }  // namespace
 
+uint32_t ParentToRegion::operator[](uint32_t parent_id) const {
+  auto it = std::lower_bound(ids_.begin(), ids_.end(), parent_id);
+  if (it == ids_.end() || *it != parent_id) return kNone;
+  return static_cast<uint32_t>(it - ids_.begin());
+}
+
+uint64_t Region::map_bytes() const {
+  return (parent_vertex.capacity() + parent_face.capacity()) * sizeof(uint32_t) +
+         region_vertex.memory_bytes() + region_face.memory_bytes();
+}
+
+absl::StatusOr<std::vector<uint32_t>> DistinctRegionIds(const Mesh& parent, RegionMask kind,
+                                                        absl::Span<const uint32_t> ids,
+                                                        std::string_view source) {
+  ASSIGN_OR_RETURN(std::vector<bool> in_mask, MaskOf(parent, kind, ids, source));
+  std::vector<uint32_t> distinct;
+  distinct.reserve(std::min(ids.size(), in_mask.size()));
+  for (uint32_t id = 0; id < in_mask.size(); ++id) {
+    if (in_mask[id]) distinct.push_back(id);
+  }
+  distinct.shrink_to_fit();
+  return distinct;
+}
+
 absl::StatusOr<Region> ExtractRegion(const Mesh& parent, RegionMask kind,
-                                     absl::Span<const uint32_t> ids, std::string_view source) {
+                                     absl::Span<const uint32_t> ids, std::string_view source,
+                                     const RegionRoom& room) {
   ASSIGN_OR_RETURN(std::vector<bool> kept, KeptFaces(parent, kind, ids, source));
   Region r;
-  r.region_face.assign(parent.num_faces(), kNone);
-  r.region_vertex.assign(parent.num_vertices(), kNone);
+  // Parent-sized only while the region is cut: the maps kept are
+  // region-sized.
+  std::vector<bool> used(parent.num_vertices(), false);
   for (FaceId f = 0; f < parent.num_faces(); ++f) {
     if (!kept[f]) continue;
-    r.region_face[f] = static_cast<FaceId>(r.parent_face.size());
     r.parent_face.push_back(f);
-    for (int k = 0; k < 3; ++k) r.region_vertex[parent.face_vertex(f, k)] = 0;
+    for (int k = 0; k < 3; ++k) used[parent.face_vertex(f, k)] = true;
   }
   if (r.parent_face.empty()) {
     return absl::InvalidArgumentError(
@@ -83,20 +116,31 @@ absl::StatusOr<Region> ExtractRegion(const Mesh& parent, RegionMask kind,
                                                       : "the mask lists no face"));
   }
   RETURN_IF_ERROR(CheckSingleFans(parent, kept, source));
+  std::vector<bool>().swap(kept);
+  std::vector<VertexId> renumbered(parent.num_vertices(), kNone);
   TriangleSoup soup;
   for (VertexId v = 0; v < parent.num_vertices(); ++v) {
-    if (r.region_vertex[v] == kNone) continue;
-    r.region_vertex[v] = static_cast<VertexId>(r.parent_vertex.size());
+    if (!used[v]) continue;
+    renumbered[v] = static_cast<VertexId>(r.parent_vertex.size());
     r.parent_vertex.push_back(v);
-    soup.positions.push_back(parent.position(v));
   }
+  std::vector<bool>().swap(used);
+  r.parent_vertex.shrink_to_fit();
+  r.parent_face.shrink_to_fit();
+  if (room) RETURN_IF_ERROR(room(r.parent_vertex.size(), r.parent_face.size()));
+  soup.positions.reserve(r.parent_vertex.size());
+  for (VertexId v : r.parent_vertex) soup.positions.push_back(parent.position(v));
+  soup.triangles.reserve(r.parent_face.size());
   for (FaceId f : r.parent_face) {
-    soup.triangles.push_back({r.region_vertex[parent.face_vertex(f, 0)],
-                              r.region_vertex[parent.face_vertex(f, 1)],
-                              r.region_vertex[parent.face_vertex(f, 2)]});
+    soup.triangles.push_back({renumbered[parent.face_vertex(f, 0)],
+                              renumbered[parent.face_vertex(f, 1)],
+                              renumbered[parent.face_vertex(f, 2)]});
   }
+  std::vector<VertexId>().swap(renumbered);
   ASSIGN_OR_RETURN(Mesh mesh, Mesh::Build(std::move(soup), source));
   r.mesh = std::make_shared<const Mesh>(std::move(mesh));
+  r.region_vertex = ParentToRegion(r.parent_vertex, parent.num_vertices());
+  r.region_face = ParentToRegion(r.parent_face, parent.num_faces());
   return r;
 }
 

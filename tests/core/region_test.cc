@@ -143,6 +143,78 @@ TEST(RegionTest, RefusesBadMasksNamingTheProblem) {
   EXPECT_THAT(no_face.status().message(), HasSubstr("empty"));
 }
 
+// Order and repeats never change a region: each id once, increasing, cuts
+// the same mesh as the ids repeated a thousand times in reverse.
+TEST(RegionTest, RepeatedIdsCutTheRegionOfTheDistinctIds) {
+  const Mesh parent = testing::PlanarGrid(6, 6, 1.0);
+  const std::vector<uint32_t> plain = {0, 1, 2, 3, 4, 5, 6, 7};  // a strip of four squares
+  std::vector<uint32_t> repeated;
+  for (int k = 0; k < 1000; ++k) repeated.insert(repeated.end(), plain.rbegin(), plain.rend());
+  auto distinct = DistinctRegionIds(parent, RegionMask::kFaces, repeated, "test");
+  ASSERT_OK(distinct);
+  EXPECT_EQ(*distinct, plain);
+  auto once = ExtractRegion(parent, RegionMask::kFaces, plain, "test");
+  auto many = ExtractRegion(parent, RegionMask::kFaces, repeated, "test");
+  ASSERT_OK(once);
+  ASSERT_OK(many);
+  EXPECT_EQ(MeshFingerprint(*many->mesh), MeshFingerprint(*once->mesh));
+  EXPECT_EQ(many->parent_face, once->parent_face);
+  EXPECT_EQ(many->parent_vertex, once->parent_vertex);
+
+  auto past = DistinctRegionIds(parent, RegionMask::kVertices, {1, 49, 2, 50}, "mask.txt");
+  EXPECT_EQ(past.status().code(), absl::StatusCode::kOutOfRange);
+  EXPECT_THAT(past.status().message(), HasSubstr("vertex id 49"));
+  EXPECT_THAT(past.status().message(), HasSubstr("49 vertices"));
+}
+
+// The maps back to the parent hold the region's ids, not a table of the
+// parent's size: one face of a 250K-vertex mesh keeps a few bytes, and still
+// maps (and walks) every parent id as the table did.
+TEST(RegionTest, ARegionOfOneFaceOfABigMeshHoldsRegionSizedMaps) {
+  const Mesh parent = testing::PlanarGrid(500, 500, 1.0);
+  ASSERT_GT(parent.num_vertices(), 250'000u);
+  const FaceId face = 123'456;
+  auto region = ExtractRegion(parent, RegionMask::kFaces, {face}, "test");
+  ASSERT_OK(region);
+  EXPECT_LT(region->map_bytes(), 64u);
+  EXPECT_LT(region->map_bytes() + region->mesh->memory_bytes(), 4096u);
+  EXPECT_EQ(region->region_vertex.size(), parent.num_vertices());
+  EXPECT_EQ(region->region_face.size(), parent.num_faces());
+  EXPECT_EQ(region->region_face[face], 0u);
+  EXPECT_EQ(region->region_face[face + 1], kNone);
+  std::vector<VertexId> inside;
+  VertexId v = 0;
+  for (VertexId r : region->region_vertex) {
+    if (r != kNone) {
+      EXPECT_EQ(r, inside.size());
+      inside.push_back(v);
+    }
+    EXPECT_EQ(region->region_vertex[v], r);
+    ++v;
+  }
+  EXPECT_EQ(v, parent.num_vertices());
+  EXPECT_EQ(inside, region->parent_vertex);
+  EXPECT_EQ(inside.size(), 3u);
+}
+
+// The room asked for is the region's, before its mesh is built; a refusal
+// refuses the region.
+TEST(RegionTest, AsksForRoomWithTheRegionsCountsBeforeBuilding) {
+  const Mesh parent = TwoSquares();
+  std::vector<std::pair<uint64_t, uint64_t>> asked;
+  auto region = ExtractRegion(parent, RegionMask::kFaces, {0, 1}, "test",
+                              [&](uint64_t vertices, uint64_t faces) {
+                                asked.push_back({vertices, faces});
+                                return absl::OkStatus();
+                              });
+  ASSERT_OK(region);
+  EXPECT_EQ(asked, (std::vector<std::pair<uint64_t, uint64_t>>{{4, 2}}));
+  auto refused = ExtractRegion(parent, RegionMask::kFaces, {0, 1}, "test", [](uint64_t, uint64_t) {
+    return absl::ResourceExhaustedError("no room");
+  });
+  EXPECT_EQ(refused.status().code(), absl::StatusCode::kResourceExhausted);
+}
+
 TEST(RegionTest, RefusesARegionThatTouchesItselfAtAVertex) {
   // A 2 x 2 grid's two diagonally opposite squares meet only at the centre.
   const Mesh parent = testing::PlanarGrid(2, 2, 1.0);
