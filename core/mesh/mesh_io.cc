@@ -600,13 +600,9 @@ absl::Status CheckReadSoup(const TriangleSoup& soup, const std::string& name) {
   return absl::OkStatus();
 }
 
-// Reads `path` (a file of `format`, named `name` in messages) with the
-// reader of its format.
-absl::StatusOr<TriangleSoup> ReadFormat(const std::string& path, const std::string& name,
+// What a reader of `format` gave, checked, with diagnostics naming it.
+absl::StatusOr<TriangleSoup> FinishRead(absl::StatusOr<TriangleSoup> soup, const std::string& name,
                                         const std::string& format, MeshDiagnostics* diagnostics) {
-  absl::StatusOr<TriangleSoup> soup = format == "gii"
-                                          ? ReadGiftiSurface(path, name)
-                                          : ReadWithOpenMesh(path, name, format, diagnostics);
   if (!soup.ok()) return soup;
   RETURN_IF_ERROR(CheckReadSoup(*soup, name));
   if (diagnostics) {
@@ -614,6 +610,15 @@ absl::StatusOr<TriangleSoup> ReadFormat(const std::string& path, const std::stri
     diagnostics->format = format;
   }
   return soup;
+}
+
+// Reads `path` (a file of `format`, named `name` in messages) with the
+// reader of its format.
+absl::StatusOr<TriangleSoup> ReadFormat(const std::string& path, const std::string& name,
+                                        const std::string& format, MeshDiagnostics* diagnostics) {
+  return FinishRead(format == "gii" ? ReadGiftiSurface(path, name)
+                                    : ReadWithOpenMesh(path, name, format, diagnostics),
+                    name, format, diagnostics);
 }
 
 absl::Status CheckReadable(const std::string& path) {
@@ -682,10 +687,15 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
 absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
                                                         std::string_view format,
                                                         std::string_view name,
-                                                        MeshDiagnostics* diagnostics) {
+                                                        MeshDiagnostics* diagnostics,
+                                                        uint64_t max_decoded_bytes) {
   const std::string fmt = absl::AsciiStrToLower(std::string(format));
   RETURN_IF_ERROR(CheckFormat(fmt, name));
   if (bytes.empty()) return absl::InvalidArgumentError(absl::StrFormat("%s is empty", name));
+  if (fmt == "gii") {
+    return FinishRead(ReadGiftiSurfaceFromMemory(bytes, name, max_decoded_bytes), std::string(name),
+                      fmt, diagnostics);
+  }
   ASSIGN_OR_RETURN(const std::string path, WriteTemporaryMeshFile(bytes, fmt));
   auto soup = ReadFormat(path, std::string(name), fmt, diagnostics);
   ::unlink(path.c_str());

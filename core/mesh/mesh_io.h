@@ -43,11 +43,15 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoup(const std::string& path,
                                               MeshDiagnostics* diagnostics = nullptr);
 
 // The same from bytes in memory (uploads); `format` is one of MeshFormats(),
-// and `name` is used in messages.
+// and `name` is used in messages. A GIFTI surface is read from the bytes
+// themselves, RESOURCE_EXHAUSTED if its arrays declare more than
+// `max_decoded_bytes` (0: no budget; see ReadGiftiSurfaceFromMemory); the
+// other formats go through a temporary file, which OpenMesh's readers need.
 absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
                                                         std::string_view format,
                                                         std::string_view name,
-                                                        MeshDiagnostics* diagnostics = nullptr);
+                                                        MeshDiagnostics* diagnostics = nullptr,
+                                                        uint64_t max_decoded_bytes = 0);
 
 // INVALID_ARGUMENT naming `name` when the soup has no triangle: a point
 // cloud parses, but no distance on it is defined, and such a file is as

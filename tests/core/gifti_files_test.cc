@@ -1,15 +1,20 @@
 // GIFTI surfaces and metrics: surfaces written by libgiftiio in every
 // encoding, order and coordinate type read back bit for bit, from a path and
-// from memory; malformed, truncated, misshapen and external-data files give
-// errors naming the file, and nothing on stderr; a field written as .func.gii
-// reads back as float32 with +inf kept.
+// from memory, big-endian too; malformed, truncated, misshapen and
+// external-data files give errors naming the file, and nothing on stderr;
+// the shapes that crashed libgiftiio are refused by the schema check, and
+// declarations beyond a budget or beyond what their data can hold before
+// anything is decoded; a field written as .func.gii reads back as float32
+// with +inf kept.
 #include "core/mesh/gifti_files.h"
 
 // C without extern "C" guards of its own.
 extern "C" {
 #include <gifti_io.h>
 }
+#include <zlib.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
@@ -20,6 +25,7 @@ extern "C" {
 #include <sstream>
 #include <vector>
 
+#include "absl/strings/escaping.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_replace.h"
@@ -322,6 +328,10 @@ std::vector<BadFile> BadFiles() {
        "declares 3 values but its data holds 2"},
       {"gzip data short of Dim0", Binary(kLittle, "GZipBase64Binary", "eJxjYGBgYARiAAAMAAI="),
        "declares 3 values but its data holds 2"},
+      {"binary data beyond Dim0", Binary(kLittle, "Base64Binary", "AAAAAAEAAAACAAAAAwAAAA=="),
+       "declares 3 values but its data holds 4"},
+      {"gzip data beyond Dim0", Binary(kLittle, "GZipBase64Binary", "eJxjYGBgYARiJiBmBmIAADgABw=="),
+       "declares 3 values but its data holds more"},
       {"not base64", Binary(kLittle, "Base64Binary", "!!!!"), "not base64"},
       {"unpadded base64", Binary(kLittle, "Base64Binary", "AAAAAAEAAAACAAA"), "not base64"},
       {"base64 but not zlib", Binary(kLittle, "GZipBase64Binary", "AAAAAAEAAAA="), "not zlib"},
@@ -358,7 +368,7 @@ std::vector<BadFile> BadFiles() {
 TEST(GiftiErrors, MalformedFilesAreRefusedNamingTheFile) {
   TempDir dir;
   const std::vector<BadFile> bad_files = BadFiles();
-  // The daemon's stderr is its log: libgiftiio must not get to complain there.
+  // The daemon's stderr is its log: no reader may complain there.
   ::testing::internal::CaptureStderr();
   for (const BadFile& bad : bad_files) {
     SCOPED_TRACE(bad.label);
@@ -375,6 +385,221 @@ TEST(GiftiErrors, MalformedFilesAreRefusedNamingTheFile) {
     EXPECT_THAT(uploaded.status().message(), HasSubstr(bad.says));
   }
   EXPECT_EQ(::testing::internal::GetCapturedStderr(), "");
+}
+
+// Both entry points, the path (through the mesh reader) and the upload,
+// refuse `bytes` with `code`, naming the file and saying `says`.
+void ExpectRefused(const std::string& bytes, const std::string& says,
+                   absl::StatusCode code = absl::StatusCode::kInvalidArgument,
+                   uint64_t max_decoded_bytes = 0) {
+  TempDir dir;
+  const std::string path = dir.File("bad.surf.gii");
+  WriteBytes(path, bytes);
+  auto soup = max_decoded_bytes == 0 ? ReadTriangleSoup(path)
+                                     : ReadGiftiSurface(path, path, max_decoded_bytes);
+  ASSERT_FALSE(soup.ok());
+  EXPECT_EQ(soup.status().code(), code) << soup.status();
+  EXPECT_THAT(soup.status().message(), HasSubstr(path));
+  EXPECT_THAT(soup.status().message(), HasSubstr(says));
+  auto uploaded =
+      ReadTriangleSoupFromMemory(bytes, "gii", "sent.surf.gii", nullptr, max_decoded_bytes);
+  ASSERT_FALSE(uploaded.ok());
+  EXPECT_EQ(uploaded.status().code(), code) << uploaded.status();
+  EXPECT_THAT(uploaded.status().message(), HasSubstr("sent.surf.gii"));
+  EXPECT_THAT(uploaded.status().message(), HasSubstr(says));
+}
+
+std::string Repeat(const std::string& text, int times) {
+  std::string out;
+  for (int k = 0; k < times; ++k) out += text;
+  return out;
+}
+
+// Each shape crashed libgiftiio (a NULL dereference in its XML callbacks);
+// each is now an element the schema has no place for, named with its parent.
+TEST(GiftiSchema, ShapesThatCrashedLibgiftiioAreRefused) {
+  const std::string empty = "<GIFTI NumberOfDataArrays=\"0\">";
+  const std::string tiny = empty + "<Data/></GIFTI>";
+  ASSERT_EQ(tiny.size(), 45u);
+  const struct {
+    const char* label;
+    std::string bytes;
+    std::string says;
+  } shapes[] = {
+      {"Data outside DataArray (the 45-byte file)", tiny,
+       "line 1: a <Data> element inside <GIFTI>, where GIFTI allows only <MetaData>, "
+       "<LabelTable>, <DataArray>"},
+      {"MD outside MetaData", empty + "\n<MD><Name>a</Name></MD></GIFTI>",
+       "line 2: a <MD> element inside <GIFTI>"},
+      {"MD inside MD", empty + "<MetaData><MD><MD/></MD></MetaData></GIFTI>",
+       "a <MD> element inside <MD>, where GIFTI allows only <Name>, <Value>"},
+      {"MetaData inside a Label",
+       empty + "<LabelTable><Label Key=\"0\"><MetaData/></Label></LabelTable></GIFTI>",
+       "a <MetaData> element inside <Label>, which holds only text"},
+      {"Value nested 100,000 deep",
+       empty + "<MetaData><MD>" + Repeat("<Value>", 100000) + Repeat("</Value>", 100000) +
+           "</MD></MetaData></GIFTI>",
+       "a <Value> element inside <Value>, which holds only text"},
+      {"unknown element nested 9 deep",
+       empty + "<MetaData><MD>" + Repeat("<Foo>", 9) + Repeat("</Foo>", 9) +
+           "</MD></MetaData></GIFTI>",
+       "an unknown element <Foo> inside <MD>"},
+      {"GIFTI inside GIFTI", empty + "<GIFTI/></GIFTI>", "a <GIFTI> element inside <GIFTI>"},
+      {"a second Data",
+       empty + "<DataArray Encoding=\"ASCII\" Dimensionality=\"1\" Dim0=\"1\"><Data>1</Data>"
+               "<Data>2</Data></DataArray></GIFTI>",
+       "a second <Data> element"},
+      {"an entity", "<!DOCTYPE GIFTI [<!ENTITY a \"aaaa\">]>" + empty + "</GIFTI>",
+       "an entity declaration (a)"},
+  };
+  for (const auto& shape : shapes) {
+    SCOPED_TRACE(shape.label);
+    ExpectRefused(shape.bytes, shape.says);
+  }
+}
+
+// The whole file is one expat call, so the attribute is scanned once, then
+// refused by its length.
+TEST(GiftiSchema, A16MegabyteAttributeIsRefusedByName) {
+  const std::string bytes =
+      "<GIFTI NumberOfDataArrays=\"0\" Junk=\"" + std::string(16 << 20, 'a') + "\"></GIFTI>";
+  ExpectRefused(bytes, "attribute Junk is 16777216 characters long");
+}
+
+// A surface as nibabel and Workbench write them, besides the two arrays:
+// metadata, a label table, a transform, and another array whose data is not
+// even decoded.
+TEST(GiftiSchema, MetadataLabelsTransformsAndOtherArraysAreSkipped) {
+  const std::string shape =
+      "<DataArray Intent=\"NIFTI_INTENT_SHAPE\" DataType=\"NIFTI_TYPE_FLOAT32\" "
+      "ArrayIndexingOrder=\"RowMajorOrder\" Dimensionality=\"1\" Dim0=\"3\" "
+      "Encoding=\"GZipBase64Binary\" Endian=\"LittleEndian\" ExternalFileName=\"\">\n"
+      "<MetaData><MD><Name>Name</Name><Value><![CDATA[thickness]]></Value></MD></MetaData>\n"
+      "<CoordinateSystemTransformMatrix><DataSpace>NIFTI_XFORM_UNKNOWN</DataSpace>"
+      "<TransformedSpace>NIFTI_XFORM_UNKNOWN</TransformedSpace>"
+      "<MatrixData>1 0 0 0 0 1 0 0 0 0 1 0 0 0 0 1</MatrixData>"
+      "</CoordinateSystemTransformMatrix>\n<Data>not decoded</Data></DataArray>\n";
+  std::string surface = AsciiSurface(kPoints, kTriangleAttributes, "0 1 2");
+  surface = absl::StrReplaceAll(
+      surface,
+      {{"NumberOfDataArrays=\"2\">\n",
+        "NumberOfDataArrays=\"3\">\n<MetaData><MD><Name>AnatomicalStructurePrimary</Name>"
+        "<Value>CortexLeft</Value></MD></MetaData>\n<LabelTable><Label Key=\"0\" Red=\"1\" "
+        "Green=\"1\" Blue=\"1\" Alpha=\"0\">Unknown</Label></LabelTable>\n" +
+            shape}});
+  auto soup = ReadTriangleSoupFromMemory(surface, "gii", "full.surf.gii");
+  ASSERT_OK(soup);
+  EXPECT_EQ(soup->positions.size(), 3u);
+  EXPECT_EQ(soup->triangles.size(), 1u);
+}
+
+// zlib's compression of `bytes` zero bytes, made a block at a time.
+std::string CompressedZeros(uint64_t bytes) {
+  z_stream z{};
+  EXPECT_EQ(deflateInit(&z, Z_BEST_COMPRESSION), Z_OK);
+  const std::string zeros(1 << 16, '\0');
+  std::string out, block(1 << 16, '\0');
+  for (uint64_t left = bytes;;) {
+    const uint64_t n = std::min<uint64_t>(left, zeros.size());
+    z.next_in = reinterpret_cast<Bytef*>(const_cast<char*>(zeros.data()));
+    z.avail_in = static_cast<uInt>(n);
+    left -= n;
+    const int flush = left == 0 ? Z_FINISH : Z_NO_FLUSH;
+    do {
+      z.next_out = reinterpret_cast<Bytef*>(block.data());
+      z.avail_out = static_cast<uInt>(block.size());
+      deflate(&z, flush);
+      out.append(block.data(), block.size() - z.avail_out);
+    } while (z.avail_out == 0);
+    if (flush == Z_FINISH) break;
+  }
+  deflateEnd(&z);
+  return out;
+}
+
+// A surface of kPoints and `rows` triangles whose data is `zlib`.
+std::string GzipTriangles(int64_t rows, const std::string& zlib) {
+  return AsciiSurface(kPoints,
+                      absl::StrFormat("Dimensionality=\"2\" Dim0=\"%d\" Dim1=\"3\" "
+                                      "Encoding=\"GZipBase64Binary\" Endian=\"LittleEndian\"",
+                                      rows),
+                      absl::Base64Escape(zlib));
+}
+
+constexpr uint64_t k64MiB = 64 << 20;
+
+// 100 million triangles (1.2 GB) declared over a 20-byte zlib stream: over
+// a budget, refused by it as the array opens; without one, refused as more
+// than 20 compressed bytes can hold; either way before any allocation.
+TEST(GiftiBudget, OverdeclaredGzipIsRefusedBeforeDecoding) {
+  const std::string zlib = CompressedZeros(12);
+  ASSERT_LT(zlib.size(), 30u);
+  const std::string bytes = GzipTriangles(100'000'000, zlib);
+  ExpectRefused(bytes, "the triangle array (DataArray 1) declares 1200000000 bytes",
+                absl::StatusCode::kResourceExhausted, k64MiB);
+  ExpectRefused(bytes, "more than the limit of 67108864 bytes",
+                absl::StatusCode::kResourceExhausted, k64MiB);
+  ExpectRefused(bytes, "declares 300000000 values (1200000000 bytes), more than its");
+}
+
+// A genuine bomb: 256 MiB of zero indices, honestly declared, in 260 KB.
+TEST(GiftiBudget, HonestZlibBombIsRefusedOverTheBudgetOnly) {
+  const int64_t rows = (256 << 20) / 12;
+  const std::string bytes = GzipTriangles(rows, CompressedZeros(rows * 12));
+  ASSERT_LT(bytes.size(), 1u << 20);
+  ExpectRefused(bytes, "more than the limit of 67108864 bytes",
+                absl::StatusCode::kResourceExhausted, k64MiB);
+  auto soup = ReadGiftiSurfaceFromMemory(bytes, "bomb.surf.gii");
+  ASSERT_OK(soup);
+  EXPECT_EQ(soup->triangles.size(), static_cast<size_t>(rows));
+  EXPECT_EQ(soup->triangles.back()[2], 0u);
+}
+
+// `values` as `T`s in big-endian byte order, base64.
+template <typename T, typename S>
+std::string BigEndianBase64(const std::vector<S>& values, bool gzip) {
+  std::string bytes;
+  for (S value : values) {
+    const T t = static_cast<T>(value);
+    char raw[sizeof(T)];
+    std::memcpy(raw, &t, sizeof(T));
+    std::reverse(raw, raw + sizeof(T));
+    bytes.append(raw, sizeof(T));
+  }
+  if (gzip) {
+    uLongf size = compressBound(bytes.size());
+    std::string packed(size, '\0');
+    EXPECT_EQ(compress2(reinterpret_cast<Bytef*>(packed.data()), &size,
+                        reinterpret_cast<const Bytef*>(bytes.data()), bytes.size(), 9),
+              Z_OK);
+    bytes = packed.substr(0, size);
+  }
+  return absl::Base64Escape(bytes);
+}
+
+TEST(GiftiEndian, BigEndianArraysReadBitForBit) {
+  const SmallSurface box = OpenBox();
+  for (const bool gzip : {false, true}) {
+    SCOPED_TRACE(gzip ? "GZipBase64Binary" : "Base64Binary");
+    const char* encoding = gzip ? "GZipBase64Binary" : "Base64Binary";
+    auto array = [&](const char* intent, const char* type, size_t rows, const std::string& data) {
+      return absl::StrFormat(
+          "<DataArray Intent=\"%s\" DataType=\"%s\" ArrayIndexingOrder=\"RowMajorOrder\" "
+          "Dimensionality=\"2\" Dim0=\"%u\" Dim1=\"3\" Encoding=\"%s\" Endian=\"BigEndian\">"
+          "<Data>%s</Data></DataArray>\n",
+          intent, type, rows, encoding, data);
+    };
+    const std::string bytes =
+        "<GIFTI NumberOfDataArrays=\"2\">\n" +
+        array("NIFTI_INTENT_POINTSET", "NIFTI_TYPE_FLOAT32", box.xyz.size() / 3,
+              BigEndianBase64<float>(box.xyz, gzip)) +
+        array("NIFTI_INTENT_TRIANGLE", "NIFTI_TYPE_INT32", box.faces.size() / 3,
+              BigEndianBase64<int32_t>(box.faces, gzip)) +
+        "</GIFTI>\n";
+    auto soup = ReadGiftiSurfaceFromMemory(bytes, "big.surf.gii");
+    ASSERT_OK(soup);
+    ExpectSameSurface(*soup, box);
+  }
 }
 
 TEST(GiftiErrors, EmptyFileAndUnknownExtension) {
