@@ -80,6 +80,7 @@ Daemon::Daemon(ServeOptions options)
 Daemon::~Daemon() = default;
 
 int Daemon::Start() {
+  RemoveStaleTemporaryMeshFiles();  // uploads a killed daemon was reading
   OpenGraphDir();
   // Built meshes are saved beside the graphs, so a restarted daemon restores
   // them rather than parsing and building them again; with a graph

@@ -1,5 +1,6 @@
 #include "core/mesh/mesh_io.h"
 
+#include <signal.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -457,12 +458,18 @@ absl::Status CheckPlyHeader(const std::string& path, const std::string& name) {
   return absl::InvalidArgumentError(absl::StrFormat("%s: PLY header has no end_header line", name));
 }
 
+// Temporary mesh files are geodesic-mesh-<pid>-XXXXXX.<format>: the pid
+// lets RemoveStaleTemporaryMeshFiles tell a dead process's file from a live
+// one's.
+constexpr std::string_view kTemporaryMeshPrefix = "geodesic-mesh-";
+
 // OpenMesh's readers pick the format by file name: bytes read from memory, or
 // rewritten, go through a private temporary file, which the caller removes
 // right after reading.
 absl::StatusOr<std::string> WriteTemporaryMeshFile(std::string_view bytes, const std::string& fmt) {
-  std::string path =
-      (std::filesystem::temp_directory_path() / ("geodesic-mesh-XXXXXX." + fmt)).string();
+  std::string path = (std::filesystem::temp_directory_path() /
+                      absl::StrFormat("%s%d-XXXXXX.%s", kTemporaryMeshPrefix, ::getpid(), fmt))
+                         .string();
   int fd = ::mkstemps(path.data(), static_cast<int>(fmt.size() + 1));
   if (fd < 0) return absl::InternalError("cannot create a temporary file for the mesh");
   size_t written = 0;
@@ -621,6 +628,25 @@ absl::StatusOr<TriangleSoup> ReadFormat(const std::string& path, const std::stri
                     name, format, diagnostics);
 }
 
+// Whether `entry` is a temporary mesh file (WriteTemporaryMeshFile) whose
+// process is gone, or one of the pid-less names it used before, older than
+// `cutoff` (an hour: no read takes that long).
+bool IsStaleTemporaryMeshFile(const std::filesystem::directory_entry& entry,
+                              std::filesystem::file_time_type cutoff) {
+  const std::string file = entry.path().filename().string();
+  if (!file.starts_with(kTemporaryMeshPrefix)) return false;
+  const absl::string_view rest = absl::string_view(file).substr(kTemporaryMeshPrefix.size());
+  // mkstemps's six characters are letters and digits, never '-'.
+  const size_t dash = rest.find('-');
+  int pid = 0;
+  if (dash != absl::string_view::npos && absl::SimpleAtoi(rest.substr(0, dash), &pid) && pid > 0) {
+    return ::kill(pid, 0) != 0 && errno == ESRCH;
+  }
+  std::error_code ec;
+  const auto written = entry.last_write_time(ec);
+  return !ec && written < cutoff;
+}
+
 absl::Status CheckReadable(const std::string& path) {
   struct stat st;
   if (::stat(path.c_str(), &st) != 0) {
@@ -700,6 +726,21 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
   auto soup = ReadFormat(path, std::string(name), fmt, diagnostics);
   ::unlink(path.c_str());
   return soup;
+}
+
+void RemoveStaleTemporaryMeshFiles() {
+  std::error_code ec;
+  const std::filesystem::path dir = std::filesystem::temp_directory_path(ec);
+  if (ec) return;
+  const auto an_hour_ago = std::filesystem::file_time_type::clock::now() - std::chrono::hours(1);
+  // By error codes throughout: a file removed meanwhile is no reason to stop.
+  std::filesystem::directory_iterator it(dir, ec), end;
+  for (; !ec && it != end; it.increment(ec)) {
+    std::error_code ignored;
+    if (it->is_regular_file(ignored) && IsStaleTemporaryMeshFile(*it, an_hour_ago)) {
+      std::filesystem::remove(it->path(), ignored);
+    }
+  }
 }
 
 absl::Status RequireFaces(const TriangleSoup& soup, std::string_view name) {

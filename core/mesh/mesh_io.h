@@ -53,6 +53,13 @@ absl::StatusOr<TriangleSoup> ReadTriangleSoupFromMemory(std::string_view bytes,
                                                         MeshDiagnostics* diagnostics = nullptr,
                                                         uint64_t max_decoded_bytes = 0);
 
+// Removes the temporary files of ReadTriangleSoupFromMemory that a process
+// killed mid-read left behind: geodesic-mesh-<pid>-* in the temporary
+// directory whose process is gone, and files of the older pid-less naming
+// (geodesic-mesh-XXXXXX.<format>) more than an hour old. For a daemon's
+// start; errors (another user's file, a race with its removal) are ignored.
+void RemoveStaleTemporaryMeshFiles();
+
 // INVALID_ARGUMENT naming `name` when the soup has no triangle: a point
 // cloud parses, but no distance on it is defined, and such a file is as
 // often a torn copy of a mesh.

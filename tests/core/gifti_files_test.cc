@@ -12,12 +12,16 @@
 extern "C" {
 #include <gifti_io.h>
 }
+#include <sys/wait.h>
+#include <unistd.h>
 #include <zlib.h>
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <limits>
 #include <numbers>
@@ -599,6 +603,52 @@ TEST(GiftiEndian, BigEndianArraysReadBitForBit) {
     auto soup = ReadGiftiSurfaceFromMemory(bytes, "big.surf.gii");
     ASSERT_OK(soup);
     ExpectSameSurface(*soup, box);
+  }
+}
+
+// A mesh upload read through a temporary file (OpenMesh's formats) leaves
+// geodesic-mesh-<pid>-*; a daemon killed mid-read leaves it behind, and the
+// next one removes it. Run in a temporary directory of its own (TMPDIR).
+TEST(MeshIoTemporaryFiles, StaleFilesOfDeadProcessesAreRemoved) {
+  TempDir dir;
+  const char* saved = std::getenv("TMPDIR");
+  const std::string saved_tmpdir = saved ? saved : "";
+  ASSERT_EQ(setenv("TMPDIR", dir.path().c_str(), 1), 0);
+  const pid_t child = fork();
+  if (child == 0) _exit(0);
+  ASSERT_GT(child, 0);
+  ASSERT_EQ(waitpid(child, nullptr, 0), child);  // a pid no process has now
+  const auto two_hours_ago = std::filesystem::file_time_type::clock::now() - std::chrono::hours(2);
+  const std::string dead = absl::StrFormat("geodesic-mesh-%d-Ab12Cd.obj", child);
+  const std::string live = absl::StrFormat("geodesic-mesh-%d-Ab12Cd.obj", getpid());
+  const std::string old_style = "geodesic-mesh-Xy34Zw.off";
+  const std::string recent_old_style = "geodesic-mesh-Qr56St.off";
+  const std::string other = "not-a-mesh-file.obj";
+  for (const std::string& name : {dead, live, old_style, recent_old_style, other}) {
+    WriteBytes(dir.File(name), "x");
+  }
+  std::filesystem::last_write_time(dir.File(old_style), two_hours_ago);
+  std::filesystem::last_write_time(dir.File(live), two_hours_ago);
+  std::filesystem::last_write_time(dir.File(other), two_hours_ago);
+  RemoveStaleTemporaryMeshFiles();
+  EXPECT_FALSE(std::filesystem::exists(dir.File(dead)));
+  EXPECT_FALSE(std::filesystem::exists(dir.File(old_style)));
+  EXPECT_TRUE(std::filesystem::exists(dir.File(live)));
+  EXPECT_TRUE(std::filesystem::exists(dir.File(recent_old_style)));
+  EXPECT_TRUE(std::filesystem::exists(dir.File(other)));
+  // An upload leaves nothing behind in any format, and a GIFTI one writes
+  // nothing at all.
+  std::filesystem::remove(dir.File(live));
+  std::filesystem::remove(dir.File(recent_old_style));
+  std::filesystem::remove(dir.File(other));
+  EXPECT_OK(ReadTriangleSoupFromMemory("OFF\n3 1 0\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n", "off", "t"));
+  EXPECT_OK(ReadTriangleSoupFromMemory(AsciiSurface(kPoints, kTriangleAttributes, "0 1 2"), "gii",
+                                       "t.surf.gii"));
+  EXPECT_TRUE(std::filesystem::is_empty(dir.path()));
+  if (saved) {
+    setenv("TMPDIR", saved_tmpdir.c_str(), 1);
+  } else {
+    unsetenv("TMPDIR");
   }
 }
 
