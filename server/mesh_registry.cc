@@ -102,6 +102,39 @@ std::vector<VertexCopy> CopiesOf(const Mesh& mesh, uint64_t file_vertices) {
   return copies;
 }
 
+// A request listing its ids many times over is refused before any work:
+// its region is no more than each id once, and cutting it would take time
+// and memory for every repeat.
+absl::Status RefuseRepeatedIds(const Mesh& parent, RegionMask mask, uint64_t ids,
+                               const std::string& source) {
+  const bool by_vertex = mask == RegionMask::kVertices;
+  const uint64_t count = by_vertex ? parent.num_vertices() : parent.num_faces();
+  if (ids <= MeshRegistry::kMaxIdsPerElement * count) return absl::OkStatus();
+  const char* what = by_vertex ? "vertices" : "faces";
+  return absl::InvalidArgumentError(absl::StrFormat(
+      "%s: %u %s ids for a mesh of %u %s, more than %u times as many: list each id once", source,
+      ids, by_vertex ? "vertex" : "face", count, what, MeshRegistry::kMaxIdsPerElement));
+}
+
+// A region's maps of `vertices` and `faces` and its `ids`, as
+// Region::map_bytes and RegisteredMesh::extra_bytes will count them.
+uint64_t RegionExtraBytes(uint64_t vertices, uint64_t faces, uint64_t ids) {
+  return (2 * (vertices + faces) + ids) * sizeof(uint32_t);
+}
+
+// Bytes of the registered meshes, each mesh once however many names share
+// it (the meshes counted are added to `counted`), and what each name holds
+// beside its mesh.
+uint64_t Resident(const std::map<std::string, std::shared_ptr<const RegisteredMesh>>& meshes,
+                  absl::flat_hash_set<const Mesh*>& counted) {
+  uint64_t total = 0;
+  for (const auto& [name, m] : meshes) {
+    if (counted.insert(m->mesh.get()).second) total += m->mesh->memory_bytes();
+    total += m->extra_bytes();
+  }
+  return total;
+}
+
 const char* KindOf(mode_t mode) {
   if (S_ISDIR(mode)) return "a directory";
   if (S_ISFIFO(mode)) return "a FIFO";
@@ -490,9 +523,12 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRegi
         absl::StrFormat("mesh '%s' is itself a region of '%s': cut the region from '%s'", parent,
                         p->parent, p->parent));
   }
-  ASSIGN_OR_RETURN(
-      Region region,
-      ExtractRegion(*p->mesh, mask, ids, absl::StrFormat("region '%s' of '%s'", name, parent)));
+  const std::string source = absl::StrFormat("region '%s' of '%s'", name, parent);
+  RETURN_IF_ERROR(RefuseRepeatedIds(*p->mesh, mask, ids.size(), source));
+  ASSIGN_OR_RETURN(std::vector<uint32_t> distinct, DistinctRegionIds(*p->mesh, mask, ids, source));
+  std::vector<uint32_t>().swap(ids);
+  ASSIGN_OR_RETURN(Region region, ExtractRegion(*p->mesh, mask, distinct, source,
+                                                RoomForRegion(name, distinct.size())));
   auto m = std::make_shared<RegisteredMesh>();
   m->name = name;
   m->source = "region";
@@ -516,7 +552,7 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRegi
   m->parent = parent;
   m->region = std::make_shared<const Region>(std::move(region));
   m->region_mask = mask;
-  m->region_ids = std::move(ids);
+  m->region_ids = std::move(distinct);
   return Insert(std::move(m));
 }
 
@@ -547,8 +583,25 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Insert(
   return stored;
 }
 
+uint64_t RegisteredMesh::extra_bytes() const {
+  return (region ? region->map_bytes() : 0) + region_ids.capacity() * sizeof(uint32_t);
+}
+
 absl::Status MeshRegistry::FitsMemoryLimit(const RegisteredMesh& m) const {
-  return RoomFor(m.name, m.mesh->memory_bytes(), m.mesh.get(), "");
+  return RoomFor(m.name, m.mesh->memory_bytes(), m.mesh.get(), "", m.extra_bytes());
+}
+
+RegionRoom MeshRegistry::RoomForRegion(const std::string& name, uint64_t ids) const {
+  return [this, name, ids](uint64_t vertices, uint64_t faces) {
+    absl::MutexLock lock(&mu_);
+    // As RoomToBuild: the same region again is kept without a second copy.
+    if (memory_limit_ == 0 || meshes_.contains(name)) return absl::OkStatus();
+    return RoomFor(name, Mesh::EstimateMemoryBytes(vertices, faces), nullptr,
+                   absl::StrFormat(", estimated from its %u vertices and %u faces before it is "
+                                   "built",
+                                   vertices, faces),
+                   RegionExtraBytes(vertices, faces, ids));
+  };
 }
 
 std::function<absl::Status(uint64_t, uint64_t)> MeshRegistry::RoomToBuild(
@@ -567,15 +620,14 @@ std::function<absl::Status(uint64_t, uint64_t)> MeshRegistry::RoomToBuild(
 }
 
 absl::Status MeshRegistry::RoomFor(const std::string& name, uint64_t bytes, const Mesh* mesh,
-                                   const std::string& estimate) const {
+                                   const std::string& estimate, uint64_t extra) const {
   if (memory_limit_ == 0) return absl::OkStatus();
-  // As resident_bytes counts: each mesh once, however many names. The room
-  // kept for queries is the largest mesh's own bytes again: a field query's
-  // scratch and answer on it take about as much as its arrays.
+  // As resident_bytes counts. The room kept for queries is the largest
+  // mesh's own bytes again: a field query's scratch and answer on it take
+  // about as much as its arrays.
   absl::flat_hash_set<const Mesh*> counted;
-  uint64_t total = 0, largest = bytes;
+  uint64_t total = Resident(meshes_, counted) + extra, largest = bytes;
   for (const auto& [other_name, other] : meshes_) {
-    if (counted.insert(other->mesh.get()).second) total += other->mesh->memory_bytes();
     largest = std::max<uint64_t>(largest, other->mesh->memory_bytes());
   }
   if (mesh == nullptr || counted.insert(mesh).second) total += bytes;
@@ -584,7 +636,7 @@ absl::Status MeshRegistry::RoomFor(const std::string& name, uint64_t bytes, cons
       "mesh '%s' (%u bytes%s) is refused: the registered meshes would then take %u bytes of the "
       "server's memory limit (--memory-limit, %u bytes), leaving less than the %u bytes a query "
       "on the largest of them needs; unload a mesh or raise the limit",
-      Echo(name), bytes, estimate, total, memory_limit_, largest));
+      Echo(name), bytes + extra, estimate, total, memory_limit_, largest));
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::Get(
@@ -608,11 +660,7 @@ std::vector<std::shared_ptr<const RegisteredMesh>> MeshRegistry::List() const {
 uint64_t MeshRegistry::resident_bytes() const {
   absl::MutexLock lock(&mu_);
   absl::flat_hash_set<const Mesh*> counted;
-  uint64_t total = 0;
-  for (const auto& [name, m] : meshes_) {
-    if (counted.insert(m->mesh.get()).second) total += m->mesh->memory_bytes();
-  }
-  return total;
+  return Resident(meshes_, counted);
 }
 
 absl::Status MeshRegistry::Remove(const std::string& name) {

@@ -51,11 +51,16 @@ struct RegisteredMesh {
   bool repair_non_manifold = false;
   std::vector<VertexCopy> vertex_copies;
   // A region of the registered mesh `parent` (RegisterRegion), cut with
-  // these ids, which a catalog records to cut it again; source "region".
+  // these ids (once each, increasing), which a catalog records to cut it
+  // again; source "region".
   std::string parent;
   std::shared_ptr<const Region> region;
   RegionMask region_mask = RegionMask::kVertices;
   std::vector<uint32_t> region_ids;
+
+  // What it holds beside its mesh (a region's maps and ids), which the
+  // memory limit counts as it counts the mesh.
+  uint64_t extra_bytes() const;
 };
 
 class MeshRegistry {
@@ -122,7 +127,12 @@ class MeshRegistry {
   // memory only: it is cut again from its parent whenever it is needed.
   // NOT_FOUND for an unknown parent, FAILED_PRECONDITION for a parent that
   // is a region itself or, with a non-zero `fingerprint` (a catalog's
-  // record), for a region that came out another mesh.
+  // record), for a region that came out another mesh. The ids are kept
+  // (and recorded) once each, in increasing order; INVALID_ARGUMENT, before
+  // any work, for more than kMaxIdsPerElement ids per parent vertex (or
+  // face), OUT_OF_RANGE for an id past the parent's count,
+  // RESOURCE_EXHAUSTED as for meshes (SetMemoryLimit).
+  static constexpr uint64_t kMaxIdsPerElement = 4;
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRegion(const std::string& name,
                                                                        const std::string& parent,
                                                                        RegionMask mask,
@@ -132,7 +142,8 @@ class MeshRegistry {
   static std::string SnapshotName(const RegisteredMesh& m);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;
   std::vector<std::shared_ptr<const RegisteredMesh>> List() const;
-  // Bytes of the registered meshes (each mesh once, however many names).
+  // Bytes of the registered meshes (each mesh once, however many names),
+  // and of what they hold beside them (a region's maps and ids).
   uint64_t resident_bytes() const;
   absl::Status Remove(const std::string& name);
 
@@ -143,10 +154,15 @@ class MeshRegistry {
   // RESOURCE_EXHAUSTED, naming the limit, when `m` under a new name does
   // not fit SetMemoryLimit's limit.
   absl::Status FitsMemoryLimit(const RegisteredMesh& m) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  // The same for `bytes` of mesh `mesh` (null: not built yet); `estimate`
-  // says, in the refusal, how the bytes were had.
+  // The same for `bytes` of mesh `mesh` (null: not built yet) and `extra`
+  // bytes beside it (RegisteredMesh::extra_bytes); `estimate` says, in the
+  // refusal, how the bytes were had.
   absl::Status RoomFor(const std::string& name, uint64_t bytes, const Mesh* mesh,
-                       const std::string& estimate) const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+                       const std::string& estimate, uint64_t extra = 0) const
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // RoomToBuild for a region cut with `ids` ids, whose maps and ids it
+  // counts too.
+  RegionRoom RoomForRegion(const std::string& name, uint64_t ids) const;
   // FitsMemoryLimit for a mesh about to be built from its counts, refused
   // before its build rather than after.
   std::function<absl::Status(uint64_t, uint64_t)> RoomToBuild(const std::string& name) const;
