@@ -7,6 +7,7 @@
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <thread>
@@ -127,7 +128,9 @@ TEST_F(CatalogTest, CertifiedGraphsRoundTripAsVersion2) {
   EXPECT_THAT(CatalogToJson(*after), ::testing::HasSubstr("\"version\": 1\n"));
 }
 
-TEST_F(CatalogTest, RegionsRoundTripAsVersion3) {
+// Regions are written as version 4, their ids once each in increasing
+// order, as runs or as a bitmap.
+TEST_F(CatalogTest, RegionsRoundTripAsVersion4) {
   Catalog catalog(dir_);
   CatalogMesh region{"cortex", "region", "region", 0, 0x1111222233334444ULL, false};
   region.parent = "kitten";
@@ -139,20 +142,23 @@ TEST_F(CatalogTest, RegionsRoundTripAsVersion3) {
     return absl::OkStatus();
   });
   ASSERT_TRUE(written.ok()) << written.status();
-  EXPECT_THAT(CatalogToJson(*written), ::testing::HasSubstr("\"version\": 3\n"));
-  auto read = catalog.Read();
-  ASSERT_TRUE(read.ok()) << read.status();
-  const CatalogMesh* m = read->FindMesh("cortex");
-  ASSERT_NE(m, nullptr);
-  EXPECT_EQ(m->parent, "kitten");
-  EXPECT_TRUE(m->region_faces);
-  EXPECT_EQ(m->region_ids, region.region_ids);
-  EXPECT_EQ(m->fingerprint, region.fingerprint);
-  const CatalogMesh* whole = read->FindMesh("kitten");
-  ASSERT_NE(whole, nullptr);
-  EXPECT_TRUE(whole->parent.empty());
-  EXPECT_TRUE(whole->region_ids.empty());
-  EXPECT_EQ(CatalogToJson(*read), CatalogToJson(*written));
+  const std::string text = CatalogToJson(*written);
+  EXPECT_THAT(text, ::testing::HasSubstr("\"version\": 4\n"));
+  EXPECT_THAT(text, ::testing::HasSubstr("\"ranges\": \"3,7,4000000000\""));
+  const std::vector<uint32_t> distinct = {3, 7, 4000000000u};
+  for (const CatalogState& read : {*Catalog(dir_).Read(), *written}) {
+    const CatalogMesh* m = read.FindMesh("cortex");
+    ASSERT_NE(m, nullptr);
+    EXPECT_EQ(m->parent, "kitten");
+    EXPECT_TRUE(m->region_faces);
+    EXPECT_EQ(m->region_ids, distinct);
+    EXPECT_EQ(m->fingerprint, region.fingerprint);
+    const CatalogMesh* whole = read.FindMesh("kitten");
+    ASSERT_NE(whole, nullptr);
+    EXPECT_TRUE(whole->parent.empty());
+    EXPECT_TRUE(whole->region_ids.empty());
+    EXPECT_EQ(CatalogToJson(read), text);
+  }
 
   // Gone: the catalog is version 1 again.
   auto after = catalog.Update([&](CatalogState& s) {
@@ -170,6 +176,151 @@ TEST_F(CatalogTest, RegionsRoundTripAsVersion3) {
   auto bad = catalog.Read();
   EXPECT_EQ(bad.status().code(), absl::StatusCode::kDataLoss);
   EXPECT_THAT(bad.status().message(), ::testing::HasSubstr("meshes[0].region.mask"));
+}
+
+CatalogMesh RegionOf(std::vector<uint32_t> ids) {
+  CatalogMesh region{"part", "region", "region", 0, 0x1111222233334444ULL, false};
+  region.parent = "kitten";
+  region.region_ids = std::move(ids);
+  return region;
+}
+
+// The text of the one region in `text`: what its ids take in the file.
+std::string RegionText(const std::string& text) {
+  const size_t at = text.find("\"region\"");
+  return at == std::string::npos ? "" : text.substr(at, text.find('}', at) - at);
+}
+
+// What the catalog holds of a region is about the size of its runs or of
+// a bitmap of its ids, whichever is smaller, not a line per id: a million
+// ids in one run take a few bytes, every other id of 200,000 a 25 KB bitmap.
+TEST_F(CatalogTest, RegionIdsAreStoredCompactlyAndReadBack) {
+  std::vector<uint32_t> run, alternate, scattered;
+  for (uint32_t id = 0; id < 1'000'000; ++id) run.push_back(id);
+  for (uint32_t id = 0; id < 200'000; id += 2) alternate.push_back(id);
+  for (uint32_t id = 5; id < 40'000'000; id += 400'037) scattered.push_back(id);
+  struct Case {
+    std::vector<uint32_t> ids;
+    const char* form;
+    size_t at_most;
+  };
+  for (const Case& c : {Case{run, "ranges", 200}, Case{alternate, "bitmap", 34'000},
+                        Case{scattered, "ranges", 1'200}, Case{{}, "ranges", 200}}) {
+    CatalogState state;
+    state.PutMesh(Kitten());
+    state.PutMesh(RegionOf(c.ids));
+    const std::string text = CatalogToJson(state);
+    const std::string region = RegionText(text);
+    EXPECT_THAT(region, ::testing::HasSubstr(absl::StrCat("\"", c.form, "\"")));
+    EXPECT_LE(region.size(), c.at_most) << c.form << " of " << c.ids.size();
+    auto read = CatalogFromJson(text, "catalog.json");
+    ASSERT_TRUE(read.ok()) << read.status();
+    ASSERT_NE(read->FindMesh("part"), nullptr);
+    EXPECT_EQ(read->FindMesh("part")->region_ids, c.ids) << c.form << " of " << c.ids.size();
+  }
+}
+
+// Version 3's list of ids, as earlier builds wrote it, still loads (once
+// each, in order); written again, it is version 4.
+TEST_F(CatalogTest, AVersion3RegionListStillLoads) {
+  WriteCatalogText(R"({"format": "geodesicd-catalog", "version": 3, "generation": 4,
+    "meshes": [{"name": "r", "source": "region", "format": "region",
+      "source_hash": "0000000000000000", "fingerprint": "0000000000000001",
+      "repair_non_manifold": false,
+      "region": {"parent": "p", "mask": "vertices", "ids": [900, 2, 2, 500, 900]}}],
+    "graphs": []})");
+  Catalog catalog(dir_);
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  ASSERT_NE(read->FindMesh("r"), nullptr);
+  EXPECT_EQ(read->FindMesh("r")->region_ids, (std::vector<uint32_t>{2, 500, 900}));
+  EXPECT_FALSE(read->FindMesh("r")->region_faces);
+  auto written = catalog.Update([](CatalogState&) { return absl::OkStatus(); });
+  ASSERT_TRUE(written.ok()) << written.status();
+  std::ifstream in(catalog.path());
+  const std::string text(std::istreambuf_iterator<char>(in), {});
+  EXPECT_THAT(text, ::testing::HasSubstr("\"version\": 4\n"));
+  EXPECT_THAT(text, ::testing::HasSubstr("\"ranges\": \"2,500,900\""));
+}
+
+TEST_F(CatalogTest, DamagedRegionIdsAreRefusedByName) {
+  Catalog catalog(dir_);
+  const std::string head = R"({"format": "geodesicd-catalog", "version": 4, "generation": 1,
+    "meshes": [{"name": "r", "source": "region", "format": "region",
+      "source_hash": "0000000000000000", "fingerprint": "0000000000000001",
+      "repair_non_manifold": false, "region": {"parent": "p", "mask": "faces", )";
+  const std::string tail = "}}], \"graphs\": []}";
+  for (const auto& [ids, says] : std::vector<std::pair<std::string, std::string>>{
+           {R"("count": 2, "ranges": "5-3")", "'5-3' is not a run"},
+           {R"("count": 2, "ranges": "1,1")", "'1' is not a run"},
+           {R"("count": 2, "ranges": "1,x")", "'x' is not an id"},
+           {R"("count": 1, "ranges": "1,")", "ends with a comma"},
+           {R"("count": 1, "ranges": "99999999999")", "is not an id"},
+           {R"("count": 3, "ranges": "0-9")", "more than the 3 ids of its count"},
+           {R"("count": 3, "ranges": "0-1")", "lists 2 ids, not the 3 of its count"},
+           {R"("count": 1, "bitmap": "%%%")", "is not base64"},
+           {R"("ranges": "0-1")", "region.count is missing"},
+       }) {
+    WriteCatalogText(head + ids + tail);
+    auto read = catalog.Read();
+    EXPECT_EQ(read.status().code(), absl::StatusCode::kDataLoss) << ids << ": " << read.status();
+    EXPECT_THAT(read.status().message(), ::testing::HasSubstr("meshes[0].region")) << ids;
+    EXPECT_THAT(read.status().message(), ::testing::HasSubstr(says)) << ids;
+  }
+}
+
+// The file is parsed again only when it changed: a follower polling an
+// unchanged catalog reads a few bytes, whatever its size.
+TEST_F(CatalogTest, AnUnchangedCatalogIsNotParsedAgain) {
+  Catalog catalog(dir_), other(dir_);
+  ASSERT_TRUE(catalog.Read().ok());  // no file: nothing to parse
+  EXPECT_EQ(catalog.parses(), 0u);
+  ASSERT_TRUE(catalog
+                  .Update([](CatalogState& s) {
+                    s.PutMesh(Kitten());
+                    return absl::OkStatus();
+                  })
+                  .ok());
+  auto first = catalog.ReadShared();
+  ASSERT_TRUE(first.ok()) << first.status();
+  for (int i = 0; i < 5; ++i) {
+    auto again = catalog.ReadShared();
+    ASSERT_TRUE(again.ok());
+    EXPECT_EQ(*again, *first);  // the same object
+  }
+  EXPECT_EQ(catalog.parses(), 0u);  // what it wrote, it knows
+
+  // Changed elsewhere (another replica): parsed once.
+  ASSERT_TRUE(other
+                  .Update([](CatalogState& s) {
+                    CatalogMesh m = Kitten();
+                    m.name = "other";
+                    s.PutMesh(m);
+                    return absl::OkStatus();
+                  })
+                  .ok());
+  for (int i = 0; i < 3; ++i) {
+    auto read = catalog.Read();
+    ASSERT_TRUE(read.ok());
+    EXPECT_NE(read->FindMesh("other"), nullptr);
+  }
+  EXPECT_EQ(catalog.parses(), 1u);
+
+  // Rewritten in place by hand, to the same size, a while later: parsed
+  // again. (Within the same tick of the file system's clock, only an
+  // Update's new generation would tell.)
+  std::string text = CatalogToJson(*catalog.Read());
+  text.replace(text.find("\"other\""), 7, "\"third\"");
+  const auto before = std::filesystem::last_write_time(catalog.path());
+  WriteCatalogText(text);
+  std::filesystem::last_write_time(catalog.path(), before + std::chrono::seconds(5));
+  auto read = catalog.Read();
+  ASSERT_TRUE(read.ok()) << read.status();
+  EXPECT_NE(read->FindMesh("third"), nullptr);
+  EXPECT_EQ(catalog.parses(), 2u);
+  // Gone: the empty state.
+  std::filesystem::remove(catalog.path());
+  EXPECT_EQ(catalog.Read()->generation, 0u);
 }
 
 // A catalog as builds before certified graphs wrote it still loads, its
