@@ -10,16 +10,67 @@ absl::Status CatalogSync::Reconcile() {
   // Read under the lock: a state read before a Record* that then applied a
   // newer one would undo that change here (cancel the graph just requested).
   absl::MutexLock lock(&mu_);
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Read());
-  if (state.generation < generation_) return absl::OkStatus();  // older than what we applied
-  return ApplyLocked(state);
+  ASSIGN_OR_RETURN(std::shared_ptr<const CatalogState> state, catalog_->ReadShared());
+  if (state == applied_ && failures_.empty()) return absl::OkStatus();
+  if (state->generation < generation_) return absl::OkStatus();  // older than what we applied
+  return ApplySharedLocked(std::move(state));
 }
 
 absl::Status CatalogSync::ReconcileIfChanged() {
   absl::MutexLock lock(&mu_);
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Read());
-  if (state.generation <= generation_) return absl::OkStatus();
-  return ApplyLocked(state);
+  ASSIGN_OR_RETURN(std::shared_ptr<const CatalogState> state, catalog_->ReadShared());
+  if (state->generation <= generation_) return absl::OkStatus();
+  return ApplySharedLocked(std::move(state));
+}
+
+absl::Status CatalogSync::ApplySharedLocked(std::shared_ptr<const CatalogState> state) {
+  applied_ = state;
+  return ApplyLocked(*state);
+}
+
+bool CatalogSync::OrphanedLocked(const CatalogState& state, const CatalogMesh& m) const {
+  return !m.parent.empty() && !state.FindMesh(m.parent) && !startup_.contains(m.parent);
+}
+
+void CatalogSync::RemoveOrphansLocked(const std::vector<CatalogMesh>& orphans) {
+  std::vector<const CatalogMesh*> removed;
+  auto updated = catalog_->UpdateShared(
+      [&](CatalogState& s) -> absl::Status {
+        removed.clear();
+        for (const CatalogMesh& orphan : orphans) {
+          // Registered again meanwhile, or its parent: not an orphan now.
+          const CatalogMesh* now = s.FindMesh(orphan.name);
+          if (!now || now->fingerprint != orphan.fingerprint || !OrphanedLocked(s, *now)) continue;
+          s.RemoveMesh(orphan.name);
+          removed.push_back(&orphan);
+        }
+        // Nothing to write.
+        if (removed.empty()) return absl::CancelledError();
+        return absl::OkStatus();
+      },
+      Catalog::Reserve::kFreesSpace);
+  if (!updated.ok()) {
+    if (absl::IsCancelled(updated.status())) return;
+    for (const CatalogMesh& orphan : orphans) {
+      Log(LogLevel::kWarning, "catalog_region_orphaned",
+          {{"mesh", orphan.name},
+           {"parent", orphan.parent},
+           {"removed", "false"},
+           {"error", updated.status().ToString()}});
+    }
+    return;
+  }
+  // Applied at the next Reconcile, with whatever else changed meanwhile.
+  for (const CatalogMesh* orphan : removed) {
+    Log(LogLevel::kWarning, "catalog_region_orphaned",
+        {{"mesh", orphan->name},
+         {"parent", orphan->parent},
+         {"removed", "true"},
+         {"reason",
+          "its parent is not in the catalog and not registered at start here; the "
+          "region is removed from the catalog"}});
+    listed_.erase(orphan->name);
+  }
 }
 
 absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
@@ -48,9 +99,15 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
   for (const CatalogMesh& m : state.meshes) {
     if (!m.parent.empty()) order.push_back(&m);
   }
+  std::vector<CatalogMesh> orphans;
   for (const CatalogMesh* listed : order) {
     const CatalogMesh& m = *listed;
     if (meshes_.contains(m.name)) continue;
+    if (OrphanedLocked(state, m)) {
+      failures_.erase(m.name);
+      orphans.push_back(m);
+      continue;
+    }
     absl::Status s = hooks_.restore_mesh(m);
     if (!s.ok()) {
       auto [failure, added] = failures_.try_emplace(m.name, s.ToString());
@@ -78,32 +135,42 @@ absl::Status CatalogSync::ApplyLocked(const CatalogState& state) {
     if (!meshes_.contains(g.mesh) && !startup_.contains(g.mesh)) continue;
     if (graphs_.insert(g).second) hooks_.request_graph(g.mesh, g.params, g.max_error);
   }
+  if (!orphans.empty()) RemoveOrphansLocked(orphans);
   return absl::OkStatus();
 }
 
 absl::Status CatalogSync::RecordMesh(const CatalogMesh& mesh) {
   absl::MutexLock lock(&mu_);
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
-    const CatalogMesh* existing = s.FindMesh(mesh.name);
-    if (existing && existing->fingerprint != mesh.fingerprint) {
-      return absl::AlreadyExistsError(
-          absl::StrFormat("mesh '%s' is already registered (from %s) with other contents",
-                          mesh.name, existing->source));
-    }
-    s.PutMesh(mesh);
-    return absl::OkStatus();
-  }));
+  ASSIGN_OR_RETURN(
+      std::shared_ptr<const CatalogState> state, catalog_->UpdateShared([&](CatalogState& s) {
+        const CatalogMesh* existing = s.FindMesh(mesh.name);
+        if (existing && existing->fingerprint != mesh.fingerprint) {
+          return absl::AlreadyExistsError(
+              absl::StrFormat("mesh '%s' is already registered (from %s) with other contents",
+                              mesh.name, existing->source));
+        }
+        // Its parent unloaded on another replica since this one
+        // found it: recorded, the region could never be restored.
+        if (OrphanedLocked(s, mesh)) {
+          return absl::FailedPreconditionError(
+              absl::StrFormat("mesh '%s', the parent of region '%s', was unloaded meanwhile (by "
+                              "another replica)",
+                              mesh.parent, mesh.name));
+        }
+        s.PutMesh(mesh);
+        return absl::OkStatus();
+      }));
   // Loaded here already: applying it means only remembering it.
   meshes_[mesh.name] = mesh.fingerprint;
   failures_.erase(mesh.name);
-  return ApplyLocked(state);
+  return ApplySharedLocked(std::move(state));
 }
 
 absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
   absl::MutexLock lock(&mu_);
   bool listed = false;
-  ASSIGN_OR_RETURN(CatalogState state,
-                   catalog_->Update(
+  ASSIGN_OR_RETURN(std::shared_ptr<const CatalogState> state,
+                   catalog_->UpdateShared(
                        [&](CatalogState& s) -> absl::Status {
                          // Regions registered on other replicas too.
                          for (const CatalogMesh& m : s.meshes) {
@@ -121,13 +188,16 @@ absl::StatusOr<bool> CatalogSync::ForgetMesh(const std::string& name) {
   // The caller unloads the mesh itself.
   meshes_.erase(name);
   std::erase_if(graphs_, [&](const CatalogGraph& g) { return g.mesh == name; });
-  RETURN_IF_ERROR(ApplyLocked(state));
+  RETURN_IF_ERROR(ApplySharedLocked(std::move(state)));
   return listed;
 }
 
 void CatalogSync::AddStartupMesh(const std::string& name) {
   absl::MutexLock lock(&mu_);
   startup_.insert(name);
+  // Its graphs in the catalog are requested at the next Reconcile, though
+  // the file is unchanged.
+  applied_.reset();
 }
 
 absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const DggParams& params,
@@ -135,17 +205,18 @@ absl::StatusOr<bool> CatalogSync::RecordGraph(const std::string& mesh, const Dgg
   absl::MutexLock lock(&mu_);
   const bool startup = startup_.contains(mesh) && !meshes_.contains(mesh);
   if (!meshes_.contains(mesh) && !startup) return false;
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update([&](CatalogState& s) {
-    if (!startup && !s.FindMesh(mesh)) {
-      return absl::NotFoundError(
-          absl::StrFormat("mesh '%s' was unloaded meanwhile (by another replica)", mesh));
-    }
-    s.PutGraph({mesh, params, max_error});
-    return absl::OkStatus();
-  }));
+  ASSIGN_OR_RETURN(
+      std::shared_ptr<const CatalogState> state, catalog_->UpdateShared([&](CatalogState& s) {
+        if (!startup && !s.FindMesh(mesh)) {
+          return absl::NotFoundError(
+              absl::StrFormat("mesh '%s' was unloaded meanwhile (by another replica)", mesh));
+        }
+        s.PutGraph({mesh, params, max_error});
+        return absl::OkStatus();
+      }));
   // The caller requests the graph itself; remember it as applied.
   graphs_.insert({mesh, params, max_error});
-  RETURN_IF_ERROR(ApplyLocked(state));
+  RETURN_IF_ERROR(ApplySharedLocked(std::move(state)));
   return true;
 }
 
@@ -153,15 +224,16 @@ absl::StatusOr<bool> CatalogSync::ForgetGraph(const std::string& mesh, const Dgg
                                               double max_error) {
   absl::MutexLock lock(&mu_);
   bool listed = false;
-  ASSIGN_OR_RETURN(CatalogState state, catalog_->Update(
-                                           [&](CatalogState& s) {
-                                             listed = s.RemoveGraph(mesh, params, max_error);
-                                             return absl::OkStatus();
-                                           },
-                                           Catalog::Reserve::kFreesSpace));
+  ASSIGN_OR_RETURN(std::shared_ptr<const CatalogState> state, catalog_->UpdateShared(
+                                                                  [&](CatalogState& s) {
+                                                                    listed = s.RemoveGraph(
+                                                                        mesh, params, max_error);
+                                                                    return absl::OkStatus();
+                                                                  },
+                                                                  Catalog::Reserve::kFreesSpace));
   // The caller cancels the graph itself.
   graphs_.erase({mesh, params, max_error});
-  RETURN_IF_ERROR(ApplyLocked(state));
+  RETURN_IF_ERROR(ApplySharedLocked(std::move(state)));
   return listed;
 }
 

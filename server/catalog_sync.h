@@ -11,6 +11,12 @@
 // longer lists (another replica unloaded it). Meshes this daemon holds that
 // never came through the catalog (the bundled sample) are left alone.
 //
+// A region whose parent the catalog does not list, and which is no start-up
+// mesh here (AddStartupMesh), can never be cut again: a restore removes it
+// from the catalog, with a warning, rather than fail on it at every poll.
+// (Replicas sharing a directory should so declare the same start-up meshes:
+// a region of one only another replica declares is such an orphan here.)
+//
 // What "apply" means is given as hooks, so the rules here are tested
 // without a registry or a cache.
 #ifndef GEODESIC_SERVER_CATALOG_SYNC_H_
@@ -18,10 +24,12 @@
 
 #include <functional>
 #include <map>
+#include <memory>
 #include <optional>
 #include <set>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include "absl/base/thread_annotations.h"
 #include "absl/status/statusor.h"
@@ -48,7 +56,9 @@ class CatalogSync {
 
   // Reads the catalog and applies what differs. Errors are the catalog's
   // (unreadable, damaged); a mesh that fails to restore is reported by
-  // failures() and tried again at the next call.
+  // failures() and tried again at the next call. A catalog unchanged since
+  // it was applied, with no failure to retry, is neither parsed nor applied
+  // again (Catalog::Read): the follower calls this every few seconds.
   absl::Status Reconcile();
   // Reconcile, but only if the catalog changed since it was last applied:
   // the cheap path for a query naming what this daemon lacks, so a stream
@@ -80,19 +90,34 @@ class CatalogSync {
 
   // Whether the catalog lists the mesh (as last read).
   bool Catalogued(const std::string& mesh) const;
-  // Meshes that could not be restored, with the reason.
+  // Meshes that could not be restored, with the reason (orphaned regions
+  // are not among them: they are removed).
   std::map<std::string, std::string> failures() const;
   // The reason `mesh` could not be restored, if it could not.
   std::optional<std::string> Failure(const std::string& mesh) const;
   uint64_t generation() const;
 
  private:
+  // Applies `state` and remembers it as applied.
+  absl::Status ApplySharedLocked(std::shared_ptr<const CatalogState> state)
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status ApplyLocked(const CatalogState& state) ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // A region that can never be restored here: its parent is not in `state`
+  // and is no start-up mesh.
+  bool OrphanedLocked(const CatalogState& state, const CatalogMesh& m) const
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // Removes `orphans` from the catalog (those still orphaned there), with a
+  // warning each.
+  void RemoveOrphansLocked(const std::vector<CatalogMesh>& orphans)
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
 
   Catalog* const catalog_;
   const Hooks hooks_;
   mutable absl::Mutex mu_;
   uint64_t generation_ ABSL_GUARDED_BY(mu_) = 0;
+  // The catalog's state last applied (Catalog::ReadShared's object), null
+  // when another must be applied even if the file is unchanged.
+  std::shared_ptr<const CatalogState> applied_ ABSL_GUARDED_BY(mu_);
   std::set<std::string> listed_ ABSL_GUARDED_BY(mu_);  // meshes in the catalog
   // What this daemon applied from the catalog: mesh name -> fingerprint.
   std::map<std::string, uint64_t> meshes_ ABSL_GUARDED_BY(mu_);

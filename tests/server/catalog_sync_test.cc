@@ -19,7 +19,9 @@ namespace {
 
 namespace fs = std::filesystem;
 using ::testing::ElementsAre;
+using ::testing::HasSubstr;
 using ::testing::IsEmpty;
+using ::testing::Not;
 using ::testing::Pair;
 
 // What one daemon holds, as the hooks change it.
@@ -36,6 +38,9 @@ struct FakeDaemon {
             [this](const CatalogMesh& m) {
               ++restores;
               if (unrestorable.contains(m.name)) return absl::DataLossError("snapshot damaged");
+              if (!m.parent.empty() && !meshes.contains(m.parent)) {
+                return absl::NotFoundError("no mesh named '" + m.parent + "'");
+              }
               meshes[m.name] = m.fingerprint;
               return absl::OkStatus();
             },
@@ -66,6 +71,13 @@ struct FakeDaemon {
 
 CatalogMesh MeshNamed(const std::string& name, uint64_t fingerprint = 7) {
   return {name, "upload", "obj", 42, fingerprint, false};
+}
+
+CatalogMesh RegionNamed(const std::string& name, const std::string& parent) {
+  CatalogMesh m{name, "region", "region", 0, 11, false};
+  m.parent = parent;
+  m.region_ids = {0, 1, 2};
+  return m;
 }
 
 DggParams ParamsAt(double e) {
@@ -286,6 +298,98 @@ TEST_F(CatalogSyncTest, LocalOnlyMeshesAreLeftAlone) {
   auto forgot = sync.ForgetMesh("sample");
   ASSERT_TRUE(forgot.ok());
   EXPECT_FALSE(*forgot);
+}
+
+// The follower reconciles every few seconds: a catalog unchanged since it
+// was applied is not parsed, nor applied, again, however often it is asked.
+TEST_F(CatalogSyncTest, AnUnchangedCatalogIsNeitherParsedNorAppliedAgain) {
+  Catalog catalog_a(dir_), catalog_b(dir_);
+  FakeDaemon a, b;
+  CatalogSync sync_a(&catalog_a, a.Hooks()), sync_b(&catalog_b, b.Hooks());
+  a.meshes["kitten"] = 7;
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("kitten")).ok());
+  ASSERT_TRUE(sync_a.RecordGraph("kitten", ParamsAt(1e-3)).ok());
+
+  ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_EQ(catalog_b.parses(), 1u);
+  for (int i = 0; i < 20; ++i) {
+    ASSERT_TRUE(sync_b.Reconcile().ok());
+    ASSERT_TRUE(sync_b.ReconcileIfChanged().ok());
+  }
+  EXPECT_EQ(catalog_b.parses(), 1u);
+  EXPECT_EQ(b.restores, 1);
+  EXPECT_THAT(b.graphs, ElementsAre(Pair("kitten", 1e-3)));
+  // What a daemon wrote itself it need not read back.
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(sync_a.Reconcile().ok());
+  EXPECT_EQ(catalog_a.parses(), 0u);
+
+  a.meshes["puppy"] = 8;  // a change: parsed once, applied once
+  ASSERT_TRUE(sync_a.RecordMesh(MeshNamed("puppy", 8)).ok());
+  for (int i = 0; i < 3; ++i) ASSERT_TRUE(sync_b.Reconcile().ok());
+  EXPECT_EQ(catalog_b.parses(), 2u);
+  EXPECT_EQ(b.restores, 2);
+  EXPECT_THAT(b.meshes, ElementsAre(Pair("kitten", 7u), Pair("puppy", 8u)));
+}
+
+// A region whose parent the catalog no longer lists (an older build, an
+// unload racing the region's registration elsewhere) could never be cut
+// again: the restore removes it from the catalog, with a warning, instead of
+// failing on it at every poll. A region of a start-up mesh stays, as does one
+// whose catalogued parent failed to restore here (a failure, retried).
+TEST_F(CatalogSyncTest, ARegionWhoseParentIsGoneIsRemovedFromTheCatalogWithAWarning) {
+  Catalog catalog(dir_);
+  ASSERT_TRUE(catalog
+                  .Update([](CatalogState& s) {
+                    s.PutMesh(MeshNamed("broken", 1));
+                    s.PutMesh(RegionNamed("orphan", "gone"));
+                    s.PutMesh(RegionNamed("lobe", "sample"));
+                    s.PutMesh(RegionNamed("part", "broken"));
+                    s.PutGraph({"orphan", ParamsAt(1e-3)});
+                    return absl::OkStatus();
+                  })
+                  .ok());
+  FakeDaemon d;
+  d.unrestorable = {"broken"};
+  d.meshes["sample"] = 3;  // registered by serve itself
+  CatalogSync sync(&catalog, d.Hooks());
+  sync.AddStartupMesh("sample");
+  ::testing::internal::CaptureStderr();
+  ASSERT_TRUE(sync.Reconcile().ok());
+  const std::string log = ::testing::internal::GetCapturedStderr();
+  EXPECT_THAT(log, HasSubstr("warning catalog_region_orphaned mesh=orphan parent=gone"));
+  EXPECT_THAT(log, Not(HasSubstr("orphaned mesh=lobe")));
+  EXPECT_THAT(log, Not(HasSubstr("orphaned mesh=part")));
+  EXPECT_THAT(d.meshes, ElementsAre(Pair("lobe", 11u), Pair("sample", 3u)));
+  EXPECT_THAT(sync.failures(), ElementsAre(Pair("broken", HasSubstr("damaged")),
+                                           Pair("part", HasSubstr("no mesh named 'broken'"))));
+  auto state = Catalog(dir_).Read();
+  ASSERT_TRUE(state.ok()) << state.status();
+  EXPECT_EQ(state->FindMesh("orphan"), nullptr);
+  EXPECT_TRUE(state->graphs.empty());
+  EXPECT_NE(state->FindMesh("lobe"), nullptr);
+  EXPECT_NE(state->FindMesh("part"), nullptr);
+  EXPECT_FALSE(sync.Catalogued("orphan"));
+
+  ::testing::internal::CaptureStderr();
+  ASSERT_TRUE(sync.Reconcile().ok());
+  EXPECT_THAT(::testing::internal::GetCapturedStderr(), Not(HasSubstr("orphaned")));
+  EXPECT_EQ(Catalog(dir_).Read()->generation, state->generation);
+}
+
+// Nor is such a region recorded: its parent was unloaded (elsewhere) after
+// this daemon found it.
+TEST_F(CatalogSyncTest, ARegionOfAParentNoLongerCataloguedIsNotRecorded) {
+  Catalog catalog(dir_);
+  FakeDaemon d;
+  CatalogSync sync(&catalog, d.Hooks());
+  sync.AddStartupMesh("sample");
+  absl::Status s = sync.RecordMesh(RegionNamed("late", "unloaded"));
+  EXPECT_EQ(s.code(), absl::StatusCode::kFailedPrecondition) << s;
+  EXPECT_THAT(s.message(), HasSubstr("'unloaded'"));
+  EXPECT_FALSE(sync.Catalogued("late"));
+  EXPECT_TRUE(sync.RecordMesh(RegionNamed("lobe", "sample")).ok());
+  ASSERT_TRUE(sync.RecordMesh(MeshNamed("kitten")).ok());
+  EXPECT_TRUE(sync.RecordMesh(RegionNamed("ear", "kitten")).ok());
 }
 
 TEST_F(CatalogSyncTest, ADamagedCatalogIsAnErrorAndChangesNothing) {
