@@ -3,8 +3,9 @@
 survive SIGTERM and kill -9 and answer again at once, without rebuilding;
 two replicas on one graph directory share them; --disk-limit never removes a
 file in use; a port already taken is refused; sizes read as K/M/G; /healthz
-and /readyz; a --config file. Every daemon listens on 127.0.0.1 port 0, and
-every wait is bounded.
+and /readyz; a --config file; regions kept compactly in the catalog, and a
+region whose parent is gone from it removed at the next start. Every daemon
+listens on 127.0.0.1 port 0, and every wait is bounded.
 
 Usage: durability_test.py BUILD_BIN_DIR SOURCE_DIR"""
 import json
@@ -21,7 +22,10 @@ import urllib.error
 import urllib.request
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(sys.argv[2], "client", "python"))
 import daemon_ports  # noqa: E402
+import grpc  # noqa: E402
+from geodesic_client import Client, GeodesicError  # noqa: E402
 from checklist import Checklist  # noqa: E402
 from daemon_ports import start_daemon  # noqa: E402
 
@@ -59,6 +63,21 @@ def real(distance):
 
 def same_distance(got, want):
     return real(got) and real(want) and got == want
+
+
+def fan_of_vertex_0(path):
+    """The face ids (0-based) of the faces around vertex 0 of an .obj: a disk."""
+    faces = []
+    with open(path) as f:
+        for line in f:
+            if line.startswith("f "):
+                faces.append([int(c.split("/")[0]) - 1 for c in line.split()[1:]])
+    return [i for i, face in enumerate(faces) if 0 in face], len(faces)
+
+
+def catalog_of(graphs):
+    with open(os.path.join(graphs, "catalog.json")) as f:
+        return f.read()
 
 
 def distance_within(port, mesh, seconds):
@@ -210,6 +229,59 @@ with tempfile.TemporaryDirectory() as work:
           rc == 0 and rc2 == 0 and rc3 == 0 and
           same_distance(distance_within(ports["grpc"], "sent", 10), want),
           err + err2 + err3)
+    stop(daemon)
+
+    # Regions (#67 item 7): a region of ids repeated a thousand times is the
+    # region of the ids once, and the catalog records them once, as runs;
+    # ids past reason are refused before any work.
+    regions = os.path.join(work, "region-graphs")
+    daemon, ports = serve(work, regions)
+    rc, _, err = cli(ports["grpc"], "--mesh", "kitten", "load", "spot.obj")
+    check("a parent registered", rc == 0, err)
+    fan, face_count = fan_of_vertex_0(os.path.join(data, "spot.obj"))
+    with Client(f"127.0.0.1:{ports['grpc']}", timeout=120) as client:
+        plain = client.register_region("fan", "kitten", faces=fan)
+        repeated = client.register_region("fan_x1000", "kitten", faces=fan[::-1] * 1000)
+        check("ids repeated 1000 times cut the same region",
+              repeated.fingerprint == plain.fingerprint, (repeated, plain))
+        try:
+            client.register_region("flood", "kitten", faces=[fan[0]] * (4 * face_count + 1))
+            refused = None
+        except GeodesicError as e:
+            refused = e
+        check("more than 4 ids per parent face are refused by name",
+              refused is not None and refused.code() == grpc.StatusCode.INVALID_ARGUMENT and
+              "list each id once" in refused.details(), refused)
+    text = catalog_of(regions)
+    catalog = json.loads(text)
+    entry = [m for m in catalog["meshes"] if m["name"] == "fan_x1000"]
+    check("the catalog records the region's ids once, compactly",
+          catalog["version"] == 4 and len(entry) == 1 and
+          entry[0]["region"].get("count") == len(fan) and len(text) < 4096,
+          (len(text), entry))
+    stop(daemon)
+
+    # The region's parent gone from the catalog while the daemon is down (an
+    # older build, a hand edit): the next start removes the regions from the
+    # catalog, with a warning, rather than fail on them at every poll.
+    catalog["meshes"] = [m for m in catalog["meshes"] if m["name"] != "kitten"]
+    catalog["graphs"] = [g for g in catalog["graphs"] if g["mesh"] != "kitten"]
+    with open(os.path.join(regions, "catalog.json"), "w") as f:
+        json.dump(catalog, f)
+    daemon, ports = serve(work, regions)
+    deadline, left = time.time() + 10, None
+    while time.time() < deadline:
+        left = [m["name"] for m in json.loads(catalog_of(regions))["meshes"]]
+        if not left:
+            break
+        time.sleep(0.2)
+    with open(os.path.join(work, "daemon.log")) as f:
+        orphaned = [line for line in f if "catalog_region_orphaned" in line]
+    check("regions whose parent is gone are removed from the catalog, with a warning",
+          left == [] and len(orphaned) == 2 and all("parent=kitten" in l for l in orphaned),
+          (left, orphaned))
+    _, listed, _ = cli(ports["grpc"], "meshes")
+    check("and are not served", [m["name"] for m in listed or []] == [], listed)
     stop(daemon)
 
     r = subprocess.run([f"{bin_dir}/geodesicd", "serve", "--listen", "127.0.0.1:0",
