@@ -4,7 +4,8 @@
 - 64 concurrent clients (--max-inflight's default; each with a token of its own) doing pairs,
   fields and small matrices get no error at all, while 16 WatchGraph streams are held open on a building graph and listing,
   GetGraph, CancelGraph and health each answer within a second;
-- past the limit, the only error is a clean RESOURCE_EXHAUSTED "server overloaded" with a
+- past the limit (queries admitted and as many waiting for a slot), the only error is a clean
+  RESOURCE_EXHAUSTED "server overloaded" with a
   retry-after-ms hint;
 - afterwards the admission gauges on /metrics are back to 0;
 - a matrix whose answer cannot fit a message is refused at once, naming its size;
@@ -177,7 +178,7 @@ class DefaultFlagsTest(unittest.TestCase):
             BIN, cls.work, ["--graph-dir", f"{cls.work}/graphs", "--log-level", "warning",
                             # The watched graph must build for the whole crowd.
                             "--min-epsilon", "1e-6", "--mesh-root", cls.work],
-            metrics=True, tokens=["main"] + [f"crowd-{i}" for i in range(96)])
+            metrics=True, tokens=["main"] + [f"crowd-{i}" for i in range(160)])
         cls.port, cls.metrics_port = ports["grpc"], ports["metrics"]
         cls.channel = daemon_ports.authed(grpc.insecure_channel(f"127.0.0.1:{cls.port}"), "main")
         cls.stub = rpc.GeodesicStub(cls.channel)
@@ -255,7 +256,8 @@ class DefaultFlagsTest(unittest.TestCase):
 
     def test_2_past_the_limit_the_only_error_is_a_clean_overload(self):
         stop = threading.Event()
-        crowd = Crowd(self.port, 96, [pairs, field, matrix], stop)
+        # Past --max-inflight and the as many again that may wait for a slot.
+        crowd = Crowd(self.port, 160, [pairs, field, matrix], stop)
         crowd.run()
         time.sleep(min(SECONDS, 6))
         capacity = self.health("geodesic.v1.Geodesic/capacity", timeout=5)
@@ -299,13 +301,14 @@ class DefaultFlagsTest(unittest.TestCase):
         # A client that assumes a larger cap than the server's tiles the matrix again in row
         # blocks the server accepts.
         sources, targets = list(range(1024)), [v % SPOT_VERTICES for v in range(10000)]
-        with Client(f"127.0.0.1:{self.port}", timeout=120, max_message_bytes=256 << 20) as c:
+        with Client(f"127.0.0.1:{self.port}", token="main", timeout=120,
+                    max_message_bytes=256 << 20) as c:
             tiled = c.matrix("spot", sources, targets)
         self.assertEqual(tiled.shape, (1024, 10000))
         self.assertEqual([tiled[v, v] for v in (0, 500, 1023)], [0, 0, 0])
         self.assertGreater(tiled[0, 1], 0)
         # The default client streams it in row blocks (MatrixRows): the same distances.
-        with Client(f"127.0.0.1:{self.port}", timeout=120) as c:
+        with Client(f"127.0.0.1:{self.port}", token="main", timeout=120) as c:
             streamed = c.matrix("spot", sources, targets)
         self.assertTrue((streamed == tiled).all())
 

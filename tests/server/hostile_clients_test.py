@@ -1,0 +1,224 @@
+#!/usr/bin/python3
+"""Hostile and crowded clients against the daemon (#67): what the fair share and the deadlines
+promise holds.
+
+- (a) a forged bearer sent first beside the real one is refused UNAUTHENTICATED, and 40 threads
+  sending such calls leave another client's light queries answered (at least 90%);
+- (b) a query waiting on a graph still being built, with a 300 ms deadline, gets the retryable
+  UNAVAILABLE (with retry-after-ms, graph-state and graph-progress trailers) in at least 19 of
+  20 tries, not DEADLINE_EXCEEDED;
+- (c) one host alone, no token: 64 clients get at least 0.8x the answers 32 clients get in the
+  same time (the share binds only when another client waits), with no error but a clean
+  overload.
+
+Bounds come from this run: (c) compares two crowds of the same run. Every daemon listens on
+127.0.0.1 port 0 and every load is bounded in time.
+
+Usage: hostile_clients_test.py BUILD_BIN_DIR SOURCE_DIR [SECONDS]"""
+import os
+import shutil
+import sys
+import tempfile
+import threading
+import time
+
+BIN, SRC = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
+SECONDS = float(sys.argv[3]) if len(sys.argv) > 3 else 6
+sys.path.insert(0, os.path.join(SRC, "client", "python"))
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(SRC, "bench"))
+import grpc  # noqa: E402
+from geodesic_client._stubs import pb, rpc  # noqa: E402
+import daemon_ports  # noqa: E402
+from checklist import Checklist  # noqa: E402
+from daemon_ports import bearer, start_daemon  # noqa: E402
+from geodesicd_runner import read_obj  # noqa: E402
+from subdivide_mesh import subdivide, write_ply  # noqa: E402
+
+check = Checklist()
+SPOT_VERTICES = 2930
+TOKEN, VICTIM = "the-real-token", "the-victim"
+
+
+def light_pair(stub, k, metadata=None):
+    req = pb.DistanceRequest(mesh="spot", pairs=[pb.PointPair(**{
+        "from": pb.SurfacePoint(vertex=(37 * k) % SPOT_VERTICES),
+        "to": pb.SurfacePoint(vertex=(101 * k + 7) % SPOT_VERTICES)})])
+    return stub.Distance(req, timeout=5, metadata=metadata)
+
+
+def wait_for_spot(stub, metadata=None):
+    deadline = time.time() + 60
+    while time.time() < deadline:
+        try:
+            if stub.GetGraph(pb.GetGraphRequest(mesh="spot"), timeout=5,
+                             metadata=metadata).state == pb.GRAPH_STATE_READY:
+                return True
+        except grpc.RpcError:
+            pass
+        time.sleep(0.1)
+    return False
+
+
+def case_forged_identity(work):
+    daemon, ports = start_daemon(BIN, os.path.join(work, "forged"),
+                                 ["--graph-dir", os.path.join(work, "forged", "graphs"),
+                                  "--log-level", "warning"], tokens=[TOKEN, VICTIM])
+    try:
+        channel = grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}")
+        stub = rpc.GeodesicStub(channel)
+        forged = [("authorization", "Bearer made-up")] + bearer(TOKEN)
+        if not check("(a) spot's graph ready", wait_for_spot(stub, bearer(TOKEN))):
+            return
+        code, details = grpc.StatusCode.OK, ""
+        try:
+            light_pair(stub, 1, forged)
+        except grpc.RpcError as e:
+            code, details = e.code(), e.details()
+        check("(a) a forged bearer beside the real one is refused",
+              code == grpc.StatusCode.UNAUTHENTICATED and "exactly one" in details, code)
+        stop = threading.Event()
+        refused = [0]
+
+        def forger(i):
+            while not stop.is_set():
+                try:
+                    light_pair(stub, i, [("authorization", f"Bearer random-{i}-{time.time()}")]
+                               + bearer(TOKEN))
+                except grpc.RpcError as e:
+                    refused[0] += e.code() == grpc.StatusCode.UNAUTHENTICATED
+        threads = [threading.Thread(target=forger, args=(i,)) for i in range(40)]
+        for t in threads:
+            t.start()
+        answered = 0
+        for k in range(20):
+            try:
+                answered += len(light_pair(stub, k, bearer(VICTIM)).results) == 1
+            except grpc.RpcError:
+                pass
+            time.sleep(0.05)
+        stop.set()
+        for t in threads:
+            t.join(timeout=30)
+        check("(a) the forgers were refused", refused[0] > 0, refused[0])
+        check("(a) another client beside 40 forging threads is answered (>= 18 of 20)",
+              answered >= 18, answered)
+        channel.close()
+    finally:
+        daemon_ports.stop(daemon)
+
+
+def case_unavailable_before_deadline(work):
+    mesh_root = os.path.join(work, "meshes")
+    os.makedirs(mesh_root, exist_ok=True)
+    vertices, faces = read_obj(os.path.join(SRC, "data", "spot.obj"))
+    for _ in range(2):
+        vertices, faces = subdivide(vertices, faces)
+    write_ply(os.path.join(mesh_root, "fine.ply"), vertices, faces)
+    daemon, ports = start_daemon(BIN, os.path.join(work, "building"),
+                                 ["--graph-dir", os.path.join(work, "building", "graphs"),
+                                  "--log-level", "warning", "--no-sample", "--min-epsilon", "1e-6",
+                                  "--auto-build-any-epsilon", "--mesh-root", mesh_root])
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
+            stub = rpc.GeodesicStub(channel)
+            stub.RegisterMesh(pb.RegisterMeshRequest(name="fine", path="fine.ply"), timeout=60)
+            # A graph that takes far longer to build than this case runs.
+            stub.RequestGraph(pb.RequestGraphRequest(mesh="fine", epsilon=5e-6), timeout=10)
+            codes, hints = [], []
+            for k in range(20):
+                req = pb.DistanceRequest(mesh="fine", epsilon=5e-6, pairs=[pb.PointPair(**{
+                    "from": pb.SurfacePoint(vertex=k), "to": pb.SurfacePoint(vertex=500 + k)})])
+                try:
+                    stub.Distance(req, timeout=0.3)
+                    codes.append("OK")
+                except grpc.RpcError as e:
+                    codes.append(e.code().name)
+                    trailers = dict(e.trailing_metadata() or ())
+                    hints.append((trailers.get("retry-after-ms"), trailers.get("graph-state"),
+                                  trailers.get("graph-progress")))
+            stub.CancelGraph(pb.CancelGraphRequest(mesh="fine", epsilon=5e-6), timeout=10)
+        unavailable = codes.count("UNAVAILABLE")
+        check("(b) a query waiting on a build with a 300 ms deadline gets UNAVAILABLE "
+              "(at least 19 of 20)", unavailable >= 19, codes)
+        complete = [h for h in hints if all(h) and int(h[0]) > 0 and 0 <= float(h[2]) <= 1]
+        check("(b) each UNAVAILABLE carries retry-after-ms, graph-state and graph-progress",
+              len(complete) >= unavailable and unavailable > 0, hints[:3])
+    finally:
+        daemon_ports.stop(daemon, timeout=60)
+
+
+def crowd_answers(port, clients, seconds):
+    """Answers and errors of `clients` threads on one host sending 10-pair queries for
+    `seconds`."""
+    stop, lock = threading.Event(), threading.Lock()
+    counts, errors = {"OK": 0}, []
+
+    def client(i):
+        with grpc.insecure_channel(f"127.0.0.1:{port}") as channel:
+            stub = rpc.GeodesicStub(channel)
+            n = 0
+            while not stop.is_set():
+                n += 1
+                req = pb.DistanceRequest(mesh="spot", pairs=[pb.PointPair(**{
+                    "from": pb.SurfacePoint(vertex=(i * 7919 + n + k) % SPOT_VERTICES),
+                    "to": pb.SurfacePoint(vertex=(i * 31 + n * 97 + k) % SPOT_VERTICES)})
+                    for k in range(10)])
+                try:
+                    stub.Distance(req, timeout=10)
+                    code = "OK"
+                except grpc.RpcError as e:
+                    code = e.code().name
+                    with lock:
+                        errors.append((code, e.details()))
+                    trailers = dict(e.trailing_metadata() or ())
+                    time.sleep(int(trailers.get("retry-after-ms", "10")) / 1e3)
+                with lock:
+                    counts[code] = counts.get(code, 0) + 1
+    threads = [threading.Thread(target=client, args=(i,)) for i in range(clients)]
+    for t in threads:
+        t.start()
+    time.sleep(seconds)
+    stop.set()
+    for t in threads:
+        t.join(timeout=30)
+    return counts, errors
+
+
+def case_one_host_crowd(work):
+    daemon, ports = start_daemon(BIN, os.path.join(work, "crowd"),
+                                 ["--graph-dir", os.path.join(work, "crowd", "graphs"),
+                                  "--log-level", "warning", "--exact-landmarks", "0"])
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
+            if not check("(c) spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
+                return
+        crowd_answers(ports["grpc"], 8, 1)  # warm: threads, connections, scratch
+        c32, e32 = crowd_answers(ports["grpc"], 32, SECONDS)
+        c64, e64 = crowd_answers(ports["grpc"], 64, SECONDS)
+        print(f"(c) 32 clients: {c32}; 64 clients: {c64}", flush=True)
+        check("(c) 32 clients of one host are answered", c32["OK"] > 0, (c32, e32[:3]))
+        check("(c) 64 clients of one host get at least 0.8x the answers of 32",
+              c64["OK"] >= 0.8 * c32["OK"], (c64, c32))
+        unclean = [e for e in e32 + e64 if e[0] != "RESOURCE_EXHAUSTED" or
+                   not e[1].startswith("server overloaded")]
+        check("(c) no error but a clean overload", not unclean, unclean[:3])
+        shares = [e for e in e32 + e64 if "--max-inflight-per-client" in e[1]]
+        check("(c) a host alone is never held to a per-client share", not shares, shares[:2])
+    finally:
+        daemon_ports.stop(daemon)
+
+
+def main():
+    work = tempfile.mkdtemp(prefix="hostile-clients-")
+    try:
+        case_forged_identity(work)
+        case_unavailable_before_deadline(work)
+        case_one_host_crowd(work)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    check.finish()
+
+
+if __name__ == "__main__":
+    main()
