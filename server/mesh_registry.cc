@@ -512,8 +512,8 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterReco
 }
 
 absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRegion(
-    const std::string& name, const std::string& parent, RegionMask mask, std::vector<uint32_t> ids,
-    uint64_t fingerprint) {
+    const std::string& name, const std::string& parent, RegionMask mask,
+    absl::Span<const uint32_t> ids, uint64_t fingerprint) {
   RETURN_IF_ERROR(ValidateName(name));
   ASSIGN_OR_RETURN(std::shared_ptr<const RegisteredMesh> p, Get(parent));
   // A region of a region would need its grandparent to be restored first,
@@ -526,7 +526,6 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterRegi
   const std::string source = absl::StrFormat("region '%s' of '%s'", name, parent);
   RETURN_IF_ERROR(RefuseRepeatedIds(*p->mesh, mask, ids.size(), source));
   ASSIGN_OR_RETURN(std::vector<uint32_t> distinct, DistinctRegionIds(*p->mesh, mask, ids, source));
-  std::vector<uint32_t>().swap(ids);
   ASSIGN_OR_RETURN(Region region, ExtractRegion(*p->mesh, mask, distinct, source,
                                                 RoomForRegion(name, distinct.size())));
   auto m = std::make_shared<RegisteredMesh>();

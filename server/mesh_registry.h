@@ -14,6 +14,7 @@
 #include "absl/base/thread_annotations.h"
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
+#include "absl/types/span.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_io.h"
 #include "core/mesh/region.h"
@@ -131,13 +132,12 @@ class MeshRegistry {
   // (and recorded) once each, in increasing order; INVALID_ARGUMENT, before
   // any work, for more than kMaxIdsPerElement ids per parent vertex (or
   // face), OUT_OF_RANGE for an id past the parent's count,
-  // RESOURCE_EXHAUSTED as for meshes (SetMemoryLimit).
+  // RESOURCE_EXHAUSTED as for meshes (SetMemoryLimit). `ids` are only
+  // read: a request's own (repeated field) can be passed as they are.
   static constexpr uint64_t kMaxIdsPerElement = 4;
-  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRegion(const std::string& name,
-                                                                       const std::string& parent,
-                                                                       RegionMask mask,
-                                                                       std::vector<uint32_t> ids,
-                                                                       uint64_t fingerprint = 0);
+  absl::StatusOr<std::shared_ptr<const RegisteredMesh>> RegisterRegion(
+      const std::string& name, const std::string& parent, RegionMask mask,
+      absl::Span<const uint32_t> ids, uint64_t fingerprint = 0);
   // The snapshot file name of a mesh ("<source hash>.mesh").
   static std::string SnapshotName(const RegisteredMesh& m);
   absl::StatusOr<std::shared_ptr<const RegisteredMesh>> Get(const std::string& name) const;
