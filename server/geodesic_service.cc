@@ -776,7 +776,7 @@ grpc::Status GeodesicService::RegisterRegion(grpc::ServerContext* ctx,
     const auto& ids = by_faces ? req->face_ids() : req->vertex_ids();
     auto m = meshes_->RegisterRegion(req->name(), req->parent(),
                                      by_faces ? RegionMask::kFaces : RegionMask::kVertices,
-                                     std::vector<uint32_t>(ids.begin(), ids.end()));
+                                     absl::MakeConstSpan(ids.data(), ids.size()));
     if (!m.ok()) return m.status();
     RETURN_IF_ERROR(Record(**m, existed));
     FillMesh(**m, resp);

@@ -298,7 +298,7 @@ absl::StatusOr<std::shared_ptr<const RegisteredMesh>> MeshRegistry::RegisterByte
     return Insert(std::move(m));
   }
   MeshDiagnostics diagnostics;
-  auto soup = ReadTriangleSoupFromMemory(bytes, format, name, &diagnostics);
+  auto soup = ReadTriangleSoupFromMemory(bytes, format, name, &diagnostics, DecodeBudget());
   ASSIGN_OR_RETURN(auto m, Finish(name, "upload", std::move(soup), std::move(diagnostics), repair,
                                   RoomToBuild(name)));
   m->format = lower;
@@ -394,7 +394,7 @@ absl::StatusOr<std::shared_ptr<RegisteredMesh>> MeshRegistry::LoadFile(
     return m;
   }
   MeshDiagnostics diagnostics;
-  auto soup = ReadTriangleSoupFromMemory(bytes, format, display, &diagnostics);
+  auto soup = ReadTriangleSoupFromMemory(bytes, format, display, &diagnostics, DecodeBudget());
   std::string().swap(bytes);
   diagnostics.load_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
@@ -654,6 +654,13 @@ std::vector<std::shared_ptr<const RegisteredMesh>> MeshRegistry::List() const {
   std::vector<std::shared_ptr<const RegisteredMesh>> out;
   for (const auto& [name, m] : meshes_) out.push_back(m);
   return out;
+}
+
+uint64_t MeshRegistry::DecodeBudget() const {
+  if (memory_limit_ == 0) return 0;
+  const uint64_t resident = resident_bytes();
+  // Never 0, which would mean no budget at all.
+  return resident < memory_limit_ ? memory_limit_ - resident : 1;
 }
 
 uint64_t MeshRegistry::resident_bytes() const {

@@ -146,6 +146,10 @@ class MeshRegistry {
   // and of what they hold beside them (a region's maps and ids).
   uint64_t resident_bytes() const;
   absl::Status Remove(const std::string& name);
+  // What a file's decoded arrays may take while it is read (GIFTI's, whose
+  // declared sizes a small file can inflate a thousandfold): the memory
+  // limit's room beside the registered meshes; 0 without a limit.
+  uint64_t DecodeBudget() const;
 
   static absl::Status ValidateName(const std::string& name);
 

@@ -9,7 +9,10 @@ promise holds.
   20 tries, not DEADLINE_EXCEEDED;
 - (c) one host alone, no token: 64 clients get at least 0.8x the answers 32 clients get in the
   same time (the share binds only when another client waits), with no error but a clean
-  overload.
+  overload;
+- (d) GIFTI files that crashed the old reader (libgiftiio), uploaded, are refused
+  INVALID_ARGUMENT naming the problem and the daemon keeps serving; a zlib bomb declaring
+  1000x its size is refused under --memory-limit before anything is decoded.
 
 Bounds come from this run: (c) compares two crowds of the same run. Every daemon listens on
 127.0.0.1 port 0 and every load is bounded in time.
@@ -209,12 +212,64 @@ def case_one_host_crowd(work):
         daemon_ports.stop(daemon)
 
 
+CRASHERS = {
+    "data-outside-dataarray": b'<GIFTI NumberOfDataArrays="0"><Data/></GIFTI>',
+    "md-outside-metadata": b'<GIFTI NumberOfDataArrays="0"><MD/></GIFTI>',
+    "value-nested-deep": b'<GIFTI NumberOfDataArrays="0"><MetaData><MD>' +
+                         b"<Value>" * 5000 + b"</Value>" * 5000 + b"</MD></MetaData></GIFTI>",
+}
+
+
+def gifti_bomb():
+    """A surface whose pointset declares 40M rows (480 MB of float32) over a few KB of zlib."""
+    import base64
+    import zlib
+    rows = 40_000_000
+    packed = base64.b64encode(zlib.compress(bytes(4096))).decode()
+
+    def array(intent, dtype, n):
+        return (f'<DataArray Intent="{intent}" DataType="{dtype}" ArrayIndexingOrder='
+                f'"RowMajorOrder" Dimensionality="2" Dim0="{n}" Dim1="3" Encoding='
+                f'"GZipBase64Binary" Endian="LittleEndian" ExternalFileName="" '
+                f'ExternalFileOffset=""><Data>{packed}</Data></DataArray>')
+    return ('<?xml version="1.0" encoding="UTF-8"?><GIFTI Version="1.0" NumberOfDataArrays="2">'
+            + array("NIFTI_INTENT_POINTSET", "NIFTI_TYPE_FLOAT32", rows)
+            + array("NIFTI_INTENT_TRIANGLE", "NIFTI_TYPE_INT32", 1) + "</GIFTI>").encode()
+
+
+def case_gifti_uploads(work):
+    from geodesic_client import Client
+    import geodesic_client
+    daemon, ports = start_daemon(BIN, os.path.join(work, "gifti"),
+                                 ["--graph-dir", os.path.join(work, "gifti", "graphs"),
+                                  "--log-level", "warning", "--memory-limit", "300M"])
+    try:
+        with Client(f"127.0.0.1:{ports['grpc']}", timeout=30) as client:
+            for name, data in list(CRASHERS.items()) + [("bomb", gifti_bomb())]:
+                path = os.path.join(work, f"{name}.surf.gii")
+                with open(path, "wb") as f:
+                    f.write(data)
+                try:
+                    client.upload_mesh(name, path)
+                    outcome = "registered"
+                except geodesic_client.GeodesicError as e:
+                    outcome = f"{e.code().name}: {e.details()}"
+                want = "RESOURCE_EXHAUSTED" if name == "bomb" else "INVALID_ARGUMENT"
+                check(f"(d) the GIFTI upload '{name}' is refused {want}",
+                      outcome.startswith(want), outcome)
+                check(f"(d) the daemon serves after '{name}'", daemon.poll() is None and
+                      any(m.name == "spot" for m in client.meshes()), daemon.poll())
+    finally:
+        daemon_ports.stop(daemon)
+
+
 def main():
     work = tempfile.mkdtemp(prefix="hostile-clients-")
     try:
         case_forged_identity(work)
         case_unavailable_before_deadline(work)
         case_one_host_crowd(work)
+        case_gifti_uploads(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     check.finish()

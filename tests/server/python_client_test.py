@@ -541,8 +541,9 @@ class ClientTest(unittest.TestCase):
             shutil.rmtree(work)
 
     def test_an_overloaded_server_is_waited_for_unless_retries_are_off(self):
-        # A daemon that admits one query at a time answers a second one RESOURCE_EXHAUSTED
-        # "server overloaded" with a retry-after-ms hint: a client on the default policy waits
+        # A daemon that admits one query at a time answers a second one, once it has waited
+        # for a slot what its deadline allows, RESOURCE_EXHAUSTED "server overloaded" with a
+        # retry-after-ms hint (before the deadline, not DEADLINE_EXCEEDED): a client on the default policy waits
         # and gets its answer, one with retries off gets the error. No exact landmarks: their
         # background fields would share the two cores with the slow query and stretch it past
         # the default policy's few seconds of retries.
@@ -554,14 +555,15 @@ class ClientTest(unittest.TestCase):
         try:
             with Client(address, timeout=120) as busy, \
                     Client(address, timeout=60) as patient, \
-                    Client(address, timeout=60,
+                    Client(address, timeout=0.5,
                            retry=geodesic_client.RetryPolicy(max_attempts=1)) as hasty:
                 busy.request_graph("spot", epsilon=0.01, wait=True)
                 want = patient.distance("spot", "v:0", "v:1500", epsilon=0.01)
-                # Exact rows: under a second alone, long enough to be overtaken, and short
-                # enough, even with the other core busy (ctest -j2), to end within the default
-                # policy's retries (at least about 3.5 s of backoff).
-                sources = list(range(0, 2930, 60))
+                # Exact rows: a second or two alone, longer than the second a query waits
+                # for admission before it is refused, and short enough, even with the other
+                # core busy (ctest -j2), to end within the default policy's retries (each
+                # attempt waiting its second, then at least about 3.5 s of backoff).
+                sources = list(range(0, 2930, 30))
                 with concurrent.futures.ThreadPoolExecutor(1) as pool:
                     slow = pool.submit(busy.matrix, "spot", sources, [1500, 700], epsilon=0.01,
                                        exact=True)

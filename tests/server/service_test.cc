@@ -701,6 +701,8 @@ TEST_F(ServiceTest, ALightQueryRunsBetweenTheSlicesOfAnotherClientsExactBatch) {
   limits_.max_pairs = limits_.max_exact_pairs;
   SetUp();
   ReadySpot(1e-2);
+  // Two clients on one host: their tokens tell them apart.
+  service_->RequireBearerTokens({"heavy", "light"});
   auto call = [&](const std::string& token, bool exact, int pairs) {
     grpc::ClientContext ctx;
     ctx.AddMetadata("authorization", "Bearer " + token);
@@ -758,6 +760,8 @@ TEST_F(ServiceTest, TheBuildBudgetBoundsNewGraphsPerClientAndInAll) {
   limits_.max_queued_builds_per_client = 2;
   SetUp();
   ReadySpot(1e-2);
+  // Clients on one host: their tokens tell them apart.
+  service_->RequireBearerTokens({"a", "b", "c"});
   auto request = [&](const std::string& token, double eps, double max_error = 0) {
     grpc::ClientContext ctx;
     if (!token.empty()) ctx.AddMetadata("authorization", "Bearer " + token);
@@ -768,11 +772,11 @@ TEST_F(ServiceTest, TheBuildBudgetBoundsNewGraphsPerClientAndInAll) {
     v1::Graph graph;
     return stub_->RequestGraph(&ctx, req, &graph);
   };
-  grpc::Status s = request("", 1e-5);
+  grpc::Status s = request("c", 1e-5);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_THAT(s.error_message(), HasSubstr("--min-epsilon"));
   EXPECT_THAT(s.error_message(), HasSubstr("estimated at"));
-  s = request("", 0, 1e-4);
+  s = request("c", 0, 1e-4);
   EXPECT_EQ(s.error_code(), grpc::StatusCode::INVALID_ARGUMENT);
   EXPECT_THAT(s.error_message(), HasSubstr("--min-max-error"));
   // Builds long enough to stay queued while the test asks.
