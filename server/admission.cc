@@ -162,6 +162,10 @@ absl::StatusOr<Admission::Ticket> Admission::OpenSlot(Kind kind, const std::stri
   return Refuse(refusal, RetryAfterMs());
 }
 
+uint64_t Admission::UnevictableLocked() const {
+  return (options_.pinned ? options_.pinned() : 0) + reserved_answer_;
+}
+
 uint64_t Admission::UsedLocked() const {
   const uint64_t held = options_.held ? options_.held() : 0;
   const uint64_t pooled = options_.pooled_scratch ? options_.pooled_scratch() : 0;
@@ -246,12 +250,14 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
   };
   while (true) {
     // Only the query whose turn it is asks for memory: the held() callbacks
-    // take the cache's lock, and a release wakes every waiter. With nothing
-    // running, what is held can only shrink by evictions the cache makes on
-    // its own: that query runs rather than wait on them (the limit is then
-    // passed by one query at most).
+    // take the cache's lock. With nothing running, what is held can only
+    // shrink by evictions the cache makes on its own: that query runs rather
+    // than wait on them (the limit is then passed by one query at most), but
+    // only beside what no eviction frees: meshes, and answers waiting for
+    // their clients, which may never read them.
     if (running_ < options_.query_threads && NextLocked() == number &&
-        (limit == 0 || running_ == 0 || UsedLocked() + want <= limit)) {
+        (limit == 0 || UsedLocked() + want <= limit ||
+         (running_ == 0 && UnevictableLocked() + want <= limit))) {
       LeaveQueueLocked(client, number);
       ++running_;
       ++clients_[client].running;

@@ -128,8 +128,9 @@ class Admission {
   // An admitted query's turn to run: waits for one of the query_threads (the
   // client's turn among the waiting clients, and its own queries first come
   // first served) and for `answer_bytes + scratch_bytes` of memory
-  // (with nothing running, the front query runs whatever is held, so that a
-  // cache filling the limit slows queries to one at a time, not to none).
+  // (with nothing running, the front query runs whatever evictable memory is
+  // held, so that a cache filling the limit slows queries to one at a time,
+  // not to none; answers kept for their clients are not evictable).
   // RESOURCE_EXHAUSTED at once if that much can never fit the limit, or when
   // `deadline` comes first (so the client reads a clean overload, not a
   // deadline); CANCELLED when `cancelled` says so.
@@ -169,6 +170,9 @@ class Admission {
   void Release(const Ticket& t);
   // Memory the limit covers now, reservations included.
   uint64_t UsedLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  // The part of it no eviction frees: pinned bytes and answers kept for
+  // their clients.
+  uint64_t UnevictableLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
   int InflightPerClient() const;

@@ -338,6 +338,21 @@ absl::StatusOr<Admission::Ticket> GeodesicService::StartQuery(grpc::ServerContex
   return admission_.Run(answer_bytes, scratch_bytes, deadline, Cancelled(ctx), identity_.Key(*ctx));
 }
 
+void GeodesicService::HoldUntilSent(grpc::ServerContext* ctx, Admission::Ticket run) {
+  Admission::Ticket answer = admission_.KeepAnswer(std::move(run));
+  absl::MutexLock lock(&sending_mu_);
+  sending_[ctx] = std::move(answer);
+}
+
+void GeodesicService::AnswerSent(const grpc::ServerContextBase* ctx) {
+  Admission::Ticket sent;
+  absl::MutexLock lock(&sending_mu_);
+  if (auto it = sending_.find(ctx); it != sending_.end()) {
+    sent = std::move(it->second);
+    sending_.erase(it);
+  }
+}
+
 absl::Status GeodesicService::NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run,
                                         absl::Time& slice_start, uint64_t scratch_bytes) {
   if (absl::Now() - slice_start < kSlice || !admission_.OthersWaiting(identity_.Key(*ctx))) {
@@ -1081,6 +1096,7 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
         }
       }
     }
+    HoldUntilSent(ctx, std::move(run));
     return absl::OkStatus();
   });
 }
@@ -1171,7 +1187,9 @@ grpc::Status GeodesicService::Matrix(grpc::ServerContext* ctx, const v1::MatrixR
       sink.batch_rows = size_t{kFieldLanes} * std::max(1u, std::thread::hardware_concurrency());
       sink.batch_done = [&](size_t) { return NextSlice(ctx, run, slice_start, scratch); };
     }
-    return q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink);
+    RETURN_IF_ERROR(q.engine->StreamMatrix(sources, targets, MatrixOptionsOf(*req, ctx), sink));
+    HoldUntilSent(ctx, std::move(run));
+    return absl::OkStatus();
   });
 }
 

@@ -236,6 +236,21 @@ TEST(AdmissionTest, WithNothingRunningTheFrontQueryRunsWhateverEvictableMemoryIs
   EXPECT_EQ(next.status().code(), absl::StatusCode::kResourceExhausted);
 }
 
+TEST(AdmissionTest, AnswersKeptForTheirClientsAreNotEvictableWhenNothingRuns) {
+  Admission admission(Limits(8, 4, 1000, [] { return uint64_t{0}; }));
+  auto first = admission.Run(600, 0, Soon());
+  ASSERT_TRUE(first.ok()) << first.status();
+  // Its answer waits for a client that may never read it: with nothing
+  // running, the next query still must fit beside it.
+  Admission::Ticket kept = admission.KeepAnswer(std::move(*first));
+  EXPECT_EQ(admission.running(), 0);
+  auto next = admission.Run(600, 0, absl::Now() + absl::Milliseconds(100));
+  EXPECT_EQ(next.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_TRUE(admission.Run(300, 0, Soon()).ok());
+  kept.Release();
+  EXPECT_TRUE(admission.Run(600, 0, Soon()).ok());
+}
+
 TEST(AdmissionTest, IdleScratchCountsAsHeldButRunningScratchOnlyOnce) {
   std::atomic<uint64_t> pooled{0};
   Admission admission(Limits(

@@ -12,7 +12,10 @@ promise holds.
   overload;
 - (d) GIFTI files that crashed the old reader (libgiftiio), uploaded, are refused
   INVALID_ARGUMENT naming the problem and the daemon keeps serving; a zlib bomb declaring
-  1000x its size is refused under --memory-limit before anything is decoded.
+  1000x its size is refused under --memory-limit before anything is decoded;
+- (e) under --memory-limit 300M, 24 Matrix calls of 32 MB answers from a client that stops
+  reading keep the daemon's peak RSS within the limit plus its idle RSS plus 32 MiB: an
+  answer's memory stays counted until gRPC has sent it.
 
 Bounds come from this run: (c) compares two crowds of the same run. Every daemon listens on
 127.0.0.1 port 0 and every load is bounded in time.
@@ -263,6 +266,76 @@ def case_gifti_uploads(work):
         daemon_ports.stop(daemon)
 
 
+# A client that asks for 24 large unary answers and then is stopped (SIGSTOP) before it reads
+# them: its connections' flow-control windows stay shut.
+UNREAD_CLIENT = """
+import sys, time
+sys.path.insert(0, sys.argv[2])
+import grpc
+from geodesic_client._stubs import pb, rpc
+calls = []
+for k in range(24):
+    channel = grpc.insecure_channel(sys.argv[1], options=[
+        ("grpc.http2.bdp_probe", 0), ("grpc.max_receive_message_length", 64 << 20)])
+    req = pb.MatrixRequest(mesh="spot", targets=[pb.SurfacePoint(vertex=v % 2930)
+                                                  for v in range(8000)])
+    for s in range(500):
+        req.sources.add().vertex = (k * 500 + s) % 2930
+    calls.append(rpc.GeodesicStub(channel).Matrix.future(req, timeout=120))
+print("asked", flush=True)
+time.sleep(120)
+"""
+
+
+def case_unread_answers(work):
+    import signal
+    import subprocess
+    from daemon_ports import rss_bytes
+    limit = 300 << 20
+    daemon, ports = start_daemon(BIN, os.path.join(work, "unread"),
+                                 ["--graph-dir", os.path.join(work, "unread", "graphs"),
+                                  "--log-level", "warning", "--memory-limit", str(limit),
+                                  "--exact-landmarks", "0"])
+    client = None
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
+            stub = rpc.GeodesicStub(channel)
+            if not check("(e) spot's graph ready", wait_for_spot(stub)):
+                return
+            light_pair(stub, 1)
+        idle = rss_bytes(daemon.pid)
+        client = subprocess.Popen([sys.executable, "-c", UNREAD_CLIENT,
+                                   f"127.0.0.1:{ports['grpc']}",
+                                   os.path.join(SRC, "client", "python")],
+                                  stdout=subprocess.PIPE, text=True)
+        asked = client.stdout.readline().strip() == "asked"
+        client.send_signal(signal.SIGSTOP)
+        peak, end = 0, time.time() + 2 * SECONDS
+        while time.time() < end:
+            peak = max(peak, rss_bytes(daemon.pid))
+            time.sleep(0.05)
+        peak = max(peak, rss_bytes(daemon.pid, "VmHWM"))
+        bound = limit + idle + (32 << 20)
+        print(f"(e) idle RSS {idle >> 20} MiB, peak {peak >> 20} MiB, bound {bound >> 20} MiB",
+              flush=True)
+        check("(e) the client asked", asked)
+        check("(e) unread answers keep the peak RSS within limit + idle + 32 MiB", peak <= bound,
+              f"peak {peak >> 20} MiB")
+        with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
+            try:
+                light_pair(rpc.GeodesicStub(channel), 2)
+                served = "OK"
+            except grpc.RpcError as e:
+                served = e.code().name
+        check("(e) the daemon answers (or refuses cleanly) meanwhile",
+              served in ("OK", "RESOURCE_EXHAUSTED"), served)
+    finally:
+        if client:
+            client.kill()
+            client.wait(timeout=30)
+        daemon_ports.stop(daemon)
+
+
 def main():
     work = tempfile.mkdtemp(prefix="hostile-clients-")
     try:
@@ -270,6 +343,7 @@ def main():
         case_unavailable_before_deadline(work)
         case_one_host_crowd(work)
         case_gifti_uploads(work)
+        case_unread_answers(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     check.finish()
