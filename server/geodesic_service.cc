@@ -740,18 +740,22 @@ grpc::Status GeodesicService::UploadMesh(grpc::ServerContext* ctx,
     StreamWatchdog::Watch watch = WatchStream("UploadMesh", ctx);
     // A message that cannot be parsed ends the reads as the stream's end
     // does: the declared size tells the two apart.
-    // The payload's declared bytes, counted against --memory-limit from its
-    // first message until it is registered (or refused): an upload left open
-    // holds them.
-    std::shared_ptr<void> payload;
-    bool counted = ledger_ == nullptr;
+    // The payload's bytes are counted against --memory-limit as they come,
+    // until the mesh is registered (or refused): an upload declaring much
+    // and sending little (one byte every few seconds, inside --idle-seconds)
+    // holds only what it sent, and one that sends too slowly is closed.
+    std::vector<std::shared_ptr<void>> payload;
+    uint64_t counted = 0;
+    const absl::Time started = absl::Now();
     while (Receive(watch, reader, &chunk)) {
       RETURN_IF_ERROR(upload.Add(chunk));
       name = upload.name();
-      if (!counted) {
-        ASSIGN_OR_RETURN(payload, ledger_->Reserve(upload.declared_bytes(),
-                                                   absl::StrFormat("the upload of '%s'", name)));
-        counted = true;
+      RETURN_IF_ERROR(CheckUploadRate(upload, absl::Now() - started));
+      if (ledger_ != nullptr && upload.received_bytes() > counted) {
+        ASSIGN_OR_RETURN(payload.emplace_back(),
+                         ledger_->Reserve(upload.received_bytes() - counted,
+                                          absl::StrFormat("the upload of '%s'", name)));
+        counted = upload.received_bytes();
       }
     }
     // A cancelled stream ends the reads too: nothing of it is registered,

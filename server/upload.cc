@@ -17,6 +17,12 @@
 namespace geodesic::server {
 namespace {
 
+// The slowest an upload may come, on average, once it has had
+// kUploadGrace to get going: a client holding an upload open with a trickle
+// of bytes holds a stream slot and its share of the limit for nothing.
+constexpr uint64_t kMinUploadBytesPerSecond = 16 << 10;
+constexpr absl::Duration kUploadGrace = absl::Seconds(30);
+
 static_assert(std::endian::native == std::endian::little,
               "array payloads are hashed as they lie in memory: little-endian");
 
@@ -45,6 +51,19 @@ bool IsSha256Hex(std::string_view s) {
 }
 
 }  // namespace
+
+absl::Status CheckUploadRate(const UploadAssembler& upload, absl::Duration elapsed) {
+  if (elapsed < kUploadGrace || upload.received_bytes() >= upload.declared_bytes()) {
+    return absl::OkStatus();
+  }
+  const double rate = upload.received_bytes() / absl::ToDoubleSeconds(elapsed);
+  if (rate >= kMinUploadBytesPerSecond) return absl::OkStatus();
+  return absl::DeadlineExceededError(absl::StrFormat(
+      "the upload of '%s' came at %.0f bytes/s over %.0f s (%u of %u bytes), below the minimum "
+      "of %u bytes/s; nothing was registered",
+      upload.name(), rate, absl::ToDoubleSeconds(elapsed), upload.received_bytes(),
+      upload.declared_bytes(), kMinUploadBytesPerSecond));
+}
 
 std::string Sha256Hex(std::string_view bytes) { return HexSha256({bytes}); }
 

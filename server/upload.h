@@ -10,6 +10,7 @@
 #include <vector>
 
 #include "absl/status/status.h"
+#include "absl/time/time.h"
 #include "geodesic/v1/geodesic.pb.h"
 
 namespace geodesic::server {
@@ -32,8 +33,10 @@ class UploadAssembler {
   const std::string& name() const { return name_; }
   const std::string& format() const { return format_; }
   bool repair() const { return repair_; }
-  // The payload's size, as the first message declared it.
+  // The payload's size, as the first message declared it, and how much of
+  // it came so far.
   uint64_t declared_bytes() const { return total_bytes_; }
+  uint64_t received_bytes() const { return received_; }
   // The payload, valid after Finish: a file's bytes, or arrays.
   bool arrays() const { return arrays_; }
   std::string& bytes() { return bytes_; }
@@ -54,6 +57,12 @@ class UploadAssembler {
   std::vector<double> vertices_;
   std::vector<uint32_t> faces_;
 };
+
+// DEADLINE_EXCEEDED, naming the rate, when `upload` has come more slowly
+// than a minimum rate on average over `elapsed`, once past a grace period
+// for getting going: a client holding an upload open with a trickle of
+// bytes would hold a stream slot and its share of the memory for nothing.
+absl::Status CheckUploadRate(const UploadAssembler& upload, absl::Duration elapsed);
 
 // Lower-case hex SHA-256 of `bytes`.
 std::string Sha256Hex(std::string_view bytes);

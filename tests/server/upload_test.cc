@@ -58,6 +58,24 @@ TEST(UploadAssemblerTest, AcceptsExactlyTheDeclaredBytesInChunks) {
   EXPECT_FALSE(upload.arrays());
 }
 
+TEST(UploadAssemblerTest, AnUploadTooSlowOnAverageIsRefusedAfterItsGrace) {
+  UploadAssembler upload(1 << 30);
+  const std::string big(1 << 20, 'x');
+  auto first = First(big.substr(0, 10), big.size(), Sha256Hex(big));
+  ASSERT_TRUE(upload.Add(first).ok());
+  EXPECT_EQ(upload.received_bytes(), 10u);
+  // A slow start is allowed its grace; ten bytes in a minute are not.
+  EXPECT_TRUE(CheckUploadRate(upload, absl::Seconds(5)).ok());
+  const absl::Status slow = CheckUploadRate(upload, absl::Seconds(60));
+  EXPECT_EQ(slow.code(), absl::StatusCode::kDeadlineExceeded);
+  EXPECT_THAT(slow.message(), HasSubstr("bytes/s"));
+  // At a modest pace it goes on.
+  auto rest = Data(big.substr(10));
+  ASSERT_TRUE(upload.Add(rest).ok());
+  EXPECT_TRUE(CheckUploadRate(upload, absl::Seconds(60)).ok());
+  EXPECT_TRUE(upload.Finish().ok());
+}
+
 TEST(UploadAssemblerTest, AnUploadCutShortIsRefused) {
   UploadAssembler upload(1 << 20);
   auto first = First(kTriangle.substr(0, 10), kTriangle.size(), Sha256Hex(kTriangle));
