@@ -57,6 +57,16 @@ absl::Time ReplyBy(const grpc::ServerContext* ctx) {
 constexpr char kGraphStateTrailer[] = "graph-state";
 constexpr char kGraphProgressTrailer[] = "graph-progress";
 
+// The most a request's parts take on the wire when they are valid (a face
+// point is 35 bytes, a pair of them 76), with room to spare for fields a
+// newer client adds; what a request may hold besides them (names); and what
+// a decoded request takes in memory per byte on the wire at most (measured:
+// about 14 for pairs of vertex points).
+constexpr uint64_t kPointWireBytes = 64;
+constexpr uint64_t kPairWireBytes = 128;
+constexpr uint64_t kRequestWireOverhead = 64 << 10;
+constexpr uint64_t kDecodedBytesPerWireByte = 16;
+
 // How long a query waits for admission when it is full, at most: long
 // beside a light query's run, short beside a client's patience.
 constexpr absl::Duration kAdmissionWait = absl::Seconds(1);
@@ -316,7 +326,93 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
           .pinned = [meshes] { return meshes->resident_bytes(); },
           .pooled_scratch = [graphs] { return graphs->scratch_bytes(); },
       }),
-      watchdog_(absl::Seconds(limits.idle_seconds)) {}
+      watchdog_(absl::Seconds(limits.idle_seconds)) {
+  // The requests whose size the limits bound are read as bytes and measured
+  // against that bound, and the memory their decoding takes reserved, before
+  // any of them is decoded (a 57 MiB DistanceRequest of 6M pairs took
+  // 820 MB and 24 s to decode before --max-pairs refused it).
+  const uint64_t pairs = limits.max_pairs, sources = limits.max_sources;
+  DecodeWithinLimits<v1::DistanceRequest, v1::DistanceResponse>(
+      "Distance", pairs * kPairWireBytes + kRequestWireOverhead,
+      absl::StrFormat("--max-pairs %u", pairs), &GeodesicService::Distance);
+  DecodeWithinLimits<v1::MatrixRequest, v1::MatrixResponse>(
+      "Matrix", (sources + pairs) * kPointWireBytes + kRequestWireOverhead,
+      absl::StrFormat("--max-sources %u sources and --max-pairs %u targets", sources, pairs),
+      &GeodesicService::Matrix);
+  DecodeWithinLimits<v1::SnapRequest, v1::SnapResponse>(
+      "Snap", pairs * kPointWireBytes + kRequestWireOverhead,
+      absl::StrFormat("--max-pairs %u positions", pairs), &GeodesicService::Snap);
+}
+
+template <class Request, class Response>
+void GeodesicService::DecodeWithinLimits(
+    const char* method, uint64_t max_bytes, std::string limit,
+    grpc::Status (GeodesicService::*handler)(grpc::ServerContext*, const Request*, Response*)) {
+  const int index = v1::DistanceRequest::descriptor()
+                        ->file()
+                        ->FindServiceByName("Geodesic")
+                        ->FindMethodByName(method)
+                        ->index();
+  using Streamer = grpc::ServerUnaryStreamer<grpc::ByteBuffer, Response>;
+  MarkMethodStreamed(
+      index, new grpc::internal::StreamedUnaryHandler<grpc::ByteBuffer, Response>(
+                 [this, method, max_bytes, limit, handler](grpc::ServerContext* ctx,
+                                                           Streamer* stream) -> grpc::Status {
+                   grpc::ByteBuffer raw;
+                   if (!stream->Read(&raw)) {
+                     return grpc::Status(grpc::StatusCode::CANCELLED, "no request came");
+                   }
+                   Request req;
+                   absl::StatusOr<std::shared_ptr<void>> decoding =
+                       DecodeRequest(ctx, method, max_bytes, limit, raw, &req);
+                   if (!decoding.ok()) {
+                     return Handle(method, ctx, "", false, [&] { return decoding.status(); });
+                   }
+                   Response resp;
+                   grpc::Status status = (this->*handler)(ctx, &req, &resp);
+                   decoding->reset();
+                   // The write returns once the answer is sent; one its client
+                   // does not take within --idle-seconds is cancelled.
+                   if (status.ok()) {
+                     // As AnswerWatch watches unary answers.
+                     StreamWatchdog::Watch watch = watchdog_.AddWaiting(
+                         absl::StrFormat("the answer of /geodesic.v1.Geodesic/%s to %s", method,
+                                         ctx->peer()),
+                         [ctx] { ctx->TryCancel(); });
+
+                     if (!stream->Write(resp)) {
+                       status =
+                           grpc::Status(grpc::StatusCode::CANCELLED, "the answer was not taken");
+                     }
+                   }
+                   AnswerSent(ctx);
+                   return status;
+                 }));
+}
+
+template <class Request>
+absl::StatusOr<std::shared_ptr<void>> GeodesicService::DecodeRequest(
+    grpc::ServerContext* ctx, const char* method, uint64_t max_bytes, const std::string& limit,
+    grpc::ByteBuffer& raw, Request* req) {
+  RETURN_IF_ERROR(identity_.Authenticate(*ctx));
+  const uint64_t bytes = raw.Length();
+  if (bytes > max_bytes) {
+    return absl::ResourceExhaustedError(absl::StrFormat(
+        "the %s request is %u bytes, more than this server's limits let one be (%u bytes: "
+        "%s); split it",
+        method, bytes, max_bytes, limit));
+  }
+  std::shared_ptr<void> decoding;
+  if (ledger_ != nullptr) {
+    ASSIGN_OR_RETURN(decoding, ledger_->Reserve(bytes * kDecodedBytesPerWireByte,
+                                                absl::StrFormat("decoding a %s request", method)));
+  }
+  if (!grpc::SerializationTraits<Request>::Deserialize(&raw, req).ok()) {
+    return absl::InvalidArgumentError(
+        absl::StrFormat("the %s request (%u bytes) is not a valid message", method, bytes));
+  }
+  return decoding;
+}
 
 StreamWatchdog::Watch GeodesicService::WatchStream(const char* method, grpc::ServerContext* ctx) {
   return watchdog_.Add(absl::StrFormat("%s from %s", method, ctx->peer()),

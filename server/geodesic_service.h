@@ -153,6 +153,19 @@ class GeodesicService final : public v1::Geodesic::Service {
   // Waits for an admitted query's turn to run with `answer_bytes` and
   // `scratch_bytes` reserved (Admission::Run), until shortly before the
   // call's deadline.
+  // Serves `method` from its request's bytes: a request over `max_bytes`
+  // (what `limit`, the flags bounding it, allow) is refused before it is
+  // decoded, and the memory its decoding takes is reserved first.
+  template <class Request, class Response>
+  void DecodeWithinLimits(const char* method, uint64_t max_bytes, std::string limit,
+                          grpc::Status (GeodesicService::*handler)(grpc::ServerContext*,
+                                                                   const Request*, Response*));
+  // `raw` decoded into `req` once authenticated, measured and reserved for:
+  // the reservation, held while the request is.
+  template <class Request>
+  absl::StatusOr<std::shared_ptr<void>> DecodeRequest(grpc::ServerContext* ctx, const char* method,
+                                                      uint64_t max_bytes, const std::string& limit,
+                                                      grpc::ByteBuffer& raw, Request* req);
   // Keeps `run`'s answer bytes reserved until AnswerSent(ctx); its thread
   // slot and scratch are given back now.
   void HoldUntilSent(grpc::ServerContext* ctx, Admission::Ticket run);

@@ -15,7 +15,11 @@ promise holds.
   1000x its size is refused under --memory-limit before anything is decoded;
 - (e) under --memory-limit 300M, 24 Matrix calls of 32 MB answers from a client that stops
   reading keep the daemon's peak RSS within the limit plus its idle RSS plus 32 MiB: an
-  answer's memory stays counted until gRPC has sent it.
+  answer's memory stays counted until gRPC has sent it;
+- (f) under --memory-limit 300M, six concurrent 57 MiB DistanceRequests (6M pairs) are refused
+  RESOURCE_EXHAUSTED naming --max-pairs before they are decoded, within a second or two each,
+  and the peak RSS stays within the limit plus idle RSS plus 32 MiB plus the six requests'
+  bytes, which gRPC holds as they arrive.
 
 Bounds come from this run: (c) compares two crowds of the same run. Every daemon listens on
 127.0.0.1 port 0 and every load is bounded in time.
@@ -336,6 +340,78 @@ def case_unread_answers(work):
         daemon_ports.stop(daemon)
 
 
+def varint(n):
+    out = bytearray()
+    while True:
+        out.append((n & 0x7F) | (0x80 if n > 0x7F else 0))
+        n >>= 7
+        if not n:
+            return bytes(out)
+
+
+def huge_distance_request(pairs):
+    """A DistanceRequest of `pairs` vertex pairs on spot, serialized by hand (building it
+    with the protobuf runtime would take longer than the test)."""
+    head = pb.DistanceRequest(mesh="spot").SerializeToString()
+    pair = pb.PointPair(**{"from": pb.SurfacePoint(vertex=1),
+                           "to": pb.SurfacePoint(vertex=1500)}).SerializeToString()
+    return head + (b"\x1a" + varint(len(pair)) + pair) * pairs
+
+
+def case_huge_requests(work):
+    from daemon_ports import rss_bytes
+    limit = 300 << 20
+    daemon, ports = start_daemon(BIN, os.path.join(work, "huge"),
+                                 ["--graph-dir", os.path.join(work, "huge", "graphs"),
+                                  "--log-level", "warning", "--memory-limit", str(limit),
+                                  "--exact-landmarks", "0"])
+    try:
+        address = f"127.0.0.1:{ports['grpc']}"
+        with grpc.insecure_channel(address) as channel:
+            if not check("(f) spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
+                return
+        idle = rss_bytes(daemon.pid)
+        data = huge_distance_request(6_000_000)
+        outcomes, lock = [], threading.Lock()
+
+        def send():
+            with grpc.insecure_channel(address, options=[
+                    ("grpc.max_send_message_length", 128 << 20)]) as channel:
+                call = channel.unary_unary("/geodesic.v1.Geodesic/Distance",
+                                           request_serializer=lambda b: b,
+                                           response_deserializer=pb.DistanceResponse.FromString)
+                start = time.monotonic()
+                try:
+                    call(data, timeout=60)
+                    outcome = ("OK", "")
+                except grpc.RpcError as e:
+                    outcome = (e.code().name, e.details())
+                with lock:
+                    outcomes.append(outcome + (time.monotonic() - start,))
+        threads = [threading.Thread(target=send) for _ in range(6)]
+        peak = 0
+        for t in threads:
+            t.start()
+        while any(t.is_alive() for t in threads):
+            peak = max(peak, rss_bytes(daemon.pid))
+            time.sleep(0.02)
+        peak = max(peak, rss_bytes(daemon.pid, "VmHWM"))
+        bound = limit + idle + (32 << 20) + 6 * len(data)
+        print(f"(f) {len(data) >> 20} MiB each; idle RSS {idle >> 20} MiB, peak {peak >> 20} "
+              f"MiB, bound {bound >> 20} MiB; {[(c, round(t, 2)) for c, _, t in outcomes]}",
+              flush=True)
+        check("(f) each is refused RESOURCE_EXHAUSTED naming --max-pairs",
+              len(outcomes) == 6 and all(c == "RESOURCE_EXHAUSTED" and "--max-pairs" in d
+                                         for c, d, _ in outcomes), outcomes[:2])
+        check("(f) the peak RSS stays within the limit, idle RSS, 32 MiB and the raw requests",
+              peak <= bound, f"peak {peak >> 20} MiB")
+        with grpc.insecure_channel(address) as channel:
+            check("(f) the daemon answers afterwards",
+                  len(light_pair(rpc.GeodesicStub(channel), 3).results) == 1)
+    finally:
+        daemon_ports.stop(daemon)
+
+
 def main():
     work = tempfile.mkdtemp(prefix="hostile-clients-")
     try:
@@ -344,6 +420,7 @@ def main():
         case_one_host_crowd(work)
         case_gifti_uploads(work)
         case_unread_answers(work)
+        case_huge_requests(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     check.finish()

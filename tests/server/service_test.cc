@@ -1091,19 +1091,20 @@ std::vector<uint32_t> SpotWithoutBand(const Mesh& spot) {
 TEST_F(ServiceTest, UploadsLeftOpenCountAgainstTheMemoryLimit) {
   MemoryLedger ledger(1'000'000, [this] { return registry_->resident_bytes(); });
   service_->UseMemoryLedger(&ledger);
-  auto first_message = [](const std::string& name, uint64_t bytes) {
+  // An upload counts the bytes it sent, not those it declared.
+  auto first_message = [](const std::string& name, uint64_t declared, uint64_t sent) {
     v1::UploadMeshRequest m;
     m.set_name(name);
     m.set_format("obj");
-    m.set_total_bytes(bytes);
+    m.set_total_bytes(declared);
     m.set_sha256(std::string(64, '0'));
-    m.set_data("v 0 0 0\n");
+    m.set_data(std::string(sent, ' '));
     return m;
   };
   grpc::ClientContext open_ctx;
   v1::Mesh open_resp;
   auto open = stub_->UploadMesh(&open_ctx, &open_resp);
-  ASSERT_TRUE(open->Write(first_message("open", 600'000)));
+  ASSERT_TRUE(open->Write(first_message("open", 900'000, 600'000)));
   const absl::Time deadline = absl::Now() + absl::Seconds(10);
   while (ledger.reserved() != 600'000u && absl::Now() < deadline) {
     absl::SleepFor(absl::Milliseconds(10));
@@ -1116,7 +1117,7 @@ TEST_F(ServiceTest, UploadsLeftOpenCountAgainstTheMemoryLimit) {
     grpc::ClientContext ctx;
     v1::Mesh resp;
     auto refused = stub_->UploadMesh(&ctx, &resp);
-    refused->Write(first_message("second", bytes));
+    refused->Write(first_message("second", bytes, bytes));
     refused->WritesDone();
     const grpc::Status status = refused->Finish();
     EXPECT_EQ(status.error_code(), code) << bytes << ": " << status.error_message();
