@@ -882,8 +882,20 @@ grpc::Status GeodesicService::RegisterRegion(grpc::ServerContext* ctx,
       return absl::InvalidArgumentError(
           "a region is given by vertex_ids or by face_ids: exactly one of the two");
     }
-    NameLocks::Hold hold(names_, req->name(), absl::FromChrono(ctx->deadline()));
-    if (!hold.held()) return NameBusy(req->name());
+    // The region's name and its parent's, in one order for every caller (no
+    // two calls wait on each other): an unload of the parent cannot slip in
+    // between the parent being found and the region being registered, which
+    // left a region whose parent was gone.
+    const absl::Time deadline = absl::FromChrono(ctx->deadline());
+    const std::string& first = std::min(req->name(), req->parent());
+    const std::string& second = std::max(req->name(), req->parent());
+    NameLocks::Hold hold(names_, first, deadline);
+    if (!hold.held()) return NameBusy(first);
+    std::optional<NameLocks::Hold> hold_second;
+    if (second != first) {
+      hold_second.emplace(names_, second, deadline);
+      if (!hold_second->held()) return NameBusy(second);
+    }
     // The parent may have been registered on another replica.
     RETURN_IF_ERROR(FindMesh(req->parent()).status());
     const bool existed = meshes_->Get(req->name()).ok();
