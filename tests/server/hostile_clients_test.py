@@ -27,6 +27,8 @@ Bounds come from this run: (c) compares two crowds of the same run. Every daemon
 Usage: hostile_clients_test.py BUILD_BIN_DIR SOURCE_DIR [SECONDS]"""
 import os
 import shutil
+import signal
+import subprocess
 import sys
 import tempfile
 import threading
@@ -41,7 +43,7 @@ import grpc  # noqa: E402
 from geodesic_client._stubs import pb, rpc  # noqa: E402
 import daemon_ports  # noqa: E402
 from checklist import Checklist  # noqa: E402
-from daemon_ports import bearer, start_daemon  # noqa: E402
+from daemon_ports import bearer, rss_bytes, start_daemon  # noqa: E402
 from geodesicd_runner import read_obj  # noqa: E402
 from subdivide_mesh import subdivide, write_ply  # noqa: E402
 
@@ -291,15 +293,19 @@ time.sleep(120)
 """
 
 
+LIMIT = 300 << 20  # --memory-limit of cases (e) and (f)
+
+
+def limited_daemon(work, name):
+    """A daemon under --memory-limit LIMIT, without the landmarks' background fields."""
+    return start_daemon(BIN, os.path.join(work, name),
+                        ["--graph-dir", os.path.join(work, name, "graphs"), "--log-level",
+                         "warning", "--memory-limit", str(LIMIT), "--exact-landmarks", "0"])
+
+
 def case_unread_answers(work):
-    import signal
-    import subprocess
-    from daemon_ports import rss_bytes
-    limit = 300 << 20
-    daemon, ports = start_daemon(BIN, os.path.join(work, "unread"),
-                                 ["--graph-dir", os.path.join(work, "unread", "graphs"),
-                                  "--log-level", "warning", "--memory-limit", str(limit),
-                                  "--exact-landmarks", "0"])
+    limit = LIMIT
+    daemon, ports = limited_daemon(work, "unread")
     client = None
     try:
         with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
@@ -359,12 +365,8 @@ def huge_distance_request(pairs):
 
 
 def case_huge_requests(work):
-    from daemon_ports import rss_bytes
-    limit = 300 << 20
-    daemon, ports = start_daemon(BIN, os.path.join(work, "huge"),
-                                 ["--graph-dir", os.path.join(work, "huge", "graphs"),
-                                  "--log-level", "warning", "--memory-limit", str(limit),
-                                  "--exact-landmarks", "0"])
+    limit = LIMIT
+    daemon, ports = limited_daemon(work, "huge")
     try:
         address = f"127.0.0.1:{ports['grpc']}"
         with grpc.insecure_channel(address) as channel:
