@@ -407,9 +407,11 @@ absl::StatusOr<std::shared_ptr<void>> GeodesicService::DecodeRequest(
     ASSIGN_OR_RETURN(decoding, ledger_->Reserve(bytes * kDecodedBytesPerWireByte,
                                                 absl::StrFormat("decoding a %s request", method)));
   }
-  if (!grpc::SerializationTraits<Request>::Deserialize(&raw, req).ok()) {
-    return absl::InvalidArgumentError(
-        absl::StrFormat("the %s request (%u bytes) is not a valid message", method, bytes));
+  // proto/request_traits.h's deserializer: INVALID_ARGUMENT naming the
+  // message, the client's fault.
+  if (const grpc::Status parsed = grpc::SerializationTraits<Request>::Deserialize(&raw, req);
+      !parsed.ok()) {
+    return absl::InvalidArgumentError(parsed.error_message());
   }
   return decoding;
 }
