@@ -13,11 +13,8 @@ using grpc::experimental::InterceptionHookPoints;
 
 class AnswerWatch : public grpc::experimental::Interceptor {
  public:
-  AnswerWatch(grpc::experimental::ServerRpcInfo* info, StreamWatchdog* watchdog,
-              const std::function<void(const grpc::ServerContextBase*)>* sent)
-      : info_(info), ctx_(info->server_context()), watchdog_(watchdog), sent_(sent) {}
-  // A call that ends without its send hook (cancelled first) is done too.
-  ~AnswerWatch() override { (*sent_)(ctx_); }
+  AnswerWatch(grpc::experimental::ServerRpcInfo* info, StreamWatchdog* watchdog)
+      : info_(info), watchdog_(watchdog) {}
 
   void Intercept(grpc::experimental::InterceptorBatchMethods* methods) override {
     if (methods->QueryInterceptionHookPoint(InterceptionHookPoints::PRE_SEND_MESSAGE)) {
@@ -30,16 +27,13 @@ class AnswerWatch : public grpc::experimental::Interceptor {
     // client, and the watch must not outlive the call it would cancel.
     if (methods->QueryInterceptionHookPoint(InterceptionHookPoints::POST_SEND_MESSAGE)) {
       watch_.reset();
-      (*sent_)(ctx_);
     }
     methods->Proceed();
   }
 
  private:
   grpc::experimental::ServerRpcInfo* info_;
-  const grpc::ServerContextBase* ctx_;
   StreamWatchdog* watchdog_;
-  const std::function<void(const grpc::ServerContextBase*)>* sent_;
   std::optional<StreamWatchdog::Watch> watch_;
 };
 
@@ -48,7 +42,7 @@ class AnswerWatch : public grpc::experimental::Interceptor {
 grpc::experimental::Interceptor* AnswerWatchFactory::CreateServerInterceptor(
     grpc::experimental::ServerRpcInfo* info) {
   if (info->type() != grpc::experimental::ServerRpcInfo::Type::UNARY) return nullptr;
-  return new AnswerWatch(info, watchdog_, &sent_);
+  return new AnswerWatch(info, watchdog_);
 }
 
 }  // namespace geodesic::server

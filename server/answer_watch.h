@@ -5,13 +5,10 @@
 // anything admission counts. This interceptor watches each unary answer from
 // the moment it is handed to gRPC until it is sent, and the StreamWatchdog
 // cancels one not taken within --idle-seconds, which gives the thread back.
-// Once the answer is sent (or its call ends), `sent` is told, so that the
-// memory counted for the answer is held exactly as long as gRPC holds it.
 // Streams watch their own messages (GeodesicService::WatchStream).
 #ifndef GEODESIC_SERVER_ANSWER_WATCH_H_
 #define GEODESIC_SERVER_ANSWER_WATCH_H_
 
-#include <functional>
 #include <memory>
 
 #include "grpcpp/support/server_interceptor.h"
@@ -21,15 +18,12 @@ namespace geodesic::server {
 
 class AnswerWatchFactory : public grpc::experimental::ServerInterceptorFactoryInterface {
  public:
-  AnswerWatchFactory(StreamWatchdog* watchdog,
-                     std::function<void(const grpc::ServerContextBase*)> sent)
-      : watchdog_(watchdog), sent_(std::move(sent)) {}
+  explicit AnswerWatchFactory(StreamWatchdog* watchdog) : watchdog_(watchdog) {}
   grpc::experimental::Interceptor* CreateServerInterceptor(
       grpc::experimental::ServerRpcInfo* info) override;
 
  private:
   StreamWatchdog* watchdog_;
-  std::function<void(const grpc::ServerContextBase*)> sent_;
 };
 
 }  // namespace geodesic::server

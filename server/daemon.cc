@@ -369,10 +369,7 @@ int Daemon::ListenGrpc() {
   // A unary answer its client does not take within --idle-seconds is
   // cancelled (answer_watch.h), as streams are.
   std::vector<std::unique_ptr<grpc::experimental::ServerInterceptorFactoryInterface>> watches;
-  watches.push_back(std::make_unique<AnswerWatchFactory>(
-      &service_->watchdog(), [service = service_.get()](const grpc::ServerContextBase* ctx) {
-        service->AnswerSent(ctx);
-      }));
+  watches.push_back(std::make_unique<AnswerWatchFactory>(&service_->watchdog()));
   builder.experimental().SetInterceptorCreators(std::move(watches));
   grpc::ResourceQuota quota("geodesicd");
   quota.SetMaxThreads(ThreadQuota());

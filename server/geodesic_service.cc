@@ -379,7 +379,6 @@ void GeodesicService::DecodeWithinLimits(
                          absl::StrFormat("the answer of /geodesic.v1.Geodesic/%s to %s", method,
                                          ctx->peer()),
                          [ctx] { ctx->TryCancel(); });
-
                      if (!stream->Write(resp)) {
                        status =
                            grpc::Status(grpc::StatusCode::CANCELLED, "the answer was not taken");
@@ -442,7 +441,7 @@ void GeodesicService::HoldUntilSent(grpc::ServerContext* ctx, Admission::Ticket 
   sending_[ctx] = std::move(answer);
 }
 
-void GeodesicService::AnswerSent(const grpc::ServerContextBase* ctx) {
+void GeodesicService::AnswerSent(const grpc::ServerContext* ctx) {
   Admission::Ticket sent;
   absl::MutexLock lock(&sending_mu_);
   if (auto it = sending_.find(ctx); it != sending_.end()) {

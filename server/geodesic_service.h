@@ -94,10 +94,6 @@ class GeodesicService final : public v1::Geodesic::Service {
   StreamWatchdog& watchdog() { return watchdog_; }
   // Calls in a handler now: each holds one of gRPC's threads.
   int calls_in_progress() const { return calls_in_progress_.load(std::memory_order_relaxed); }
-  // gRPC has sent the answer of `ctx`'s call, or the call ended: the memory
-  // its handler held for the answer past its return is given back (called
-  // by the AnswerWatch interceptor, answer_watch.h).
-  void AnswerSent(const grpc::ServerContextBase* ctx);
 
   // From now on every call must carry the metadata "authorization: Bearer
   // <token>" with one of `tokens`, each a client of its own (client_key.h);
@@ -169,6 +165,9 @@ class GeodesicService final : public v1::Geodesic::Service {
   // Keeps `run`'s answer bytes reserved until AnswerSent(ctx); its thread
   // slot and scratch are given back now.
   void HoldUntilSent(grpc::ServerContext* ctx, Admission::Ticket run);
+  // The answer of `ctx`'s call is written (DecodeWithinLimits's write
+  // returned): what HoldUntilSent kept is given back.
+  void AnswerSent(const grpc::ServerContext* ctx);
   // A query's place among the admitted, waiting for one a short while
   // when admission is full (admission.h).
   absl::StatusOr<Admission::Ticket> AdmitQuery(grpc::ServerContext* ctx, const std::string& client);
@@ -253,12 +252,12 @@ class GeodesicService final : public v1::Geodesic::Service {
   Admission admission_;
   StreamWatchdog watchdog_;
   std::atomic<int> calls_in_progress_{0};
-  // The answers of unary queries between their handler's return and their
-  // send: the synchronous server serializes and sends an answer after its
-  // handler returns, and a client that reads slowly (or never) holds both
-  // copies until then, so their reservations stay until AnswerSent.
+  // The answers of Distance and Matrix between their handler's return and
+  // their write: the reply and its serialized copy live until a client that
+  // reads slowly (or never) has taken it, so their reservations stay until
+  // AnswerSent.
   absl::Mutex sending_mu_;
-  absl::flat_hash_map<const grpc::ServerContextBase*, Admission::Ticket> sending_
+  absl::flat_hash_map<const grpc::ServerContext*, Admission::Ticket> sending_
       ABSL_GUARDED_BY(sending_mu_);
 };
 
