@@ -650,8 +650,7 @@ struct HttpGateway::Impl {
       first.set_format(http.param("format"));
       first.set_total_bytes(http.body.size());
       first.set_sha256(Sha256Hex(http.body));
-      first.set_data(http.body);
-      s = Upload(call, {std::move(first)}, &mesh);
+      s = Upload(call, std::move(first), http.body, {}, {}, &mesh);
     } else {
       json body;
       if (s = ParseBody(http, &body); !s.ok()) return s;
@@ -679,9 +678,7 @@ struct HttpGateway::Impl {
         if (s = Rows(body, "faces", &faces); !s.ok()) return s;
         first.set_total_bytes(vertices.size() * sizeof(double) + faces.size() * sizeof(uint32_t));
         first.set_sha256(Sha256HexOfArrays(vertices, faces));
-        first.mutable_vertices()->Add(vertices.begin(), vertices.end());
-        first.mutable_faces()->Add(faces.begin(), faces.end());
-        s = Upload(call, {std::move(first)}, &mesh);
+        s = Upload(call, std::move(first), {}, vertices, faces, &mesh);
       }
     }
     if (s.ok()) *out = MeshJson(mesh);
@@ -714,13 +711,16 @@ struct HttpGateway::Impl {
     return grpc::Status::OK;
   }
 
-  grpc::Status Upload(const Call& call, std::vector<v1::UploadMeshRequest> messages,
+  // In messages of kUploadMessageBytes, as any client sends an upload: the
+  // service takes no request larger than MaxRequestBytes.
+  grpc::Status Upload(const Call& call, v1::UploadMeshRequest header, std::string_view data,
+                      const std::vector<double>& vertices, const std::vector<uint32_t>& faces,
                       v1::Mesh* mesh) {
     auto ctx = call.Context();
     auto writer = stub->UploadMesh(ctx.get(), mesh);
-    for (const auto& m : messages) {
-      if (!writer->Write(m)) break;  // Finish says why
-    }
+    // A failed write ends the upload; Finish says why.
+    SplitUpload(std::move(header), data, vertices, faces,
+                [&](const v1::UploadMeshRequest& m) { return writer->Write(m); });
     writer->WritesDone();
     return writer->Finish();
   }

@@ -2,6 +2,7 @@
 
 #include <openssl/evp.h>
 
+#include <algorithm>
 #include <bit>
 #include <initializer_list>
 #include <memory>
@@ -73,6 +74,31 @@ std::string Sha256HexOfArrays(const std::vector<double>& vertices,
                                      vertices.size() * sizeof(double)),
                     std::string_view(reinterpret_cast<const char*>(faces.data()),
                                      faces.size() * sizeof(uint32_t))});
+}
+
+void SplitUpload(v1::UploadMeshRequest header, std::string_view data,
+                 const std::vector<double>& vertices, const std::vector<uint32_t>& faces,
+                 const std::function<bool(const v1::UploadMeshRequest&)>& send) {
+  v1::UploadMeshRequest message = std::move(header);
+  size_t sent_data = 0, sent_vertices = 0, sent_faces = 0;
+  do {
+    uint64_t room = kUploadMessageBytes;
+    const size_t bytes = std::min<size_t>(room, data.size() - sent_data);
+    message.set_data(std::string(data.substr(sent_data, bytes)));
+    sent_data += bytes;
+    room -= bytes;
+    const size_t coordinates =
+        std::min<size_t>(room / sizeof(double), vertices.size() - sent_vertices);
+    message.mutable_vertices()->Add(vertices.begin() + sent_vertices,
+                                    vertices.begin() + sent_vertices + coordinates);
+    sent_vertices += coordinates;
+    room -= coordinates * sizeof(double);
+    const size_t ids = std::min<size_t>(room / sizeof(uint32_t), faces.size() - sent_faces);
+    message.mutable_faces()->Add(faces.begin() + sent_faces, faces.begin() + sent_faces + ids);
+    sent_faces += ids;
+    if (!send(message)) return;
+    message.Clear();
+  } while (sent_data < data.size() || sent_vertices < vertices.size() || sent_faces < faces.size());
 }
 
 absl::Status UploadAssembler::First(const v1::UploadMeshRequest& message) {

@@ -5,6 +5,7 @@
 #define GEODESIC_SERVER_UPLOAD_H_
 
 #include <cstdint>
+#include <functional>
 #include <string>
 #include <string_view>
 #include <vector>
@@ -14,6 +15,20 @@
 #include "geodesic/v1/geodesic.pb.h"
 
 namespace geodesic::server {
+
+// The payload one message of an upload carries, as the bundled clients and
+// the HTTP gateway send it: far below the largest request the server takes
+// (MaxRequestBytes, geodesic_service.h), and small beside gRPC's receive
+// buffers, which uploads side by side share.
+inline constexpr uint64_t kUploadMessageBytes = uint64_t{1} << 20;
+
+// `header` (name, format, total_bytes, sha256, repair_non_manifold) with
+// the payload, a file's `data` or the arrays, split into messages of at
+// most kUploadMessageBytes of payload each; `send` takes them in order and
+// returns false to stop (the stream broke).
+void SplitUpload(v1::UploadMeshRequest header, std::string_view data,
+                 const std::vector<double>& vertices, const std::vector<uint32_t>& faces,
+                 const std::function<bool(const v1::UploadMeshRequest&)>& send);
 
 class UploadAssembler {
  public:

@@ -159,6 +159,52 @@ TEST(UploadAssemblerTest, ArraysAreHashedVerticesThenFaces) {
   EXPECT_EQ(upload.faces(), faces);
 }
 
+// As the HTTP gateway sends an upload: each message within
+// kUploadMessageBytes, the header only in the first, and what the
+// assembler puts together is the payload split.
+TEST(SplitUploadTest, MessagesStayWithinTheirSizeAndReassembleThePayload) {
+  const std::string data(2 * kUploadMessageBytes + 12345, 'x');
+  std::vector<double> vertices(kUploadMessageBytes / 8 + 7);
+  for (size_t i = 0; i < vertices.size(); ++i) vertices[i] = 0.5 * i;
+  std::vector<uint32_t> faces(kUploadMessageBytes / 4 + 11);
+  for (size_t i = 0; i < faces.size(); ++i) faces[i] = i % 97;
+  for (bool arrays : {false, true}) {
+    v1::UploadMeshRequest header;
+    header.set_name("split");
+    if (arrays) {
+      header.set_total_bytes(8 * vertices.size() + 4 * faces.size());
+      header.set_sha256(Sha256HexOfArrays(vertices, faces));
+    } else {
+      header.set_format("obj");
+      header.set_total_bytes(data.size());
+      header.set_sha256(Sha256Hex(data));
+    }
+    UploadAssembler upload(uint64_t{64} << 20);
+    int messages = 0;
+    absl::Status status;
+    SplitUpload(header, arrays ? std::string_view() : data,
+                arrays ? vertices : std::vector<double>{}, arrays ? faces : std::vector<uint32_t>{},
+                [&](const v1::UploadMeshRequest& m) {
+                  EXPECT_LE(m.data().size() + 8 * m.vertices_size() + 4 * m.faces_size(),
+                            kUploadMessageBytes);
+                  EXPECT_EQ(m.name().empty(), messages > 0);
+                  ++messages;
+                  v1::UploadMeshRequest copy = m;
+                  status.Update(upload.Add(copy));
+                  return status.ok();
+                });
+    ASSERT_TRUE(status.ok()) << status;
+    EXPECT_EQ(messages, 3) << (arrays ? "arrays" : "bytes");
+    ASSERT_TRUE(upload.Finish().ok());
+    if (arrays) {
+      EXPECT_EQ(upload.vertices(), vertices);
+      EXPECT_EQ(upload.faces(), faces);
+    } else {
+      EXPECT_EQ(upload.bytes(), data);
+    }
+  }
+}
+
 TEST(UploadAssemblerTest, BytesAndArraysDoNotMix) {
   UploadAssembler upload(1 << 20);
   auto first = First("v", 100, Sha256Hex(""));
