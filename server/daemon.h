@@ -55,6 +55,11 @@ class Daemon {
   void AddQueryMetrics();
   void RegisterSample();
   int ListenGrpc();
+  // gRPC's receive buffers under --memory-limit, bounded by its resource
+  // quota (0 without a limit): room for one largest request beside the
+  // other calls' messages. Like gRPC's threads, a fixed overhead beside
+  // what the limit counts, whatever clients send.
+  uint64_t TransportBufferBytes() const;
   // gRPC's thread quota (--max-inflight, --max-streams and the rest).
   int ThreadQuota() const;
   // --idle-seconds for gRPC's connections.

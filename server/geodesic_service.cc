@@ -67,6 +67,21 @@ constexpr uint64_t kPairWireBytes = 128;
 constexpr uint64_t kRequestWireOverhead = 64 << 10;
 constexpr uint64_t kDecodedBytesPerWireByte = 16;
 
+// Room for a list that grows with a mesh: 4M ids of up to four bytes (a
+// region of half an 8M-face mesh, a field's targets), and for an upload's
+// messages.
+constexpr uint64_t kMeshListRequestBytes = uint64_t{16} << 20;
+
+uint64_t DistanceRequestBytes(const ServiceLimits& limits) {
+  return limits.max_pairs * kPairWireBytes + kRequestWireOverhead;
+}
+uint64_t MatrixRequestBytes(const ServiceLimits& limits) {
+  return (uint64_t(limits.max_sources) + limits.max_pairs) * kPointWireBytes + kRequestWireOverhead;
+}
+uint64_t SnapRequestBytes(const ServiceLimits& limits) {
+  return limits.max_pairs * kPointWireBytes + kRequestWireOverhead;
+}
+
 // How long a query waits for admission when it is full, at most: long
 // beside a light query's run, short beside a client's patience.
 constexpr absl::Duration kAdmissionWait = absl::Seconds(1);
@@ -303,6 +318,11 @@ GraphKey Built(GraphKey key, const GeodesicEngine& engine) {
 
 }  // namespace
 
+uint64_t MaxRequestBytes(const ServiceLimits& limits) {
+  return std::max({DistanceRequestBytes(limits), MatrixRequestBytes(limits),
+                   SnapRequestBytes(limits), kMeshListRequestBytes});
+}
+
 GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics,
                                  ServiceLimits limits)
     : meshes_(meshes),
@@ -333,15 +353,15 @@ GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metri
   // 820 MB and 24 s to decode before --max-pairs refused it).
   const uint64_t pairs = limits.max_pairs, sources = limits.max_sources;
   DecodeWithinLimits<v1::DistanceRequest, v1::DistanceResponse>(
-      "Distance", pairs * kPairWireBytes + kRequestWireOverhead,
-      absl::StrFormat("--max-pairs %u", pairs), &GeodesicService::Distance);
+      "Distance", DistanceRequestBytes(limits), absl::StrFormat("--max-pairs %u", pairs),
+      &GeodesicService::Distance);
   DecodeWithinLimits<v1::MatrixRequest, v1::MatrixResponse>(
-      "Matrix", (sources + pairs) * kPointWireBytes + kRequestWireOverhead,
+      "Matrix", MatrixRequestBytes(limits),
       absl::StrFormat("--max-sources %u sources and --max-pairs %u targets", sources, pairs),
       &GeodesicService::Matrix);
   DecodeWithinLimits<v1::SnapRequest, v1::SnapResponse>(
-      "Snap", pairs * kPointWireBytes + kRequestWireOverhead,
-      absl::StrFormat("--max-pairs %u positions", pairs), &GeodesicService::Snap);
+      "Snap", SnapRequestBytes(limits), absl::StrFormat("--max-pairs %u positions", pairs),
+      &GeodesicService::Snap);
 }
 
 template <class Request, class Response>

@@ -80,6 +80,13 @@ struct ServiceLimits {
   bool exact_fans = false;
 };
 
+// The largest request message a client may send under `limits`, so that
+// gRPC refuses a larger one as it arrives: the lists --max-pairs and
+// --max-sources allow on the wire, and at least room for the lists that
+// grow with a mesh (a region's ids, a field's targets) and an upload's
+// messages (kUploadMessageBytes each, upload.h).
+uint64_t MaxRequestBytes(const ServiceLimits& limits);
+
 class GeodesicService final : public v1::Geodesic::Service {
  public:
   // Queries reserve memory against the cache's memory limit, beside the

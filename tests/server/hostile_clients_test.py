@@ -10,24 +10,32 @@ promise holds.
 - (c) one host alone, no token: 64 clients get at least 0.8x the answers 32 clients get in the
   same time (the share binds only when another client waits), with no error but a clean
   overload;
-- (d) GIFTI files that crashed the old reader (libgiftiio), uploaded, are refused
-  INVALID_ARGUMENT naming the problem and the daemon keeps serving; a zlib bomb declaring
-  1000x its size is refused under --memory-limit before anything is decoded;
+- (d) GIFTI files that crashed the old reader (libgiftiio), uploaded by UploadMesh, posted over
+  HTTP and registered by path, are refused INVALID_ARGUMENT (HTTP 400) naming the problem and
+  the daemon keeps serving; a zlib bomb declaring 1000x its size is refused the same three ways
+  under --memory-limit 300M before anything is decoded (RESOURCE_EXHAUSTED, HTTP 429), the
+  peak RSS within the limit plus idle RSS plus 32 MiB;
 - (e) under --memory-limit 300M, 24 Matrix calls of 32 MB answers from a client that stops
   reading keep the daemon's peak RSS within the limit plus its idle RSS plus 32 MiB: an
   answer's memory stays counted until gRPC has sent it;
 - (f) under --memory-limit 300M, six concurrent 57 MiB DistanceRequests (6M pairs) are refused
-  RESOURCE_EXHAUSTED naming --max-pairs before they are decoded, within a second or two each,
-  and the peak RSS stays within the limit plus idle RSS plus 32 MiB plus the six requests'
-  bytes, which gRPC holds as they arrive.
+  RESOURCE_EXHAUSTED as they arrive, within a second or two each, by gRPC (larger than the
+  largest request the limits allow, or past its receive buffers' quota), and the peak RSS
+  stays within the limit plus idle RSS plus 32 MiB; a 2 MiB request, under gRPC's bound but
+  over --max-pairs, is refused naming --max-pairs before it is decoded;
+- (g) under --memory-limit 300M, 24 HTTP clients of 32 MB .npy matrices, reading their answers
+  or never reading them, keep the peak RSS within the limit plus idle RSS plus 32 MiB; those
+  read are whole, the others refused 429 or 503.
 
 Bounds come from this run: (c) compares two crowds of the same run. Every daemon listens on
 127.0.0.1 port 0 and every load is bounded in time.
 
 Usage: hostile_clients_test.py BUILD_BIN_DIR SOURCE_DIR [SECONDS]"""
+import json
 import os
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import tempfile
@@ -249,25 +257,56 @@ def gifti_bomb():
 def case_gifti_uploads(work):
     from geodesic_client import Client
     import geodesic_client
+    import urllib.error
+    import urllib.request
+    root = os.path.join(work, "gifti", "root")
+    os.makedirs(root, exist_ok=True)
     daemon, ports = start_daemon(BIN, os.path.join(work, "gifti"),
                                  ["--graph-dir", os.path.join(work, "gifti", "graphs"),
-                                  "--log-level", "warning", "--memory-limit", "300M"])
+                                  "--log-level", "warning", "--memory-limit", str(LIMIT),
+                                  "--mesh-root", root, "--exact-landmarks", "0"], http=True)
     try:
         with Client(f"127.0.0.1:{ports['grpc']}", timeout=30) as client:
+            idle = rss_bytes(daemon.pid)
+
+            def outcome(register):
+                try:
+                    register()
+                    return "registered"
+                except geodesic_client.GeodesicError as e:
+                    return f"{e.code().name}: {e.details()}"
+                except urllib.error.HTTPError as e:
+                    return f"HTTP {e.code}: {e.read()[:200]!r}"
+
+            def over_http(name, data):
+                url = (f"http://127.0.0.1:{ports['http']}/v1/meshes?name={name}-http"
+                       f"&format=gii")
+                request = urllib.request.Request(url, data=data, method="POST", headers={
+                    "Content-Type": "application/octet-stream"})
+                urllib.request.urlopen(request, timeout=30).read()
+
             for name, data in list(CRASHERS.items()) + [("bomb", gifti_bomb())]:
-                path = os.path.join(work, f"{name}.surf.gii")
+                path = os.path.join(root, f"{name}.surf.gii")
                 with open(path, "wb") as f:
                     f.write(data)
-                try:
-                    client.upload_mesh(name, path)
-                    outcome = "registered"
-                except geodesic_client.GeodesicError as e:
-                    outcome = f"{e.code().name}: {e.details()}"
                 want = "RESOURCE_EXHAUSTED" if name == "bomb" else "INVALID_ARGUMENT"
-                check(f"(d) the GIFTI upload '{name}' is refused {want}",
-                      outcome.startswith(want), outcome)
-                check(f"(d) the daemon serves after '{name}'", daemon.poll() is None and
-                      any(m.name == "spot" for m in client.meshes()), daemon.poll())
+                want_http = "HTTP 429" if name == "bomb" else "HTTP 400"
+                for how, register, expected in (
+                        ("UploadMesh", lambda: client.upload_mesh(name, path), want),
+                        ("RegisterMesh", lambda: client.register_mesh(name + "-path",
+                                                                      f"{name}.surf.gii"), want),
+                        ("HTTP", lambda: over_http(name, data), want_http)):
+                    got = outcome(register)
+                    check(f"(d) the GIFTI file '{name}' by {how} is refused {expected}",
+                          got.startswith(expected), got)
+                    check(f"(d) the daemon serves after '{name}' by {how}", daemon.poll() is None
+                          and any(m.name == "spot" for m in client.meshes()), daemon.poll())
+            peak = rss_bytes(daemon.pid, "VmHWM")
+            bound = LIMIT + idle + (32 << 20)
+            print(f"(d) idle RSS {idle >> 20} MiB, peak {peak >> 20} MiB, bound {bound >> 20} MiB",
+                  flush=True)
+            check("(d) the bombs keep the peak RSS within limit + idle + 32 MiB", peak <= bound,
+                  f"peak {peak >> 20} MiB")
     finally:
         daemon_ports.stop(daemon)
 
@@ -293,7 +332,7 @@ time.sleep(120)
 """
 
 
-LIMIT = 300 << 20  # --memory-limit of cases (e) and (f)
+LIMIT = 300 << 20  # --memory-limit of cases (d) to (g)
 
 
 def limited_daemon(work, name):
@@ -337,8 +376,10 @@ def case_unread_answers(work):
                 served = "OK"
             except grpc.RpcError as e:
                 served = e.code().name
+        # The limit may be full of the answers the stopped client holds:
+        # then a refusal that says to retry is the clean answer.
         check("(e) the daemon answers (or refuses cleanly) meanwhile",
-              served in ("OK", "RESOURCE_EXHAUSTED"), served)
+              served in ("OK", "RESOURCE_EXHAUSTED", "UNAVAILABLE"), served)
     finally:
         if client:
             client.kill()
@@ -398,19 +439,111 @@ def case_huge_requests(work):
             peak = max(peak, rss_bytes(daemon.pid))
             time.sleep(0.02)
         peak = max(peak, rss_bytes(daemon.pid, "VmHWM"))
-        bound = limit + idle + (32 << 20) + 6 * len(data)
+        bound = limit + idle + (32 << 20)
         print(f"(f) {len(data) >> 20} MiB each; idle RSS {idle >> 20} MiB, peak {peak >> 20} "
               f"MiB, bound {bound >> 20} MiB; {[(c, round(t, 2)) for c, _, t in outcomes]}",
               flush=True)
-        check("(f) each is refused RESOURCE_EXHAUSTED naming --max-pairs",
-              len(outcomes) == 6 and all(c == "RESOURCE_EXHAUSTED" and "--max-pairs" in d
-                                         for c, d, _ in outcomes), outcomes[:2])
-        check("(f) the peak RSS stays within the limit, idle RSS, 32 MiB and the raw requests",
+        # gRPC's own refusals: the message's size against the bound, or the
+        # stream cancelled (ENHANCE_YOUR_CALM) when its buffers are full.
+        check("(f) each is refused RESOURCE_EXHAUSTED as it arrives",
+              len(outcomes) == 6 and all(
+                  c == "RESOURCE_EXHAUSTED" and ("larger than max" in d or "code 11" in d)
+                  for c, d, _ in outcomes), outcomes[:2])
+        check("(f) the peak RSS stays within the limit, idle RSS and 32 MiB",
               peak <= bound, f"peak {peak >> 20} MiB")
+        with grpc.insecure_channel(address) as channel:
+            call = channel.unary_unary("/geodesic.v1.Geodesic/Distance",
+                                       request_serializer=lambda b: b,
+                                       response_deserializer=pb.DistanceResponse.FromString)
+            code, details = "OK", ""
+            try:
+                call(huge_distance_request(200_000), timeout=30)
+            except grpc.RpcError as e:
+                code, details = e.code().name, e.details()
+            check("(f) a 2 MiB request over --max-pairs is refused naming it",
+                  code == "RESOURCE_EXHAUSTED" and "--max-pairs" in details, (code, details))
         with grpc.insecure_channel(address) as channel:
             check("(f) the daemon answers afterwards",
                   len(light_pair(rpc.GeodesicStub(channel), 3).results) == 1)
     finally:
+        daemon_ports.stop(daemon)
+
+
+def npy_matrix_request(port, k):
+    """The raw HTTP request of a 500 x 8000 float64 matrix as .npy (32 MB) on spot."""
+    body = json.dumps({
+        "sources": [f"v:{(k * 500 + s) % SPOT_VERTICES}" for s in range(500)],
+        "targets": [f"v:{v % SPOT_VERTICES}" for v in range(8000)]}).encode()
+    return (f"POST /v1/meshes/spot/matrix HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\n"
+            f"Content-Type: application/json\r\nAccept: application/x-npy\r\n"
+            f"Content-Length: {len(body)}\r\n\r\n").encode() + body
+
+
+def case_http_answers(work, read):
+    """24 clients of 32 MB .npy matrices over HTTP, which read their answers or never do."""
+    label = "(g) reading" if read else "(g) never reading"
+    daemon, ports = start_daemon(BIN, os.path.join(work, "npy-" + str(read)),
+                                 ["--graph-dir", os.path.join(work, "npy-" + str(read), "graphs"),
+                                  "--log-level", "warning", "--memory-limit", str(LIMIT),
+                                  "--exact-landmarks", "0"], http=True)
+    sockets = []
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
+            if not check(f"{label}: spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
+                return
+        idle = rss_bytes(daemon.pid)
+        statuses, lock = [], threading.Lock()
+
+        def client(k):
+            sock = socket.create_connection(("127.0.0.1", ports["http"]))
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 64 << 10)
+            sockets.append(sock)
+            sock.sendall(npy_matrix_request(ports["http"], k))
+            if not read:
+                return
+            sock.settimeout(60)
+            data = b""
+            while b"\r\n\r\n" not in data:
+                chunk = sock.recv(1 << 16)
+                if not chunk:
+                    break
+                data += chunk
+            head, _, rest = data.partition(b"\r\n\r\n")
+            status = int(head.split(b" ")[1]) if head.startswith(b"HTTP/") else 0
+            length = next((int(line.split(b":")[1]) for line in head.split(b"\r\n")
+                           if line.lower().startswith(b"content-length:")), 0)
+            got = len(rest)
+            while got < length:
+                chunk = sock.recv(1 << 20)
+                if not chunk:
+                    break
+                got += len(chunk)
+            with lock:
+                statuses.append((status, got == length, length))
+        threads = [threading.Thread(target=client, args=(k,)) for k in range(24)]
+        for t in threads:
+            t.start()
+        peak, end = 0, time.time() + (60 if read else 2 * SECONDS)
+        while time.time() < end and (not read or any(t.is_alive() for t in threads)):
+            peak = max(peak, rss_bytes(daemon.pid))
+            time.sleep(0.02)
+        for t in threads:
+            t.join(timeout=60)
+        peak = max(peak, rss_bytes(daemon.pid, "VmHWM"))
+        bound = LIMIT + idle + (32 << 20)
+        print(f"{label}: idle RSS {idle >> 20} MiB, peak {peak >> 20} MiB, bound {bound >> 20} "
+              f"MiB; statuses {sorted(statuses)[:3]}...", flush=True)
+        check(f"{label}: the peak RSS stays within limit + idle + 32 MiB", peak <= bound,
+              f"peak {peak >> 20} MiB")
+        if read:
+            served = [s for s in statuses if s[0] == 200]
+            check(f"{label}: some matrices are answered whole, the rest refused with 429 or 503",
+                  len(statuses) == 24 and served and all(s[1] and s[2] > 32_000_000
+                                                         for s in served)
+                  and all(s[0] in (200, 429, 503) for s in statuses), statuses)
+    finally:
+        for sock in sockets:
+            sock.close()
         daemon_ports.stop(daemon)
 
 
@@ -423,6 +556,8 @@ def main():
         case_gifti_uploads(work)
         case_unread_answers(work)
         case_huge_requests(work)
+        case_http_answers(work, read=True)
+        case_http_answers(work, read=False)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     check.finish()
