@@ -31,6 +31,9 @@ VmHWM if larger) must stay within the limit + the overhead + SLACK. The cases:
 5. --memory-limit 256M: armadillo_loop2.ply (800K vertices) registered: refused from its
    counts before it is built, naming the limit and the estimate (built first, it took RSS to
    415 MiB before its refusal).
+6. --memory-limit 512M: armadillo_loop2.ply registered, then 100 regions of one face each: all
+   registered, each counted in geodesicd_mesh_resident_bytes and small (#67: 9.6 MB each in
+   parent-sized tables, uncounted).
 
 In every case a light client sends 20 one-pair Distance calls on the bundled spot mesh beside
 the load: at least 18 must be answered (in case 2, also after the registrations).
@@ -358,6 +361,33 @@ def case_geometry(limit):
               [(r[0], r[2][:200]) for r in results if r and r[0] != 200])
 
 
+def case_regions(limit):
+    case = "(6) 100 regions of the 800K mesh"
+    with guarded(case, "regions", limit) as d:
+        if d is None:
+            return
+        d.stub.RegisterMesh(pb.RegisterMeshRequest(name="big", path=LARGE_MESH), timeout=120)
+        before = metrics(d.ports["metrics"])["geodesicd_mesh_resident_bytes"]
+        d.load_starts()
+        beside = Beside(d.stub)
+        registered, errors = 0, []
+        for k in range(100):
+            try:
+                d.stub.RegisterRegion(pb.RegisterRegionRequest(
+                    name=f"face{k}", parent="big", face_ids=[k * 15000]), timeout=30)
+                registered += 1
+            except grpc.RpcError as e:
+                errors.append(f"{e.code().name}: {e.details()}")
+        added = metrics(d.ports["metrics"])["geodesicd_mesh_resident_bytes"] - before
+        print(f"{case}: {registered} registered, adding {added / MIB:.2f} MiB to the meshes' "
+              f"gauge; errors {errors[:2]}", flush=True)
+        # A one-face region is three vertices and their maps: counted, and small beside its
+        # parent (they once took 9.6 MB each in parent-sized tables, uncounted).
+        check(f"{case}: every region registered, counted and small",
+              registered == 100 and 0 < added < 100 * 64 * 1024, f"{added} bytes; {errors[:2]}")
+        beside.check(case)
+
+
 def pairs_body(size):
     """A distance request's JSON of exactly `size` bytes: pairs of one-digit vertex ids (the
     shortest tokens, each pair parsed and copied into several structures), spaces to pad."""
@@ -429,7 +459,7 @@ def main():
         return
     for run, limit in ((case_uploads, 256 * MIB), (case_registrations, 256 * MIB),
                        (case_geometry, 512 * MIB), (case_bodies, 512 * MIB),
-                       (case_large_mesh, 256 * MIB)):
+                       (case_large_mesh, 256 * MIB), (case_regions, 512 * MIB)):
         case_started = time.monotonic()
         run(limit)
         print(f"{run.__name__}: {time.monotonic() - case_started:.1f} s", flush=True)

@@ -25,9 +25,15 @@ promise holds.
   over --max-pairs, is refused naming --max-pairs before it is decoded;
 - (g) under --memory-limit 300M, 24 HTTP clients of 32 MB .npy matrices, reading their answers
   or never reading them, keep the peak RSS within the limit plus idle RSS plus 32 MiB; those
-  read are whole, the others refused 429 or 503.
+  read are whole, the others refused 429 or 503;
+- (h) a RegisterRegion of 60M copies of one face id is refused as it arrives, and one of 2M
+  refused or kept once, each within a second; the idle daemon's CPU stays near zero afterwards,
+  and SIGTERM ends it within the drain time;
+- (i) 32 unread all-pairs MatrixRows streams of one client leave another client's Distance
+  median within 5x its median alone plus 20 ms (#67: 2 ms became 0.97 s).
 
-Bounds come from this run: (c) compares two crowds of the same run. Every daemon listens on
+Bounds come from this run: (c) compares two crowds of the same run, (i) one client alone
+and beside the other. Every daemon listens on
 127.0.0.1 port 0 and every load is bounded in time.
 
 Usage: hostile_clients_test.py BUILD_BIN_DIR SOURCE_DIR [SECONDS]"""
@@ -547,6 +553,131 @@ def case_http_answers(work, read):
         daemon_ports.stop(daemon)
 
 
+def cpu_seconds(pid):
+    """User and system CPU time the process has used so far, in seconds."""
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def region_request(ids):
+    """A RegisterRegionRequest of `ids` copies of face 0 of spot, serialized by hand."""
+    head = pb.RegisterRegionRequest(name="dup", parent="spot").SerializeToString()
+    return head + b"\x22" + varint(ids) + b"\x00" * ids
+
+
+def case_duplicate_region_ids(work):
+    label = "(h)"
+    daemon, ports = start_daemon(BIN, os.path.join(work, "regions"),
+                                 ["--graph-dir", os.path.join(work, "regions", "graphs"),
+                                  "--log-level", "warning", "--exact-landmarks", "0"])
+    try:
+        address = f"127.0.0.1:{ports['grpc']}"
+        with grpc.insecure_channel(address, options=[
+                ("grpc.max_send_message_length", 128 << 20)]) as channel:
+            if not check(f"{label} spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
+                return
+            call = channel.unary_unary("/geodesic.v1.Geodesic/RegisterRegion",
+                                       request_serializer=lambda b: b,
+                                       response_deserializer=pb.Mesh.FromString)
+            for ids in (60_000_000, 2_000_000):
+                data = region_request(ids)
+                start = time.monotonic()
+                try:
+                    mesh = call(data, timeout=60)
+                    outcome = ("OK", f"{mesh.diagnostics.faces} faces")
+                except grpc.RpcError as e:
+                    outcome = (e.code().name, e.details())
+                took = time.monotonic() - start
+                print(f"{label} {ids} copies of one face id: {outcome} in {took:.2f} s",
+                      flush=True)
+                # Refused (too large a message, or ids repeated past reason), or kept once.
+                check(f"{label} {ids} duplicate ids are refused or kept once within a second",
+                      took < 1.0 and (outcome[0] in ("RESOURCE_EXHAUSTED", "INVALID_ARGUMENT")
+                                      or outcome == ("OK", "1 faces")), (outcome, took))
+        before = cpu_seconds(daemon.pid)
+        time.sleep(3)
+        idle_cpu = (cpu_seconds(daemon.pid) - before) / 3
+        check(f"{label} the idle daemon's CPU stays near zero afterwards (under 5% of a core)",
+              idle_cpu < 0.05, f"{idle_cpu:.3f} s/s")
+        start = time.monotonic()
+        code = daemon_ports.stop(daemon)
+        took = time.monotonic() - start
+        check(f"{label} SIGTERM ends it within the drain time (10 s)", code == 0 and took < 10,
+              (code, round(took, 2)))
+    finally:
+        daemon_ports.stop(daemon)
+
+
+# A client that opens 32 MatrixRows streams of spot's all pairs (68 MB each) as token TOKEN,
+# and then is stopped (SIGSTOP) before it reads them.
+UNREAD_ROWS_CLIENT = """
+import sys, time
+sys.path.insert(0, sys.argv[2])
+import grpc
+from geodesic_client._stubs import pb, rpc
+calls = []
+for k in range(32):
+    channel = grpc.insecure_channel(sys.argv[1], options=[("grpc.http2.bdp_probe", 0)])
+    calls.append((channel, rpc.GeodesicStub(channel).MatrixRows(
+        pb.MatrixRequest(mesh="spot", all_sources=True, all_targets=True), timeout=120,
+        metadata=[("authorization", "Bearer " + sys.argv[3])])))
+print("asked", flush=True)
+time.sleep(120)
+"""
+
+
+def case_unread_rows(work):
+    label = "(i)"
+    daemon, ports = start_daemon(BIN, os.path.join(work, "rows"),
+                                 ["--graph-dir", os.path.join(work, "rows", "graphs"),
+                                  "--log-level", "warning", "--exact-landmarks", "0"],
+                                 tokens=[TOKEN, VICTIM], metrics=True)
+    client = None
+    try:
+        address = f"127.0.0.1:{ports['grpc']}"
+        channel = grpc.insecure_channel(address)
+        stub = rpc.GeodesicStub(channel)
+        if not check(f"{label} spot's graph ready", wait_for_spot(stub, bearer(VICTIM))):
+            return
+
+        def victim_latencies():
+            times, errors = [], []
+            for k in range(20):
+                start = time.monotonic()
+                try:
+                    light_pair(stub, k, bearer(VICTIM))
+                    times.append(time.monotonic() - start)
+                except grpc.RpcError as e:
+                    errors.append(e.code().name)
+                time.sleep(0.05)
+            return times, errors
+        alone, _ = victim_latencies()
+        client = subprocess.Popen([sys.executable, "-c", UNREAD_ROWS_CLIENT, address,
+                                   os.path.join(SRC, "client", "python"), TOKEN],
+                                  stdout=subprocess.PIPE, text=True)
+        asked = client.stdout.readline().strip() == "asked"
+        time.sleep(1)  # the streams fill their windows
+        client.send_signal(signal.SIGSTOP)
+        streams = daemon_ports.metrics(ports["metrics"])["geodesicd_streams_open"]
+        beside, errors = victim_latencies()
+        median = sorted(alone)[len(alone) // 2] if alone else float("nan")
+        median_beside = sorted(beside)[len(beside) // 2] if beside else float("inf")
+        print(f"{label} {streams:.0f} streams open; the other client's Distance median "
+              f"{1000 * median:.2f} ms alone, {1000 * median_beside:.2f} ms beside them; "
+              f"errors {errors[:3]}", flush=True)
+        check(f"{label} the client opened its 32 streams", asked and streams >= 32, streams)
+        # From this run's own pace: the streams blocked on their client hold no thread.
+        check(f"{label} another client's Distance keeps its pace (median within 5x + 20 ms)",
+              len(alone) == 20 and len(beside) == 20
+              and median_beside <= 5 * median + 0.020, (median, median_beside, errors[:3]))
+    finally:
+        if client:
+            client.kill()
+            client.wait(timeout=30)
+        daemon_ports.stop(daemon)
+
+
 def main():
     work = tempfile.mkdtemp(prefix="hostile-clients-")
     try:
@@ -558,6 +689,8 @@ def main():
         case_huge_requests(work)
         case_http_answers(work, read=True)
         case_http_answers(work, read=False)
+        case_duplicate_region_ids(work)
+        case_unread_rows(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     check.finish()
