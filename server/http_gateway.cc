@@ -20,6 +20,7 @@
 #include "absl/strings/ascii.h"
 #include "absl/strings/escaping.h"
 #include "absl/strings/match.h"
+#include "absl/strings/numbers.h"
 #include "absl/strings/str_cat.h"
 #include "absl/strings/str_format.h"
 #include "absl/strings/str_join.h"
@@ -31,6 +32,7 @@
 #include "google/protobuf/util/json_util.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
+#include "server/admission.h"
 #include "server/client_key.h"
 #include "server/constant_time.h"
 #include "server/convert.h"
@@ -92,7 +94,9 @@ std::string Quote(const json& j) {
   return text;
 }
 
-HttpResponse ErrorResponse(const grpc::Status& s) {
+// `retry_after_ms`: the service's hint (its retry-after-ms trailer), sent
+// as Retry-After in whole seconds; without one, UNAVAILABLE says a second.
+HttpResponse ErrorResponse(const grpc::Status& s, std::optional<int64_t> retry_after_ms = {}) {
   HttpResponse res;
   res.status = HttpStatus(s.error_code());
   if (s.error_code() == grpc::StatusCode::UNAUTHENTICATED) {
@@ -101,7 +105,9 @@ HttpResponse ErrorResponse(const grpc::Status& s) {
   // A client without the right credentials gets its answer and the
   // connection's end: kept alive, its connections would fill the cap.
   res.close = s.error_code() == grpc::StatusCode::UNAUTHENTICATED;
-  if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
+  if (retry_after_ms) {
+    res.headers.emplace_back("Retry-After", std::to_string((*retry_after_ms + 999) / 1000));
+  } else if (s.error_code() == grpc::StatusCode::UNAVAILABLE) {
     res.headers.emplace_back("Retry-After", "1");
   }
   json body = {{"error", {{"code", CodeName(s.error_code())}, {"message", s.error_message()}}}};
@@ -175,16 +181,30 @@ class Call {
                   std::chrono::microseconds(static_cast<int64_t>(seconds * 1e6));
     }
   }
-  // A fresh context per RPC (gRPC contexts are single-use); the deadline is
-  // the whole HTTP request's.
-  std::unique_ptr<grpc::ClientContext> Context() const {
-    auto ctx = std::make_unique<grpc::ClientContext>();
+  // A fresh context per RPC (gRPC contexts are single-use), kept for the
+  // HTTP request's life so that the last RPC's trailers can be read; the
+  // deadline is the whole HTTP request's.
+  grpc::ClientContext* Context() const {
+    grpc::ClientContext* ctx =
+        contexts_.emplace_back(std::make_unique<grpc::ClientContext>()).get();
     if (!auth_.empty()) ctx->AddMetadata("authorization", auth_);
     // Fair shares go by the HTTP client, not by the gateway's one channel.
     if (!client_address_.empty())
       ctx->AddMetadata(kHttpClientMetadata, HttpClientValue(client_address_));
     if (deadline_) ctx->set_deadline(*deadline_);
     return ctx;
+  }
+  // The retry hint (milliseconds) of the last RPC's refusal, if it sent one.
+  std::optional<int64_t> RetryAfterMs() const {
+    if (contexts_.empty()) return std::nullopt;
+    const auto& trailers = contexts_.back()->GetServerTrailingMetadata();
+    auto it = trailers.find(kRetryAfterMsTrailer);
+    int64_t ms;
+    if (it == trailers.end() ||
+        !absl::SimpleAtoi(absl::string_view(it->second.data(), it->second.size()), &ms) || ms < 0) {
+      return std::nullopt;
+    }
+    return ms;
   }
   // The deadline passed: an answer now comes too late for the client, as a
   // gRPC client's call fails once its deadline passes, whatever the server.
@@ -197,6 +217,7 @@ class Call {
   std::string client_address_;
   std::optional<std::chrono::system_clock::time_point> deadline_;
   grpc::Status status_;
+  mutable std::vector<std::unique_ptr<grpc::ClientContext>> contexts_;
 };
 
 // The deepest nesting of arrays and objects in JSON text (brackets inside
@@ -593,7 +614,7 @@ struct HttpGateway::Impl {
     }
     if (points.has_positions()) {
       v1::SnapResponse snapped;
-      grpc::Status s = stub->Snap(call.Context().get(), points.SnapRequest(mesh), &snapped);
+      grpc::Status s = stub->Snap(call.Context(), points.SnapRequest(mesh), &snapped);
       if (!s.ok()) return s;
       if (absl::Status bad = points.Snapped(snapped); !bad.ok()) return ToGrpc(bad);
     }
@@ -610,7 +631,7 @@ struct HttpGateway::Impl {
 
   grpc::Status ListMeshes(const Call& call, const ApiRequest&, json* out) {
     v1::ListMeshesResponse resp;
-    grpc::Status s = stub->ListMeshes(call.Context().get(), {}, &resp);
+    grpc::Status s = stub->ListMeshes(call.Context(), {}, &resp);
     if (!s.ok()) return s;
     json meshes = json::array();
     for (const auto& m : resp.meshes()) meshes.push_back(MeshJson(m));
@@ -622,7 +643,7 @@ struct HttpGateway::Impl {
     v1::GetMeshRequest req;
     req.set_name(r.mesh);
     v1::Mesh resp;
-    grpc::Status s = stub->GetMesh(call.Context().get(), req, &resp);
+    grpc::Status s = stub->GetMesh(call.Context(), req, &resp);
     if (s.ok()) *out = MeshJson(resp);
     return s;
   }
@@ -665,7 +686,7 @@ struct HttpGateway::Impl {
         // protobuf's JSON mapping (see http_gateway.h).
         v1::RegisterMeshRequest req;
         if (s = MessageOf(body, &req); !s.ok()) return s;
-        s = stub->RegisterMesh(call.Context().get(), req, &mesh);
+        s = stub->RegisterMesh(call.Context(), req, &mesh);
       } else {
         bool repair = false;
         if (s = BoolField(body, "repair_non_manifold", &repair); !s.ok()) return s;
@@ -717,7 +738,7 @@ struct HttpGateway::Impl {
                       const std::vector<double>& vertices, const std::vector<uint32_t>& faces,
                       v1::Mesh* mesh) {
     auto ctx = call.Context();
-    auto writer = stub->UploadMesh(ctx.get(), mesh);
+    auto writer = stub->UploadMesh(ctx, mesh);
     // A failed write ends the upload; Finish says why.
     SplitUpload(std::move(header), data, vertices, faces,
                 [&](const v1::UploadMeshRequest& m) { return writer->Write(m); });
@@ -732,7 +753,7 @@ struct HttpGateway::Impl {
     if (grpc::Status s = MessageOf(r.body, &req); !s.ok()) return s;
     req.set_parent(r.mesh);
     v1::Mesh mesh;
-    grpc::Status s = stub->RegisterRegion(call.Context().get(), req, &mesh);
+    grpc::Status s = stub->RegisterRegion(call.Context(), req, &mesh);
     if (s.ok()) *out = MeshJson(mesh);
     return s;
   }
@@ -742,7 +763,7 @@ struct HttpGateway::Impl {
     v1::UnloadMeshRequest req;
     req.set_name(name);
     v1::UnloadMeshResponse resp;
-    grpc::Status s = stub->UnloadMesh(call.Context().get(), req, &resp);
+    grpc::Status s = stub->UnloadMesh(call.Context(), req, &resp);
     if (s.ok()) *out = {{"name", name}, {"unloaded", true}};
     return s;
   }
@@ -786,7 +807,7 @@ struct HttpGateway::Impl {
     v1::RequestGraphRequest req;
     if (grpc::Status s = ForGraphOf(r.mesh, r.body, &req); !s.ok()) return s;
     v1::Graph g;
-    grpc::Status s = stub->RequestGraph(call.Context().get(), req, &g);
+    grpc::Status s = stub->RequestGraph(call.Context(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
@@ -796,7 +817,7 @@ struct HttpGateway::Impl {
     v1::GetGraphRequest req;
     if (grpc::Status s = ForGraphOfQuery(r.mesh, r.http, &req); !s.ok()) return s;
     v1::Graph g;
-    grpc::Status s = stub->GetGraph(call.Context().get(), req, &g);
+    grpc::Status s = stub->GetGraph(call.Context(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
@@ -805,14 +826,14 @@ struct HttpGateway::Impl {
     v1::CancelGraphRequest req;
     if (grpc::Status s = ForGraphOfQuery(r.mesh, r.http, &req); !s.ok()) return s;
     v1::Graph g;
-    grpc::Status s = stub->CancelGraph(call.Context().get(), req, &g);
+    grpc::Status s = stub->CancelGraph(call.Context(), req, &g);
     if (s.ok()) *out = GraphJson(g);
     return s;
   }
 
   grpc::Status ListGraphs(const Call& call, const ApiRequest&, json* out) {
     v1::ListGraphsResponse resp;
-    grpc::Status s = stub->ListGraphs(call.Context().get(), {}, &resp);
+    grpc::Status s = stub->ListGraphs(call.Context(), {}, &resp);
     if (!s.ok()) return s;
     json graphs = json::array();
     for (const auto& g : resp.graphs()) graphs.push_back(GraphJson(g));
@@ -851,7 +872,7 @@ struct HttpGateway::Impl {
       *pair->mutable_to() = points[i + 1];
     }
     v1::DistanceResponse resp;
-    grpc::Status s = stub->Distance(call.Context().get(), req, &resp);
+    grpc::Status s = stub->Distance(call.Context(), req, &resp);
     if (!s.ok()) return s;
     json distances = json::array(), paths = json::array(), path_lengths = json::array();
     for (const auto& r : resp.results()) {
@@ -903,7 +924,7 @@ struct HttpGateway::Impl {
     if (grpc::Status s = Specs(call, mesh, body, "sources", "source", &sources); !s.ok()) return s;
     for (auto& p : sources) *req.add_sources() = std::move(p);
     auto ctx = call.Context();
-    auto reader = stub->DistanceField(ctx.get(), req);
+    auto reader = stub->DistanceField(ctx, req);
     std::vector<double> values;
     std::vector<uint32_t> nearest_source;
     v1::QueryEcho echo;
@@ -961,7 +982,7 @@ struct HttpGateway::Impl {
     if (npy && dtype == v1::MATRIX_DTYPE_DEFAULT) dtype = v1::MATRIX_DTYPE_FLOAT64;
     req.set_dtype(dtype);
     v1::MatrixResponse resp;
-    grpc::Status s = stub->Matrix(call.Context().get(), req, &resp);
+    grpc::Status s = stub->Matrix(call.Context(), req, &resp);
     if (!s.ok()) return s;
     const uint64_t entries = static_cast<uint64_t>(resp.rows()) * resp.cols();
     const bool narrow = dtype == v1::MATRIX_DTYPE_FLOAT32;
@@ -1028,7 +1049,7 @@ struct HttpGateway::Impl {
       req.set_seed(seed->get<uint64_t>());
     }
     v1::SamplePointsResponse resp;
-    grpc::Status s = stub->SamplePoints(call.Context().get(), req, &resp);
+    grpc::Status s = stub->SamplePoints(call.Context(), req, &resp);
     if (!s.ok()) return s;
     *out = {{"vertices", resp.vertices()},
             {"covering_radius", JsonDistance(resp.covering_radius())}};
@@ -1055,7 +1076,7 @@ struct HttpGateway::Impl {
       q->set_z(p[2].get<double>());
     }
     v1::SnapResponse resp;
-    grpc::Status s = stub->Snap(call.Context().get(), req, &resp);
+    grpc::Status s = stub->Snap(call.Context(), req, &resp);
     if (!s.ok()) return s;
     json points = json::array();
     for (const auto& p : resp.points()) points.push_back(FormatPoint(p));
@@ -1134,7 +1155,7 @@ struct HttpGateway::Impl {
     if (s.ok() && call.expired()) {
       s = grpc::Status(grpc::StatusCode::DEADLINE_EXCEEDED, "the request's timeout passed");
     }
-    if (!s.ok()) return ErrorResponse(s);
+    if (!s.ok()) return ErrorResponse(s, call.RetryAfterMs());
     if (raw) {
       raw->headers.emplace_back("Cache-Control", "no-store");
       raw->hold = std::move(hold);

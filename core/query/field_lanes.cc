@@ -328,6 +328,54 @@ void ResetLanes(QueryScratch& sc, uint32_t nodes) {
   sc.lanes_clear_but_reached = false;
 }
 
+// What a sweep counts as it goes, in the sweep's own locals (never
+// addressed outside it, so they stay in registers); its LaneStats at the end.
+struct SweepCounts {
+  uint64_t pops = 0, relaxed = 0, improved = 0, pushes = 0, expanded = 0;
+  LaneStats Stats(uint64_t edge_bytes) const {
+    LaneStats stats;
+    stats.queue_pops = pops;
+    stats.relaxed = relaxed;
+    stats.work = {.relaxed = relaxed,
+                  .improved = improved,
+                  .pushes = pushes,
+                  .pops = pops,
+                  .graph_bytes = GraphBytesRead(relaxed, edge_bytes, expanded)};
+    return stats;
+  }
+};
+
+struct Seeds {
+  std::vector<uint32_t> nodes;  // each once
+  double max_label = 0;
+  uint64_t labels = 0;  // lanes' labels set
+};
+
+// Vertex sources at 0, other points through their temporary edges; a seed
+// relaxes all its edges, as in SolveField. Returned, not counted into the
+// sweep's counts, so that the sweep never hands out their address.
+template <typename Fans>
+Seeds SeedLanes(const DggGraph& g, QueryScratch& sc, Fans* fan,
+                absl::Span<const Endpoint> sources) {
+  LaneLabels* dist = sc.lane_dist.data();
+  uint8_t* dirty = sc.lane_dirty.data();
+  Seeds seeds;
+  auto seed = [&](uint32_t u, double d, int lane) {
+    if (!(d < dist[u].dist[lane])) return;
+    ++seeds.labels;
+    dist[u].dist[lane] = d;
+    SetFan(fan[u], lane, AllEdges(g, u));
+    if (!dirty[u]) seeds.nodes.push_back(u);
+    dirty[u] |= 1u << lane;
+    seeds.max_label = std::max(seeds.max_label, d);
+  };
+  for (size_t k = 0; k < sources.size() && k < kFieldLanes; ++k) {
+    if (sources[k].is_node) seed(sources[k].node, 0, k);
+    for (const TemporaryEdge& e : sources[k].edges) seed(e.node, e.weight, k);
+  }
+  return seeds;
+}
+
 template <typename Simd, typename Edge, typename Fans>
 [[gnu::always_inline]] inline absl::StatusOr<LaneStats> Sweep(
     const DggGraph& g, const Edge* edges, const BucketShape& bucket_shape, QueryScratch& sc,
@@ -341,27 +389,13 @@ template <typename Simd, typename Edge, typename Fans>
   // reaches every node.
   const bool bounded = max_distance < kInfinity;
 
-  // Vertex sources at 0, other points through their temporary edges; a
-  // seed relaxes all its edges, as in SolveField.
-  std::vector<uint32_t> seeds;
-  double max_seed = 0;
-  auto seed = [&](uint32_t u, double d, int lane) {
-    if (!(d < dist[u].dist[lane])) return;
-    dist[u].dist[lane] = d;
-    SetFan(fan[u], lane, AllEdges(g, u));
-    if (!dirty[u]) seeds.push_back(u);
-    dirty[u] |= 1u << lane;
-    max_seed = std::max(max_seed, d);
-  };
-  for (size_t k = 0; k < sources.size() && k < kFieldLanes; ++k) {
-    if (sources[k].is_node) seed(sources[k].node, 0, k);
-    for (const TemporaryEdge& e : sources[k].edges) seed(e.node, e.weight, k);
-  }
+  const Seeds seeds = SeedLanes(g, sc, fan, sources);
   // Buckets half as wide as a single field's: the lanes' wavefronts are
   // a little apart, and narrower buckets take fewer nodes out twice.
   BucketQueue& queue = sc.buckets;
-  queue.Reset(nodes, bucket_shape.width / 2, std::max(bucket_shape.max_step, max_seed));
-  for (uint32_t u : seeds) queue.Lower(u, Simd::LowestOf(dist[u], dirty[u]));
+  queue.Reset(nodes, bucket_shape.width / 2, std::max(bucket_shape.max_step, seeds.max_label));
+  for (uint32_t u : seeds.nodes) queue.Lower(u, Simd::LowestOf(dist[u], dirty[u]));
+  SweepCounts counts{.improved = seeds.labels, .pushes = seeds.nodes.size()};
 
   const auto offsets = g.offsets();
   const Lanes limit = Lanes{} + max_distance;
@@ -370,15 +404,14 @@ template <typename Simd, typename Edge, typename Fans>
     uint32_t lanes;
   };
   std::vector<Improvement> improvements;
-  LaneStats stats;
   while (!queue.empty()) {
     const uint32_t u = queue.Pop();
     const uint32_t mask = dirty[u];
     dirty[u] = 0;
-    if (cancelled && (stats.queue_pops & 4095) == 0 && cancelled()) {
+    if (cancelled && (counts.pops & 4095) == 0 && cancelled()) {
       return absl::CancelledError("field cancelled");
     }
-    ++stats.queue_pops;
+    ++counts.pops;
     if (bounded) sc.lane_reached.push_back(u);
     // Only the lanes that improved relax: the others did so with these
     // labels already. Labels past the limit stop there.
@@ -396,7 +429,8 @@ template <typename Simd, typename Edge, typename Fans>
       PrefetchRun<Simd>(g, edges, fan[next], dirty[next], next);
       __builtin_prefetch(&dist[next]);
     }
-    stats.relaxed += run.count;
+    counts.relaxed += run.count;
+    ++counts.expanded;
     if (improvements.size() < run.count) improvements.resize(run.count);
     // Labels first, without a branch: whether an edge improves a label waits
     // on that label's load, and a branch on it stalled on every load it
@@ -416,10 +450,12 @@ template <typename Simd, typename Edge, typename Fans>
     const uint64_t first = begin + run.begin, stop = first + run.count;
     relax(first, std::min(stop, end));
     if (stop > end) relax(begin, begin + (stop - end));
+    counts.pushes += found;
     for (size_t k = 0; k < found; ++k) {
       const auto [i, improved] = improvements[k];
       const Edge& e = edges[begin + i];
       const uint32_t v = e.target;
+      counts.improved += std::popcount(improved);
       Simd::SetFans(fan[v], improved, FanOf(e));
       dirty[v] |= improved;
       queue.Lower(v, du_low + e.weight);
@@ -427,7 +463,7 @@ template <typename Simd, typename Edge, typename Fans>
   }
   // Every node taken out has clean lanes again.
   sc.lanes_clear_but_reached = bounded;
-  return stats;
+  return counts.Stats(sizeof(Edge));
 }
 
 template <typename Simd>

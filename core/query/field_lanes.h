@@ -30,12 +30,14 @@
 #include "core/query/augmented_graph.h"
 #include "core/query/graph_search.h"
 #include "core/query/query_scratch.h"
+#include "core/query/search_work.h"
 
 namespace geodesic::query_internal {
 
 struct LaneStats {
   uint64_t queue_pops = 0;
   uint64_t relaxed = 0;  // edges relaxed, each for every lane at once
+  SearchWork work;       // the same sweep's work, in full
 };
 
 // A graph's edges as a sweep can read them instead of the graph's own

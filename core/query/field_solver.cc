@@ -124,8 +124,11 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
   };
   auto run = [&](auto& queue) {
     for (uint32_t s : seeds) queue.Push(s, dist[s]);
-    result.relaxed = use_fans ? search.template operator()<true>(queue)
-                              : search.template operator()<false>(queue);
+    result.work = use_fans ? search.template operator()<true>(queue)
+                           : search.template operator()<false>(queue);
+    result.work.pushes += seeds.size();
+    result.work.improved += seeds.size();
+    result.relaxed = result.work.relaxed;
   };
   if (targets_left) {
     // Stopping at targets needs nodes settled in order of distance.

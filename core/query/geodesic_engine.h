@@ -27,6 +27,7 @@
 #include "core/query/graph_search.h"
 #include "core/query/landmarks.h"
 #include "core/query/query_scratch.h"
+#include "core/query/search_work.h"
 
 namespace geodesic {
 
@@ -88,6 +89,7 @@ struct FieldResult {
   std::vector<uint32_t> nearest_source;  // index into sources; kNone if unreached
   uint64_t queue_pops = 0;               // work measure: pops per vertex ~ 1-2
   uint64_t relaxed = 0;                  // edges relaxed: what the fans save
+  SearchWork work;                       // the same search's work, in full
 };
 
 struct PathPoint {
@@ -125,6 +127,9 @@ struct PairResult {
   uint64_t relaxed = 0;         // edges relaxed
   bool exact = false;           // the distance and path are exact (PairOptions::exact)
   uint64_t windows = 0;         // exact only: windows the propagation created
+  // The bidirectional search's work, both sides (the exact propagation's,
+  // if any, is `windows`).
+  SearchWork work;
   std::optional<GeodesicPath> path;
 };
 

@@ -19,6 +19,7 @@
 #include "core/base/bucket_queue.h"
 #include "core/base/node_heap.h"
 #include "core/dgg/dgg_graph.h"
+#include "core/query/search_work.h"
 
 namespace geodesic {
 
@@ -76,17 +77,21 @@ inline void PrefetchEdges(const Edge* edges, uint64_t begin, uint64_t end) {
 // dist and fan). `visit(u)` is asked about each node taken out; after
 // `dist[v]` improved through u, `improved(u, v)` is called. Without fans
 // every node relaxes all its edges (Dijkstra's rule, for checking). Returns
-// the number of edges relaxed. The choice is a template argument so that the
-// inner loop carries no test for it.
+// the work done from the first pop on: the seeds' pushes and labels are the
+// caller's to add. The choice is a template argument so that the inner loop
+// carries no test for it.
 template <bool kUseFans, typename Queue, typename VisitFn, typename ImprovedFn>
-uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fan, VisitFn visit,
-                     ImprovedFn improved) {
+SearchWork SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fan, VisitFn visit,
+                       ImprovedFn improved) {
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
-  uint64_t relaxed = 0;
+  // Locals, not the struct's fields, so that they stay in registers across
+  // the calls the loop makes.
+  uint64_t relaxed = 0, pops = 0, improved_labels = 0, expanded = 0;
   std::vector<uint32_t> improvements;  // of u's edges, by index in its list
   while (!queue.empty()) {
     const uint32_t u = queue.Pop();
+    ++pops;
     const Visit what = visit(u);
     if (what == Visit::kSkip) continue;
     if (what == Visit::kStop) break;
@@ -106,6 +111,7 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fa
     }
     const double du = dist[u];
     relaxed += run.count;
+    ++expanded;
     if (improvements.size() < run.count) improvements.resize(run.count);
     // Labels first, without a branch: whether an edge improves a label waits
     // on that label's load, and a branch on it stalled on each load it
@@ -121,6 +127,7 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fa
       found += better;
       if (++i == end) i = begin;  // fans wrap past u's last edge
     }
+    improved_labels += found;
     for (size_t k = 0; k < found; ++k) {
       const DggEdge& e = edges[begin + improvements[k]];
       if constexpr (kUseFans) fan[e.target] = e.fan;
@@ -128,7 +135,13 @@ uint64_t SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fa
       queue.Push(e.target, dist[e.target]);
     }
   }
-  return relaxed;
+  SearchWork work;
+  work.relaxed = relaxed;
+  work.improved = improved_labels;
+  work.pushes = improved_labels;  // each improvement queues its target once
+  work.pops = pops;
+  work.graph_bytes = GraphBytesRead(relaxed, sizeof(DggEdge), expanded);
+  return work;
 }
 
 }  // namespace geodesic

@@ -232,6 +232,16 @@ class BidirectionalSearch {
   // known before the search (or none) won.
   uint32_t meet() const { return meet_; }
   PairTable& table() { return at_; }
+  // Settled nodes are the ones that read their edge lists.
+  SearchWork work() const {
+    SearchWork w;
+    w.relaxed = result_.relaxed;
+    w.improved = improved_;
+    w.pushes = result_.queued;
+    w.pops = pops_;
+    w.graph_bytes = GraphBytesRead(result_.relaxed, sizeof(DggEdge), result_.settled);
+    return w;
+  }
 
  private:
   // The record of node u for this query, initialised on first touch.
@@ -256,6 +266,7 @@ class BidirectionalSearch {
   void Reach(int s, uint32_t u, double d, uint32_t from, FanRange fan) {
     PairTable::Record& n = Node(u);
     if (!(d < n.dist[s])) return;
+    ++improved_;
     n.dist[s] = d;
     n.pred[s] = from;
     n.fan[s] = fan;
@@ -276,6 +287,7 @@ class BidirectionalSearch {
   void Settle(int s) {
     const uint32_t u = heap_[s].top();
     heap_[s].Pop();
+    ++pops_;
     PairTable::Record& record = *at_.Find(u);
     if (record.done(s)) return;
     record.set_done(s);
@@ -321,6 +333,7 @@ class BidirectionalSearch {
   double mu_;
   uint32_t meet_ = kNone;
   PairResult& result_;
+  uint64_t pops_ = 0, improved_ = 0;
 };
 
 // The surface path of a graph route: the first point, the route's nodes,
@@ -436,6 +449,7 @@ absl::StatusOr<PairResult> GeodesicEngine::Distance(const SurfacePoint& raw_a,
   const Landmarks* landmarks = options.use_astar ? landmarks_.get() : nullptr;
   BidirectionalSearch search(g, sc, ends, node_xyz_, options.use_astar, landmarks, best, result);
   RETURN_IF_ERROR(search.Run(options.cancelled));
+  result.work = search.work();
   const double mu = search.distance();
   result.distance = mu;
   // A direct geodesic that won has no route through the graph.

@@ -30,7 +30,9 @@ promise holds.
   refused or kept once, each within a second; the idle daemon's CPU stays near zero afterwards,
   and SIGTERM ends it within the drain time;
 - (i) 32 unread all-pairs MatrixRows streams of one client leave another client's Distance
-  median within 5x its median alone plus 20 ms (#67: 2 ms became 0.97 s).
+  median within 5x its median alone plus 20 ms (#67: 2 ms became 0.97 s);
+- (j) heavy HTTP queries past --max-inflight are refused 429 with Retry-After, the service's
+  retry-after-ms hint in whole seconds (#68: the hint was lost in translation).
 
 Bounds come from this run: (c) compares two crowds of the same run, (i) one client alone
 and beside the other. Every daemon listens on
@@ -678,6 +680,50 @@ def case_unread_rows(work):
         daemon_ports.stop(daemon)
 
 
+def case_http_overload(work):
+    """Heavy HTTP queries past --max-inflight: the 429s carry Retry-After from the service's
+    retry-after-ms hint."""
+    import urllib.error
+    import urllib.request
+    label = "(j)"
+    daemon, ports = start_daemon(BIN, os.path.join(work, "overload"),
+                                 ["--graph-dir", os.path.join(work, "overload", "graphs"),
+                                  "--log-level", "warning", "--exact-landmarks", "0",
+                                  "--max-inflight", "2", "--query-threads", "1"], http=True)
+    try:
+        with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
+            if not check(f"{label} spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
+                return
+        body = json.dumps({"pairs": [[f"v:{(7 * k) % SPOT_VERTICES}",
+                                      f"v:{(13 * k + 5) % SPOT_VERTICES}"]
+                                     for k in range(10000)]}).encode()
+        refusals, lock = [], threading.Lock()
+
+        def heavy():
+            request = urllib.request.Request(
+                f"http://127.0.0.1:{ports['http']}/v1/meshes/spot/distance", data=body,
+                method="POST", headers={"Content-Type": "application/json"})
+            try:
+                urllib.request.urlopen(request, timeout=60).read()
+            except urllib.error.HTTPError as e:
+                with lock:
+                    refusals.append((e.code, e.headers.get("Retry-After"), e.read()[:300]))
+        threads = [threading.Thread(target=heavy) for _ in range(12)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join(timeout=120)
+        overloads = [r for r in refusals if r[0] == 429]
+        print(f"{label} {len(overloads)} of 12 heavy queries refused 429; "
+              f"{[(r[0], r[1]) for r in refusals][:4]}", flush=True)
+        check(f"{label} some heavy queries are refused 429 as overload", overloads and
+              all(b"server overloaded" in r[2] for r in overloads), refusals[:2])
+        check(f"{label} each 429 carries Retry-After, a whole number of seconds",
+              all(r[1] and r[1].isdigit() and int(r[1]) >= 1 for r in overloads), overloads[:2])
+    finally:
+        daemon_ports.stop(daemon)
+
+
 def main():
     work = tempfile.mkdtemp(prefix="hostile-clients-")
     try:
@@ -691,6 +737,7 @@ def main():
         case_http_answers(work, read=False)
         case_duplicate_region_ids(work)
         case_unread_rows(work)
+        case_http_overload(work)
     finally:
         shutil.rmtree(work, ignore_errors=True)
     check.finish()
