@@ -57,6 +57,19 @@ absl::Time ReplyBy(const grpc::ServerContext* ctx) {
 constexpr char kGraphStateTrailer[] = "graph-state";
 constexpr char kGraphProgressTrailer[] = "graph-progress";
 
+// A call over a per-call limit, refused RESOURCE_EXHAUSTED: each limit it
+// passed rides as a trailer ("limit-max-pairs: 10000", "limit-max-sources",
+// "limit-max-message-bytes"), so that a client splits its batch from them
+// rather than from the message's prose.
+absl::Status OverLimits(const std::string& message,
+                        std::initializer_list<std::pair<const char*, uint64_t>> limits) {
+  absl::Status refusal = absl::ResourceExhaustedError(message);
+  for (const auto& [name, value] : limits) {
+    refusal.SetPayload(absl::StrCat("limit-", name), absl::Cord(absl::StrCat(value)));
+  }
+  return refusal;
+}
+
 // The most a request's parts take on the wire when they are valid (a face
 // point is 35 bytes, a pair of them 76), with room to spare for fields a
 // newer client adds; what a request may hold besides them (names); and what
@@ -515,20 +528,22 @@ absl::Status GeodesicService::CheckMatrixLimits(const v1::MatrixRequest& req, bo
   if (rows <= uint64_t(limits_.max_sources) && cols <= uint64_t(limits_.max_pairs)) {
     return absl::OkStatus();
   }
-  return absl::ResourceExhaustedError(
+  return OverLimits(
       absl::StrFormat("matrix of %u x %u exceeds the limits (%d sources, %d targets)%s", rows, cols,
                       limits_.max_sources, limits_.max_pairs,
                       req.all_sources() || req.all_targets()
                           ? "; MatrixRows streams all_sources and all_targets of any mesh"
-                          : ""));
+                          : ""),
+      {{"max-sources", limits_.max_sources}, {"max-pairs", limits_.max_pairs}});
 }
 
 absl::Status GeodesicService::CheckAnswerSize(const std::string& what, uint64_t bytes) const {
   if (bytes <= limits_.max_message_bytes) return absl::OkStatus();
-  return absl::ResourceExhaustedError(absl::StrFormat(
-      "the answer of %s would take about %u bytes, over the message cap of %u bytes: split it "
-      "into row blocks (fewer sources or targets per call)",
-      what, bytes, limits_.max_message_bytes));
+  return OverLimits(absl::StrFormat("the answer of %s would take about %u bytes, over the "
+                                    "message cap of %u bytes: split it into row blocks (fewer "
+                                    "sources or targets per call)",
+                                    what, bytes, limits_.max_message_bytes),
+                    {{"max-message-bytes", limits_.max_message_bytes}});
 }
 
 absl::StatusOr<double> GeodesicService::Epsilon(double requested) const {
@@ -1064,8 +1079,9 @@ grpc::Status GeodesicService::DistanceField(grpc::ServerContext* ctx,
     ASSIGN_OR_RETURN(Admission::Ticket admitted, AdmitQuery(ctx, identity_.Key(*ctx)));
     if (req->sources_size() == 0) return absl::InvalidArgumentError("a field needs a source");
     if (req->sources_size() > limits_.max_sources) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "%d sources exceed the limit of %d per field", req->sources_size(), limits_.max_sources));
+      return OverLimits(absl::StrFormat("%d sources exceed the limit of %d per field",
+                                        req->sources_size(), limits_.max_sources),
+                        {{"max-sources", limits_.max_sources}});
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     auto engine = AcquireEngine(key, ctx);
@@ -1155,14 +1171,15 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
   const v1::GraphSelector graph = SelectorOf(*req);
   return Handle("Distance", ctx, graph.mesh(), true, [&]() -> absl::Status {
     if (req->pairs_size() > limits_.max_pairs) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "%d pairs exceed the limit of %d per call", req->pairs_size(), limits_.max_pairs));
+      return OverLimits(absl::StrFormat("%d pairs exceed the limit of %d per call",
+                                        req->pairs_size(), limits_.max_pairs),
+                        {{"max-pairs", limits_.max_pairs}});
     }
     if (req->exact() && req->pairs_size() > limits_.max_exact_pairs) {
-      return absl::ResourceExhaustedError(absl::StrFormat(
-          "%d exact pairs exceed the limit of %d exact pairs per call (--max-exact-pairs): "
-          "split the batch",
-          req->pairs_size(), limits_.max_exact_pairs));
+      return OverLimits(absl::StrFormat("%d exact pairs exceed the limit of %d exact pairs per "
+                                        "call (--max-exact-pairs): split the batch",
+                                        req->pairs_size(), limits_.max_exact_pairs),
+                        {{"max-exact-pairs", limits_.max_exact_pairs}});
     }
     const uint64_t pairs = req->pairs_size();
     RETURN_IF_ERROR(CheckAnswerSize(absl::StrFormat("%u pairs", pairs),
@@ -1222,10 +1239,12 @@ grpc::Status GeodesicService::Distance(grpc::ServerContext* ctx, const v1::Dista
         FillPath(*r.path, out->mutable_path());
         answer_bytes += out->ByteSizeLong() + 4;
         if (answer_bytes > limits_.max_message_bytes) {
-          return absl::ResourceExhaustedError(absl::StrFormat(
-              "the answer with paths grew larger than max message size: %u bytes at pair %u of "
-              "%d, over the cap of %u bytes; split the batch",
-              answer_bytes, begin + k + 1, req->pairs_size(), limits_.max_message_bytes));
+          return OverLimits(absl::StrFormat("the answer with paths grew larger than max message "
+                                            "size: %u bytes at pair %u of %d, over the cap of %u "
+                                            "bytes; split the batch",
+                                            answer_bytes, begin + k + 1, req->pairs_size(),
+                                            limits_.max_message_bytes),
+                            {{"max-message-bytes", limits_.max_message_bytes}});
         }
       }
     }
@@ -1421,9 +1440,9 @@ grpc::Status GeodesicService::Snap(grpc::ServerContext* ctx, const v1::SnapReque
                                    v1::SnapResponse* resp) {
   return Handle("Snap", ctx, req->mesh(), true, [&]() -> absl::Status {
     if (req->positions_size() > limits_.max_pairs) {
-      return absl::ResourceExhaustedError(
-          absl::StrFormat("%d positions exceed the limit of %d per call", req->positions_size(),
-                          limits_.max_pairs));
+      return OverLimits(absl::StrFormat("%d positions exceed the limit of %d per call",
+                                        req->positions_size(), limits_.max_pairs),
+                        {{"max-pairs", limits_.max_pairs}});
     }
     auto m = FindMesh(req->mesh());
     if (!m.ok()) return m.status();
@@ -1449,9 +1468,9 @@ grpc::Status GeodesicService::SamplePoints(grpc::ServerContext* ctx,
   return Handle("SamplePoints", ctx, graph.mesh(), true, [&]() -> absl::Status {
     // Each point costs a field.
     if (req->count() > static_cast<uint32_t>(limits_.max_samples)) {
-      return absl::ResourceExhaustedError(
-          absl::StrFormat("%u points exceed the limit of %d per call (--max-samples)", req->count(),
-                          limits_.max_samples));
+      return OverLimits(absl::StrFormat("%u points exceed the limit of %d per call (--max-samples)",
+                                        req->count(), limits_.max_samples),
+                        {{"max-samples", limits_.max_samples}});
     }
     ASSIGN_OR_RETURN(const GraphKey key, Key(graph));
     ASSIGN_OR_RETURN(std::shared_ptr<const GeodesicEngine> engine, AcquireEngine(key, ctx));

@@ -598,6 +598,11 @@ TEST_F(ServiceTest, BadRequestsGetCodesThatNameTheProblem) {
   for (int i = 0; i <= limits_.max_pairs; ++i) *many.add_pairs()->mutable_from() = Vertex(i);
   v1::DistanceResponse resp;
   EXPECT_EQ(stub_->Distance(&ctx, many, &resp).error_code(), grpc::StatusCode::RESOURCE_EXHAUSTED);
+  // The limit rides as a trailer, for clients that split their batches.
+  const auto& trailers = ctx.GetServerTrailingMetadata();
+  auto limit = trailers.find("limit-max-pairs");
+  ASSERT_NE(limit, trailers.end());
+  EXPECT_EQ(std::string(limit->second.data(), limit->second.size()), "50");
   // And it still answers.
   EXPECT_TRUE(distance(Vertex(0), Vertex(1), "spot", 1e-2).ok());
 }
