@@ -3,13 +3,17 @@
 Every class derives from grpc.RpcError and keeps its code() and details(), so
 code written against plain grpc errors keeps working.
 """
-from typing import Dict, Optional, Type
+from typing import Dict, Optional, Tuple, Type
 
 import grpc
 
 
 class GeodesicError(grpc.RpcError):
     """A failed call: code() is the grpc.StatusCode, details() the server's message."""
+
+    # The call's trailing metadata, (key, value) pairs: what a refusal says beyond its
+    # prose (the limit it passed, a retry hint), read by the client's own modules.
+    _trailers: Tuple[Tuple[str, str], ...] = ()
 
     def __init__(self, code: grpc.StatusCode, details: str, method: str = ""):
         super().__init__(f"{code.name}: {details}" + (f" ({method})" if method else ""))
@@ -84,4 +88,15 @@ def from_rpc_error(e: grpc.RpcError, method: str = "") -> GeodesicError:
     code: Optional[grpc.StatusCode] = e.code() if hasattr(e, "code") else None
     code = code or grpc.StatusCode.UNKNOWN
     details = (e.details() if hasattr(e, "details") else None) or str(e)
-    return _BY_CODE.get(code, GeodesicError)(code, details, method)
+    error = _BY_CODE.get(code, GeodesicError)(code, details, method)
+    trailing = e.trailing_metadata() if hasattr(e, "trailing_metadata") else None
+    error._trailers = tuple((key, value) for key, value in trailing or ())
+    return error
+
+
+def trailer(error: GeodesicError, key: str) -> Optional[str]:
+    """The value of one of a failed call's trailers, None if it had none of that name."""
+    for name, value in error._trailers:
+        if name == key:
+            return value
+    return None

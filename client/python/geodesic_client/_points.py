@@ -142,3 +142,22 @@ def to_message(point: Point, what: str = "point") -> Any:
         x, y, z = a.astype(np.float64).tolist()
         return pb.Vec3(x=x, y=y, z=z)
     raise ValueError(f"{what}: {point!r} is not a vertex id, a spec string or a position (x, y, z)")
+
+
+def is_position(value: Any) -> bool:
+    """One (x, y, z) position given as a 3-vector of floats (a list of three ints are vertex
+    ids)."""
+    if isinstance(value, np.ndarray):
+        return value.shape == (3,) and np.issubdtype(value.dtype, np.floating)
+    return (isinstance(value, list) and len(value) == 3 and
+            all(isinstance(x, (float, np.floating)) for x in value))
+
+
+def to_messages_ids(targets: Any) -> List[int]:
+    """Target vertex ids as a list of ints, checked."""
+    ids = np.asarray(targets)
+    if ids.ndim != 1 or not (np.issubdtype(ids.dtype, np.integer) or ids.size == 0):
+        raise ValueError(f"targets: expected 1-D vertex ids, got shape {ids.shape} {ids.dtype}")
+    if ids.size and (ids.min() < 0 or ids.max() >= 2**32):
+        raise ValueError("targets: vertex ids must lie in [0, 2^32)")
+    return ids.astype(np.int64).tolist()

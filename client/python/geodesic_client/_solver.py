@@ -1,14 +1,60 @@
 """MeshSolver: one mesh's graph as an object that answers queries."""
-from typing import (TYPE_CHECKING, Any, Callable, List, Literal, Optional, Tuple, Union,
-                    overload)
+from typing import Any, Callable, List, Literal, Optional, Protocol, Tuple, Union, overload
 
 import numpy as np
 
 from ._points import Point, Points
 from ._types import Graph, Mesh, Path
 
-if TYPE_CHECKING:  # only for annotations: _client imports this module
-    from ._client import Client
+
+class Queries(Protocol):
+    """What a MeshSolver asks of its client (a Client): the client's methods of the same
+    names, whose arguments it fills in."""
+
+    def mesh(self, name: str) -> Mesh: ...
+
+    def request_graph(self, mesh: str, epsilon: Optional[float] = ..., wait: bool = ...,
+                      pseudo_vertices: bool = ...,
+                      progress: Optional[Callable[[Graph], None]] = ...,
+                      max_error: float = ...) -> Graph: ...
+
+    def graph(self, mesh: str, epsilon: Optional[float] = ..., pseudo_vertices: bool = ...,
+              max_error: float = ...) -> Graph: ...
+
+    def cancel_graph(self, mesh: str, epsilon: Optional[float] = ...,
+                     pseudo_vertices: bool = ..., max_error: float = ...) -> Graph: ...
+
+    def field(self, mesh: str, sources: Union[Points, Point], epsilon: Optional[float] = ...,
+              max_distance: float = ..., targets: Optional[Any] = ..., method: str = ...,
+              nearest_source: bool = ..., pseudo_vertices: bool = ...,
+              max_error: float = ...) -> Union[np.ndarray, Tuple[np.ndarray, np.ndarray]]: ...
+
+    def distances(self, mesh: str, a: Points, b: Points, epsilon: Optional[float] = ...,
+                  with_path: bool = ..., pseudo_vertices: bool = ..., exact: bool = ...,
+                  max_error: float = ...) -> Union[np.ndarray, Tuple[np.ndarray, List[Path]]]: ...
+
+    def distance(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = ...,
+                 pseudo_vertices: bool = ..., exact: bool = ...,
+                 max_error: float = ...) -> float: ...
+
+    def path(self, mesh: str, a: Point, b: Point, epsilon: Optional[float] = ...,
+             pseudo_vertices: bool = ..., exact: bool = ..., max_error: float = ...) -> Path: ...
+
+    def matrix(self, mesh: str, sources: Optional[Points] = ...,
+               targets: Optional[Points] = ..., epsilon: Optional[float] = ...,
+               pseudo_vertices: bool = ..., exact: bool = ..., max_error: float = ..., *,
+               dtype: Any = ..., out: Any = ...) -> np.ndarray: ...
+
+    def neighbourhood_matrix(self, mesh: str, radius: float, sources: Optional[Points] = ...,
+                             targets: Optional[Points] = ..., dtype: Any = ...,
+                             epsilon: Optional[float] = ..., pseudo_vertices: bool = ...,
+                             exact: bool = ..., max_error: float = ...) -> Any: ...
+
+    def sample_points(self, mesh: str, count: int, seed: int = ...,
+                      epsilon: Optional[float] = ..., pseudo_vertices: bool = ...,
+                      max_error: float = ...) -> Tuple[np.ndarray, float]: ...
+
+    def snap(self, mesh: str, positions: Any) -> List[str]: ...
 
 
 class MeshSolver:
@@ -23,7 +69,7 @@ class MeshSolver:
     solvers are cheap and share the client's connection, limits and retries.
     """
 
-    def __init__(self, client: "Client", name: str, epsilon: float,
+    def __init__(self, client: Queries, name: str, epsilon: float,
                  pseudo_vertices: bool = False, max_error: float = 0.0):
         """Prefer Client.mesh_solver. epsilon: 0 means the server's --default-epsilon.
         max_error: the certified graph of that bound instead (its epsilon the server's)."""
