@@ -72,7 +72,8 @@ class Batches:
 
     def _field_stream(self, req: Any) -> Tuple[np.ndarray, Optional[np.ndarray]]:
         values, labels = np.empty(0), None
-        for chunk in self.transport.start("DistanceField", req, req.mesh):
+        # Routed by the graph's mesh: the request's own mesh field is the one it superseded.
+        for chunk in self.transport.start("DistanceField", req, req.graph.mesh):
             if chunk.offset == 0 and len(values) != chunk.total:
                 values = np.empty(chunk.total, dtype=np.float64)
                 labels = np.empty(chunk.total, dtype=np.uint32) if req.nearest_source else None
