@@ -10,7 +10,7 @@
 
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
-#include "server/convert.h"
+#include "server/api/convert.h"
 
 namespace geodesic::cli {
 

@@ -7,7 +7,7 @@
 #include "client/cli/commands.h"
 #include "core/mesh/surface_point.h"
 #include "core/query/result_files.h"
-#include "server/convert.h"
+#include "server/api/convert.h"
 
 namespace geodesic::cli {
 namespace {

@@ -7,7 +7,7 @@
 
 #include "absl/strings/str_format.h"
 #include "client/cli/commands.h"
-#include "server/convert.h"
+#include "server/api/convert.h"
 
 namespace geodesic::cli {
 namespace {

@@ -2,7 +2,7 @@
 #include <cstdio>
 
 #include "client/cli/commands.h"
-#include "server/convert.h"
+#include "server/api/convert.h"
 
 namespace geodesic::cli {
 namespace {

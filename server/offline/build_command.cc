@@ -22,7 +22,7 @@
 #include "core/dgg/graph_file.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/certified_graph.h"
-#include "server/byte_size.h"
+#include "server/base/byte_size.h"
 #include "server/offline/certificate_file.h"
 #include "server/offline/commands.h"
 #include "server/offline/common.h"

@@ -5,6 +5,10 @@
   the folders below it: base < mesh < exact < dgg < query. A file directly in
   core/ (other than CMakeLists.txt) is refused: it would belong to no stage.
 - core/ includes nothing from server/, client/, proto/ or gRPC.
+- server/ is in folders by concern, each including only itself and the folders
+  below it: base < http < offline < limits < store < meshes < graphs < api <
+  grpc < gateway < app. Nothing but CMakeLists.txt and folders sits directly
+  in server/, and no header includes, through any chain, itself.
 - No function outside tests is longer than MAX_FUNCTION_LINES, measured by
   universal-ctags (its end line minus its start line, plus one).
 
@@ -17,6 +21,11 @@ import subprocess
 import sys
 
 STAGES = ["base", "mesh", "exact", "dgg", "query"]
+# server/'s folders by concern, lowest first (server/CMakeLists.txt names
+# what each holds); web/ holds the gateway's static files, no source.
+SERVER_RANKS = ["base", "http", "offline", "limits", "store", "meshes", "graphs", "api", "grpc",
+                "gateway", "app"]
+SERVER_ASSETS = ["web"]
 MAX_FUNCTION_LINES = 100
 # Where functions are measured: everything that ships or measures, not tests
 # and not generated code.
@@ -65,6 +74,50 @@ def layering_problems(root):
     return problems, checked
 
 
+def server_problems(root):
+    """Folder ranks and include cycles of server/: (problems, files checked)."""
+    problems, includes = [], {}
+    server = os.path.join(root, "server")
+    for name in sorted(os.listdir(server)):
+        path = os.path.join(server, name)
+        if os.path.isfile(path) and name != "CMakeLists.txt":
+            problems.append(f"server/{name} is in no folder ({', '.join(SERVER_RANKS)})")
+        elif os.path.isdir(path) and name not in SERVER_RANKS + SERVER_ASSETS:
+            problems.append(f"server/{name}/ is not a known folder ({', '.join(SERVER_RANKS)})")
+    for path in source_files(root, "server", (".h", ".cc")):
+        rel = os.path.relpath(path, root)
+        folder = rel.split(os.sep)[1]
+        if folder not in SERVER_RANKS:
+            continue
+        with open(path, encoding="utf-8") as f:
+            included = [i for i in INCLUDE.findall(f.read()) if i.startswith("server/")]
+        includes[rel] = included
+        for i in included:
+            other = i.split("/")[1]
+            if other not in SERVER_RANKS:
+                problems.append(f"{rel} includes {i}, which is in no folder")
+            elif SERVER_RANKS.index(other) > SERVER_RANKS.index(folder):
+                problems.append(f"{rel} ({folder}) includes {i} ({other}), a folder above it")
+    # A cycle of includes, inside one folder or across: depth-first from each
+    # header, the path so far on a stack.
+    def visit(node, stack, done):
+        if node in stack:
+            cycle = stack[stack.index(node):] + [node]
+            problems.append("include cycle: " + " -> ".join(cycle))
+            return
+        if node in done:
+            return
+        done.add(node)
+        for nxt in includes.get(node, []):
+            visit(nxt, stack + [node], done)
+    done = set()
+    for node in sorted(includes):
+        visit(node, [], done)
+    if not includes:
+        problems.append("no source file found under server/")
+    return problems, len(includes)
+
+
 def long_functions(root):
     ctags = shutil.which("ctags")
     if ctags is None:
@@ -95,11 +148,13 @@ def long_functions(root):
 def main():
     root = sys.argv[1]
     layering, files = layering_problems(root)
+    server, server_files = server_problems(root)
     sizes, functions = long_functions(root)
-    for problem in layering + sizes:
+    for problem in layering + server + sizes:
         print("FAIL", problem)
-    print(f"{files} core files checked for layering, {functions} functions measured")
-    return 1 if layering or sizes else 0
+    print(f"{files} core files and {server_files} server files checked for layering, "
+          f"{functions} functions measured")
+    return 1 if layering or server or sizes else 0
 
 
 if __name__ == "__main__":

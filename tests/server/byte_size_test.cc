@@ -1,5 +1,5 @@
 // Sizes as operators write them.
-#include "server/byte_size.h"
+#include "server/base/byte_size.h"
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"

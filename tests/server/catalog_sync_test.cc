@@ -1,6 +1,6 @@
 // The rules that keep a daemon in step with the shared catalog, with fake
 // hooks standing for the registry and the graph cache.
-#include "server/catalog_sync.h"
+#include "server/store/catalog_sync.h"
 
 #include <unistd.h>
 

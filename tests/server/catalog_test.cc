@@ -1,6 +1,6 @@
 // The durable catalog: round trips, refusals of damaged files, and updates
 // from many threads and processes at once that lose nothing.
-#include "server/catalog.h"
+#include "server/store/catalog.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>

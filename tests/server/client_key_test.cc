@@ -1,4 +1,4 @@
-#include "server/client_key.h"
+#include "server/limits/client_key.h"
 
 #include <grpcpp/grpcpp.h>
 

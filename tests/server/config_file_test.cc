@@ -1,6 +1,6 @@
 // geodesicd serve --config: what a deployment declares, and the errors that
 // point at the line to fix.
-#include "server/config_file.h"
+#include "server/app/config_file.h"
 
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"

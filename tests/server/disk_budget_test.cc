@@ -1,5 +1,5 @@
 // The graph directory's byte budget: what goes first, and what never goes.
-#include "server/disk_budget.h"
+#include "server/store/disk_budget.h"
 
 #include <unistd.h>
 
@@ -14,7 +14,7 @@
 #include "core/mesh/mesh_snapshot.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/graph_cache.h"
+#include "server/graphs/graph_cache.h"
 
 namespace geodesic::server {
 namespace {

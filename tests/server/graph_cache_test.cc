@@ -1,6 +1,6 @@
 // The graph cache's state machine, driven through every state with a maker
 // that holds each step (load, build, persist) until the test lets it go.
-#include "server/graph_cache.h"
+#include "server/graphs/graph_cache.h"
 
 #include <fcntl.h>
 #include <sys/file.h>
@@ -23,7 +23,7 @@
 #include "core/query/exact_landmarks_file.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/convert.h"
+#include "server/api/convert.h"
 
 namespace geodesic::server {
 

@@ -1,5 +1,5 @@
 // One name's holders take turns; other names are not held up.
-#include "server/name_locks.h"
+#include "server/base/name_locks.h"
 
 #include <atomic>
 #include <chrono>

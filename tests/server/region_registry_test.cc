@@ -8,7 +8,7 @@
 #include "absl/strings/str_cat.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/mesh_registry.h"
+#include "server/meshes/mesh_registry.h"
 
 namespace geodesic::server {
 namespace {

@@ -22,8 +22,8 @@
 #include "core/mesh/mesh_io.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/convert.h"
-#include "server/geodesic_service.h"
+#include "server/api/convert.h"
+#include "server/grpc/geodesic_service.h"
 
 namespace geodesic::server {
 namespace {

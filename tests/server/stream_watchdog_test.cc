@@ -1,4 +1,4 @@
-#include "server/stream_watchdog.h"
+#include "server/limits/stream_watchdog.h"
 
 #include <atomic>
 

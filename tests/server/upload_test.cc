@@ -1,7 +1,7 @@
 // Uploads as transactions (UploadAssembler), and what registration refuses:
 // files that are not regular files, names and paths that mean something
 // else, meshes with no faces, and client input echoed at length.
-#include "server/upload.h"
+#include "server/meshes/upload.h"
 
 #include <sys/stat.h>
 #include <unistd.h>
@@ -15,8 +15,9 @@
 #include "absl/strings/str_format.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
-#include "server/convert.h"
-#include "server/mesh_registry.h"
+#include "server/api/convert.h"
+#include "server/base/echo.h"
+#include "server/meshes/mesh_registry.h"
 
 namespace geodesic::server {
 namespace {
