@@ -190,7 +190,7 @@ def main():
     out.append("")
     out.append(f"Resident memory: {idle / 2**20:.0f} MiB idle with the graph ready, of which the "
                f"gauges --memory-limit counts (mesh, graph, scratch) are {counted / 2**20:.0f} MiB: "
-               f"the fixed overhead (binary, gRPC, threads' stacks) that the README's "
+               f"the fixed overhead (binary, gRPC, threads' stacks) that docs/limits.md's "
                f"`--memory-limit` text names is the difference, {(idle - counted) / 2**20:.0f} MiB. "
                f"High-water mark over the whole run {hwm / 2**20:.0f} MiB, against a limit of "
                f"{limit / 2**20:.0f} MiB.")

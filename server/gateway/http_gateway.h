@@ -3,7 +3,7 @@
 // validation and error codes are the gRPC API's own.
 //
 // JSON to proto, route by route. Protobuf's JSON mapping (JsonStringToMessage)
-// reads a body only where the documented contract (README.md's HTTP section,
+// reads a body only where the documented contract (docs/http.md,
 // server/web/openapi.json) is the request message's own JSON: POST
 // /v1/meshes naming a file, {"name", "path", "repair_non_manifold"}, is
 // RegisterMeshRequest key for key. Every other route is mapped by hand,

@@ -3,7 +3,7 @@
 plus its fixed overhead while hostile clients ask for more, and a well-behaved client beside
 them is answered.
 
-The fixed overhead is measured as the README's --memory-limit paragraph defines it: the
+The fixed overhead is measured as docs/limits.md's --memory-limit paragraph defines it: the
 daemon's idle resident memory (the sample mesh's graph ready, one query answered) less what
 its memory gauges count (geodesicd_mesh_resident_bytes, geodesicd_graph_resident_bytes,
 geodesicd_graph_mapped_bytes, geodesicd_query_scratch_bytes). Each case runs on a daemon of
