@@ -64,6 +64,17 @@ struct HttpGatewayOptions {
   MemoryLedger* memory = nullptr;
 };
 
+// One row of the gateway's route table: what server/web/openapi.json must
+// document (tests/server/openapi_routes_test.cc holds it to the table).
+struct GatewayRoute {
+  std::string method;  // GET, POST or DELETE (HEAD is GET's)
+  // "/v1/meshes/{}/distance": a "{}" segment is one path segment, the mesh's
+  // name ({name} in openapi.json).
+  std::string path;
+  // The keys a JSON body may hold, any other refused; empty: no JSON body.
+  std::vector<std::string> body_keys;
+};
+
 class HttpGateway {
  public:
   // `grpc_server` must outlive the gateway; `meshes` is read directly only
@@ -83,6 +94,9 @@ class HttpGateway {
 
   int port() const;
   bool tls() const;
+
+  // The route table, in its order.
+  static std::vector<GatewayRoute> Routes();
 
  private:
   struct Impl;

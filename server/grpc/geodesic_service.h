@@ -4,18 +4,21 @@
 #define GEODESIC_SERVER_GEODESIC_SERVICE_H_
 
 #include <atomic>
+#include <chrono>
 #include <functional>
 #include <map>
 #include <string>
 #include <vector>
 
 #include "absl/container/flat_hash_map.h"
+#include "absl/functional/function_ref.h"
 #include "absl/status/statusor.h"
 #include "absl/synchronization/mutex.h"
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "server/base/metrics.h"
 #include "server/base/name_locks.h"
 #include "server/graphs/graph_cache.h"
+#include "server/grpc/call.h"
 #include "server/limits/admission.h"
 #include "server/limits/client_key.h"
 #include "server/limits/memory_ledger.h"
@@ -177,8 +180,8 @@ class GeodesicService final : public v1::Geodesic::Service {
   void AnswerSent(const grpc::ServerContext* ctx);
   // A query's place among the admitted, waiting for one a short while
   // when admission is full (admission.h).
-  absl::StatusOr<Admission::Ticket> AdmitQuery(grpc::ServerContext* ctx, const std::string& client);
-  absl::StatusOr<Admission::Ticket> StartQuery(grpc::ServerContext* ctx, uint64_t answer_bytes,
+  absl::StatusOr<Admission::Ticket> AdmitQuery(const Call& call);
+  absl::StatusOr<Admission::Ticket> StartQuery(const Call& call, uint64_t answer_bytes,
                                                uint64_t scratch_bytes);
   // The stream `ctx` watched for idling (--idle-seconds) until the result
   // is destroyed.
@@ -186,7 +189,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   // Between two slices of a long call: once `run` has been held a slice's
   // time while another client waits, gives its thread and scratch back and
   // waits for the call's next turn; its answer bytes stay reserved.
-  absl::Status NextSlice(grpc::ServerContext* ctx, Admission::Ticket& run, absl::Time& slice_start,
+  absl::Status NextSlice(const Call& call, Admission::Ticket& run, absl::Time& slice_start,
                          uint64_t scratch_bytes);
   // RESOURCE_EXHAUSTED naming the size and the cap when an answer of
   // `bytes` cannot fit one message.
@@ -204,14 +207,21 @@ class GeodesicService final : public v1::Geodesic::Service {
     std::shared_ptr<const GeodesicEngine> engine;
     std::vector<SurfacePoint> sources, targets;
   };
-  absl::StatusOr<MatrixQuery> PrepareMatrix(const v1::MatrixRequest& req, grpc::ServerContext* ctx);
+  absl::StatusOr<MatrixQuery> PrepareMatrix(const v1::MatrixRequest& req, const Call& call);
   // The memory a matrix's rows may use at once, exact rows' windows included.
   uint64_t MatrixScratchBytes(const MatrixQuery& q, const v1::MatrixRequest& req) const;
   MatrixOptions MatrixOptionsOf(const v1::MatrixRequest& req, grpc::ServerContext* ctx) const;
 
-  template <typename Body>
+  // The one pipeline every RPC goes through: its Call made once (its kind
+  // from the table in call.h, its client's identity), then authentication,
+  // admission as its kind asks (a query's place, a stream's or a change's
+  // slot), `body`, and the answer's trailers, metrics and log line.
   grpc::Status Handle(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
-                      bool is_query, Body body);
+                      absl::FunctionRef<absl::Status(const Call&)> body);
+  // The pipeline's end, also for a request refused before it is decoded:
+  // `result`'s payloads as trailers, its message capped, metrics, the log.
+  grpc::Status Answer(const char* method, grpc::ServerContext* ctx, const std::string& mesh,
+                      const absl::Status& result, std::chrono::steady_clock::time_point start);
   // The epsilon a request asks for: zero (unset in proto3) means the
   // server's default; anything else, negative and NaN included, must lie in
   // [1e-6, 0.5] (INVALID_ARGUMENT otherwise). Every RPC that takes one checks
@@ -241,7 +251,7 @@ class GeodesicService final : public v1::Geodesic::Service {
   // catalog) is waited for within the call's deadline, and one never
   // requested is started first (ServiceLimits::build_on_query).
   absl::StatusOr<std::shared_ptr<const GeodesicEngine>> AcquireEngine(const GraphKey& key,
-                                                                      grpc::ServerContext* ctx);
+                                                                      const Call& call);
 
   MeshRegistry* meshes_;
   GraphCache* graphs_;
