@@ -1,9 +1,6 @@
 #include "server/graphs/graph_cache.h"
 
-#include <fcntl.h>
-#include <sys/file.h>
 #include <sys/stat.h>
-#include <unistd.h>
 
 #include <charconv>
 #include <chrono>
@@ -18,6 +15,7 @@
 #include "core/query/exact_landmarks_file.h"
 #include "core/query/landmarks.h"
 #include "server/base/log.h"
+#include "server/graphs/replica_lock.h"
 #include "server/offline/certificate_file.h"
 
 namespace geodesic::server {
@@ -30,142 +28,6 @@ bool Finished(GraphState s) {
          s == GraphState::kEvicted;
 }
 
-}  // namespace
-
-absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Open(const std::string& path,
-                                                                 const Mesh& mesh,
-                                                                 const DggParams& params,
-                                                                 GraphFile::Check check) {
-  std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) {
-    return absl::NotFoundError(absl::StrFormat("no graph file %s", path));
-  }
-  return GraphFile::Open(path, mesh, check, &params);
-}
-
-absl::StatusOr<std::shared_ptr<const DggGraph>> GraphMaker::Build(const Mesh& mesh,
-                                                                  const DggBuildOptions& options) {
-  return BuildDgg(mesh, options);
-}
-
-absl::Status GraphMaker::Write(const DggGraph& graph, const std::string& path) {
-  return GraphFile::Write(graph, path);
-}
-
-absl::Status GraphMaker::Finish(GraphFileDraft draft, const DggGraph& graph) {
-  return std::move(draft).Finish(graph);
-}
-
-absl::StatusOr<CertifiedGraph> GraphMaker::BuildCertified(std::shared_ptr<const Mesh> mesh,
-                                                          double max_error,
-                                                          const CertifyOptions& options) {
-  return BuildCertifiedGraph(std::move(mesh), max_error, options);
-}
-
-absl::StatusOr<GraphMaker::Certified> GraphMaker::OpenCertified(const std::string& path,
-                                                                const Mesh& mesh,
-                                                                const DggParams& params,
-                                                                double max_error,
-                                                                GraphFile::Check check) {
-  std::error_code ec;
-  if (!std::filesystem::exists(path, ec)) {
-    return absl::NotFoundError(absl::StrFormat("no graph file %s", path));
-  }
-  // The epsilon is the build's choice: the certificate says which, and the
-  // file must agree with it; every other field is the key's.
-  auto graph = GraphFile::Open(path, mesh, check);
-  if (!graph.ok()) return graph.status();
-  GraphFile::Info info;
-  info.mesh_fingerprint = (*graph)->mesh_fingerprint();
-  info.params = (*graph)->params();
-  info.file_bytes = std::filesystem::file_size(path, ec);
-  if (ec) return absl::NotFoundError(absl::StrFormat("%s: %s", path, ec.message()));
-  auto certificate = offline::ReadCertificate(path, info);
-  if (!certificate.ok()) return certificate.status();
-  if (!certificate->has_value()) {
-    return absl::FailedPreconditionError(absl::StrFormat("%s has no certificate beside it (%s)",
-                                                         path, offline::CertificatePath(path)));
-  }
-  const GraphCertificate& c = **certificate;
-  if (c.max_error_bound != max_error || !c.sound || c.measured_max_error > max_error) {
-    return absl::FailedPreconditionError(absl::StrFormat(
-        "%s certifies bound %g (measured max %g, %s), not %g", offline::CertificatePath(path),
-        c.max_error_bound, c.measured_max_error, c.sound ? "sound" : "unsound", max_error));
-  }
-  DggParams want = params;
-  want.epsilon = c.epsilon;
-  if (absl::Status same = CheckSameParams(want, info.params, path); !same.ok()) return same;
-  return Certified{*std::move(graph), c};
-}
-
-absl::Status GraphMaker::WriteCertificate(const DggGraph& graph, const std::string& path,
-                                          const GraphCertificate& certificate) {
-  return offline::WriteCertificate(path, graph, certificate);
-}
-
-namespace {
-
-// An exclusive flock on a graph's ".<file>.lock", so that of the replicas
-// sharing --graph-dir one builds the graph. The holder unlinks the file
-// before it lets go, so nothing stays behind; a replica that locked the
-// unlinked file meanwhile sees that the path names another file (or none)
-// and tries again on the one there now.
-class ReplicaLock {
- public:
-  ReplicaLock() = default;
-  ReplicaLock(ReplicaLock&& other) noexcept
-      : path_(std::move(other.path_)), fd_(std::exchange(other.fd_, -1)) {}
-  ReplicaLock& operator=(ReplicaLock&& other) noexcept {
-    Release();
-    path_ = std::move(other.path_);
-    fd_ = std::exchange(other.fd_, -1);
-    return *this;
-  }
-  ~ReplicaLock() { Release(); }
-
-  // Held, not held (another process holds it), or an error (a directory
-  // that refuses the file: the build goes on unlocked).
-  static absl::StatusOr<ReplicaLock> TryAcquire(const std::string& path) {
-    for (int attempt = 0; attempt < 8; ++attempt) {
-      const int fd = ::open(path.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
-      if (fd < 0) return ErrnoStatus("cannot open lock file", path);
-      if (::flock(fd, LOCK_EX | LOCK_NB) != 0) {
-        const bool busy = errno == EWOULDBLOCK;
-        absl::Status s = ErrnoStatus("cannot lock", path);
-        ::close(fd);
-        if (busy) return ReplicaLock();
-        return s;
-      }
-      struct stat held, named;
-      if (::fstat(fd, &held) == 0 && ::stat(path.c_str(), &named) == 0 &&
-          held.st_dev == named.st_dev && held.st_ino == named.st_ino) {
-        ReplicaLock lock;
-        lock.path_ = path;
-        lock.fd_ = fd;
-        return lock;
-      }
-      ::close(fd);  // a holder unlinked it while we locked it
-    }
-    return absl::AbortedError(absl::StrFormat("%s keeps being replaced", path));
-  }
-  bool held() const { return fd_ >= 0; }
-  void Release() {
-    if (fd_ < 0) return;
-    ::unlink(path_.c_str());
-    ::close(std::exchange(fd_, -1));
-  }
-
- private:
-  std::string path_;
-  int fd_ = -1;
-};
-
-// Hidden, as the catalog's reserve: bookkeeping, not a graph.
-std::string BuildLockPath(const std::string& graph_path) {
-  const std::filesystem::path p(graph_path);
-  return (p.parent_path() / ("." + p.filename().string() + ".lock")).string();
-}
-
 std::string Describe(const GraphKey& key) {
   if (key.max_error > 0) {
     return absl::StrFormat("the graph of '%s' certified to max error %g (first build: %s)",
@@ -175,26 +37,6 @@ std::string Describe(const GraphKey& key) {
 }
 
 }  // namespace
-
-std::string GraphCache::BuildLockFile(const std::string& graph_path) {
-  return BuildLockPath(graph_path);
-}
-
-std::vector<std::string> GraphCache::RemoveStaleBuildLocks(const std::string& dir,
-                                                           std::chrono::seconds min_age) {
-  std::vector<std::string> removed;
-  ForEachFileOlderThan(dir, min_age, [&](const std::string& name, const auto& path) {
-    if (!name.starts_with(".") || !name.ends_with(".dgg.lock")) return;
-    // Only a lock nobody holds: its builder died. Taking it and letting it
-    // go unlinks it.
-    auto lock = ReplicaLock::TryAcquire(path.string());
-    if (lock.ok() && lock->held()) {
-      lock->Release();
-      removed.push_back(name);
-    }
-  });
-  return removed;
-}
 
 GraphCache::GraphCache(Options options) : options_(std::move(options)) {
   if (!options_.maker) options_.maker = std::make_shared<GraphMaker>();
