@@ -47,6 +47,27 @@
 //   graph fails, naming the sizes.
 // - Callbacks (on_readiness) always run outside the cache's lock, so they
 //   may call back into it.
+//
+// One class, its members defined by concern in several files of this
+// folder:
+//   graph_cache.cc         construction, Transition, and the service's calls:
+//                          Request, Get, WaitForChange, Cancel, DropMesh,
+//                          Acquire (failed | cancelled | evicted -> queued)
+//   graph_admission.cc     Admit and Estimate: refusals before any work
+//   build_queue.cc         the queue, its lanes and workers, and the wait
+//                          for another replica's build
+//   graph_run.cc           one operation's run and its moves: queued ->
+//                          loading -> building -> persisting -> ready,
+//                          failed or cancelled (SetPhase, Publish, Abandon)
+//   load_build_persist.cc  the steps that read and write --graph-dir, and the
+//                          disk a build takes while it runs
+//   graph_landmarks.cc     landmarks and exact landmarks of ready graphs, and
+//                          their files
+//   eviction.cc            ready -> evicted under the memory limit, the
+//                          gauges, the files in use
+//   graph_maker.h          the seam that opens, builds and writes graph files
+//                          (tests substitute it)
+//   replica_lock.h         the build lock replicas share
 #ifndef GEODESIC_SERVER_GRAPH_CACHE_H_
 #define GEODESIC_SERVER_GRAPH_CACHE_H_
 
