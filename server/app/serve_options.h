@@ -13,7 +13,7 @@
 
 #include "grpcpp/security/server_credentials.h"
 #include "server/app/config_file.h"
-#include "server/grpc/geodesic_service.h"
+#include "server/limits/service_limits.h"
 #include "server/http/http_server.h"
 
 namespace geodesic::server {

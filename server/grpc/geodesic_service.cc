@@ -29,31 +29,6 @@
 namespace geodesic::server {
 namespace {
 
-// The most a request's parts take on the wire when they are valid (a face
-// point is 35 bytes, a pair of them 76), with room to spare for fields a
-// newer client adds; what a request may hold besides them (names); and what
-// a decoded request takes in memory per byte on the wire at most (measured:
-// about 14 for pairs of vertex points).
-constexpr uint64_t kPointWireBytes = 64;
-constexpr uint64_t kPairWireBytes = 128;
-constexpr uint64_t kRequestWireOverhead = 64 << 10;
-constexpr uint64_t kDecodedBytesPerWireByte = 16;
-
-// Room for a list that grows with a mesh: 4M ids of up to four bytes (a
-// region of half an 8M-face mesh, a field's targets), and for an upload's
-// messages.
-constexpr uint64_t kMeshListRequestBytes = uint64_t{16} << 20;
-
-uint64_t DistanceRequestBytes(const ServiceLimits& limits) {
-  return limits.max_pairs * kPairWireBytes + kRequestWireOverhead;
-}
-uint64_t MatrixRequestBytes(const ServiceLimits& limits) {
-  return (uint64_t(limits.max_sources) + limits.max_pairs) * kPointWireBytes + kRequestWireOverhead;
-}
-uint64_t SnapRequestBytes(const ServiceLimits& limits) {
-  return limits.max_pairs * kPointWireBytes + kRequestWireOverhead;
-}
-
 // How long a query waits for admission when it is full, at most: long
 // beside a light query's run, short beside a client's patience.
 constexpr absl::Duration kAdmissionWait = absl::Seconds(1);
@@ -99,11 +74,6 @@ std::string CapMessage(std::string message, std::string_view mesh) {
 }
 
 }  // namespace
-
-uint64_t MaxRequestBytes(const ServiceLimits& limits) {
-  return std::max({DistanceRequestBytes(limits), MatrixRequestBytes(limits),
-                   SnapRequestBytes(limits), kMeshListRequestBytes});
-}
 
 GeodesicService::GeodesicService(MeshRegistry* meshes, GraphCache* graphs, Metrics* metrics,
                                  ServiceLimits limits)
