@@ -8,7 +8,8 @@
 - server/ is in folders by concern, each including only itself and the folders
   below it: base < http < offline < limits < store < meshes < graphs < api <
   grpc < gateway < app. Nothing but CMakeLists.txt and folders sits directly
-  in server/, and no header includes, through any chain, itself.
+  in server/, no header includes, through any chain, itself, and no file is
+  longer than MAX_SERVER_FILE_LINES.
 - No function outside tests is longer than MAX_FUNCTION_LINES, measured by
   universal-ctags (its end line minus its start line, plus one).
 
@@ -26,6 +27,8 @@ STAGES = ["base", "mesh", "exact", "dgg", "query"]
 SERVER_RANKS = ["base", "http", "offline", "limits", "store", "meshes", "graphs", "api", "grpc",
                 "gateway", "app"]
 SERVER_ASSETS = ["web"]
+# A file a newcomer reads whole: past this it holds more than one concern.
+MAX_SERVER_FILE_LINES = 800
 MAX_FUNCTION_LINES = 100
 # Where functions are measured: everything that ships or measures, not tests
 # and not generated code.
@@ -90,7 +93,11 @@ def server_problems(root):
         if folder not in SERVER_RANKS:
             continue
         with open(path, encoding="utf-8") as f:
-            included = [i for i in INCLUDE.findall(f.read()) if i.startswith("server/")]
+            text = f.read()
+        lines = text.count("\n")
+        if lines > MAX_SERVER_FILE_LINES:
+            problems.append(f"{rel} is {lines} lines (at most {MAX_SERVER_FILE_LINES})")
+        included = [i for i in INCLUDE.findall(text) if i.startswith("server/")]
         includes[rel] = included
         for i in included:
             other = i.split("/")[1]
