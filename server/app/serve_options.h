@@ -13,8 +13,8 @@
 
 #include "grpcpp/security/server_credentials.h"
 #include "server/app/config_file.h"
-#include "server/limits/service_limits.h"
 #include "server/http/http_server.h"
+#include "server/limits/service_limits.h"
 
 namespace geodesic::server {
 

@@ -95,9 +95,6 @@ class GeodesicService final : public v1::Geodesic::Service {
                             v1::SamplePointsResponse*) override;
 
  private:
-  // Waits for an admitted query's turn to run with `answer_bytes` and
-  // `scratch_bytes` reserved (Admission::Run), until shortly before the
-  // call's deadline.
   // Serves `method` from its request's bytes: a request over `max_bytes`
   // (what `limit`, the flags bounding it, allow) is refused before it is
   // decoded, and the memory its decoding takes is reserved first.
@@ -120,6 +117,9 @@ class GeodesicService final : public v1::Geodesic::Service {
   // A query's place among the admitted, waiting for one a short while
   // when admission is full (admission.h).
   absl::StatusOr<Admission::Ticket> AdmitQuery(const Call& call);
+  // Waits for an admitted query's turn to run with `answer_bytes` and
+  // `scratch_bytes` reserved (Admission::Run), until shortly before the
+  // call's deadline.
   absl::StatusOr<Admission::Ticket> StartQuery(const Call& call, uint64_t answer_bytes,
                                                uint64_t scratch_bytes);
   // The stream `ctx` watched for idling (--idle-seconds) until the result

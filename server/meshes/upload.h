@@ -18,7 +18,7 @@ namespace geodesic::server {
 
 // The payload one message of an upload carries, as the bundled clients and
 // the HTTP gateway send it: far below the largest request the server takes
-// (MaxRequestBytes, geodesic_service.h), and small beside gRPC's receive
+// (MaxRequestBytes, limits/service_limits.h), and small beside gRPC's receive
 // buffers, which uploads side by side share.
 inline constexpr uint64_t kUploadMessageBytes = uint64_t{1} << 20;
 

@@ -13,8 +13,7 @@ namespace geodesic::server {
 namespace {
 
 TEST(CallTest, TheTableListsEveryRpcOfTheServiceOnce) {
-  const auto* service =
-      v1::DistanceRequest::descriptor()->file()->FindServiceByName("Geodesic");
+  const auto* service = v1::DistanceRequest::descriptor()->file()->FindServiceByName("Geodesic");
   ASSERT_NE(service, nullptr);
   ASSERT_GT(service->method_count(), 0);
   std::set<std::string> declared, listed;
