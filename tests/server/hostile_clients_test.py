@@ -89,9 +89,7 @@ def wait_for_spot(stub, metadata=None):
 
 
 def case_forged_identity(work):
-    daemon, ports = start_daemon(BIN, os.path.join(work, "forged"),
-                                 ["--graph-dir", os.path.join(work, "forged", "graphs"),
-                                  "--log-level", "warning"], tokens=[TOKEN, VICTIM])
+    daemon, ports = daemon_in(work, "forged", tokens=[TOKEN, VICTIM])
     try:
         channel = grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}")
         stub = rpc.GeodesicStub(channel)
@@ -143,10 +141,8 @@ def case_unavailable_before_deadline(work):
     for _ in range(2):
         vertices, faces = subdivide(vertices, faces)
     write_ply(os.path.join(mesh_root, "fine.ply"), vertices, faces)
-    daemon, ports = start_daemon(BIN, os.path.join(work, "building"),
-                                 ["--graph-dir", os.path.join(work, "building", "graphs"),
-                                  "--log-level", "warning", "--no-sample", "--min-epsilon", "1e-6",
-                                  "--auto-build-any-epsilon", "--mesh-root", mesh_root])
+    daemon, ports = daemon_in(work, "building", "--no-sample", "--min-epsilon", "1e-6",
+                              "--auto-build-any-epsilon", "--mesh-root", mesh_root)
     try:
         with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
             stub = rpc.GeodesicStub(channel)
@@ -214,9 +210,7 @@ def crowd_answers(port, clients, seconds):
 
 
 def case_one_host_crowd(work):
-    daemon, ports = start_daemon(BIN, os.path.join(work, "crowd"),
-                                 ["--graph-dir", os.path.join(work, "crowd", "graphs"),
-                                  "--log-level", "warning", "--exact-landmarks", "0"])
+    daemon, ports = daemon_in(work, "crowd", "--exact-landmarks", "0")
     try:
         with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
             if not check("(c) spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
@@ -269,10 +263,7 @@ def case_gifti_uploads(work):
     import urllib.request
     root = os.path.join(work, "gifti", "root")
     os.makedirs(root, exist_ok=True)
-    daemon, ports = start_daemon(BIN, os.path.join(work, "gifti"),
-                                 ["--graph-dir", os.path.join(work, "gifti", "graphs"),
-                                  "--log-level", "warning", "--memory-limit", str(LIMIT),
-                                  "--mesh-root", root, "--exact-landmarks", "0"], http=True)
+    daemon, ports = limited_daemon(work, "gifti", "--mesh-root", root, http=True)
     try:
         with Client(f"127.0.0.1:{ports['grpc']}", timeout=30) as client:
             idle = rss_bytes(daemon.pid)
@@ -343,11 +334,17 @@ time.sleep(120)
 LIMIT = 300 << 20  # --memory-limit of cases (d) to (g)
 
 
-def limited_daemon(work, name):
-    """A daemon under --memory-limit LIMIT, without the landmarks' background fields."""
+def daemon_in(work, name, *args, **kwargs):
+    """A daemon of its own under work/name, its graphs there, logging warnings only."""
     return start_daemon(BIN, os.path.join(work, name),
                         ["--graph-dir", os.path.join(work, name, "graphs"), "--log-level",
-                         "warning", "--memory-limit", str(LIMIT), "--exact-landmarks", "0"])
+                         "warning", *args], **kwargs)
+
+
+def limited_daemon(work, name, *args, **kwargs):
+    """A daemon under --memory-limit LIMIT, without the landmarks' background fields."""
+    return daemon_in(work, name, "--memory-limit", str(LIMIT), "--exact-landmarks", "0", *args,
+                     **kwargs)
 
 
 def case_unread_answers(work):
@@ -490,10 +487,7 @@ def npy_matrix_request(port, k):
 def case_http_answers(work, read):
     """24 clients of 32 MB .npy matrices over HTTP, which read their answers or never do."""
     label = "(g) reading" if read else "(g) never reading"
-    daemon, ports = start_daemon(BIN, os.path.join(work, "npy-" + str(read)),
-                                 ["--graph-dir", os.path.join(work, "npy-" + str(read), "graphs"),
-                                  "--log-level", "warning", "--memory-limit", str(LIMIT),
-                                  "--exact-landmarks", "0"], http=True)
+    daemon, ports = limited_daemon(work, "npy-" + str(read), http=True)
     sockets = []
     try:
         with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
@@ -570,9 +564,7 @@ def region_request(ids):
 
 def case_duplicate_region_ids(work):
     label = "(h)"
-    daemon, ports = start_daemon(BIN, os.path.join(work, "regions"),
-                                 ["--graph-dir", os.path.join(work, "regions", "graphs"),
-                                  "--log-level", "warning", "--exact-landmarks", "0"])
+    daemon, ports = daemon_in(work, "regions", "--exact-landmarks", "0")
     try:
         address = f"127.0.0.1:{ports['grpc']}"
         with grpc.insecure_channel(address, options=[
@@ -631,10 +623,8 @@ time.sleep(120)
 
 def case_unread_rows(work):
     label = "(i)"
-    daemon, ports = start_daemon(BIN, os.path.join(work, "rows"),
-                                 ["--graph-dir", os.path.join(work, "rows", "graphs"),
-                                  "--log-level", "warning", "--exact-landmarks", "0"],
-                                 tokens=[TOKEN, VICTIM], metrics=True)
+    daemon, ports = daemon_in(work, "rows", "--exact-landmarks", "0", tokens=[TOKEN, VICTIM],
+                              metrics=True)
     client = None
     try:
         address = f"127.0.0.1:{ports['grpc']}"
@@ -686,10 +676,8 @@ def case_http_overload(work):
     import urllib.error
     import urllib.request
     label = "(j)"
-    daemon, ports = start_daemon(BIN, os.path.join(work, "overload"),
-                                 ["--graph-dir", os.path.join(work, "overload", "graphs"),
-                                  "--log-level", "warning", "--exact-landmarks", "0",
-                                  "--max-inflight", "2", "--query-threads", "1"], http=True)
+    daemon, ports = daemon_in(work, "overload", "--exact-landmarks", "0", "--max-inflight", "2",
+                              "--query-threads", "1", http=True)
     try:
         with grpc.insecure_channel(f"127.0.0.1:{ports['grpc']}") as channel:
             if not check(f"{label} spot's graph ready", wait_for_spot(rpc.GeodesicStub(channel))):
