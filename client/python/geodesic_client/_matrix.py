@@ -2,7 +2,7 @@
 max_pairs columns, fewer rows when an answer would pass the message size, whole-mesh
 selectors streamed whole. Dense rows here; sparse ones in _sparse."""
 import os
-from typing import Any, List, Optional, Tuple
+from typing import Any, Callable, List, Optional, Tuple, TypeVar
 
 import grpc
 import numpy as np
@@ -11,6 +11,8 @@ from ._errors import GeodesicError, ResourceExhaustedError
 from ._limits import Limits, over_matrix_limits, over_message_cap
 from ._stubs import pb
 from ._transport import Transport
+
+T = TypeVar("T")
 
 # The wire's dtype for each numpy type a matrix may take.
 DTYPES = {np.float32: pb.MATRIX_DTYPE_FLOAT32, np.float64: pb.MATRIX_DTYPE_FLOAT64}
@@ -73,20 +75,31 @@ class Matrices:
         Matrix, others streamed by MatrixRows. False (nothing to rely on in `out`) when the
         server answers without packed rows: an older server."""
         wire = np.dtype("<f4") if request["dtype"] == pb.MATRIX_DTYPE_FLOAT32 else np.dtype("<f8")
+
+        def fill() -> Optional[bool]:
+            for tile in self.tiles(ps, pt, out.shape):
+                if not self._packed_tile(mesh, self.tile_request(request, ps, pt, tile), tile,
+                                         ps is not None and pt is not None, wire, out):
+                    return None
+            return True
+        return self.within_limits(fill) is not None
+
+    def within_limits(self, attempt: Callable[[], Optional[T]]) -> Optional[T]:
+        """attempt() again after each refusal the server's matrix limits explain, once they are
+        learnt; None, and packed rows no longer asked for, when attempt() says the server
+        answers without them (None) or the server has no such call: an older server."""
         while True:
             try:
-                for tile in self.tiles(ps, pt, out.shape):
-                    if not self._packed_tile(mesh, self.tile_request(request, ps, pt, tile),
-                                             tile, ps is not None and pt is not None, wire, out):
-                        self.packed_rows = False
-                        return False
-                return True
+                result = attempt()
             except GeodesicError as e:
-                if e.code() == grpc.StatusCode.UNIMPLEMENTED:
-                    self.packed_rows = False
-                    return False
-                if not self.limits.learn_matrix(e):
+                if e.code() != grpc.StatusCode.UNIMPLEMENTED:
+                    if self.limits.learn_matrix(e):
+                        continue
                     raise
+                result = None
+            if result is None:
+                self.packed_rows = False
+            return result
 
     def _packed_tile(self, mesh: str, req: Any, tile: Tile, listed: bool, wire: np.dtype,
                      out: np.ndarray) -> bool:

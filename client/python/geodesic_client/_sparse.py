@@ -3,10 +3,8 @@ MatrixRows streams of sparse rows in the tiles of _matrix, or from a server olde
 densely and thresholded here. scipy is imported only when one is asked for."""
 from typing import Any, List, Optional, Tuple
 
-import grpc
 import numpy as np
 
-from ._errors import GeodesicError
 from ._matrix import DTYPES, Matrices
 
 
@@ -35,22 +33,15 @@ def _sparse_tiles(matrices: Matrices, mesh: str, ps: Optional[List[Any]],
                   want: np.dtype) -> Optional[List[Any]]:
     """csr_matrix blocks of columns, in order, from MatrixRows streams of sparse rows;
     None when the server answers without them (an older server)."""
-    while True:
-        try:
-            tiles = []
-            for c, cols in sorted({(t[2], t[3]) for t in matrices.tiles(ps, pt, shape)}):
-                column = _sparse_column(matrices, mesh, ps, pt, request, shape, want, c)
-                if column is None:
-                    matrices.packed_rows = False
-                    return None
-                tiles.append(_csr(column, (shape[0], cols), shape[1], want))
-            return tiles
-        except GeodesicError as e:
-            if e.code() == grpc.StatusCode.UNIMPLEMENTED:
-                matrices.packed_rows = False
+    def collect() -> Optional[List[Any]]:
+        tiles = []
+        for c, cols in sorted({(t[2], t[3]) for t in matrices.tiles(ps, pt, shape)}):
+            column = _sparse_column(matrices, mesh, ps, pt, request, shape, want, c)
+            if column is None:
                 return None
-            if not matrices.limits.learn_matrix(e):
-                raise
+            tiles.append(_csr(column, (shape[0], cols), shape[1], want))
+        return tiles
+    return matrices.within_limits(collect)
 
 
 def _sparse_column(matrices: Matrices, mesh: str, ps: Optional[List[Any]],
