@@ -1,9 +1,9 @@
 #!/usr/bin/env python3
 """The README and the pages under docs/ run as written.
 
-Runs every ```sh and ```python block of one page (README.md unless PAGE, a
-path under SOURCE_DIR such as docs/daemon.md, is given) in order, README's
-quick start aside (it installs packages and builds; CI runs it as .ci/run),
+Runs every ```sh, ```python and ```js block of one page (README.md unless
+PAGE, a path under SOURCE_DIR such as docs/daemon.md, is given) in order,
+README's quick start aside (it installs packages and builds; CI runs it as .ci/run),
 in a fresh temporary directory holding a link to the repository's data/ and
 with the build's binaries first on PATH, as scripts/quickstart.sh leaves
 them. Each page is a test of its own and runs alone: a page whose blocks need
@@ -19,7 +19,9 @@ What a test may not do as written is rewritten, and only that:
 - paths under /var/lib/geodesicd become the temporary directory.
 The temporary directory links the repository's data/, client/ and proto/,
 which the pages name by relative path; once a block has made venv/, the
-Python blocks run on it.
+Python blocks run on it. A ```js block runs as an ES module (`node
+--input-type=module`), importing "geodesic-client" from client/node as
+scripts/setup.sh built it (node_modules/ there links it).
 Every daemon is stopped at the end. A block that exits non-zero fails the
 test, naming the page, the block's line and its first line.
 
@@ -58,7 +60,7 @@ def blocks(page):
                 lang, start, lines = (m.group(1) or "text", m.group(2) or ""), number + 1, []
         elif line.startswith("```"):
             language, flag = lang
-            if language in ("sh", "python") and flag != "norun" and \
+            if language in ("sh", "python", "js") and flag != "norun" and \
                     not section.startswith("quick start"):
                 out.append((language, start, "\n".join(lines)))
             lang = None
@@ -182,6 +184,8 @@ class Runner:
                 else:
                     kept.append(line)
             argv = ["bash", "-euo", "pipefail", "-c", self.rewrite("\n".join(kept))]
+        elif language == "js":
+            argv = ["node", "--input-type=module", "-e", text]
         else:
             argv = [sys.executable, "-c", text]
         env = dict(self.env)
@@ -218,8 +222,10 @@ def main():
     BIN, SRC = os.path.abspath(sys.argv[1]), os.path.abspath(sys.argv[2])
     page = sys.argv[3] if len(sys.argv) > 3 else "README.md"
     problems = link_problems(SRC, page)
-    if page != "README.md" and "](../README.md)" not in open(os.path.join(SRC, page)).read():
-        problems.append(f"{page} does not link back to ../README.md")
+    back = os.path.relpath(os.path.join(SRC, "README.md"),
+                           os.path.dirname(os.path.join(SRC, page)))
+    if page != "README.md" and f"]({back})" not in open(os.path.join(SRC, page)).read():
+        problems.append(f"{page} does not link back to {back}")
     for problem in problems:
         print("FAIL " + problem)
     found = blocks(os.path.join(SRC, page))
@@ -232,6 +238,9 @@ def main():
     # The repository's files the pages name by relative path.
     for name in ("data", "client", "proto"):
         os.symlink(os.path.join(SRC, name), os.path.join(work, name))
+    os.makedirs(os.path.join(work, "node_modules"))
+    os.symlink(os.path.join(SRC, "client", "node"),
+               os.path.join(work, "node_modules", "geodesic-client"))
     runner = Runner(work, page)
     passed = failed = 0
     try:
