@@ -47,6 +47,12 @@ $build_only || PACKAGES+=("${TEST_PACKAGES[@]}")
 
 $with_nginx && [ ! -x /usr/sbin/nginx ] && PACKAGES+=(nginx-light)
 $with_fuzz && PACKAGES+=(clang-14 libclang-rt-14-dev)
+# The Node client's tests: Debian's nodejs and npm only where they are missing
+# (a nodesource node brings its own npm, which Debian's npm would conflict with).
+if ! $build_only; then
+  command -v node >/dev/null || PACKAGES+=(nodejs)
+  command -v npm >/dev/null || PACKAGES+=(npm)
+fi
 missing=()
 for p in "${PACKAGES[@]}"; do
   dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
@@ -62,6 +68,22 @@ fi
 if $with_nginx && [[ " ${missing[*]} " == *" nginx-light "* ]]; then
   # The tests run their own nginx as this user on a free loopback port.
   $SUDO systemctl disable --now nginx >/dev/null 2>&1 || $SUDO service nginx stop >/dev/null 2>&1 || true
+fi
+# The Node client (client/node): its packages, installed again only when the
+# lock changed since the last install, and compiled (dist/) for its tests
+# when a source changed since the last compile (tsc takes seconds even then).
+if ! $build_only; then
+  lock=client/node/package-lock.json stamp=client/node/node_modules/.setup-lock
+  if ! cmp -s "$lock" "$stamp"; then
+    (cd client/node && npm ci --no-audit --no-fund --loglevel=error >/dev/null)
+    cp "$lock" "$stamp"
+  fi
+  built=client/node/dist/.setup-built
+  if ! $deps_only && { [ ! -e "$built" ] || [ -n "$(find client/node/src client/node/tsconfig.json \
+      client/node/package.json proto/geodesic/v1/geodesic.proto -newer "$built")" ]; }; then
+    (cd client/node && npm run --silent build)
+    touch "$built"
+  fi
 fi
 $deps_only && exit 0
 
