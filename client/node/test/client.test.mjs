@@ -2,6 +2,7 @@
 // build's bin/): every query kind equal to the offline CLI's bit for bit,
 // uploads, graphs requested, watched and cancelled, tokens, deadlines,
 // per-call limits learnt, and retries that wait out the server's hint.
+import "./fresh.mjs";  // before dist/ is used
 import assert from "node:assert/strict";
 import {
   copyFileSync, existsSync, mkdirSync, mkdtempSync, readdirSync, rmSync, writeFileSync,

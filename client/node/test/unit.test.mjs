@@ -1,6 +1,7 @@
 // The package's parts without a daemon: the traps of decoding (64-bit
 // fields, zero values, unaligned packed rows), points, errors and retry
 // delays.
+import "./fresh.mjs";  // before dist/ is used
 import assert from "node:assert/strict";
 import { Metadata } from "@grpc/grpc-js";
 import { test } from "node:test";
