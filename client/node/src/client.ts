@@ -10,7 +10,8 @@ import {
 import { toUint64 } from "./longs";
 import { Matrices } from "./matrix";
 import {
-  formatPoint, Point, Points, toVertexIds, toWirePoint, toWirePoints, WirePoint,
+  formatPoint, isOnePosition, Point, Points, toVertexIds, toWirePoint, toWirePoints,
+  WirePoint,
 } from "./points";
 import { RetryPolicy, retryPolicy } from "./retry";
 import { ArraySink, Dtype, FileSink, MatrixArray, Sink } from "./sinks";
@@ -205,7 +206,8 @@ export class Client {
   // -- queries ---------------------------------------------------------------
 
   /** Distances from the nearest of the sources to every vertex (or to `targets`), +Infinity
-   * where unreachable. With nearestSource, [distances, index in sources of each value's
+   * where unreachable. `sources` may be one point: an id, a spec string, or a position
+   * [x, y, z] (three numbers not all integers). With nearestSource, [distances, index in sources of each value's
    * nearest source]. More sources than the server's --max-sources are split into several
    * fields and combined by their minimum. */
   field(mesh: string, sources: Points | Point,
@@ -216,8 +218,9 @@ export class Client {
     options?: FieldOptions): Promise<Float64Array | [Float64Array, Uint32Array]>;
   async field(mesh: string, sources: Points | Point,
     options: FieldOptions = {}): Promise<Float64Array | [Float64Array, Uint32Array]> {
-    const wire = typeof sources === "number" || typeof sources === "string"
-      ? [toWirePoint(sources)] : toWirePoints(sources as Points);
+    const one = typeof sources === "number" || typeof sources === "string" ||
+      isOnePosition(sources);
+    const wire = one ? [toWirePoint(sources as Point)] : toWirePoints(sources as Points);
     if (wire.length === 0) throw new RangeError("field: give at least one source");
     const targets = options.targets === undefined ? [] : toVertexIds(options.targets);
     const graph = this.selector(mesh, options);

@@ -133,6 +133,13 @@ export function toWirePoint(point: Point, what = "point"): WirePoint {
     "position [x, y, z]");
 }
 
+/** One position given where a set of points may be: three numbers, not all integers (three
+ * integers are three vertex ids), as the Python client tells a position from ids. */
+export function isOnePosition(value: unknown): value is readonly [number, number, number] {
+  return Array.isArray(value) && value.length === 3 &&
+    value.every((x) => typeof x === "number") && !value.every(Number.isInteger);
+}
+
 /** A set of points to the wire. */
 export function toWirePoints(points: Points): WirePoint[] {
   if (points instanceof FacePoints) {

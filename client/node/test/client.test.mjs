@@ -97,6 +97,11 @@ test("field equals the offline field, nearest sources too", async () => {
   const faceOffline = join(work, "face.f64");
   offline(["field", "--source", "f:0:0.2,0.3,0.5", "--out", faceOffline]);
   assertSameBits(face, readF64(faceOffline), "field of FacePoints");
+  // One position, snapped by the server as the CLI snaps it.
+  const snapped = await c.field("spot", [0.1, 0.2, 0.3]);
+  const snappedOffline = join(work, "xyz.f64");
+  offline(["field", "--source", "xyz:0.1,0.2,0.3", "--out", snappedOffline]);
+  assertSameBits(snapped, readF64(snappedOffline), "field of a position");
 });
 
 test("distances equal the offline pairs, a zero distance included", async () => {

@@ -11,7 +11,7 @@ import {
 } from "../dist/index.js";
 import { fromGrpcError } from "../dist/errors.js";
 import { toBigInt, toNumber, toUint64 } from "../dist/longs.js";
-import { toWirePoints } from "../dist/points.js";
+import { isOnePosition, toWirePoints } from "../dist/points.js";
 import { ArraySink, npyHeader, unpack } from "../dist/sinks.js";
 import { graphFromWire } from "../dist/types.js";
 import { methods } from "../dist/wire.js";
@@ -91,6 +91,8 @@ test("points: spec strings round-trip, typed arrays are ids or positions", () =>
   assert.throws(() => toWirePoints([1.5]), RangeError);
   assert.throws(() => toWirePoints(new FacePoints([7], [0.2, 0.3])), RangeError);
   assert.throws(() => toWirePoints(Float64Array.of(1, 2)), RangeError);
+  assert.ok(isOnePosition([0.1, 0.2, 0.3]));
+  assert.ok(!isOnePosition([1, 2, 3]), "three integers are three vertex ids");
 });
 
 function grpcError(code, details, trailers) {
