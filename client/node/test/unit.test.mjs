@@ -145,3 +145,14 @@ test("retry delays: jittered backoff, never below the server's hint", () => {
   assert.equal(retryDelayMs(policy, notFound, 1, half), null);
   assert.throws(() => retryPolicy({ maxAttempts: 0 }), RangeError);
 });
+
+test("the public declarations use no `any`", async () => {
+  const { readdirSync, readFileSync } = await import("node:fs");
+  const dist = new URL("../dist/", import.meta.url);
+  for (const file of readdirSync(dist).filter((f) => f.endsWith(".d.ts"))) {
+    // Comments say "any" in prose; only code counts.
+    const code = readFileSync(new URL(file, dist), "utf8")
+      .replace(/\/\*[\s\S]*?\*\//g, "").replace(/\/\/.*$/gm, "");
+    assert.doesNotMatch(code, /\bany\b/, file);
+  }
+});
