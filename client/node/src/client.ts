@@ -7,7 +7,7 @@ import { requestGraph, watchGraph } from "./graphs";
 import {
   DEFAULT_MAX_MESSAGE_BYTES, DEFAULT_MAX_PAIRS, DEFAULT_MAX_SOURCES, DEFAULT_PATH_BATCH, Limits,
 } from "./limits";
-import { toUint64 } from "./longs";
+import { toNumber, toUint64 } from "./longs";
 import { Matrices } from "./matrix";
 import {
   formatPoint, isOnePosition, Point, Points, toVertexIds, toWirePoint, toWirePoints,
@@ -408,15 +408,34 @@ export class Client {
    * refer to). */
   async geometry(name: string): Promise<Geometry> {
     return this.transport.call(async () => {
-      const vertices: number[] = [];
-      const faces: number[] = [];
+      // Sized by the first chunk's totals (uint64 on the wire), then filled
+      // in order: all the vertex chunks, then all the face chunks.
+      let vertices = new Float64Array(0);
+      let faces = new Uint32Array(0);
+      let v = 0;
+      let f = 0;
+      let first = true;
       for await (const chunk of this.transport.stream("GetGeometry", { name }, name)) {
-        for (const v of chunk.vertices) vertices.push(v);
-        for (const f of chunk.faces) faces.push(f);
+        if (first) {
+          first = false;
+          vertices = new Float64Array(3 * toNumber(chunk.total_vertices, "total_vertices"));
+          faces = new Uint32Array(3 * toNumber(chunk.total_faces, "total_faces"));
+        }
+        if (v + chunk.vertices.length > vertices.length ||
+          f + chunk.faces.length > faces.length) {
+          throw new Error(`GetGeometry: more than the ${vertices.length / 3} vertices and ` +
+            `${faces.length / 3} faces announced`);
+        }
+        vertices.set(chunk.vertices, v);
+        faces.set(chunk.faces, f);
+        v += chunk.vertices.length;
+        f += chunk.faces.length;
       }
-      return Object.freeze({
-        vertices: Float64Array.from(vertices), faces: Uint32Array.from(faces),
-      });
+      if (v !== vertices.length || f !== faces.length) {
+        throw new Error(`GetGeometry: ${v / 3} of ${vertices.length / 3} vertices and ` +
+          `${f / 3} of ${faces.length / 3} faces`);
+      }
+      return Object.freeze({ vertices, faces });
     });
   }
 
