@@ -218,6 +218,14 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GraphCache::Acquire(const 
     return e.engine;
   }
   ++misses_;
+  // CancelGraph returns before the worker stops (it notices at its next
+  // progress step): the graph will not be ready, so a query whose deadline
+  // comes first is told so, as once it is cancelled, rather than
+  // UNAVAILABLE with a hint to retry.
+  if (e.cancel && !stopping_ && !Finished(e.status.state)) {
+    return absl::FailedPreconditionError(
+        absl::StrFormat("%s is being cancelled: request it again", Describe(key)));
+  }
   switch (e.status.state) {
     case GraphState::kFailed:
       return absl::FailedPreconditionError(
