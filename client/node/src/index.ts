@@ -17,7 +17,7 @@ export {
 export type {
   ClientOptions, DenseMatrix, DistanceOptions, FieldOptions, GraphOptions, MatrixFile,
   MatrixOptions, NeighbourhoodOptions, RequestGraphOptions, UploadOptions,
-} from "./client";
+} from "./options";
 export {
   AlreadyExistsError, CancelledError, DeadlineExceededError, FailedPreconditionError,
   GeodesicError, GraphFailedError, InvalidArgumentError, NotFoundError, OutOfRangeError,
