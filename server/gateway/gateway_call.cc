@@ -7,6 +7,7 @@
 #include "absl/strings/numbers.h"
 #include "absl/strings/str_format.h"
 #include "server/api/convert.h"
+#include "server/base/echo.h"
 #include "server/limits/admission.h"
 #include "server/limits/client_key.h"
 
@@ -66,11 +67,7 @@ grpc::Status Invalid(const std::string& message) {
 
 std::string Dump(const json& j) { return j.dump(-1, ' ', false, json::error_handler_t::replace); }
 
-std::string Quote(const json& j) {
-  std::string text = Dump(j);
-  if (text.size() > 80) text = text.substr(0, 77) + "...";
-  return text;
-}
+std::string Quote(const json& j) { return Cut(Dump(j)); }
 
 HttpResponse ErrorResponse(const grpc::Status& s, std::optional<int64_t> retry_after_ms) {
   HttpResponse res;

@@ -30,8 +30,8 @@ grpc::Status Invalid(const std::string& message);
 // need not be UTF-8: those bytes become U+FFFD instead of an exception.
 std::string Dump(const json& j);
 
-// An offending request value as an error message quotes it: at most 80
-// characters, so a huge body is not echoed back (or logged) whole.
+// An offending request value as an error message quotes it, as JSON cut
+// to kMaxEcho (base/echo.h): a huge body is not echoed back (or logged) whole.
 std::string Quote(const json& j);
 
 // `retry_after_ms`: the service's hint (its retry-after-ms trailer), sent

@@ -35,19 +35,13 @@ constexpr absl::Duration kAdmissionWait = absl::Seconds(1);
 
 // Error messages travel in trailing metadata, which clients cap (8 KiB by
 // default): input echoed into them is cut, and so is the whole message.
-constexpr size_t kEchoChars = 80;
 constexpr size_t kMessageChars = 1024;
 
-std::string Shorten(std::string_view text) {
-  if (text.size() <= kEchoChars) return std::string(text);
-  return absl::StrFormat("%s... (%u bytes)", text.substr(0, kEchoChars), text.size());
-}
-
-// Cuts the mesh name and any quoted run longer than kEchoChars, then the
+// Cuts the mesh name and any quoted run longer than kMaxEcho, then the
 // message to kMessageChars.
 std::string CapMessage(std::string message, std::string_view mesh) {
-  if (mesh.size() > kEchoChars) {
-    const std::string cut = Shorten(mesh);
+  if (mesh.size() > kMaxEcho) {
+    const std::string cut = Cut(mesh);
     for (size_t at = message.find(mesh); at != std::string::npos;
          at = message.find(mesh, at + cut.size())) {
       message.replace(at, mesh.size(), cut);
@@ -58,8 +52,8 @@ std::string CapMessage(std::string message, std::string_view mesh) {
     size_t close = message.find('\'', open + 1);
     if (close == std::string::npos) break;
     const std::string_view quoted = std::string_view(message).substr(open + 1, close - open - 1);
-    if (quoted.size() > kEchoChars && quoted.find(' ') == std::string_view::npos) {
-      const std::string cut = Shorten(quoted);
+    if (quoted.size() > kMaxEcho && quoted.find(' ') == std::string_view::npos) {
+      const std::string cut = Cut(quoted);
       message.replace(open + 1, quoted.size(), cut);
       close = open + 1 + cut.size();
     }
@@ -495,14 +489,14 @@ grpc::Status GeodesicService::Answer(const char* method, grpc::ServerContext* ct
     if (status.ok()) {
       Log(LogLevel::kInfo, "request",
           {{"method", method},
-           {"mesh", Shorten(mesh)},
+           {"mesh", Cut(mesh)},
            {"code", "OK"},
            {"ms", 1e3 * seconds},
            {"peer", ctx->peer()}});
     } else {
       Log(LogLevel::kInfo, "request",
           {{"method", method},
-           {"mesh", Shorten(mesh)},
+           {"mesh", Cut(mesh)},
            {"code", CodeName(status.error_code())},
            {"ms", 1e3 * seconds},
            {"peer", ctx->peer()},
