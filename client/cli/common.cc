@@ -169,58 +169,6 @@ bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<
 
 void PrintJson(const Json& value) { std::printf("%s\n", value.dump().c_str()); }
 
-Json DiagnosticsJson(const v1::MeshDiagnostics& d) {
-  Json parsed = Json::parse(server::DiagnosticsJsonText(d), nullptr, /*allow_exceptions=*/false);
-  if (parsed.is_discarded()) {
-    std::fprintf(stderr, "geodesic: the server's mesh diagnostics are not valid JSON\n");
-    return nullptr;
-  }
-  return parsed;
-}
-
-const char* StateName(v1::GraphState s) {
-  switch (s) {
-    case v1::GRAPH_STATE_QUEUED:
-      return "queued";
-    case v1::GRAPH_STATE_BUILDING:
-      return "building";
-    case v1::GRAPH_STATE_LOADING:
-      return "loading";
-    case v1::GRAPH_STATE_READY:
-      return "ready";
-    case v1::GRAPH_STATE_FAILED:
-      return "failed";
-    case v1::GRAPH_STATE_CANCELLED:
-      return "cancelled";
-    case v1::GRAPH_STATE_EVICTED:
-      return "evicted";
-    default:
-      return "unknown";
-  }
-}
-
-Json GraphJson(const v1::Graph& g) {
-  return {{"mesh", g.mesh()},
-          {"epsilon", g.epsilon()},
-          {"state", StateName(g.state())},
-          {"phase", g.phase()},
-          {"progress", g.progress()},
-          {"error", g.error()},
-          {"bytes", g.bytes()},
-          {"mapped", g.mapped()},
-          {"from_file", g.from_file()},
-          {"nodes", g.nodes()},
-          {"edges", g.edges()},
-          {"build_seconds", g.build_seconds()},
-          {"estimated_bytes", g.estimated_bytes()},
-          {"estimated_seconds", g.estimated_seconds()},
-          {"landmark_bytes", g.landmark_bytes()},
-          {"pseudo_vertices", g.pseudo_vertices()},
-          {"max_error", g.max_error()},
-          {"certificate",
-           g.has_certificate() ? server::CertificateJson<Json>(g.certificate()) : Json()}};
-}
-
 std::string CertificateText(const v1::Graph& g) {
   if (!g.has_certificate()) return "";
   const v1::GraphCertificate& c = g.certificate();

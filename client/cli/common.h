@@ -12,6 +12,7 @@
 #include "geodesic/v1/geodesic.grpc.pb.h"
 #include "grpcpp/grpcpp.h"
 #include "nlohmann/json.hpp"
+#include "server/api/json_views.h"
 
 namespace geodesic::cli {
 
@@ -77,11 +78,6 @@ bool ResolvePoints(v1::Geodesic::Stub* stub, const Common& c, const std::vector<
 // cannot hold, print as null.
 using Json = nlohmann::ordered_json;
 void PrintJson(const Json& value);
-// The daemon sends mesh diagnostics as a JSON text; embedded as JSON, or as
-// null (with a warning) if it does not parse.
-Json DiagnosticsJson(const v1::MeshDiagnostics& d);
-const char* StateName(v1::GraphState s);
-Json GraphJson(const v1::Graph& g);
 // "certified: max error ... from N sources ..." for a graph with a
 // certificate; empty otherwise.
 std::string CertificateText(const v1::Graph& g);

@@ -55,13 +55,13 @@ int CmdGraph(const Common& c, bool wait, bool cancel) {
     if (!s.ok()) return Fail(s);
   }
   if (c.json) {
-    PrintJson(GraphJson(g));
+    PrintJson(server::GraphJson<Json>(g));
   } else {
     const std::string bound =
         g.max_error() > 0 ? absl::StrFormat(" (max error %g)", g.max_error()) : "";
     std::printf("graph %s at eps %g%s%s: %s%s%s (%lu nodes, %lu edges, %lu bytes%s)\n",
                 g.mesh().c_str(), g.epsilon(), bound.c_str(),
-                g.pseudo_vertices() ? " with pseudo vertices" : "", StateName(g.state()),
+                g.pseudo_vertices() ? " with pseudo vertices" : "", server::StateName(g.state()),
                 g.error().empty() ? "" : ": ", g.error().c_str(), g.nodes(), g.edges(), g.bytes(),
                 g.from_file() ? ", mapped from the graph directory" : "");
     if (g.has_certificate()) std::printf("  %s\n", CertificateText(g).c_str());

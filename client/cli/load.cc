@@ -85,19 +85,7 @@ int CmdLoad(const Common& c, const std::string& path, const std::string& upload,
   }
   if (!s.ok()) return Fail(s);
   if (c.json) {
-    PrintJson({{"name", resp.name()},
-               {"fingerprint", resp.fingerprint()},
-               {"restored", resp.restored()},
-               {"repair_non_manifold", resp.repair_non_manifold()},
-               {"vertex_copies",
-                [&] {
-                  Json copies = Json::array();
-                  for (const auto& copy : resp.vertex_copies()) {
-                    copies.push_back({{"original", copy.original()}, {"copy", copy.copy()}});
-                  }
-                  return copies;
-                }()},
-               {"diagnostics", DiagnosticsJson(resp.diagnostics())}});
+    PrintJson(server::MeshJson<Json>(resp));
   } else {
     std::printf("registered %s: %lu vertices, %lu faces, fingerprint %s%s\n", resp.name().c_str(),
                 resp.diagnostics().vertices(), resp.diagnostics().faces(),

@@ -17,11 +17,7 @@ int CmdMeshes(const Common& c) {
   for (int i = 0; i < resp.meshes_size(); ++i) {
     const auto& m = resp.meshes(i);
     if (c.json) {
-      list.push_back({{"name", m.name()},
-                      {"fingerprint", m.fingerprint()},
-                      {"source", m.source()},
-                      {"restored", m.restored()},
-                      {"diagnostics", DiagnosticsJson(m.diagnostics())}});
+      list.push_back(server::MeshJson<Json>(m));
     } else {
       std::printf("%-16s %8lu vertices %8lu faces  %s  %s\n", m.name().c_str(),
                   m.diagnostics().vertices(), m.diagnostics().faces(), m.fingerprint().c_str(),

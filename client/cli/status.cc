@@ -19,10 +19,10 @@ int CmdStatus(const Common& c) {
   for (int i = 0; i < resp.graphs_size(); ++i) {
     const auto& g = resp.graphs(i);
     if (c.json) {
-      list.push_back(GraphJson(g));
+      list.push_back(server::GraphJson<Json>(g));
     } else {
       std::printf("%-16s eps %-8g %-7s %-10s %5.1f%% %12lu bytes %s%s\n", g.mesh().c_str(),
-                  g.epsilon(), g.pseudo_vertices() ? "pseudo" : "", StateName(g.state()),
+                  g.epsilon(), g.pseudo_vertices() ? "pseudo" : "", server::StateName(g.state()),
                   100 * g.progress(), g.bytes(), g.mapped() ? "mapped" : "resident",
                   g.error().empty() ? "" : (" " + g.error()).c_str());
       if (g.max_error() > 0) {

@@ -228,4 +228,25 @@ std::string CodeName(grpc::StatusCode code) {
   return absl::StatusCodeToString(static_cast<absl::StatusCode>(code));
 }
 
+const char* StateName(v1::GraphState s) {
+  switch (s) {
+    case v1::GRAPH_STATE_QUEUED:
+      return "queued";
+    case v1::GRAPH_STATE_BUILDING:
+      return "building";
+    case v1::GRAPH_STATE_LOADING:
+      return "loading";
+    case v1::GRAPH_STATE_READY:
+      return "ready";
+    case v1::GRAPH_STATE_FAILED:
+      return "failed";
+    case v1::GRAPH_STATE_CANCELLED:
+      return "cancelled";
+    case v1::GRAPH_STATE_EVICTED:
+      return "evicted";
+    default:
+      return "unknown";
+  }
+}
+
 }  // namespace geodesic::server

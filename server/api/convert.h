@@ -98,6 +98,9 @@ grpc::Status ToGrpc(const absl::Status& s);
 // The canonical name of a code ("INVALID_ARGUMENT"): gRPC's codes are
 // Abseil's.
 std::string CodeName(grpc::StatusCode code);
+// "ready", "building", ...: a state as the JSON views (json_views.h) and
+// the CLI's text spell it; "unknown" for a value this build does not know.
+const char* StateName(v1::GraphState state);
 
 // A certified graph's certificate as a JSON object (nlohmann's json or
 // ordered_json), with the keys of `geodesicd build --json`: one mapping for

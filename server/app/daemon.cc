@@ -471,7 +471,8 @@ int Daemon::ListenHttp() {
   gateway.cors_origin = options_.http_cors_origin;
   gateway.limits = options_.http_limits;
   gateway.memory = memory_.get();
-  auto started = HttpGateway::Start(gateway, server_.get(), meshes_.get());
+  gateway.service = options_.limits;
+  auto started = HttpGateway::Start(gateway, server_.get());
   if (!started.ok()) {
     std::fprintf(stderr, "geodesicd serve: %s\n", std::string(started.status().message()).c_str());
     return 1;

@@ -20,6 +20,7 @@
 #include "server/gateway/gateway_call.h"
 #include "server/gateway/http_gateway.h"
 #include "server/http/http_server.h"
+#include "server/limits/client_key.h"
 
 namespace geodesic::server {
 
@@ -29,8 +30,8 @@ struct HttpGateway::Impl {
   using ApiRequest = gateway::ApiRequest;
 
   std::unique_ptr<v1::Geodesic::Stub> stub;
-  const MeshRegistry* meshes = nullptr;
   HttpGatewayOptions options;
+  ClientIdentity identity;  // of options.bearer_tokens
   std::string web_root;
   bool has_three = false;
   // Destroyed first: its workers call the members above.

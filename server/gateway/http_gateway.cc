@@ -305,19 +305,18 @@ int HttpGateway::port() const { return impl_->server->port(); }
 bool HttpGateway::tls() const { return impl_->server->tls(); }
 
 absl::StatusOr<std::unique_ptr<HttpGateway>> HttpGateway::Start(const HttpGatewayOptions& options,
-                                                                grpc::Server* grpc_server,
-                                                                const MeshRegistry* meshes) {
+                                                                grpc::Server* grpc_server) {
   auto impl = std::make_unique<Impl>();
   impl->options = options;
-  impl->meshes = meshes;
+  impl->identity = ClientIdentity(options.bearer_tokens);
   impl->web_root = options.web_root.empty() ? FindWebRoot() : options.web_root;
   std::error_code ec;
   impl->has_three = std::filesystem::exists(options.three_root, ec);
   grpc::ChannelArguments args;
-  // Fields and matrices of large meshes exceed gRPC's 4 MiB default; the
-  // service allows 64 MiB each way.
-  args.SetMaxReceiveMessageSize(64 << 20);
-  args.SetMaxSendMessageSize(64 << 20);
+  // Fields and matrices of large meshes exceed gRPC's 4 MiB default: the
+  // channel carries what the service itself sends and receives.
+  args.SetMaxReceiveMessageSize(static_cast<int>(options.service.max_message_bytes));
+  args.SetMaxSendMessageSize(static_cast<int>(MaxRequestBytes(options.service)));
   impl->stub = v1::Geodesic::NewStub(grpc_server->InProcessChannel(args));
 
   HttpServerOptions server;

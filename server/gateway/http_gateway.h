@@ -35,7 +35,7 @@
 #include "grpcpp/server.h"
 #include "server/http/http_server.h"
 #include "server/limits/memory_ledger.h"
-#include "server/meshes/mesh_registry.h"
+#include "server/limits/service_limits.h"
 
 namespace geodesic::server {
 
@@ -62,6 +62,9 @@ struct HttpGatewayOptions {
   // --memory-limit's share for request bodies and geometry answers; null:
   // not counted. Must outlive the gateway.
   MemoryLedger* memory = nullptr;
+  // The gRPC service's limits: its largest answer and request are what the
+  // gateway's in-process channel must carry.
+  ServiceLimits service;
 };
 
 // One row of the gateway's route table: what server/web/openapi.json must
@@ -77,11 +80,9 @@ struct GatewayRoute {
 
 class HttpGateway {
  public:
-  // `grpc_server` must outlive the gateway; `meshes` is read directly only
-  // for GET /v1/meshes/{name}/geometry, after GetMesh has authorised it.
+  // `grpc_server` must outlive the gateway: every route calls its service.
   static absl::StatusOr<std::unique_ptr<HttpGateway>> Start(const HttpGatewayOptions& options,
-                                                            grpc::Server* grpc_server,
-                                                            const MeshRegistry* meshes);
+                                                            grpc::Server* grpc_server);
   // Shutdown in steps (HttpServer's): stop accepting and reading new
   // requests; wait for the answers of those being answered until a
   // deadline; and, once the calls still running were stopped, wait again

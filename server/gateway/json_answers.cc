@@ -5,7 +5,8 @@
 #include <charconv>
 #include <cmath>
 
-#include "server/api/convert.h"
+#include "absl/strings/ascii.h"
+#include "server/api/json_views.h"
 
 namespace geodesic::server::gateway {
 namespace {
@@ -33,85 +34,66 @@ void AddEcho(const v1::QueryEcho& echo, json* out) {
   if (graph.max_error() > 0) (*out)["max_error"] = graph.max_error();
 }
 
+// The shared views (api/json_views.h), with what HTTP v1 clients were
+// promised before them: the state in capitals and epsilon also as "eps".
 json GraphJson(const v1::Graph& g) {
-  std::string state = v1::GraphState_Name(g.state());
-  constexpr std::string_view kPrefix = "GRAPH_STATE_";
-  if (state.starts_with(kPrefix)) state = state.substr(kPrefix.size());
-  json out = {
-      {"mesh", g.mesh()},
-      {"eps", g.epsilon()},
-      {"state", state},
-      {"phase", g.phase()},
-      {"progress", g.progress()},
-      {"error", g.error()},
-      {"bytes", g.bytes()},
-      {"landmark_bytes", g.landmark_bytes()},
-      {"mapped", g.mapped()},
-      {"from_file", g.from_file()},
-      {"nodes", g.nodes()},
-      {"edges", g.edges()},
-      {"build_seconds", g.build_seconds()},
-      {"estimated_bytes", g.estimated_bytes()},
-      {"estimated_seconds", g.estimated_seconds()},
-      {"last_used_unix_ms", g.last_used_unix_ms()},
-      {"pseudo_vertices", g.pseudo_vertices()},
-      {"max_error", g.max_error()},
-      // null for a plain graph, and while a certified one is made.
-      {"certificate", g.has_certificate() ? CertificateJson<json>(g.certificate()) : json()}};
+  json out = server::GraphJson<json>(g);
+  out["state"] = absl::AsciiStrToUpper(StateName(g.state()));
+  out["eps"] = g.epsilon();
   return out;
 }
 
-json MeshJson(const v1::Mesh& m) {
-  const auto& d = m.diagnostics();
-  json out = {{"name", m.name()},
-              {"vertices", d.vertices()},
-              {"faces", d.faces()},
-              {"edges", d.edges()},
-              {"components", d.components()},
-              {"boundary_loops", d.boundary_loops()},
-              {"genus", d.genus()},
-              {"bbox_diagonal", d.bbox_diagonal()},
-              {"fingerprint", m.fingerprint()},
-              {"source", m.source()},
-              {"restored", m.restored()}};
-  if (!m.parent().empty()) {
-    out["parent"] = m.parent();
-    out["parent_vertices"] = m.parent_vertices();
-    out["parent_faces"] = m.parent_faces();
-  }
-  json diagnostics = json::parse(DiagnosticsJsonText(d), nullptr, false);
-  if (!diagnostics.is_discarded()) out["diagnostics"] = std::move(diagnostics);
-  return out;
+json MeshJson(const v1::Mesh& m) { return server::MeshJson<json>(m); }
+
+uint64_t GeometryJson::Bound(const v1::GeometryChunk& first) {
+  constexpr uint64_t kFrame = 1024;  // keys, the fingerprint
+  return kFrame + 2 * first.name().size() + 3 * first.total_vertices() * 25 +
+         3 * first.total_faces() * 11;
 }
 
-uint64_t GeometryJsonBound(const Mesh& mesh) {
-  constexpr uint64_t kFrame = 1024;  // keys, the name, the fingerprint
-  return kFrame + 3 * uint64_t{mesh.num_vertices()} * 25 + 3 * uint64_t{mesh.num_faces()} * 11;
+GeometryJson::GeometryJson(const v1::GeometryChunk& first, uint64_t bound)
+    : vertex_values_(3 * first.total_vertices()), face_values_(3 * first.total_faces()) {
+  text_.reserve(bound);
+  text_ += "{\"name\":" + Dump(json(first.name())) +
+           ",\"fingerprint\":" + Dump(json(first.fingerprint())) + ",\"positions\":[";
 }
 
-std::string GeometryJson(const std::string& name, const json& fingerprint, const Mesh& mesh,
-                         uint64_t bound) {
-  std::string out;
-  out.reserve(bound);
-  out += "{\"name\":" + Dump(json(name)) + ",\"fingerprint\":" + Dump(fingerprint) +
-         ",\"positions\":[";
-  const char* comma = "";
-  for (const Vec3& p : mesh.positions()) {
-    for (double c : {p.x, p.y, p.z}) {
-      out += comma;
-      AppendDouble(c, &out);
-      comma = ",";
-    }
+absl::Status GeometryJson::Add(const v1::GeometryChunk& chunk) {
+  // The stream's order is the proto's: every vertex, then every face.
+  if (uint64_t(chunk.vertices_size()) > vertex_values_) {
+    return absl::InternalError("geometry chunk with vertices past the total or after the faces");
   }
-  out += "],\"faces\":[";
-  comma = "";
-  for (VertexId v : mesh.corners()) {
-    out += comma;
-    out += std::to_string(v);
-    comma = ",";
+  for (double c : chunk.vertices()) {
+    if (!first_value_) text_ += ',';
+    first_value_ = false;
+    AppendDouble(c, &text_);
   }
-  out += "]}";
-  return out;
+  vertex_values_ -= chunk.vertices_size();
+  if (chunk.faces_size() == 0) return absl::OkStatus();
+  if (vertex_values_ > 0 || uint64_t(chunk.faces_size()) > face_values_) {
+    return absl::InternalError(
+        "geometry chunk with faces before the last vertex or past the total");
+  }
+  if (!faces_begun_) {
+    text_ += "],\"faces\":[";
+    faces_begun_ = true;
+    first_value_ = true;
+  }
+  for (uint32_t v : chunk.faces()) {
+    if (!first_value_) text_ += ',';
+    first_value_ = false;
+    text_ += std::to_string(v);
+  }
+  face_values_ -= chunk.faces_size();
+  return absl::OkStatus();
+}
+
+absl::StatusOr<std::string> GeometryJson::Finish() && {
+  if (vertex_values_ > 0 || face_values_ > 0) {
+    return absl::InternalError("geometry stream ended before its totals");
+  }
+  text_ += faces_begun_ ? "]}" : "],\"faces\":[]}";
+  return std::move(text_);
 }
 
 }  // namespace geodesic::server::gateway

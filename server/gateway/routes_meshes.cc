@@ -128,27 +128,40 @@ grpc::Status HttpGateway::Impl::UnloadMesh(const Call& call, const ApiRequest& r
   return s;
 }
 
-// Geometry has no RPC: GetMesh authorises the call and names a missing
-// mesh, then the registry's arrays are sent as they are, in file order,
-// so that a face id and its barycentrics mean the same on both sides. The
-// text is written straight into one string of the size reserved for it
-// within --memory-limit, held until it is sent: a tree of JSON values
-// first would take several times the text.
+// The geometry as any gRPC client gets it, from GetGeometry: its first
+// chunk names the sizes, the whole text is reserved within --memory-limit
+// before any of it is written, and held until it is sent.
 grpc::Status HttpGateway::Impl::Geometry(const Call& call, const ApiRequest& r, json*) {
-  const std::string& name = r.mesh;
-  json info;
-  if (grpc::Status s = GetMesh(call, r, &info); !s.ok()) return s;
-  auto m = meshes->Get(name);
-  if (!m.ok()) return ToGrpc(m.status());
-  const Mesh& mesh = *(*m)->mesh;
-  const uint64_t bytes = GeometryJsonBound(mesh);
-  if (grpc::Status s =
-          ReserveAnswer(r, bytes, absl::StrFormat("the geometry of mesh '%s' as JSON", name));
+  v1::GetMeshRequest req;
+  req.set_name(r.mesh);
+  grpc::ClientContext* ctx = call.Context();
+  auto reader = stub->GetGeometry(ctx, req);
+  v1::GeometryChunk chunk;
+  if (!reader->Read(&chunk)) {
+    grpc::Status s = reader->Finish();
+    return s.ok() ? grpc::Status(grpc::StatusCode::INTERNAL, "GetGeometry sent no chunk") : s;
+  }
+  const uint64_t bytes = GeometryJson::Bound(chunk);
+  if (grpc::Status s = ReserveAnswer(
+          r, bytes, absl::StrFormat("the geometry of mesh '%s' as JSON", chunk.name()));
       !s.ok()) {
+    ctx->TryCancel();
     return s;
   }
+  GeometryJson text(chunk, bytes);
+  absl::Status added;
+  do {
+    added = text.Add(chunk);
+  } while (added.ok() && reader->Read(&chunk));
+  if (!added.ok()) {
+    ctx->TryCancel();
+    return ToGrpc(added);
+  }
+  if (grpc::Status s = reader->Finish(); !s.ok()) return s;
+  absl::StatusOr<std::string> body = std::move(text).Finish();
+  if (!body.ok()) return ToGrpc(body.status());
   HttpResponse& res = r.raw->emplace();
-  res.body = GeometryJson(name, info["fingerprint"], mesh, bytes);
+  res.body = *std::move(body);
   res.content_type = "application/json";
   return grpc::Status::OK;
 }

@@ -23,6 +23,11 @@ std::string_view FirstMetadata(const grpc::ServerContext& ctx, std::string_view 
   return std::string_view(begin->second.data(), begin->second.size());
 }
 
+Authorization AuthorizationOf(const grpc::ServerContext& ctx) {
+  return {.headers = ctx.client_metadata().count("authorization"),
+          .value = FirstMetadata(ctx, "authorization")};
+}
+
 // "ipv4:10.0.0.7:52814" -> "ipv4:10.0.0.7"; "ipv6:[::1]:52814" -> "ipv6:[::1]".
 std::string WithoutPort(std::string peer) {
   const size_t colon = peer.rfind(':');
@@ -39,12 +44,11 @@ std::string HttpClientValue(std::string_view address) {
   return absl::StrFormat("%s %s", ProcessSecret(), std::string(address));
 }
 
-int ClientIdentity::TokenIndex(const grpc::ServerContext& ctx) const {
-  if (ctx.client_metadata().count("authorization") != 1) return -1;
+int ClientIdentity::TokenIndex(Authorization auth) const {
+  if (auth.headers != 1) return -1;
   constexpr std::string_view kBearer = "Bearer ";
-  const std::string_view auth = FirstMetadata(ctx, "authorization");
-  if (!auth.starts_with(kBearer)) return -1;
-  const std::string_view sent = auth.substr(kBearer.size());
+  if (!auth.value.starts_with(kBearer)) return -1;
+  const std::string_view sent = auth.value.substr(kBearer.size());
   // Every token is compared, so that the time taken says nothing of which
   // one (or how much of one) matched.
   int found = -1;
@@ -54,18 +58,22 @@ int ClientIdentity::TokenIndex(const grpc::ServerContext& ctx) const {
   return found;
 }
 
-absl::Status ClientIdentity::Authenticate(const grpc::ServerContext& ctx) const {
+absl::Status ClientIdentity::Authenticate(Authorization auth) const {
   if (tokens_.empty()) return absl::OkStatus();
-  const size_t headers = ctx.client_metadata().count("authorization");
-  if (headers > 1) {
+  if (auth.headers > 1) {
     return absl::UnauthenticatedError(absl::StrFormat(
-        "%u authorization headers: send exactly one, 'authorization: Bearer <token>'", headers));
+        "%u authorization headers: send exactly one, 'authorization: Bearer <token>'",
+        auth.headers));
   }
-  if (TokenIndex(ctx) < 0) {
+  if (TokenIndex(auth) < 0) {
     return absl::UnauthenticatedError(
-        "missing or wrong bearer token: send metadata 'authorization: Bearer <token>'");
+        "missing or wrong bearer token: send 'authorization: Bearer <token>'");
   }
   return absl::OkStatus();
+}
+
+absl::Status ClientIdentity::Authenticate(const grpc::ServerContext& ctx) const {
+  return Authenticate(AuthorizationOf(ctx));
 }
 
 std::string ClientIdentity::Key(const grpc::ServerContext& ctx) const {
@@ -77,7 +85,8 @@ std::string ClientIdentity::Key(const grpc::ServerContext& ctx) const {
     key += http.substr(secret.size());
   }
   if (tokens_.empty()) return key;
-  if (const int token = TokenIndex(ctx); token >= 0) key += absl::StrFormat(" token %d", token);
+  if (const int token = TokenIndex(AuthorizationOf(ctx)); token >= 0)
+    key += absl::StrFormat(" token %d", token);
   return key;
 }
 

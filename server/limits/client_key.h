@@ -31,8 +31,17 @@ inline constexpr char kHttpClientMetadata[] = "x-geodesic-http-client";
 // that a remote gRPC client cannot pose as another by sending the metadata.
 std::string HttpClientValue(std::string_view address);
 
+// A call's authorization headers, from gRPC metadata or HTTP alike: how
+// many it sent, and the first one's value.
+struct Authorization {
+  size_t headers = 0;
+  std::string_view value;
+};
+
 // The bearer tokens a daemon accepts (--auth-token-file, one a line), each
-// a client of its own on every host; none: calls need no token.
+// a client of its own on every host; none: calls need no token. The gRPC
+// service and the HTTP gateway (before it reads a body) check a token here,
+// with one message for each way to fail.
 class ClientIdentity {
  public:
   explicit ClientIdentity(std::vector<std::string> tokens = {}) : tokens_(std::move(tokens)) {}
@@ -41,6 +50,7 @@ class ClientIdentity {
 
   // UNAUTHENTICATED when tokens are required and the call does not send
   // exactly one 'authorization: Bearer <token>' with one of them.
+  absl::Status Authenticate(Authorization auth) const;
   absl::Status Authenticate(const grpc::ServerContext& ctx) const;
 
   // The call's client: its host (the address without the port: a client's
@@ -52,7 +62,7 @@ class ClientIdentity {
  private:
   // The index of the one token the call's single authorization header
   // names; -1 for none, or for two or more headers.
-  int TokenIndex(const grpc::ServerContext& ctx) const;
+  int TokenIndex(Authorization auth) const;
 
   std::vector<std::string> tokens_;
 };

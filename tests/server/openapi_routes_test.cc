@@ -13,6 +13,7 @@
 #include "gtest/gtest.h"
 #include "nlohmann/json.hpp"
 #include "server/gateway/http_gateway.h"
+#include "server/gateway/json_answers.h"
 
 namespace geodesic::server {
 namespace {
@@ -131,6 +132,30 @@ TEST(OpenApiRoutesTest, DocumentMatchesTheRouteTableBothWays) {
   }
   for (const std::string& problem : problems) ADD_FAILURE() << problem;
   EXPECT_TRUE(problems.empty()) << problems.size() << " differences";
+}
+
+// The answers' schemas name the keys the gateway's JSON views write
+// (server/api/json_views.h), no more and no fewer.
+TEST(OpenApiRoutesTest, MeshAndGraphSchemasMatchTheViews) {
+  const OpenApi doc = ReadOpenApiDocument();
+  ASSERT_TRUE(doc.is_object()) << "server/web/openapi.json is missing or not JSON";
+  v1::Graph graph;
+  graph.mutable_certificate()->set_sources(1);
+  v1::Mesh mesh;  // a region: every key a mesh may have
+  mesh.set_name("part");
+  mesh.set_parent("spot");
+  const std::vector<std::pair<std::string, OpenApi>> views = {{"Graph", gateway::GraphJson(graph)},
+                                                              {"Mesh", gateway::MeshJson(mesh)}};
+  for (const auto& [schema, view] : views) {
+    std::set<std::string> documented, written;
+    for (const auto& [key, value] : doc["components"]["schemas"][schema]["properties"].items()) {
+      documented.insert(key);
+    }
+    for (const auto& [key, value] : view.items()) written.insert(key);
+    ASSERT_FALSE(written.empty());
+    EXPECT_EQ(documented, written) << schema << ": openapi.json documents " << Joined(documented)
+                                   << ", the gateway writes " << Joined(written);
+  }
 }
 
 }  // namespace
