@@ -56,10 +56,30 @@ T Optional(const YAML::Node& map, const std::string& key, const std::string& whe
   return map[key].IsDefined() ? Scalar<T>(map, key, where, type) : fallback;
 }
 
-ServeConfig Parse(const YAML::Node& root) {
+ServeConfig Parse(const YAML::Node& root, const std::string& path) {
   ServeConfig config;
   if (root.IsNull()) return config;  // an empty file declares nothing
-  OnlyKeys(root, {"meshes", "graphs"}, "the file");
+  OnlyKeys(root, {"meshes", "graphs", "flags"}, "the file");
+  if (const YAML::Node flags = root["flags"]; flags.IsDefined() && !flags.IsNull()) {
+    Expect(flags.IsMap(), flags, "flags must be a mapping of serve flags to values");
+    for (const auto& entry : flags) {
+      const std::string name = entry.first.as<std::string>();
+      Expect(!name.empty() &&
+                 name.find_first_not_of("abcdefghijklmnopqrstuvwxyz0123456789-") ==
+                     std::string::npos &&
+                 !name.starts_with("-"),
+             entry.first,
+             absl::StrFormat("flags: '%s' is not a flag's name (write it without dashes, as "
+                             "memory-limit)",
+                             name));
+      Expect(name != "config", entry.first, "flags: a config file cannot name another");
+      Expect(entry.second.IsScalar(), entry.second,
+             absl::StrFormat("flags.%s must be one value", name));
+      const YAML::Mark mark = entry.first.Mark();
+      config.flags.push_back({name, entry.second.Scalar(),
+                              absl::StrFormat("%s:%d:%d", path, mark.line + 1, mark.column + 1)});
+    }
+  }
   std::set<std::string> names;
   if (const YAML::Node meshes = root["meshes"]; meshes.IsDefined() && !meshes.IsNull()) {
     Expect(meshes.IsSequence(), meshes, "meshes must be a list");
@@ -115,7 +135,7 @@ ServeConfig Parse(const YAML::Node& root) {
 
 absl::StatusOr<ServeConfig> ParseServeConfig(const std::string& text, const std::string& path) {
   try {
-    return Parse(YAML::Load(text));
+    return Parse(YAML::Load(text), path);
   } catch (const ConfigError& e) {
     return absl::InvalidArgumentError(
         absl::StrFormat("%s:%d:%d: %s", path, e.mark.line + 1, e.mark.column + 1, e.what));

@@ -12,6 +12,15 @@
 //       pseudo_vertices: false      # optional
 //     - mesh: kitten
 //       max_error: 0.01             # instead of eps: a certified graph
+//   flags:                          # any `geodesicd serve` flag but --config
+//     memory-limit: 6G
+//     max-pairs: 20000
+//     exact-fans: true
+//
+// `flags` are the command line's own flags, by their names without the
+// dashes, read by the same parser with the same checks and --help text
+// (serve_options.cc): one set of limits for the command line, the file and
+// the docs. A flag given on the command line wins over the file's.
 //
 // A graph with `max_error` (in [1e-5, 0.5], RequestGraph's range) is the
 // certified graph of that bound, as RequestGraph's max_error asks for: its
@@ -43,9 +52,18 @@ struct DeclaredGraph {
   bool pseudo_vertices = false;
 };
 
+// One entry of `flags`: a serve flag's name (without dashes) and its value
+// as text, with where it is written for error messages ("path:line:column").
+struct DeclaredFlag {
+  std::string name;
+  std::string value;
+  std::string where;
+};
+
 struct ServeConfig {
   std::vector<DeclaredMesh> meshes;
   std::vector<DeclaredGraph> graphs;
+  std::vector<DeclaredFlag> flags;
 };
 
 absl::StatusOr<ServeConfig> ParseServeConfig(const std::string& text, const std::string& path);

@@ -9,13 +9,17 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <memory>
+#include <set>
 #include <sstream>
 #include <thread>
+#include <variant>
 #include <vector>
 
 #include "CLI/CLI.hpp"
 #include "absl/strings/ascii.h"
 #include "absl/strings/match.h"
+#include "absl/strings/str_cat.h"
 #include "absl/strings/str_split.h"
 #include "grpcpp/security/server_credentials.h"
 #include "server/base/byte_size.h"
@@ -139,8 +143,8 @@ void AddStorageFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
       "last two minutes. A graph file or snapshot that would still pass it is not written: "
       "the graph fails, the upload is refused (0: no limit)");
   app.add_option("--config", f.config_path,
-                 "YAML file of meshes to register and graphs to build at start (see "
-                 "server/app/config_file.h)")
+                 "YAML file of meshes to register and graphs to build at start, and of any "
+                 "of these flags by name (flags given here win; see docs/daemon.md)")
       ->check(CLI::ExistingFile);
   app.add_option("--catalog-poll-seconds", o.catalog_poll_seconds,
                  "how often to follow the graph directory's catalog (meshes and graphs other "
@@ -338,7 +342,7 @@ bool ResolveLimits(const ServeFlags& f, ServeOptions& o) {
   return true;
 }
 
-// The byte sizes and the --config file.
+// The byte sizes.
 bool ResolveSizes(const ServeFlags& f, ServeOptions& o) {
   const struct {
     const char* flag;
@@ -357,13 +361,6 @@ bool ResolveSizes(const ServeFlags& f, ServeOptions& o) {
     }
     *size.bytes = *bytes;
   }
-  absl::StatusOr<ServeConfig> config = ServeConfig{};
-  if (!f.config_path.empty()) config = LoadServeConfig(f.config_path);
-  if (!config.ok()) {
-    std::fprintf(stderr, "geodesicd serve: %s\n", std::string(config.status().message()).c_str());
-    return false;
-  }
-  o.config = std::move(*config);
   o.limits.exact_fans = f.exact_fans;
   return true;
 }
@@ -392,14 +389,25 @@ bool ResolveSecurity(const ServeFlags& f, ServeOptions& o) {
   return true;
 }
 
-}  // namespace
+// What one parse of a command line leaves: the options, the text beside
+// them, and the flags it named ("memory-limit"). Its own allocation: the
+// parser holds references into it.
+struct Parsed {
+  ServeOptions o;
+  ServeFlags f;
+  std::set<std::string> given;
+};
 
-std::optional<int> ParseServeOptions(int argc, char** argv, ServeOptions* out) {
-  ServeOptions& o = *out;
-  o = ServeOptions{};
+// Parses `args` (the program name left out) into fresh options, or the
+// exit code when the command ends here (--help, a refused flag). `source`
+// prefixes an error's message; empty: CLI11 prints its own.
+std::variant<int, std::unique_ptr<Parsed>> ParseArgs(const std::vector<std::string>& args,
+                                                     const std::string& source) {
+  auto parsed = std::make_unique<Parsed>();
+  ServeOptions& o = parsed->o;
+  ServeFlags& f = parsed->f;
   o.listen = "127.0.0.1:50051";
   o.graph_dir = DefaultGraphDir();
-  ServeFlags f;
   CLI::App app{"Serve geodesic queries over gRPC", "geodesicd serve"};
   app.option_defaults()->always_capture_default();  // --help shows defaults
   AddStorageFlags(app, f, o);
@@ -407,11 +415,58 @@ std::optional<int> ParseServeOptions(int argc, char** argv, ServeOptions* out) {
   AddQueryFlags(app, f, o.limits);
   AddHttpFlags(app, f, o);
   AddRunFlags(app, f, o);
+  // CLI11 reads a vector from its end.
+  std::vector<std::string> reversed(args.rbegin(), args.rend());
   try {
-    app.parse(argc, argv);
+    app.parse(reversed);
   } catch (const CLI::ParseError& e) {
-    return app.exit(e);
+    if (source.empty() || e.get_exit_code() == 0) return app.exit(e);
+    std::fprintf(stderr, "geodesicd serve: %s: %s\n", source.c_str(), e.what());
+    return 2;
   }
+  for (const CLI::Option* option : app.get_options()) {
+    if (option->count() == 0) continue;
+    for (const std::string& name : option->get_lnames()) parsed->given.insert(name);
+  }
+  return parsed;
+}
+
+}  // namespace
+
+std::optional<int> ParseServeOptions(int argc, char** argv, ServeOptions* out) {
+  const std::vector<std::string> line(argv + 1, argv + argc);
+  auto first = ParseArgs(line, "");
+  if (auto* code = std::get_if<int>(&first)) return *code;
+  std::unique_ptr<Parsed> parsed = std::move(std::get<std::unique_ptr<Parsed>>(first));
+  ServeConfig config;
+  if (!parsed->f.config_path.empty()) {
+    absl::StatusOr<ServeConfig> loaded = LoadServeConfig(parsed->f.config_path);
+    if (!loaded.ok()) {
+      std::fprintf(stderr, "geodesicd serve: %s\n", std::string(loaded.status().message()).c_str());
+      return 2;
+    }
+    config = *std::move(loaded);
+  }
+  // The file's flags under the command line's: each checked alone first, so
+  // that an error names its line, then all of them before the command line.
+  std::vector<std::string> args;
+  for (const DeclaredFlag& flag : config.flags) {
+    if (parsed->given.contains(flag.name)) continue;
+    std::string arg = absl::StrCat("--", flag.name, "=", flag.value);
+    auto alone = ParseArgs({arg}, absl::StrCat(flag.where, ": flags.", flag.name));
+    if (auto* code = std::get_if<int>(&alone)) return *code;
+    args.push_back(std::move(arg));
+  }
+  if (!args.empty()) {
+    args.insert(args.end(), line.begin(), line.end());
+    auto merged = ParseArgs(args, parsed->f.config_path);
+    if (auto* code = std::get_if<int>(&merged)) return *code;
+    parsed = std::move(std::get<std::unique_ptr<Parsed>>(merged));
+  }
+  ServeOptions& o = *out;
+  o = std::move(parsed->o);
+  const ServeFlags& f = parsed->f;
+  o.config = std::move(config);
   if (!ResolveLimits(f, o) || !ResolveSizes(f, o) || !ResolveSecurity(f, o)) return 2;
   if (!o.no_sample) {
     const std::string bundled = FindSampleMesh(argv[0]);

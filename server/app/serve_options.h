@@ -1,6 +1,7 @@
 // `geodesicd serve`'s command line, read once into ServeOptions: flags
 // parsed and checked, byte sizes and durations converted, secrets and the
-// --config file read. The daemon (daemon.h) starts from the result and
+// --config file read (its `flags` parsed by the same parser, under the
+// command line's). The daemon (daemon.h) starts from the result and
 // never sees a flag.
 #ifndef GEODESIC_SERVER_SERVE_OPTIONS_H_
 #define GEODESIC_SERVER_SERVE_OPTIONS_H_
