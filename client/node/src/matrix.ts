@@ -4,15 +4,15 @@
 // tile whose answer fits one message well from Matrix, others streamed by
 // MatrixRows. A server older than packed rows is read through its float64
 // answers instead. Sparse rows are sparse.ts's.
-import { GeodesicError, ResourceExhaustedError } from "./errors";
+import { GeodesicError, ResourceExhaustedError, UnimplementedError } from "./errors";
 import { Limits, overMessageCap } from "./limits";
-import type { Transport } from "./transport";
+import { toNumber } from "./longs";
 import { Dtype, ITEM_BYTES, Sink } from "./sinks";
+import type { Transport } from "./transport";
 import {
   GraphSelectorMsg, MATRIX_DTYPE_DEFAULT, MATRIX_DTYPE_FLOAT32, MATRIX_DTYPE_FLOAT64,
   MatrixRequest, SurfacePointMsg,
 } from "./wire";
-import { status } from "@grpc/grpc-js";
 
 export const WIRE_DTYPE: Record<Dtype, number> = {
   float32: MATRIX_DTYPE_FLOAT32, float64: MATRIX_DTYPE_FLOAT64,
@@ -57,7 +57,7 @@ export class Matrices {
   /** What the whole-mesh selectors stand for: the registered mesh's vertices. */
   async vertexCount(mesh: string): Promise<number> {
     const m = await this.transport.unary("GetMesh", { name: mesh }, mesh);
-    return Number(m.diagnostics?.vertices ?? 0);
+    return toNumber(m.diagnostics?.vertices, "MeshDiagnostics.vertices");
   }
 
   /** attempt() again after each refusal the server's matrix limits explain, once learnt; null
@@ -69,7 +69,7 @@ export class Matrices {
       try {
         result = await attempt();
       } catch (e) {
-        if (!(e instanceof GeodesicError) || e.code !== status.UNIMPLEMENTED) {
+        if (!(e instanceof UnimplementedError)) {
           if (e instanceof GeodesicError && this.limits.learnMatrix(e)) continue;
           throw e;
         }
