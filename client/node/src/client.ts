@@ -19,6 +19,7 @@ import {
 } from "./points";
 import { RetryPolicy, retryPolicy } from "./retry";
 import { ArraySink, Dtype, FileSink, MatrixArray, Sink } from "./sinks";
+import { MeshSolver } from "./solver";
 import { CsrMatrix, neighbourhood } from "./sparse";
 import { Transport } from "./transport";
 import { Geometry, Graph, graphFromWire, Mesh, meshFromWire, Path } from "./types";
@@ -101,13 +102,22 @@ export class Client {
     return batches.resolve(this.transport, this.limits, mesh, points);
   }
 
+  /** A handle on one mesh's graph: this client's queries without the mesh and graph options
+   * (epsilon: this client's unless given; maxError: the certified graph of that bound). */
+  meshSolver(name: string, options: GraphOptions = {}): MeshSolver {
+    return new MeshSolver(this, name, Object.freeze({
+      epsilon: options.epsilon ?? this.epsilon, pseudoVertices: options.pseudoVertices ?? false,
+      maxError: options.maxError ?? 0,
+    }));
+  }
+
   // -- queries ---------------------------------------------------------------
 
   /** Distances from the nearest of the sources to every vertex (or to `targets`), +Infinity
    * where unreachable. `sources` may be one point: an id, a spec string, or a position
-   * [x, y, z] (three numbers not all integers). With nearestSource, [distances, index in sources of each value's
-   * nearest source]. More sources than the server's --max-sources are split into several
-   * fields and combined by their minimum. */
+   * [x, y, z] (three numbers not all integers). With nearestSource, [distances, index in
+   * sources of each value's nearest source]. More sources than the server's --max-sources
+   * are split into several fields and combined by their minimum. */
   field(mesh: string, sources: Points | Point,
     options: FieldOptions & { nearestSource: true }): Promise<[Float64Array, Uint32Array]>;
   field(mesh: string, sources: Points | Point,
@@ -182,6 +192,8 @@ export class Client {
   ): Promise<DenseMatrix<Float64Array>>;
   matrix(mesh: string, sources?: Points | null, targets?: Points | null,
     options?: MatrixOptions & { out?: MatrixArray }): Promise<DenseMatrix>;
+  matrix(mesh: string, sources?: Points | null, targets?: Points | null,
+    options?: MatrixOptions): Promise<DenseMatrix | MatrixFile>;
   async matrix(mesh: string, sources?: Points | null, targets?: Points | null,
     options: MatrixOptions = {}): Promise<DenseMatrix | MatrixFile> {
     const ws = sources == null ? null : toWirePoints(sources);

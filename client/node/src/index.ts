@@ -27,6 +27,7 @@ export {
 export { EdgePoints, FacePoints, formatPoint, parsePoint } from "./points";
 export type { Point, Points } from "./points";
 export { DEFAULT_RETRY, retryDelayMs, retryPolicy } from "./retry";
+export { MeshSolver } from "./solver";
 export type { RetryPolicy } from "./retry";
 export type { Dtype, MatrixArray } from "./sinks";
 export type { CsrMatrix } from "./sparse";

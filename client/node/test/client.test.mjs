@@ -201,6 +201,18 @@ test("neighbourhoodMatrix equals the offline sparse matrix", async () => {
   }
 });
 
+test("a MeshSolver answers as its client does", async () => {
+  const spot = c.meshSolver("spot");
+  assert.equal(spot.mesh(), spot.mesh(), "the mesh is fetched once");
+  assert.equal((await spot.mesh()).diagnostics.vertices, SPOT_VERTICES);
+  assert.equal((await spot.graph()).epsilon, EPS);
+  assertSameBits(await spot.distances([0, 1], [100, 200]),
+    await c.distances("spot", [0, 1], [100, 200]), "solver distances");
+  assertSameBits(await spot.field([3]), await c.field("spot", [3]), "solver field");
+  assertSameBits((await spot.matrix([0], null)).data, (await c.matrix("spot", [0], null)).data,
+    "solver matrix");
+});
+
 test("uploadMesh from typed arrays and from a file registers the same mesh", async () => {
   const spot = await c.mesh("spot");
   const geometry = await c.geometry("spot");
