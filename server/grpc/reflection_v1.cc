@@ -41,6 +41,32 @@ rv1::FileDescriptorResponse FileAndImports(const google::protobuf::FileDescripto
   return out;
 }
 
+// One ServerReflectionInfo stream: read a request, write its answer, read
+// the next; one operation at a time, and no thread held between them.
+class ReflectionStream final
+    : public grpc::ServerBidiReactor<ReflectionV1Service::Request, ReflectionV1Service::Response> {
+ public:
+  explicit ReflectionStream(const ReflectionV1Service* service) : service_(service) {
+    StartRead(&request_);
+  }
+  void OnReadDone(bool ok) override {
+    // Not ok: the client closed its side (or the call ended).
+    if (!ok) return Finish(grpc::Status::OK);
+    response_ = service_->Answer(request_);
+    StartWrite(&response_);
+  }
+  void OnWriteDone(bool ok) override {
+    if (!ok) return Finish(grpc::Status(grpc::StatusCode::CANCELLED, "the client went away"));
+    StartRead(&request_);
+  }
+  void OnDone() override { delete this; }
+
+ private:
+  const ReflectionV1Service* service_;
+  ReflectionV1Service::Request request_;
+  ReflectionV1Service::Response response_;
+};
+
 // Builds the server with the service on it and, once the server has
 // registered every service, hands the service the server's list of them.
 class ReflectionV1Plugin final : public grpc::ServerBuilderPlugin {
@@ -51,7 +77,6 @@ class ReflectionV1Plugin final : public grpc::ServerBuilderPlugin {
     service_->SetServiceList(si->GetServiceList());
   }
   void ChangeArguments(const std::string&, void*) override {}
-  bool has_sync_methods() const override { return true; }
 
  private:
   std::shared_ptr<ReflectionV1Service> service_ = std::make_shared<ReflectionV1Service>();
@@ -77,13 +102,9 @@ ReflectionV1Service::ReflectionV1Service(const google::protobuf::DescriptorPool*
   grpc::health::v1::HealthCheckRequest::descriptor();
 }
 
-grpc::Status ReflectionV1Service::ServerReflectionInfo(
-    grpc::ServerContext* ctx, grpc::ServerReaderWriter<Response, Request>* stream) {
-  Request request;
-  while (stream->Read(&request)) {
-    if (!stream->Write(Answer(request))) break;  // the client went away
-  }
-  return ctx->IsCancelled() ? grpc::Status::CANCELLED : grpc::Status::OK;
+grpc::ServerBidiReactor<ReflectionV1Service::Request, ReflectionV1Service::Response>*
+ReflectionV1Service::ServerReflectionInfo(grpc::CallbackServerContext*) {
+  return new ReflectionStream(this);
 }
 
 ReflectionV1Service::Response ReflectionV1Service::Answer(const Request& request) const {

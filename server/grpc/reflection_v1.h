@@ -6,7 +6,9 @@
 //
 // Like health and v1alpha it is a service of its own, outside
 // GeodesicService's bearer-token check: a tool learns the API without a
-// secret, and every call it then makes to geodesic.v1 needs one.
+// secret, and every call it then makes to geodesic.v1 needs one. Being
+// open, its streams use gRPC's callback API: an idle one holds no thread of
+// the server's quota (v1alpha's synchronous streams each hold one).
 #ifndef GEODESIC_SERVER_REFLECTION_V1_H_
 #define GEODESIC_SERVER_REFLECTION_V1_H_
 
@@ -20,7 +22,7 @@
 
 namespace geodesic::server {
 
-class ReflectionV1Service final : public grpc::reflection::v1::ServerReflection::Service {
+class ReflectionV1Service final : public grpc::reflection::v1::ServerReflection::CallbackService {
  public:
   using Request = grpc::reflection::v1::ServerReflectionRequest;
   using Response = grpc::reflection::v1::ServerReflectionResponse;
@@ -36,9 +38,10 @@ class ReflectionV1Service final : public grpc::reflection::v1::ServerReflection:
   void SetServiceList(const std::vector<std::string>* services) { services_ = services; }
 
   // Each request on the stream answered in turn; one that cannot be answered
-  // gets an error_response and the stream goes on.
-  grpc::Status ServerReflectionInfo(grpc::ServerContext* ctx,
-                                    grpc::ServerReaderWriter<Response, Request>* stream) override;
+  // gets an error_response and the stream goes on until the client closes
+  // it.
+  grpc::ServerBidiReactor<Request, Response>* ServerReflectionInfo(
+      grpc::CallbackServerContext* ctx) override;
 
   // One request's response, echoing host and request as the protocol asks.
   Response Answer(const Request& request) const;

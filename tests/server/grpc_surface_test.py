@@ -15,6 +15,8 @@ requires a bearer token:
    is requested, SERVING once built, NOT_SERVING once its mesh is unloaded.
 3. RegisterMesh paths: ".." that stays under --mesh-root is accepted, ".."
    that leaves it is PERMISSION_DENIED.
+4. 300 reflection v1 streams left open and idle hold no server thread: a
+   query is answered beside them.
 
 Stubs: the messages of proto/grpc/reflection/v1/reflection.proto and
 proto/grpc/health/v1/health.proto are generated here with Debian's protoc
@@ -32,6 +34,8 @@ import shutil
 import subprocess
 import sys
 import tempfile
+import threading
+import time
 
 BIN, SRC = sys.argv[1], sys.argv[2]
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -152,7 +156,47 @@ def reflection_checks(channel, rpb, version):
     return files
 
 
-def generic_distance(channel, files):
+def idle_streams(address, rpb, files):
+    """300 reflection v1 streams left open without a request (no token
+    needed) hold no server thread: a query and a listing are answered
+    beside them. The daemon's thread quota on default flags is 216 (2 x
+    --max-inflight + --max-streams + 24), which v1alpha's synchronous
+    streams, one thread each, exhaust."""
+    release = threading.Event()
+
+    def nothing():
+        release.wait(60)
+        return
+        yield
+
+    channels = [grpc.insecure_channel(address, options=[("grpc.use_local_subchannel_pool", 1)])
+                for _ in range(4)]
+    streams = [channels[i % 4].stream_stream(
+        "/grpc.reflection.v1.ServerReflection/ServerReflectionInfo",
+        request_serializer=rpb.ServerReflectionRequest.SerializeToString,
+        response_deserializer=rpb.ServerReflectionResponse.FromString)(nothing(), timeout=60)
+        for i in range(300)]
+    try:
+        time.sleep(2)  # every stream reaches the server
+        channel = grpc.insecure_channel(address)
+        try:
+            call_dynamic(channel, files, "ListMeshes", TOKEN, timeout=10)
+            d = generic_distance(channel, files, quiet=True)
+            check("300 idle reflection v1 streams: a listing and a query still answered",
+                  math.isfinite(d))
+        except grpc.RpcError as e:
+            check("300 idle reflection v1 streams: a listing and a query still answered", False,
+                  (e.code(), e.details()))
+        channel.close()
+    finally:
+        release.set()
+        for stream in streams:
+            stream.cancel()
+        for c in channels:
+            c.close()
+
+
+def generic_distance(channel, files, quiet=False):
     """Distance between two vertices of spot, with messages built only from
     the files reflection sent."""
     pool = pool_of(files)
@@ -169,6 +213,8 @@ def generic_distance(channel, files):
     call = channel.unary_unary(f"/{service.full_name}/{method.name}",
                                request_serializer=Request.SerializeToString,
                                response_deserializer=Response.FromString)
+    if quiet:
+        return call(req, timeout=30, metadata=daemon_ports.bearer(TOKEN)).results[0].distance
     try:
         call(req, timeout=30)
         check("a geodesic.v1 call without the token is UNAUTHENTICATED", False, "answered")
@@ -179,7 +225,7 @@ def generic_distance(channel, files):
     d = answer.results[0].distance
     check("Distance through a generic call, messages from reflection: finite and positive",
           math.isfinite(d) and d > 0 and answer.results[0].reachable, answer)
-    return method
+    return d
 
 
 def call_dynamic(channel, files, method_name, token, timeout=60, **fields):
@@ -278,6 +324,7 @@ def main():
         generic_distance(channel, files)
         health_checks(channel, hpb, files)
         path_checks(channel, files, root)
+        idle_streams(f"127.0.0.1:{ports['grpc']}", rpb, files)
         channel.close()
         check("the daemon stops cleanly", daemon_ports.stop(daemon) == 0)
     finally:
