@@ -88,6 +88,7 @@ void Admission::GrantLocked() {
 absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& client,
                                                         absl::Time wait_until,
                                                         const std::function<bool()>& cancelled) {
+  const absl::Time arrived = absl::Now();
   std::string what;
   {
     absl::MutexLock lock(&mu_);
@@ -122,7 +123,7 @@ absl::StatusOr<Admission::Ticket> Admission::AdmitQuery(const std::string& clien
                      c.admitted);
     ForgetIfIdleLocked(client);
   }
-  return Refuse(what, RetryAfterMs());
+  return Refuse(what, RetryAfterMs(absl::Now() - arrived));
 }
 
 absl::StatusOr<Admission::Ticket> Admission::OpenStream(const std::string& client) {
@@ -222,6 +223,7 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
                                                  absl::Time deadline,
                                                  const std::function<bool()>& cancelled,
                                                  const std::string& client) {
+  const absl::Time arrived = absl::Now();
   const uint64_t want = answer_bytes + scratch_bytes;
   const uint64_t limit = options_.memory_limit;
   absl::MutexLock lock(&mu_);
@@ -280,7 +282,7 @@ absl::StatusOr<Admission::Ticket> Admission::Run(uint64_t answer_bytes, uint64_t
       return Refuse(absl::StrFormat("the call's deadline came while %d queries were running "
                                     "and %d waiting",
                                     running_, waiting_),
-                    RetryAfterMsLocked());
+                    RetryAfterMsLocked(now - arrived));
     }
     turn.WaitWithDeadline(&mu_, std::min(deadline, now + kCancelPoll));
   }
@@ -344,15 +346,18 @@ void Admission::Release(const Ticket& t) {
   }
 }
 
-int64_t Admission::RetryAfterMs() const {
+int64_t Admission::RetryAfterMs(absl::Duration waited) const {
   absl::MutexLock lock(&mu_);
-  return RetryAfterMsLocked();
+  return RetryAfterMsLocked(waited);
 }
 
-int64_t Admission::RetryAfterMsLocked() const {
-  // The admitted drain through query_threads slots, a mean run each.
+int64_t Admission::RetryAfterMsLocked(absl::Duration waited) const {
+  // The admitted drain through query_threads slots, a mean run each; but
+  // never shorter than the refused call's own wait, in which the slots
+  // stayed full (slow queries, answers not taken): a shorter hint would
+  // bring it back to the same queue at once.
   const double rounds = 1.0 + static_cast<double>(admitted_) / std::max(1, options_.query_threads);
-  const double ms = 1e3 * mean_run_seconds_ * rounds;
+  const double ms = std::max(1e3 * mean_run_seconds_ * rounds, absl::ToDoubleMilliseconds(waited));
   return std::clamp<int64_t>(static_cast<int64_t>(ms), 10, 10000);
 }
 

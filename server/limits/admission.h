@@ -151,8 +151,9 @@ class Admission {
   Ticket Adopt(Ticket run, Ticket kept);
 
   // The retry hint sent with a refusal: about how long the queries admitted
-  // take to drain through the running slots.
-  int64_t RetryAfterMs() const;
+  // take to drain through the running slots, and at least `waited`, how
+  // long the refused call waited for them.
+  int64_t RetryAfterMs(absl::Duration waited = absl::ZeroDuration()) const;
 
   int admitted() const;
   // Queries waiting for admission (AdmitQuery), not yet admitted.
@@ -173,7 +174,8 @@ class Admission {
   // The part of it no eviction frees: pinned bytes and answers kept for
   // their clients.
   uint64_t UnevictableLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
-  int64_t RetryAfterMsLocked() const ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
+  int64_t RetryAfterMsLocked(absl::Duration waited = absl::ZeroDuration()) const
+      ABSL_EXCLUSIVE_LOCKS_REQUIRED(mu_);
   absl::Status Refuse(const std::string& what, int64_t retry_after_ms);
   int InflightPerClient() const;
   struct AdmitWaiter;

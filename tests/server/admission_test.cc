@@ -9,6 +9,7 @@
 #include <thread>
 #include <vector>
 
+#include "absl/strings/numbers.h"
 #include "absl/synchronization/notification.h"
 #include "gmock/gmock.h"
 #include "gtest/gtest.h"
@@ -52,6 +53,29 @@ TEST(AdmissionTest, QueriesPastMaxInflightAreRefusedWithARetryHint) {
   EXPECT_TRUE(admission.overloaded());
   a->Release();
   EXPECT_TRUE(admission.AdmitQuery("c").ok());
+}
+
+// A query refused after waiting for a slot saw the slots stay full that
+// long: its hint is never shorter than its wait, whatever the mean run.
+TEST(AdmissionTest, ARefusalAfterAWaitHintsAtLeastTheWait) {
+  Admission admission(Limits(1, 1));
+  auto held = admission.AdmitQuery("a");
+  ASSERT_TRUE(held.ok());
+  const absl::Time asked = absl::Now();
+  auto refused = admission.AdmitQuery("b", absl::Now() + absl::Milliseconds(300));
+  const absl::Duration waited = absl::Now() - asked;
+  ASSERT_EQ(refused.status().code(), absl::StatusCode::kResourceExhausted);
+  ASSERT_GE(waited, absl::Milliseconds(300));
+  const auto hint = refused.status().GetPayload(kRetryAfterMsTrailer);
+  ASSERT_TRUE(hint.has_value());
+  int64_t ms = 0;
+  ASSERT_TRUE(absl::SimpleAtoi(std::string(*hint), &ms)) << *hint;
+  EXPECT_GE(ms, 300);
+  EXPECT_LE(ms, absl::ToInt64Milliseconds(waited) + 1);
+  // Refused at once, with nothing waited, the hint is the drain estimate.
+  auto at_once = admission.AdmitQuery("b");
+  ASSERT_EQ(at_once.status().code(), absl::StatusCode::kResourceExhausted);
+  EXPECT_LT(admission.RetryAfterMs(), 300);
 }
 
 TEST(AdmissionTest, CountersReturnToZeroWhenTicketsAreGivenBack) {
