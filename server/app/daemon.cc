@@ -13,10 +13,9 @@
 #include "core/base/atomic_file.h"
 #include "core/base/status.h"
 #include "core/base/version.h"
-#include "grpcpp/ext/proto_server_reflection_plugin.h"
 #include "nlohmann/json.hpp"
 #include "server/base/log.h"
-#include "server/grpc/reflection_v1.h"
+#include "server/grpc/reflection.h"
 #include "server/limits/answer_watch.h"
 
 namespace geodesic::server {
@@ -366,11 +365,9 @@ uint64_t Daemon::TransportBufferBytes() const {
 
 int Daemon::ListenGrpc() {
   grpc::EnableDefaultHealthCheckService(true);
-  grpc::reflection::InitProtoReflectionServerBuilderPlugin();
   grpc::ServerBuilder builder;
-  // gRPC's plugin serves reflection v1alpha only; tools on newer gRPC ask
-  // for v1 (reflection_v1.h).
-  AddReflectionV1(builder);
+  // Reflection v1 and v1alpha, ours rather than gRPC's plugin (reflection.h).
+  AddReflection(builder);
   builder.AddListeningPort(options_.listen, options_.credentials, &grpc_port_);
   // A port taken by another daemon is refused (see listen_socket.h).
   builder.AddChannelArgument(GRPC_ARG_ALLOW_REUSEPORT, 0);

@@ -1,4 +1,4 @@
-#include "server/grpc/reflection_v1.h"
+#include "server/grpc/reflection.h"
 
 #include <memory>
 #include <string>
@@ -18,13 +18,12 @@
 namespace geodesic::server {
 namespace {
 
-namespace rv1 = grpc::reflection::v1;
-
 // `file` and every file it imports, transitively, each once (`seen`), the
 // file itself first: a client reads the first as the answer and the rest as
 // what it needs to build it.
+template <typename Files>
 void AddFileAndImports(const google::protobuf::FileDescriptor* file,
-                       absl::flat_hash_set<std::string>* seen, rv1::FileDescriptorResponse* out) {
+                       absl::flat_hash_set<std::string>* seen, Files* out) {
   if (!seen->insert(file->name()).second) return;
   google::protobuf::FileDescriptorProto proto;
   file->CopyTo(&proto);
@@ -34,67 +33,77 @@ void AddFileAndImports(const google::protobuf::FileDescriptor* file,
   }
 }
 
-rv1::FileDescriptorResponse FileAndImports(const google::protobuf::FileDescriptor* file) {
+template <typename Files>
+Files FileAndImports(const google::protobuf::FileDescriptor* file) {
   absl::flat_hash_set<std::string> seen;
-  rv1::FileDescriptorResponse out;
+  Files out;
   AddFileAndImports(file, &seen, &out);
   return out;
 }
 
 // One ServerReflectionInfo stream: read a request, write its answer, read
 // the next; one operation at a time, and no thread held between them.
+template <typename Api>
 class ReflectionStream final
-    : public grpc::ServerBidiReactor<ReflectionV1Service::Request, ReflectionV1Service::Response> {
+    : public grpc::ServerBidiReactor<typename Api::Request, typename Api::Response> {
  public:
-  explicit ReflectionStream(const ReflectionV1Service* service) : service_(service) {
-    StartRead(&request_);
+  explicit ReflectionStream(const ReflectionService<Api>* service) : service_(service) {
+    this->StartRead(&request_);
   }
   void OnReadDone(bool ok) override {
     // Not ok: the client closed its side (or the call ended).
-    if (!ok) return Finish(grpc::Status::OK);
+    if (!ok) return this->Finish(grpc::Status::OK);
     response_ = service_->Answer(request_);
-    StartWrite(&response_);
+    this->StartWrite(&response_);
   }
   void OnWriteDone(bool ok) override {
-    if (!ok) return Finish(grpc::Status(grpc::StatusCode::CANCELLED, "the client went away"));
-    StartRead(&request_);
+    if (!ok) return this->Finish(grpc::Status(grpc::StatusCode::CANCELLED, "the client went away"));
+    this->StartRead(&request_);
   }
   void OnDone() override { delete this; }
 
  private:
-  const ReflectionV1Service* service_;
-  ReflectionV1Service::Request request_;
-  ReflectionV1Service::Response response_;
+  const ReflectionService<Api>* service_;
+  typename Api::Request request_;
+  typename Api::Response response_;
 };
 
-// Builds the server with the service on it and, once the server has
-// registered every service, hands the service the server's list of them.
-class ReflectionV1Plugin final : public grpc::ServerBuilderPlugin {
+// Builds the server with both versions on it and, once the server has
+// registered every service, hands them the server's list of them.
+class ReflectionPlugin final : public grpc::ServerBuilderPlugin {
  public:
-  std::string name() override { return "geodesic_reflection_v1"; }
-  void InitServer(grpc::ServerInitializer* si) override { si->RegisterService(service_); }
+  std::string name() override { return "geodesic_reflection"; }
+  void InitServer(grpc::ServerInitializer* si) override {
+    si->RegisterService(v1_);
+    si->RegisterService(v1alpha_);
+  }
   void Finish(grpc::ServerInitializer* si) override {
-    service_->SetServiceList(si->GetServiceList());
+    v1_->SetServiceList(si->GetServiceList());
+    v1alpha_->SetServiceList(si->GetServiceList());
   }
   void ChangeArguments(const std::string&, void*) override {}
 
  private:
-  std::shared_ptr<ReflectionV1Service> service_ = std::make_shared<ReflectionV1Service>();
+  std::shared_ptr<ReflectionService<ReflectionV1>> v1_ =
+      std::make_shared<ReflectionService<ReflectionV1>>();
+  std::shared_ptr<ReflectionService<ReflectionV1Alpha>> v1alpha_ =
+      std::make_shared<ReflectionService<ReflectionV1Alpha>>();
 };
 
 // Adds the plugin to one builder's plugins (gRPC's own way,
 // InternalAddPluginFactory, would add it to every server of the process).
-class ReflectionV1Option final : public grpc::ServerBuilderOption {
+class ReflectionOption final : public grpc::ServerBuilderOption {
  public:
   void UpdateArguments(grpc::ChannelArguments*) override {}
   void UpdatePlugins(std::vector<std::unique_ptr<grpc::ServerBuilderPlugin>>* plugins) override {
-    plugins->push_back(std::make_unique<ReflectionV1Plugin>());
+    plugins->push_back(std::make_unique<ReflectionPlugin>());
   }
 };
 
 }  // namespace
 
-ReflectionV1Service::ReflectionV1Service(const google::protobuf::DescriptorPool* pool)
+template <typename Api>
+ReflectionService<Api>::ReflectionService(const google::protobuf::DescriptorPool* pool)
     : pool_(pool) {
   // The daemon calls nothing of the health messages (gRPC serves health with
   // its own): naming one here links their descriptors in, so that a tool can
@@ -102,12 +111,14 @@ ReflectionV1Service::ReflectionV1Service(const google::protobuf::DescriptorPool*
   grpc::health::v1::HealthCheckRequest::descriptor();
 }
 
-grpc::ServerBidiReactor<ReflectionV1Service::Request, ReflectionV1Service::Response>*
-ReflectionV1Service::ServerReflectionInfo(grpc::CallbackServerContext*) {
-  return new ReflectionStream(this);
+template <typename Api>
+grpc::ServerBidiReactor<typename Api::Request, typename Api::Response>*
+ReflectionService<Api>::ServerReflectionInfo(grpc::CallbackServerContext*) {
+  return new ReflectionStream<Api>(this);
 }
 
-ReflectionV1Service::Response ReflectionV1Service::Answer(const Request& request) const {
+template <typename Api>
+typename Api::Response ReflectionService<Api>::Answer(const Request& request) const {
   Response response;
   response.set_valid_host(request.host());
   *response.mutable_original_request() = request;
@@ -152,22 +163,25 @@ ReflectionV1Service::Response ReflectionV1Service::Answer(const Request& request
   return response;
 }
 
-absl::StatusOr<rv1::FileDescriptorResponse> ReflectionV1Service::FileByName(
+template <typename Api>
+absl::StatusOr<typename Api::Files> ReflectionService<Api>::FileByName(
     const std::string& name) const {
   const google::protobuf::FileDescriptor* file = pool_->FindFileByName(name);
   if (!file) return absl::NotFoundError(absl::StrFormat("file '%s' not found", Echo(name)));
-  return FileAndImports(file);
+  return FileAndImports<typename Api::Files>(file);
 }
 
-absl::StatusOr<rv1::FileDescriptorResponse> ReflectionV1Service::FileContainingSymbol(
+template <typename Api>
+absl::StatusOr<typename Api::Files> ReflectionService<Api>::FileContainingSymbol(
     const std::string& symbol) const {
   const google::protobuf::FileDescriptor* file = pool_->FindFileContainingSymbol(symbol);
   if (!file) return absl::NotFoundError(absl::StrFormat("symbol '%s' not found", Echo(symbol)));
-  return FileAndImports(file);
+  return FileAndImports<typename Api::Files>(file);
 }
 
-absl::StatusOr<rv1::FileDescriptorResponse> ReflectionV1Service::FileContainingExtension(
-    const rv1::ExtensionRequest& request) const {
+template <typename Api>
+absl::StatusOr<typename Api::Files> ReflectionService<Api>::FileContainingExtension(
+    const typename Api::ExtensionRequest& request) const {
   const auto* type = pool_->FindMessageTypeByName(request.containing_type());
   if (!type) {
     return absl::NotFoundError(
@@ -178,31 +192,36 @@ absl::StatusOr<rv1::FileDescriptorResponse> ReflectionV1Service::FileContainingE
     return absl::NotFoundError(absl::StrFormat("extension %d of '%s' not found",
                                                request.extension_number(), type->full_name()));
   }
-  return FileAndImports(extension->file());
+  return FileAndImports<typename Api::Files>(extension->file());
 }
 
-absl::StatusOr<rv1::ExtensionNumberResponse> ReflectionV1Service::ExtensionNumbers(
+template <typename Api>
+absl::StatusOr<typename Api::ExtensionNumbers> ReflectionService<Api>::ExtensionNumbers(
     const std::string& type_name) const {
   const auto* type = pool_->FindMessageTypeByName(type_name);
   if (!type) return absl::NotFoundError(absl::StrFormat("type '%s' not found", Echo(type_name)));
   std::vector<const google::protobuf::FieldDescriptor*> extensions;
   pool_->FindAllExtensions(type, &extensions);
-  rv1::ExtensionNumberResponse out;
+  typename Api::ExtensionNumbers out;
   out.set_base_type_name(type->full_name());
   for (const auto* extension : extensions) out.add_extension_number(extension->number());
   return out;
 }
 
-rv1::ListServiceResponse ReflectionV1Service::ListServices() const {
-  rv1::ListServiceResponse out;
+template <typename Api>
+typename Api::Services ReflectionService<Api>::ListServices() const {
+  typename Api::Services out;
   if (services_) {
     for (const std::string& name : *services_) out.add_service()->set_name(name);
   }
   return out;
 }
 
-void AddReflectionV1(grpc::ServerBuilder& builder) {
-  builder.SetOption(std::make_unique<ReflectionV1Option>());
+template class ReflectionService<ReflectionV1>;
+template class ReflectionService<ReflectionV1Alpha>;
+
+void AddReflection(grpc::ServerBuilder& builder) {
+  builder.SetOption(std::make_unique<ReflectionOption>());
 }
 
 }  // namespace geodesic::server
