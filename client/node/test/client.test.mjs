@@ -120,6 +120,20 @@ test("distances equal the offline pairs, a zero distance included", async () => 
   assert.equal(await c.distance("spot", "v:0", 100), want[0]);
 });
 
+test("exact pairs equal the offline exact pairs", async () => {
+  const pairs = [["v:0", "v:1500"], ["f:12:0.2,0.3,0.5", "e:5:0.25"]];
+  writeFileSync(join(work, "exact.txt"), pairs.map((p) => p.join(" ")).join("\n") + "\n");
+  const want = JSON.parse(offline(["distance", "--exact", "--pairs", join(work, "exact.txt"),
+    "--json"])).map((r) => r.distance);
+  assert.ok(want.length === 2 && want.every((d) => Number.isFinite(d) && d > 0), String(want));
+  const got = await c.distances("spot", pairs.map((p) => p[0]), pairs.map((p) => p[1]),
+    { exact: true });
+  assertSameBits(got, Float64Array.from(want), "exact distances");
+  // Not the graph's: an exact distance is at most the graph's.
+  const graph = await c.distances("spot", pairs.map((p) => p[0]), pairs.map((p) => p[1]));
+  got.forEach((d, i) => assert.ok(d <= graph[i], `pair ${i}: exact ${d} > graph ${graph[i]}`));
+});
+
 test("path equals the offline path", async () => {
   const want = JSON.parse(offline(["distance", "--from", "f:0:0.2,0.3,0.5", "--to", "v:1500",
     "--path", "--json"]));
