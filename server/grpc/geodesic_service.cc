@@ -371,9 +371,7 @@ absl::StatusOr<std::shared_ptr<const GeodesicEngine>> GeodesicService::AcquireEn
   // restored, before the graph is looked for.
   RETURN_IF_ERROR(FindMesh(key.mesh).status());
   auto engine = graphs_->Acquire(key);
-  // Ready, or never to be without a new request (failed, cancelled, being
-  // cancelled): nothing to wait for.
-  if (engine.ok() || absl::IsFailedPrecondition(engine.status())) return engine;
+  if (engine.ok()) return engine;
   const absl::Time started = absl::Now();
   const absl::Time deadline =
       std::min(ReplyBy(ctx), absl::Now() + absl::Seconds(limits_.build_wait_seconds));
