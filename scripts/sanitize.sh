@@ -9,8 +9,10 @@
 #     accuracy suites (*SharedMeshes*, CgalTruth) are left out:
 #     single-threaded numerics under TSan's slowdown, already run plain
 #     and under ASan; so are the scale tests (MeshScaleTest) and the
-#     matrix tests (QueriesTest.*Matrix*), whose rows run on TBB, which
-#     TSan builds keep to one thread (see below), and three checks of
+#     matrix tests (QueriesTest.*Matrix*, and the lane sweeps' and matrix
+#     rows' tests: float32 rows, sparse rows, fans narrowed, bounded sweeps,
+#     the matrix sweep's work), whose rows run on TBB, which TSan builds
+#     keep to one thread (see below), and three checks of
 #     single-threaded numerics (pairs against a Dijkstra, exact distances
 #     on noisy tori, geodesic shooting), the slowest of their kind.
 #     So is the 1-against-4-threads build
@@ -46,6 +48,6 @@ for kind in $kinds; do
     cmake --build "$dir" -j"$(nproc)" --target core_tests
     export TSAN_OPTIONS="halt_on_error=1 second_deadlock_stack=1"
     ctest --test-dir "$dir" --output-on-failure -j2 --timeout 1800 -L core \
-      -E "SharedMeshes|CgalTruth|MeshScaleTest|BuildIsIdenticalWhateverTheThreadCount|QueriesTest\.(Exact)?Matrix|PairsEqualADijkstraRelaxingEveryEdge|OnNoisyTori|ShotStripTest"
+      -E "SharedMeshes|CgalTruth|MeshScaleTest|BuildIsIdenticalWhateverTheThreadCount|QueriesTest\.(Exact)?Matrix|QueriesTest\.(Float32Rows|SparseRows|LaneSweeps|NarrowedFans|FansNarrowedNearby|BoundedSweeps)|AMatrixSweepDoesThePinnedWork|PairsEqualADijkstraRelaxingEveryEdge|OnNoisyTori|ShotStripTest"
   fi
 done
