@@ -123,31 +123,27 @@ typename Api::Response ReflectionService<Api>::Answer(const Request& request) co
   response.set_valid_host(request.host());
   *response.mutable_original_request() = request;
   absl::Status status;
+  // Puts an answer in its place in the response, or keeps its error.
+  auto put = [&status](auto answer, auto* place) {
+    if (answer.ok()) *place = *std::move(answer);
+    status = answer.status();
+  };
   switch (request.message_request_case()) {
-    case Request::kFileByFilename: {
-      auto files = FileByName(request.file_by_filename());
-      if (files.ok()) *response.mutable_file_descriptor_response() = *std::move(files);
-      status = files.status();
+    case Request::kFileByFilename:
+      put(FileByName(request.file_by_filename()), response.mutable_file_descriptor_response());
       break;
-    }
-    case Request::kFileContainingSymbol: {
-      auto files = FileContainingSymbol(request.file_containing_symbol());
-      if (files.ok()) *response.mutable_file_descriptor_response() = *std::move(files);
-      status = files.status();
+    case Request::kFileContainingSymbol:
+      put(FileContainingSymbol(request.file_containing_symbol()),
+          response.mutable_file_descriptor_response());
       break;
-    }
-    case Request::kFileContainingExtension: {
-      auto files = FileContainingExtension(request.file_containing_extension());
-      if (files.ok()) *response.mutable_file_descriptor_response() = *std::move(files);
-      status = files.status();
+    case Request::kFileContainingExtension:
+      put(FileContainingExtension(request.file_containing_extension()),
+          response.mutable_file_descriptor_response());
       break;
-    }
-    case Request::kAllExtensionNumbersOfType: {
-      auto numbers = ExtensionNumbers(request.all_extension_numbers_of_type());
-      if (numbers.ok()) *response.mutable_all_extension_numbers_response() = *std::move(numbers);
-      status = numbers.status();
+    case Request::kAllExtensionNumbersOfType:
+      put(ExtensionNumbers(request.all_extension_numbers_of_type()),
+          response.mutable_all_extension_numbers_response());
       break;
-    }
     case Request::kListServices:
       *response.mutable_list_services_response() = ListServices();
       break;
