@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "core/dgg/dgg_build.h"
+#include "core/dgg/graph_file.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/geodesic_engine.h"
 #include "core/query/search_work.h"
@@ -193,9 +194,14 @@ int RunLocalBench(const Common& c, const BenchOptions& options) {
   if (options.face_points && mesh->num_faces() == 0) {
     return FailLocal(absl::FailedPreconditionError("the mesh has no faces"));
   }
-  DggBuildOptions build;
-  build.params.epsilon = c.epsilon > 0 ? c.epsilon : kLocalEpsilon;
-  absl::StatusOr<std::shared_ptr<const DggGraph>> graph = BuildDgg(*mesh, build);
+  absl::StatusOr<std::shared_ptr<const DggGraph>> graph;
+  if (!options.local_graph.empty()) {
+    graph = GraphFile::Open(options.local_graph, *mesh, GraphFile::Check::kFull);
+  } else {
+    DggBuildOptions build;
+    build.params.epsilon = c.epsilon > 0 ? c.epsilon : kLocalEpsilon;
+    graph = BuildDgg(*mesh, build);
+  }
   if (!graph.ok()) return FailLocal(graph.status());
   const GeodesicEngine engine(mesh, *graph);
   if (absl::Status s = engine.PrepareLandmarks(engine.DefaultLandmarkCount()); !s.ok()) {
@@ -232,6 +238,10 @@ void AddBenchFlags(CLI::App& app, BenchOptions& o) {
                  "query this mesh file's DGG (built at --eps, else 1e-3) in this process instead "
                  "of a daemon, and report each query's search work too (edges relaxed, labels "
                  "improved, queue pushes and pops, bytes of graph read)");
+  app.add_option("--local-graph", o.local_graph,
+                 "with --local: query this graph file of the mesh (geodesicd build) instead "
+                 "of building one, to compare graphs of two builds")
+      ->needs("--local");
 }
 
 int RunBench(const Common& c, const BenchOptions& options) {

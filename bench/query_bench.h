@@ -22,6 +22,7 @@ struct BenchOptions {
   // also reports the searches' work (core/query/search_work.h), which a
   // daemon's answers do not carry.
   std::string local_mesh;
+  std::string local_graph;  // with local_mesh: its graph file, instead of a build
 };
 // --local's epsilon when --eps is not given.
 inline constexpr double kLocalEpsilon = 1e-3;

@@ -34,7 +34,10 @@ class BucketQueue {
     const uint64_t size = std::bit_ceil(needed);
     if (buckets_.size() != size) buckets_.assign(size, {});
     for (auto& b : buckets_) b.clear();
-    bucket_of_.assign(nodes, kOut);
+    // Every node out of the queue is kOut, so a queue run dry is clear
+    // already: a sweep near its sources then costs what it reaches, not a
+    // pass over every node.
+    if (live_ != 0 || bucket_of_.size() != nodes) bucket_of_.assign(nodes, kOut);
     head_ = 0;
     mask_ = size - 1;
     current_ = 0;

@@ -59,13 +59,16 @@ struct DggHalfEdge {
   float angle_there;  // polar angle at the other end, normalised
 };
 
-// The version of the rule that decides which candidate edges a build keeps
-// (core/dgg/build_phases.h, CornerBudgetFactor). Bump it whenever a change to the
-// rule changes the graphs built for the same parameters, so that files made
-// under the old rule are told apart and rebuilt rather than served as if
-// they were today's. 2: a lit vertex needs an edge unless a corner route is
-// within 1 + 1.1 eps, the extra tenth fading out between 1e-3 and 1e-4.
-inline constexpr uint32_t kCandidateRuleVersion = 2;
+// The version of the rules that decide which candidate edges a build keeps
+// (core/dgg/build_phases.h, CornerBudgetFactor) and which fans it gives
+// them. Bump it whenever a change to the rules changes the graphs built for
+// the same parameters, so that files made under the old rules are told
+// apart and rebuilt rather than served as if they were today's. 2: a lit
+// vertex needs an edge unless a corner route is within 1 + 1.1 eps, the
+// extra tenth fading out between 1e-3 and 1e-4. 3: fans narrowed further
+// by a short sweep around each node (core/dgg/dgg_build.cc), the same
+// distances from far fewer relaxations.
+inline constexpr uint32_t kCandidateRuleVersion = 3;
 
 // Everything a graph was built with that changes the graph: its identity.
 // Graph and part files record all of it, the daemon keys its graphs by it,
@@ -83,10 +86,10 @@ struct DggParams {
   // takes a large share of the build (BENCHMARKS.md, "Build variants:
   // pruning and pseudo vertices").
   bool prune_redundant = false;
-  // Fans from each node's exact local distances, not only its paths of at
-  // most two edges (core/dgg/fans.cc): much smaller fans and faster fields,
-  // for a build that takes much longer, so it is for graphs that serve many
-  // fields (bench/notes.md, "Exact fans"). Distances are the same either way.
+  // Fans from each node's exact local distances (core/dgg/fans.cc) instead
+  // of the default's short sweeps: about as narrow since the default narrows
+  // too, for a longer build (bench/notes.md, "Exact fans", "Fans narrowed in
+  // the build"). Distances are the same either way.
   bool exact_fans = false;
   uint32_t candidate_rule = kCandidateRuleVersion;
   friend auto operator<=>(const DggParams&, const DggParams&) = default;

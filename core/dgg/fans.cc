@@ -236,7 +236,7 @@ class FanBuilder {
 
 void ShortcutFreeFans(DggGraphArrays& a, bool exact, Progress& progress) {
   FanBuilder builder(a);
-  builder.TwoEdgePass(progress, exact ? 0.97 : 1.0);
+  builder.TwoEdgePass(progress, 0.97);
   if (exact) builder.ExactPass(progress);
 }
 
@@ -263,7 +263,6 @@ DggGraphArrays Finalize(Adjacency kept, NodeOrder order, const std::vector<Pseud
   ShortcutFreeFans(a, exact_fans, progress);
   a.pseudo_points.reserve(pseudo.size());
   for (const auto& p : pseudo) a.pseudo_points.push_back(p.point);
-  if (!progress.cancelled()) progress.Report("fans", 0.95, 1.0, 1, 1);
   return a;
 }
 

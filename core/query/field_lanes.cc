@@ -1,10 +1,16 @@
 #include "core/query/field_lanes.h"
 
+#include <tbb/enumerable_thread_specific.h>
+
 #include <algorithm>
+#include <array>
+#include <atomic>
 #include <bit>
 #include <cstring>
+#include <numeric>
 
 #include "absl/status/statusor.h"
+#include "core/base/for_each_in_parallel.h"
 #include "core/base/status.h"
 #include "core/dgg/fan.h"
 #include "core/query/geodesic_engine.h"
@@ -555,6 +561,81 @@ std::optional<CompactLaneEdges> CompactLaneEdges::Of(const DggGraph& g) {
   return compact;
 }
 
+namespace {
+
+// Turn k of `fan`, a run (that may wrap) of the `degree` edges from `list`
+// on.
+template <typename Edge>
+const Edge& TurnOf(const Edge* edges, uint64_t list, uint64_t degree, FanRange fan, uint32_t k) {
+  const uint64_t turn = uint64_t{fan.begin} + k;
+  return edges[list + (turn < degree ? turn : turn - degree)];
+}
+
+// The longest turn p -> u -> w the fans of p's edges hold: |pu| + |uw|.
+template <typename Edge>
+double LongestTurnOf(const DggGraph& g, const Edge* edges, uint32_t p) {
+  const auto offsets = g.offsets();
+  double longest = 0;
+  for (uint64_t i = offsets[p]; i < offsets[p + 1]; ++i) {
+    const Edge& e = edges[i];
+    const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
+    const FanRange fan = FanOf(e);
+    float next = 0;
+    for (uint32_t k = 0; k < fan.count; ++k)
+      next = std::max(next, TurnOf(edges, list, degree, fan, k).weight);
+    longest = std::max(longest, double{e.weight} + next);
+  }
+  return longest;
+}
+
+// The fan of edge e = p -> u narrowed to the turns u -> w that the path to
+// w of length `to[w]` (lane `lane` of a sweep from p) does not beat by the
+// build's rule (kStrictlyShorter). `kept` is scratch.
+template <typename Edge>
+FanRange NarrowedFan(const DggGraph& g, const Edge* edges, const Edge& e,
+                     absl::Span<const LaneLabels> to, int lane, std::vector<uint32_t>& kept) {
+  const auto offsets = g.offsets();
+  const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
+  // Only the fan's own turns are tried: it already holds every turn a
+  // shortest path takes, in a small part of the node's edges.
+  const FanRange before = FanOf(e);
+  kept.resize(before.count);
+  // Kept turns, counted from the fan's start so that they stay sorted when
+  // it wraps, move to the front without a branch (whether one is kept is
+  // close to random).
+  uint32_t count = 0;
+  for (uint32_t k = 0; k < before.count; ++k) {
+    const Edge& next = TurnOf(edges, list, degree, before, k);
+    const double length = double{e.weight} + next.weight;
+    kept[count] = k;
+    count += to[next.target].dist[lane] >= length * kStrictlyShorter;
+  }
+  FanRange narrowed = CircularHull({kept.data(), count}, static_cast<uint32_t>(degree));
+  if (narrowed.count >= before.count) return before;
+  narrowed.begin = (narrowed.begin + before.begin) % degree;
+  return narrowed;
+}
+
+// The sweep around `nodes` (at most kFieldLanes) that NarrowAllFans
+// narrows their fans from: out to `reach` of the longest of their turns, in
+// `sc`.
+absl::Status SweepAround(const DggGraph& g, const BucketShape& bucket_shape, QueryScratch& sc,
+                         absl::Span<const uint32_t> nodes, double reach,
+                         const std::function<bool()>& cancelled) {
+  std::vector<Endpoint> ends(std::min<size_t>(nodes.size(), kFieldLanes));
+  double longest = 0;
+  for (size_t k = 0; k < ends.size(); ++k) {
+    ends[k].is_node = true;
+    ends[k].node = nodes[k];
+    longest = std::max(longest, LongestTurnOf(g, g.edges().data(), nodes[k]));
+  }
+  return SolveFieldLanes(g, bucket_shape, LaneFanLayout::kPacked, nullptr, sc, ends,
+                         reach * longest, cancelled)
+      .status();
+}
+
+}  // namespace
+
 uint64_t CompactLaneEdges::NarrowFans(const DggGraph& g, uint32_t p,
                                       absl::Span<const LaneLabels> labels, int lane) {
   const auto offsets = g.offsets();
@@ -562,67 +643,53 @@ uint64_t CompactLaneEdges::NarrowFans(const DggGraph& g, uint32_t p,
   uint64_t dropped = 0;
   for (uint64_t i = offsets[p]; i < offsets[p + 1]; ++i) {
     Edge& e = edges_[i];
-    const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
-    // Only the fan's own turns are tried: it already holds every turn a
-    // shortest path takes, in a small part of the node's edges.
     const FanRange before = e.Fan();
-    kept.resize(before.count);
-    // Kept turns, counted from the fan's start so that they stay sorted when
-    // it wraps, move to the front without a branch (whether one is kept is
-    // close to random).
-    uint32_t count = 0;
-    for (uint32_t k = 0; k < before.count; ++k) {
-      const Edge& next = TurnOf(list, degree, before, k);
-      const double length = double{e.weight} + next.weight;
-      kept[count] = k;
-      count += labels[next.target].dist[lane] >= length * kStrictlyShorter;
-    }
-    FanRange narrowed = CircularHull({kept.data(), count}, static_cast<uint32_t>(degree));
+    const FanRange narrowed = NarrowedFan(g, edges_.get(), e, labels, lane, kept);
     if (narrowed.count >= before.count) continue;
-    narrowed.begin = (narrowed.begin + before.begin) % degree;
     dropped += before.count - narrowed.count;
     e.fan.store(PackFan(narrowed), std::memory_order_relaxed);
   }
   return dropped;
 }
 
-double CompactLaneEdges::LongestTurn(const DggGraph& g, uint32_t p) const {
+absl::Status NarrowAllFans(const DggGraph& g, std::span<DggEdge> edges, double reach,
+                           const std::function<bool(uint64_t, uint64_t)>& progress) {
+  if (LaneFanLayoutFor(g) != LaneFanLayout::kPacked || edges.data() != g.edges().data() ||
+      edges.size() != g.num_directed_edges()) {
+    return absl::InvalidArgumentError(
+        "fans narrow in place, on the graph's own edges, where they pack");
+  }
+  const BucketShape shape = BucketShapeOf(g);
+  const uint32_t nodes = g.num_nodes();
+  const uint64_t runs = (uint64_t{nodes} + kFieldLanes - 1) / kFieldLanes;
   const auto offsets = g.offsets();
-  double longest = 0;
-  for (uint64_t i = offsets[p]; i < offsets[p + 1]; ++i) {
-    const Edge& e = edges_[i];
-    const uint64_t list = offsets[e.target], degree = offsets[e.target + 1] - list;
-    const FanRange fan = e.Fan();
-    float next = 0;
-    for (uint32_t k = 0; k < fan.count; ++k)
-      next = std::max(next, TurnOf(list, degree, fan, k).weight);
-    longest = std::max(longest, double{e.weight} + next);
-  }
-  return longest;
-}
-
-absl::StatusOr<uint64_t> CompactLaneEdges::NarrowFansNear(const DggGraph& g,
-                                                          const BucketShape& bucket_shape,
-                                                          QueryScratch& sc,
-                                                          absl::Span<const uint32_t> nodes,
-                                                          const std::function<bool()>& cancelled) {
-  // How far the sweep goes, as a share of the longest turn: most turns a
-  // row drops are beaten by a path well inside it, and the sweep's cost
-  // grows as the square of its reach (bench/notes.md, "Matrix lanes").
-  constexpr double kReach = 0.3;
-  std::vector<Endpoint> ends(std::min<size_t>(nodes.size(), kFieldLanes));
-  double longest = 0;
-  for (size_t k = 0; k < ends.size(); ++k) {
-    ends[k].is_node = true;
-    ends[k].node = nodes[k];
-    longest = std::max(longest, LongestTurn(g, nodes[k]));
-  }
-  RETURN_IF_ERROR(SolveFieldLanes(g, bucket_shape, LaneFanLayout::kPacked, this, sc, ends,
-                                  kReach * longest, cancelled)
-                      .status());
-  uint64_t dropped = 0;
-  for (size_t k = 0; k < ends.size(); ++k) dropped += NarrowFans(g, nodes[k], sc.lane_dist, k);
-  return dropped;
+  // The new fans wait here until every sweep is done (4 bytes an edge).
+  std::vector<uint32_t> narrowed(edges.size());
+  tbb::enumerable_thread_specific<QueryScratch> scratch;
+  std::atomic<uint64_t> done{0};
+  std::atomic<bool> stop{false};
+  auto cancelled = [&] { return stop.load(std::memory_order_relaxed); };
+  RETURN_IF_ERROR(ForEachInParallel(runs, [&](size_t r) -> absl::Status {
+    if (cancelled()) return absl::CancelledError("fan narrowing cancelled");
+    std::array<uint32_t, kFieldLanes> run;
+    const uint32_t first = static_cast<uint32_t>(r * kFieldLanes);
+    const uint32_t count = std::min<uint32_t>(kFieldLanes, nodes - first);
+    std::iota(run.begin(), run.begin() + count, first);
+    QueryScratch& sc = scratch.local();
+    RETURN_IF_ERROR(SweepAround(g, shape, sc, {run.data(), count}, reach, cancelled));
+    std::vector<uint32_t> kept;
+    for (uint32_t k = 0; k < count; ++k) {
+      for (uint64_t i = offsets[run[k]]; i < offsets[run[k] + 1]; ++i) {
+        narrowed[i] = PackFan(NarrowedFan(g, edges.data(), edges[i], sc.lane_dist, k, kept));
+      }
+    }
+    const uint64_t now = done.fetch_add(1, std::memory_order_relaxed) + 1;
+    if ((now % 256 == 0 || now == runs) && !progress(now, runs)) stop = true;
+    return absl::OkStatus();
+  }));
+  if (cancelled()) return absl::CancelledError("fan narrowing cancelled");
+  for (uint64_t i = 0; i < edges.size(); ++i) edges[i].fan = UnpackFan(narrowed[i]);
+  return absl::OkStatus();
 }
 
 absl::StatusOr<LaneStats> SolveFieldLanes(const DggGraph& g, const BucketShape& bucket_shape,

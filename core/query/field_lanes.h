@@ -22,6 +22,7 @@
 #include <functional>
 #include <memory>
 #include <optional>
+#include <span>
 
 #include "absl/status/status.h"
 #include "absl/status/statusor.h"
@@ -43,8 +44,7 @@ struct LaneStats {
 // A graph's edges as a sweep can read them instead of the graph's own
 // records: 12 bytes each, the fan packed as in PackedLaneFans, where a
 // DggEdge takes 16. A copy, made for a matrix of many rows and freed after
-// it, so its fans can be narrowed, before the rows and as they come in
-// (NarrowFansNear, NarrowFans).
+// it, so its fans can be narrowed as the rows come in (NarrowFans).
 class CompactLaneEdges {
  public:
   struct Edge {
@@ -71,36 +71,33 @@ class CompactLaneEdges {
   // w stays unless that path to w is shorter than |pu| + |uw| (by
   // kStrictlyShorter, as the build's fans). A complete row (no distance
   // limit) drops every turn no shortest path takes, which the build cannot
-  // know: its exact pass searches only near p, and its default pass tries
-  // only paths of two edges. Every sweep after it, from any source, that
+  // know: its passes search only near p (NarrowAllFans, and the exact
+  // fans'). Every sweep after it, from any source, that
   // arrives at u along p -> u relaxes the turns left alone.
   // Returns how many fewer edges the fans now hold.
   uint64_t NarrowFans(const DggGraph& g, uint32_t p, absl::Span<const LaneLabels> labels, int lane);
 
-  // Narrows the fans of the edges of `nodes` (at most kFieldLanes) as
-  // NarrowFans does, from one sweep around them that stops short of their
-  // longest turns, in `sc`. Any label it leaves is the length of a real
-  // path, so a turn longer than one to its end goes as soundly as with a
-  // complete row, and most that a row would drop do. Before a matrix's first
-  // row, so that every sweep gains, not only those after a source's row.
-  // Returns how many fewer edges the fans hold.
-  absl::StatusOr<uint64_t> NarrowFansNear(const DggGraph& g, const BucketShape& bucket_shape,
-                                          QueryScratch& sc, absl::Span<const uint32_t> nodes,
-                                          const std::function<bool()>& cancelled);
-
  private:
-  // The longest turn p -> u -> w the fans of p's edges hold: |pu| + |uw|.
-  double LongestTurn(const DggGraph& g, uint32_t p) const;
-  // Turn k of `fan`, a run (that may wrap) of the `degree` edges from
-  // `list` on.
-  const Edge& TurnOf(uint64_t list, uint64_t degree, FanRange fan, uint32_t k) const {
-    const uint64_t turn = uint64_t{fan.begin} + k;
-    return edges_[list + (turn < degree ? turn : turn - degree)];
-  }
-
   std::unique_ptr<Edge[]> edges_;
   uint64_t count_ = 0;
 };
+
+// Every fan of `g` narrowed as CompactLaneEdges::NarrowFans narrows a
+// node's, each from a sweep around its run of kFieldLanes nodes in node
+// order (close together) out to `reach` of their longest turn: any label
+// such a sweep leaves is the length of a real path, so a turn longer than
+// it goes as soundly as with a complete row, and most that a row would
+// drop do. Written into `edges`, which must be g's
+// own edge array (a graph being built, that no one else reads yet): the
+// graph build's last pass (core/dgg/dgg_build.cc). The sweeps read only the
+// fans as they were, never ones already narrowed, so which thread ran which
+// run, and when, changes nothing: a build gives the same bytes whatever its
+// threads. Runs on the calling arena's threads. `progress(done, total)`
+// hears of the runs done now and then and returns false to stop
+// (CANCELLED). INVALID_ARGUMENT for other edges or a graph whose fans do
+// not pack (LaneFanLayoutFor).
+absl::Status NarrowAllFans(const DggGraph& g, std::span<DggEdge> edges, double reach,
+                           const std::function<bool(uint64_t, uint64_t)>& progress);
 
 // The code that runs a sweep: the best this machine has, or a named one
 // (tests compare them): AVX-512, AVX2 (for x86 machines without AVX-512),

@@ -432,11 +432,11 @@ uint32_t NodeNear(const Mesh& mesh, const DggGraph& g, const SurfacePoint& p) {
   return g.node_of_vertex(mesh.face_vertex(p.id, 0));
 }
 
-// The copy of the edges whose fans a matrix of `rows` narrows, if it
-// narrows them. The copy (about a sweep's time, 12 bytes an edge) and the
-// pass ahead of the rows (NarrowFansAhead, sweeps around every node) pay
-// for many rows from a good share of the graph's nodes, such as all pairs,
-// not for a few rows of a large mesh; and only complete rows narrow further.
+// The copy of the edges whose fans a matrix of `rows` narrows from its
+// complete rows, if it narrows them: the copy (about a sweep's time, 12
+// bytes an edge) pays for many rows from a good share of the graph's
+// nodes, such as all pairs, not for a few rows of a large mesh; and only
+// complete rows narrow (the build's fans hold what short sweeps drop).
 std::optional<query_internal::CompactLaneEdges> EdgesToNarrow(const DggGraph& g, size_t rows,
                                                               const MatrixOptions& options) {
   constexpr size_t kNarrowingRows = 16 * kFieldLanes;
@@ -445,40 +445,6 @@ std::optional<query_internal::CompactLaneEdges> EdgesToNarrow(const DggGraph& g,
     return std::nullopt;
   }
   return query_internal::CompactLaneEdges::Of(g);
-}
-
-// Narrows the fans of every node's edges before a matrix's first row
-// (CompactLaneEdges::NarrowFansNear), a short sweep from each run of nodes
-// in node order, which lie close together. Only while a sweep reaches a
-// small share of the graph: on a mesh of few vertices a turn spans much of
-// it, and the sweeps would cost about what the rows gain. A sample of runs
-// spread over the graph decides.
-absl::Status NarrowFansAhead(const DggGraph& g, const BucketShape& bucket_shape,
-                             query_internal::CompactLaneEdges& compact,
-                             const std::function<ScratchPool::Lease()>& lease,
-                             const std::function<bool()>& cancelled) {
-  constexpr size_t kSampleRuns = 16;
-  constexpr double kMostReached = 0.25;
-  const uint32_t nodes = g.num_nodes();
-  const size_t runs = (nodes + kFieldLanes - 1) / kFieldLanes;
-  std::atomic<uint64_t> reached{0};
-  auto narrow = [&](size_t i) {
-    std::array<uint32_t, kFieldLanes> run;
-    const uint32_t first = static_cast<uint32_t>(i * kFieldLanes);
-    const uint32_t count = std::min<uint32_t>(kFieldLanes, nodes - first);
-    std::iota(run.begin(), run.begin() + count, first);
-    ScratchPool::Lease sc = lease();
-    RETURN_IF_ERROR(
-        compact
-            .NarrowFansNear(g, bucket_shape, *sc, absl::MakeConstSpan(run.data(), count), cancelled)
-            .status());
-    reached += sc->lane_reached.size();
-    return absl::OkStatus();
-  };
-  const size_t sample = std::min(runs, kSampleRuns);
-  RETURN_IF_ERROR(ForEachInParallel(sample, [&](size_t j) { return narrow(j * runs / sample); }));
-  if (double(reached) > kMostReached * double(sample) * nodes) return absl::OkStatus();
-  return ForEachInParallel(runs, narrow);
 }
 
 }  // namespace
@@ -547,11 +513,6 @@ absl::Status GeodesicEngine::StreamMatrix(absl::Span<const SurfacePoint> sources
                                         : TargetsAtNodes();
   std::optional<query_internal::CompactLaneEdges> compact =
       EdgesToNarrow(*graph_, sources.size(), matrix_options);
-  if (compact) {
-    RETURN_IF_ERROR(NarrowFansAhead(
-        *graph_, buckets_, *compact, [this] { return AcquireScratch(); },
-        matrix_options.cancelled));
-  }
   // Sources go in lanes of one sweep (core/query/field_lanes.h), grouped
   // by graph node: node order follows the surface, so a group's wavefronts
   // move together.

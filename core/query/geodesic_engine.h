@@ -142,10 +142,10 @@ struct MatrixOptions {
   // neighbourhood matrix costs what its neighbourhoods hold.
   double max_distance = kInfinity;
   // A matrix of many rows, from at least half the graph's nodes and
-  // without a distance limit, narrows its edges' fans before its first row
-  // and as its rows come in, so that its sweeps relax fewer edges
-  // (CompactLaneEdges::NarrowFansNear, NarrowFans): the same numbers, for a
-  // copy of the edges (12 bytes each) held while the matrix is made.
+  // without a distance limit, narrows its edges' fans as its rows come in,
+  // so that its sweeps relax fewer edges (CompactLaneEdges::NarrowFans):
+  // the same numbers, for a copy of the edges (12 bytes each) held while
+  // the matrix is made.
   bool narrow_fans = false;
 };
 

@@ -11,7 +11,7 @@ namespace geodesic::server {
 
 // The graph's file name in --graph-dir: GraphFileName for a plain graph;
 // for a certified one the bound takes the epsilon's place
-// ("<fingerprint>-cert0.01-r2.dgg"), since the epsilon is chosen by the
+// ("<fingerprint>-cert0.01-r3.dgg"), since the epsilon is chosen by the
 // build. Its certificate is the sidecar beside it
 // (server/offline/certificate_file.h).
 std::string CachedGraphFileName(uint64_t mesh_fingerprint, const DggParams& params,

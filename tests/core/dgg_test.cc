@@ -248,18 +248,20 @@ TEST_F(SpotGraphTest, RadiusTargetsAndNearestSource) {
   EXPECT_LT(t_fans->queue_pops, full->queue_pops);
 }
 
-// Exact fans: the same graph, smaller fans, and the fan solver still gives
-// Dijkstra's distances, for fields and for pairs.
-TEST_F(SpotGraphTest, ExactFansAreSmallerAndKeepEveryShortestPath) {
+// Exact fans: the same graph, fans about as narrow as the default's (both
+// passes drop nearly every turn a nearby path beats), and the fan solver
+// still gives Dijkstra's distances, for fields and for pairs.
+TEST_F(SpotGraphTest, ExactFansAreAsNarrowAndKeepEveryShortestPath) {
   DggBuildStats stats;
   auto exact = Variant([](DggBuildOptions& o) { o.params.exact_fans = true; }, &stats);
   ASSERT_NE(exact, nullptr);
   ASSERT_EQ(exact->num_directed_edges(), graph_->num_directed_edges());
   for (uint64_t i = 0; i < graph_->num_directed_edges(); ++i) {
     ASSERT_EQ(exact->edges()[i].target, graph_->edges()[i].target);
-    ASSERT_LE(exact->edges()[i].fan.count, graph_->edges()[i].fan.count) << "edge " << i;
   }
-  EXPECT_LT(stats.average_fan, 0.8 * stats_.average_fan);
+  ASSERT_GT(stats.average_fan, 0);
+  EXPECT_LT(stats.average_fan, 1.05 * stats_.average_fan);
+  EXPECT_LT(stats_.average_fan, 1.05 * stats.average_fan);
   GeodesicEngine engine(mesh_, exact);
   FieldOptions fans, dijkstra;
   fans.method = FieldMethod::kLabelCorrecting;

@@ -195,7 +195,7 @@ TEST(GraphFileTest, TheBuildRecordRoundTripsAndIsChecked) {
     EXPECT_TRUE(names.insert(GraphFileName(7, other)).second) << GraphFileName(7, other);
   }
   EXPECT_EQ(GraphFileName(0xabc, record),
-            "0000000000000abc-eps0.30000000000000004-pseudo-prune-xfans-r2.dgg");
+            "0000000000000abc-eps0.30000000000000004-pseudo-prune-xfans-r3.dgg");
 }
 
 // A graph file from before the build record (format version 2) is refused by

@@ -35,22 +35,22 @@ constexpr double kWorkEpsilon = 1e-3;
 // Re-pin from the values a failure prints (see ExpectPinned).
 // Four fields (FieldSources) by the DGG label-correcting solver.
 constexpr SearchWork kFieldsWork = {
-    .relaxed = 206898, .improved = 44527, .pushes = 44527, .pops = 12837, .graph_bytes = 3515760};
+    .relaxed = 38362, .improved = 18368, .pushes = 18368, .pops = 12264, .graph_bytes = 810016};
 // One field from FieldSources()[0] by Dijkstra's rule: every edge of the
 // graph's 287246, some nodes twice (the bucket queue takes a node out again
-// when it improves after), 6.2 times the 49333 the DGG solver relaxed from
+// when it improves after), 45 times the 6774 the DGG solver relaxed from
 // that source; a solver that lost its fans would fail far past the margin.
 constexpr SearchWork kDijkstraFieldWork = {
     .relaxed = 305069, .improved = 13319, .pushes = 13319, .pops = 3118, .graph_bytes = 4930992};
 // Four point-to-point pairs (bidirectional A*, straight-line bounds).
 constexpr SearchWork kPairsWork = {
-    .relaxed = 28400, .improved = 10418, .pushes = 5233, .pops = 1331, .graph_bytes = 475696};
+    .relaxed = 8217, .improved = 4450, .pushes = 2780, .pops = 1395, .graph_bytes = 153792};
 // One matrix sweep of kFieldLanes sources, by the x86 kernels (AVX2 and
 // AVX-512 alike). The portable kernel (other machines, and the TSan build)
-// covers a node's lanes' fans another way and relaxed 130 edges fewer
-// (106965): inside the margin, so one pin serves every kernel.
+// covers a node's lanes' fans another way and relaxed 248 edges fewer
+// (48102): inside the margin, so one pin serves every kernel.
 constexpr SearchWork kLanesWork = {
-    .relaxed = 107095, .improved = 108493, .pushes = 24628, .pops = 3630, .graph_bytes = 1771600};
+    .relaxed = 48350, .improved = 74701, .pushes = 18188, .pops = 3652, .graph_bytes = 832032};
 
 std::string FormatWork(const SearchWork& w) {
   return absl::StrFormat(
