@@ -12,11 +12,11 @@
 #include <random>
 
 #include "core/base/radix_heap.h"
-#include "core/dgg/dgg_build.h"
 #include "core/dgg/graph_file.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/augmented_graph.h"
+#include "core/query/build_dgg.h"
 #include "core/query/field_lanes.h"
 #include "core/query/geodesic_engine.h"
 #include "core/query/graph_search.h"

@@ -8,9 +8,9 @@
 #include <thread>
 #include <vector>
 
-#include "core/dgg/dgg_build.h"
 #include "core/dgg/graph_file.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "core/query/geodesic_engine.h"
 #include "core/query/search_work.h"
 

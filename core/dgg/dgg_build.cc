@@ -16,7 +16,6 @@
 #include "core/base/thread_arena.h"
 #include "core/dgg/build_phases.h"
 #include "core/dgg/candidate_runs.h"
-#include "core/query/field_lanes.h"
 
 namespace geodesic::dgg_build_internal {
 namespace {
@@ -48,25 +47,6 @@ absl::Status CheckBuildParams(const DggParams& params) {
 }
 
 namespace {
-
-// Fans narrowed past what paths of two edges tell: a short sweep around
-// each node drops the turns some path it finds beats
-// (query_internal::NarrowAllFans), which leaves fields relaxing a fraction
-// of the edges for about a fifth more build (bench/notes.md, "Fans narrowed
-// in the build"). Not for exact fans, which are narrower already, nor for a
-// graph whose fans do not pack (a node of 2^16 edges or more).
-absl::Status NarrowFansBySweeps(const DggGraph& g, std::span<DggEdge> edges, Progress& progress) {
-  // Out to half the longest turn: the fans shrink fast up to there and
-  // little beyond, while a sweep's cost grows as the square of its reach.
-  constexpr double kReach = 0.5;
-  if (LaneFanLayoutFor(g) != LaneFanLayout::kPacked) return absl::OkStatus();
-  const absl::Status swept =
-      query_internal::NarrowAllFans(g, edges, kReach, [&](uint64_t done, uint64_t total) {
-        return progress.Report("fans", 0.97, 1.0, done, total);
-      });
-  if (absl::IsCancelled(swept)) return absl::OkStatus();  // the caller sees progress.cancelled()
-  return swept;
-}
 
 absl::StatusOr<std::shared_ptr<const DggGraph>> FinishPhases(
     const Mesh& mesh, std::span<const uint32_t> counts, const CandidateFeed& feed,
@@ -112,19 +92,12 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> FinishPhases(
     st.max_degree = std::max<uint32_t>(st.max_degree, arrays.offsets[u + 1] - arrays.offsets[u]);
   }
   st.average_degree = nodes ? double(arrays.edges.size()) / nodes : 0;
-  // The graph owns the edges from here on, in the same place: the last pass
-  // writes their narrowed fans there before anyone else sees the graph.
-  const std::span<DggEdge> edges(arrays.edges.data(), arrays.edges.size());
-  auto graph = DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
-                                           MeshFingerprint(mesh));
-  if (!exact_fans) RETURN_IF_ERROR(NarrowFansBySweeps(*graph, edges, progress));
-  if (progress.cancelled()) return nullptr;
-  progress.Report("fans", 0.97, 1.0, 1, 1);
   st.fan_seconds = Seconds(t);
   uint64_t fans = 0;
-  for (const DggEdge& e : edges) fans += e.fan.count;
-  st.average_fan = edges.empty() ? 0 : double(fans) / edges.size();
-  return graph;
+  for (const DggEdge& e : arrays.edges) fans += e.fan.count;
+  st.average_fan = arrays.edges.empty() ? 0 : double(fans) / arrays.edges.size();
+  return DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
+                                     MeshFingerprint(mesh));
 }
 
 }  // namespace
@@ -188,9 +161,8 @@ DggBuildEstimate EstimateDggBuild(uint64_t num_vertices, double epsilon, bool ps
   return {bytes >= 1.8e19 ? UINT64_MAX : static_cast<uint64_t>(bytes), seconds};
 }
 
-absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
-                                                         const DggBuildOptions& options,
-                                                         DggBuildStats* stats) {
+absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDggWithTwoEdgeFans(
+    const Mesh& mesh, const DggBuildOptions& options, DggBuildStats* stats) {
   RETURN_IF_ERROR(CheckBuildParams(options.params));
   DggBuildStats local;
   DggBuildStats& st = stats ? *stats : local;

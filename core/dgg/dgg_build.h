@@ -91,11 +91,15 @@ struct DggBuildStats {
   double average_fan = 0;  // edges a node reached along an edge relaxes
 };
 
-// Fails with INVALID_ARGUMENT for epsilon outside (0, 1) or NaN, and with
-// CANCELLED when the progress callback asks to stop.
-absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDgg(const Mesh& mesh,
-                                                         const DggBuildOptions& options,
-                                                         DggBuildStats* stats = nullptr);
+// The build's phases (section 4), each edge given the fan that paths of at
+// most two edges allow: a sound graph, but not yet the one a build makes.
+// core/query/build_dgg.h's BuildDgg narrows the fans further with the
+// solver's own sweeps, as every graph served is built, and is what callers
+// use. Fails with INVALID_ARGUMENT for epsilon outside (0, 1) or NaN, and
+// with CANCELLED when the progress callback asks to stop; reports progress
+// up to 0.97 (the narrowing takes the rest).
+absl::StatusOr<std::shared_ptr<const DggGraph>> BuildDggWithTwoEdgeFans(
+    const Mesh& mesh, const DggBuildOptions& options, DggBuildStats* stats = nullptr);
 
 // A lower estimate of the bytes of the graph of a mesh with `vertices`
 // vertices at `epsilon`, to refuse builds that cannot fit a memory budget
@@ -121,7 +125,7 @@ DggBuildEstimate EstimateDggBuild(uint64_t num_vertices, double epsilon, bool ps
 // Distributed builds. The candidate phase (the direct geodesics from every
 // vertex) is most of the work and independent per source, so it splits into
 // vertex ranges built anywhere; merging the parts runs the remaining phases
-// and gives the same graph, bit for bit, as BuildDgg.
+// and gives the same graph, bit for bit, as a whole build.
 struct DggCandidatePart {
   DggParams params;
   uint64_t mesh_fingerprint = 0;
@@ -148,17 +152,17 @@ struct DggPartSource {
 
 // Joins parts (in any order) that together cover every vertex exactly once,
 // all built for this mesh with the same parameters, which the graph takes
-// (options.params is ignored). FAILED_PRECONDITION names the part at fault
-// and, for parameters, the field that differs.
-absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
-                                                              std::vector<DggPartSource> parts,
-                                                              const DggBuildOptions& options,
-                                                              DggBuildStats* stats = nullptr);
+// (options.params is ignored), with fans as BuildDggWithTwoEdgeFans gives
+// them (core/query/build_dgg.h's MergeDggParts narrows them).
+// FAILED_PRECONDITION names the part at fault and, for parameters, the field
+// that differs.
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggPartsWithTwoEdgeFans(
+    const Mesh& mesh, std::vector<DggPartSource> parts, const DggBuildOptions& options,
+    DggBuildStats* stats = nullptr);
 // The same for parts in memory, named by their position.
-absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
-                                                              std::vector<DggCandidatePart> parts,
-                                                              const DggBuildOptions& options,
-                                                              DggBuildStats* stats = nullptr);
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggPartsWithTwoEdgeFans(
+    const Mesh& mesh, std::vector<DggCandidatePart> parts, const DggBuildOptions& options,
+    DggBuildStats* stats = nullptr);
 
 }  // namespace geodesic
 

@@ -30,6 +30,14 @@ struct DggGraph::Storage {
 
 class DggGraphBuilder {
  public:
+  // The edges of a graph its caller has just built and holds the only
+  // reference to, for a pass that rewrites their fans before the graph is
+  // shared (core/query/build_dgg.cc). Null for a graph that is not its
+  // builder's alone or not built in memory.
+  static DggEdge* EditableEdges(const std::shared_ptr<const DggGraph>& graph) {
+    if (graph.use_count() != 1 || graph->is_mapped()) return nullptr;
+    return const_cast<DggEdge*>(graph->edges_.data());
+  }
   static std::shared_ptr<const DggGraph> FromArrays(DggGraphArrays arrays, uint32_t num_nodes,
                                                     uint32_t num_mesh_vertices,
                                                     const DggParams& params,

@@ -41,10 +41,9 @@ using dgg_build_internal::FinishBuild;
 using dgg_build_internal::Progress;
 using dgg_build_internal::Seconds;
 
-absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
-                                                              std::vector<DggPartSource> parts,
-                                                              const DggBuildOptions& options,
-                                                              DggBuildStats* stats) {
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggPartsWithTwoEdgeFans(
+    const Mesh& mesh, std::vector<DggPartSource> parts, const DggBuildOptions& options,
+    DggBuildStats* stats) {
   if (parts.empty()) return absl::InvalidArgumentError("no parts to merge");
   const uint32_t n = mesh.num_vertices();
   const uint64_t fingerprint = MeshFingerprint(mesh);
@@ -121,10 +120,9 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
   return graph;
 }
 
-absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
-                                                              std::vector<DggCandidatePart> parts,
-                                                              const DggBuildOptions& options,
-                                                              DggBuildStats* stats) {
+absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggPartsWithTwoEdgeFans(
+    const Mesh& mesh, std::vector<DggCandidatePart> parts, const DggBuildOptions& options,
+    DggBuildStats* stats) {
   std::vector<DggPartSource> sources;
   for (size_t i = 0; i < parts.size(); ++i) {
     std::vector<DggHalfEdge> edges = std::move(parts[i].edges);
@@ -135,7 +133,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> MergeDggParts(const Mesh& mesh,
         {absl::StrFormat("part %u", i), std::move(index),
          [whole]() -> absl::StatusOr<DggCandidatePart> { return std::move(*whole); }});
   }
-  return MergeDggParts(mesh, std::move(sources), options, stats);
+  return MergeDggPartsWithTwoEdgeFans(mesh, std::move(sources), options, stats);
 }
 
 }  // namespace geodesic

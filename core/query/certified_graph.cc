@@ -12,6 +12,7 @@
 #include "absl/strings/str_format.h"
 #include "core/base/status.h"
 #include "core/query/accuracy_check.h"
+#include "core/query/build_dgg.h"
 
 namespace geodesic {
 namespace {

@@ -10,6 +10,7 @@
 #include "absl/status/status.h"
 #include "absl/strings/str_format.h"
 #include "core/dgg/dgg_graph.h"
+#include "core/query/build_dgg.h"
 #include "server/offline/certificate_file.h"
 
 namespace geodesic::server {

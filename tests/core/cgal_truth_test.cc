@@ -18,9 +18,9 @@
 #include <random>
 #include <vector>
 
-#include "core/dgg/dgg_build.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
 

@@ -14,8 +14,8 @@
 
 #include "absl/strings/str_cat.h"
 #include "core/base/file_header.h"
-#include "core/dgg/dgg_build.h"
 #include "core/dgg/graph_file.h"
+#include "core/query/build_dgg.h"
 #include "tests/core/test_util.h"
 #include "xxhash.h"
 

@@ -11,10 +11,10 @@
 #include <thread>
 
 #include "absl/strings/str_cat.h"
-#include "core/dgg/dgg_build.h"
 #include "core/dgg/graph_file.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "core/query/geodesic_engine.h"
 #include "tbb/global_control.h"
 #include "tests/core/test_util.h"

@@ -6,9 +6,9 @@
 // and generated genus-1 meshes with many saddles and thin triangles;
 // bench/exact_check.py runs 50 sources per shared mesh and compares with
 // CGAL's exact solver.
-#include "core/dgg/dgg_build.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/accuracy_check.h"
+#include "core/query/build_dgg.h"
 #include "tests/core/test_util.h"
 
 namespace geodesic {

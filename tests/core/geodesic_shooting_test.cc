@@ -2,9 +2,9 @@
 
 #include <cmath>
 
-#include "core/dgg/dgg_build.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"
 

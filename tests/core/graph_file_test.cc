@@ -15,9 +15,9 @@
 #include <set>
 
 #include "absl/strings/str_cat.h"
-#include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_graph_internal.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "gtest/gtest.h"
 #include "tests/core/test_util.h"
 

@@ -7,9 +7,9 @@
 #include <string>
 #include <vector>
 
-#include "core/dgg/dgg_build.h"
 #include "core/mesh/mesh.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "core/query/geodesic_engine.h"
 #include "gmock/gmock.h"
 #include "tests/core/test_util.h"

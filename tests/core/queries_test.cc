@@ -11,11 +11,11 @@
 
 #include "absl/strings/str_format.h"
 #include "core/base/node_heap.h"
-#include "core/dgg/dgg_build.h"
 #include "core/dgg/dgg_graph_internal.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/augmented_graph.h"
+#include "core/query/build_dgg.h"
 #include "core/query/field_lanes.h"
 #include "core/query/geodesic_engine.h"
 #include "core/query/graph_search.h"

@@ -4,7 +4,7 @@
 #include <random>
 #include <set>
 
-#include "core/dgg/dgg_build.h"
+#include "core/query/build_dgg.h"
 #include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
 

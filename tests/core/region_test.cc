@@ -5,8 +5,8 @@
 #include <algorithm>
 #include <cmath>
 
-#include "core/dgg/dgg_build.h"
 #include "core/mesh/mesh_io.h"
+#include "core/query/build_dgg.h"
 #include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
 

@@ -12,9 +12,9 @@
 #include <vector>
 
 #include "absl/strings/str_format.h"
-#include "core/dgg/dgg_build.h"
 #include "core/mesh/mesh_io.h"
 #include "core/query/augmented_graph.h"
+#include "core/query/build_dgg.h"
 #include "core/query/field_lanes.h"
 #include "core/query/geodesic_engine.h"
 #include "tests/core/test_util.h"
