@@ -204,23 +204,28 @@ grpc::Status HttpGateway::Impl::Matrix(const Call& call, const ApiRequest& r, js
   // data is those bytes as they came.
   if (npy && dtype == v1::MATRIX_DTYPE_DEFAULT) dtype = v1::MATRIX_DTYPE_FLOAT64;
   req.set_dtype(dtype);
+  const bool narrow = dtype == v1::MATRIX_DTYPE_FLOAT32;
+  const size_t entry_bytes = narrow ? sizeof(float) : sizeof(double);
+  // The answer arrives whole from the in-process channel, uncounted by the
+  // service once sent, and is then copied into what goes out: both are in
+  // memory at once, so both are counted, before the call, until the answer
+  // is sent.
+  const uint64_t asked = static_cast<uint64_t>(req.sources_size()) * req.targets_size();
+  if (grpc::Status s =
+          ReserveAnswer(r, asked * (entry_bytes + (npy ? entry_bytes : kJsonNumberBytes)),
+                        absl::StrFormat("a matrix of %u x %u %s", req.sources_size(),
+                                        req.targets_size(), npy ? "as .npy" : "as JSON"));
+      !s.ok()) {
+    return s;
+  }
   v1::MatrixResponse resp;
   grpc::Status s = stub->Matrix(call.Context(), req, &resp);
   if (!s.ok()) return s;
   const uint64_t entries = static_cast<uint64_t>(resp.rows()) * resp.cols();
-  const bool narrow = dtype == v1::MATRIX_DTYPE_FLOAT32;
-  // The answer as it came is in memory already; what is made of it is not.
-  if (grpc::Status s = ReserveAnswer(
-          r, entries * (npy ? (narrow ? sizeof(float) : sizeof(double)) : kJsonNumberBytes),
-          absl::StrFormat("a matrix of %u x %u %s", resp.rows(), resp.cols(),
-                          npy ? "as .npy" : "as JSON"));
-      !s.ok()) {
-    return s;
-  }
-  const uint64_t got = dtype == v1::MATRIX_DTYPE_DEFAULT
-                           ? resp.distances_size()
-                           : resp.packed().size() / (narrow ? sizeof(float) : sizeof(double));
-  if (entries != got || (dtype != v1::MATRIX_DTYPE_DEFAULT && resp.dtype() != dtype)) {
+  const uint64_t got = dtype == v1::MATRIX_DTYPE_DEFAULT ? resp.distances_size()
+                                                         : resp.packed().size() / entry_bytes;
+  if (entries != asked || entries != got ||
+      (dtype != v1::MATRIX_DTYPE_DEFAULT && resp.dtype() != dtype)) {
     return grpc::Status(grpc::StatusCode::INTERNAL, "matrix size does not match rows x cols");
   }
   if (npy) {
