@@ -182,8 +182,9 @@ void AddBuildFlags(CLI::App& app, ServeFlags& f, ServeOptions& o) {
          "line only)")
       ->check(CLI::Range(0, 256));
   app.add_flag("--exact-fans", f.exact_fans,
-               "build graphs with fans from exact local distances: faster fields, longer "
-               "builds (graphs found in --graph-dir are used as they are)");
+               "build graphs with fans from exact local distances instead of the default's "
+               "short sweeps: about as narrow, longer builds (graphs found in --graph-dir are "
+               "used as they are)");
 }
 
 void AddQueryFlags(CLI::App& app, ServeFlags& f, ServiceLimits& limits) {

@@ -246,8 +246,9 @@ void AddBuildFlags(CLI::App& app, BuildFlags& f) {
                  "I/N: only the candidate edges of the I-th (0-based) of N vertex ranges, for "
                  "'geodesicd merge'");
   app.add_flag("--exact-fans", f.exact_fans,
-               "fans from each vertex's exact local distances: faster fields and smaller fans, "
-               "for a longer build (same distances); parts record it for the merge");
+               "fans from each vertex's exact local distances instead of the default's short "
+               "sweeps: about as narrow, for a longer build (same distances); parts record it "
+               "for the merge");
   app.add_flag("--prune", f.prune,
                "also prune redundant edges (Algorithm 1, phase 2), giving it a tenth of eps: "
                "slower, and rarely smaller (see bench/notes.md); parts record it for the merge");
