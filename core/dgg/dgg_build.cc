@@ -93,9 +93,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> FinishPhases(
   }
   st.average_degree = nodes ? double(arrays.edges.size()) / nodes : 0;
   st.fan_seconds = Seconds(t);
-  uint64_t fans = 0;
-  for (const DggEdge& e : arrays.edges) fans += e.fan.count;
-  st.average_fan = arrays.edges.empty() ? 0 : double(fans) / arrays.edges.size();
+  st.average_fan = AverageFan({arrays.edges.data(), arrays.edges.size()});
   return DggGraphBuilder::FromArrays(std::move(arrays), nodes, mesh.num_vertices(), params,
                                      MeshFingerprint(mesh));
 }

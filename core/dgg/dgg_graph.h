@@ -59,6 +59,14 @@ struct DggHalfEdge {
   float angle_there;  // polar angle at the other end, normalised
 };
 
+// Edges a node reached along an edge relaxes, on average over `edges`: the
+// build's average fan (DggBuildStats::average_fan).
+inline double AverageFan(std::span<const DggEdge> edges) {
+  uint64_t fans = 0;
+  for (const DggEdge& e : edges) fans += e.fan.count;
+  return edges.empty() ? 0 : double(fans) / edges.size();
+}
+
 // The version of the rules that decide which candidate edges a build keeps
 // (core/dgg/build_phases.h, CornerBudgetFactor) and which fans it gives
 // them. Bump it whenever a change to the rules changes the graphs built for
@@ -66,7 +74,7 @@ struct DggHalfEdge {
 // apart and rebuilt rather than served as if they were today's. 2: a lit
 // vertex needs an edge unless a corner route is within 1 + 1.1 eps, the
 // extra tenth fading out between 1e-3 and 1e-4. 3: fans narrowed further
-// by a short sweep around each node (core/dgg/dgg_build.cc), the same
+// by a short sweep around each node (core/query/build_dgg.cc), the same
 // distances from far fewer relaxations.
 inline constexpr uint32_t kCandidateRuleVersion = 3;
 

@@ -51,9 +51,7 @@ absl::StatusOr<std::shared_ptr<const DggGraph>> NarrowFans(
         std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
     stats->fan_seconds += seconds;
     stats->total_seconds += seconds;
-    uint64_t fans = 0;
-    for (const DggEdge& e : graph->edges()) fans += e.fan.count;
-    stats->average_fan = graph->edges().empty() ? 0 : double(fans) / graph->edges().size();
+    stats->average_fan = AverageFan(graph->edges());
   }
   return graph;
 }

@@ -89,7 +89,7 @@ class CompactLaneEdges {
 // it goes as soundly as with a complete row, and most that a row would
 // drop do. Written into `edges`, which must be g's
 // own edge array (a graph being built, that no one else reads yet): the
-// graph build's last pass (core/dgg/dgg_build.cc). The sweeps read only the
+// graph build's last pass (core/query/build_dgg.cc). The sweeps read only the
 // fans as they were, never ones already narrowed, so which thread ran which
 // run, and when, changes nothing: a build gives the same bytes whatever its
 // threads. Runs on the calling arena's threads. `progress(done, total)`
