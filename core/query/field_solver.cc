@@ -37,13 +37,13 @@ absl::Status CheckTargets(const Mesh& mesh, absl::Span<const VertexId> targets) 
 // Vertex sources at 0; other points through their temporary edges. A seed
 // relaxes all its edges. Returns the seeded nodes, sorted, each once.
 std::vector<uint32_t> SeedField(const DggGraph& g, QueryScratch& sc,
-                                absl::Span<const Endpoint> sources) {
+                                absl::Span<const Endpoint> sources, bool labels) {
   std::vector<uint32_t> seeds;
   auto seed = [&](uint32_t u, double d, uint32_t source) {
     if (!(d < sc.dist[u])) return;
     sc.dist[u] = d;
     sc.fan[u] = AllEdges(g, u);
-    sc.label[u] = source;
+    if (labels) sc.label[u] = source;
     seeds.push_back(u);
   };
   for (uint32_t i = 0; i < sources.size(); ++i) {
@@ -83,7 +83,7 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
                                        const FieldOptions& options) {
   RETURN_IF_ERROR(CheckTargets(mesh, options.targets));
   const uint32_t nodes = g.num_nodes();
-  sc.PrepareField(nodes);
+  sc.PrepareField(nodes, options.nearest_source);
   std::vector<double>& dist = sc.dist;
   std::vector<FanRange>& fan = sc.fan;
   std::vector<uint32_t>& label = sc.label;
@@ -91,7 +91,7 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
   if (options.nearest_source) std::fill(label.begin(), label.begin() + nodes, kNone);
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
 
-  const std::vector<uint32_t> seeds = SeedField(g, sc, sources);
+  const std::vector<uint32_t> seeds = SeedField(g, sc, sources, options.nearest_source);
 
   FieldResult result;
   size_t targets_left = options.targets.size();

@@ -25,12 +25,12 @@ void PairTable::Reset(uint32_t nodes) {
   }
 }
 
-void QueryScratch::PrepareField(size_t nodes) {
+void QueryScratch::PrepareField(size_t nodes, bool labels) {
   if (dist.size() < nodes) {
     dist.resize(nodes);
     fan.resize(nodes);
-    label.resize(nodes);
   }
+  if (labels && label.size() < nodes) label.resize(nodes);
 }
 
 LaneFanLayout LaneFanLayoutFor(const DggGraph& g) {

@@ -146,7 +146,10 @@ struct QueryScratch {
   // there are some. Set at each lease.
   const FaceFrames* frames = nullptr;
 
-  void PrepareField(size_t nodes);
+  // Sizes dist and fan to `nodes`, and label too when the field `labels`
+  // its nearest sources (left out otherwise: memory a new process would
+  // fault in for nothing).
+  void PrepareField(size_t nodes, bool labels);
   void PrepareLanes(size_t nodes, LaneFanLayout layout);
   ExactGeodesic& Exact(const Mesh& mesh) {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);

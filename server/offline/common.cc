@@ -1,11 +1,17 @@
 #include "server/offline/common.h"
 
+#include <sys/resource.h>
+#if defined(__GLIBC__)
+#include <malloc.h>
+#endif
+
 #include <bit>
 #include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <fstream>
 #include <iterator>
+#include <limits>
 #include <utility>
 
 #include "absl/status/status.h"
@@ -21,6 +27,20 @@
 #include "core/query/result_files.h"
 
 namespace geodesic::offline {
+
+void KeepFreedMemory() {
+#if defined(__GLIBC__)
+  // Allocations up to glibc's largest mmap threshold come from the heap,
+  // where freed chunks are reused, and the heap's free top is never trimmed.
+  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  mallopt(M_TRIM_THRESHOLD, std::numeric_limits<int>::max());
+#endif
+}
+
+int64_t MinorPageFaults() {
+  struct rusage usage;
+  return ::getrusage(RUSAGE_SELF, &usage) == 0 ? usage.ru_minflt : 0;
+}
 
 int Fail(const char* command, const absl::Status& status) {
   std::fprintf(stderr, "geodesicd %s: %s\n", command, std::string(status.message()).c_str());

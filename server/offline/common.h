@@ -2,6 +2,7 @@
 #ifndef GEODESIC_SERVER_OFFLINE_COMMON_H_
 #define GEODESIC_SERVER_OFFLINE_COMMON_H_
 
+#include <cstdint>
 #include <memory>
 #include <optional>
 #include <string>
@@ -17,6 +18,17 @@
 #include "nlohmann/json.hpp"
 
 namespace geodesic::offline {
+
+// For commands that answer one query and exit: memory one phase frees
+// (loading the mesh, say) stays with the process for the next phase to
+// reuse, rather than going back to the kernel and coming again as fresh
+// pages, each faulted in at its first touch. On virtual machines such faults
+// cost microseconds a page, about a quarter of a field's solve in a new
+// process (bench/notes.md, "Page faults"). Call first.
+void KeepFreedMemory();
+// Page faults this process took so far that needed no disk read: first
+// touches of fresh memory, mostly.
+int64_t MinorPageFaults();
 
 // Prints "geodesicd <command>: <status message>" to stderr; returns 1.
 int Fail(const char* command, const absl::Status& status);

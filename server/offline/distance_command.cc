@@ -170,6 +170,7 @@ std::string PairText(const SpecPair& pair, const PairResult& r, double seconds) 
 }  // namespace
 
 int RunDistance(int argc, char** argv) {
+  KeepFreedMemory();
   CLI::App app{"Geodesic distance (and path) between surface points on a discrete geodesic graph",
                "geodesicd distance"};
   app.option_defaults()->always_capture_default();  // --help shows defaults

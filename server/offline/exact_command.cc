@@ -12,6 +12,7 @@
 namespace geodesic::offline {
 
 int RunExact(int argc, char** argv) {
+  KeepFreedMemory();
   CLI::App app{"Exact geodesic distances from one source to every vertex (window propagation)",
                "geodesicd exact"};
   app.option_defaults()->always_capture_default();  // --help shows defaults

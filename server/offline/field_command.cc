@@ -96,6 +96,7 @@ absl::StatusOr<std::vector<SurfacePoint>> ResolveSources(const FieldFlags& f, co
 }  // namespace
 
 int RunField(int argc, char** argv) {
+  KeepFreedMemory();
   CLI::App app{"Distance field from one or more sources on a discrete geodesic graph",
                "geodesicd field"};
   app.option_defaults()->always_capture_default();  // --help shows defaults
@@ -119,10 +120,12 @@ int RunField(int argc, char** argv) {
   options.method = f.method == "lc" ? FieldMethod::kLabelCorrecting : FieldMethod::kDijkstra;
   options.max_distance = f.max_distance;
   options.nearest_source = !f.labels_path.empty();
+  const int64_t faults_before = MinorPageFaults();
   auto t1 = std::chrono::steady_clock::now();
   auto field = engine.Field(*sources, options);
   const double solve_seconds =
       std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+  const int64_t solve_faults = MinorPageFaults() - faults_before;
   if (!field.ok()) return Fail("field", field.status());
   if (absl::Status s = WriteOutputs(f, *field, *work); !s.ok()) return Fail("field", s);
   const size_t n = mesh->num_vertices();
@@ -136,6 +139,7 @@ int RunField(int argc, char** argv) {
                 {"ns_per_vertex", 1e9 * solve_seconds / std::max<size_t>(n, 1)},
                 {"queue_pops_per_vertex", double(field->queue_pops) / std::max<size_t>(n, 1)},
                 {"graph_open_seconds", open_seconds},
+                {"solve_page_faults", solve_faults},
                 {"epsilon", (*graph)->params().epsilon},
                 {"relaxed_per_vertex", double(field->relaxed) / std::max<size_t>(n, 1)},
                 {"snap_distances", snap_distances}};

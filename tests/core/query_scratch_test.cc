@@ -56,8 +56,10 @@ TEST(ScratchPoolTest, LeasesAreDistinctAndIdleOnesAreKeptUpToTheLimit) {
     ScratchPool::Lease b = pool.Acquire();
     EXPECT_NE(&*a, &*b);
     EXPECT_EQ(pool.in_use(), 2);
-    a->PrepareField(1000);
-    b->PrepareField(1000);
+    a->PrepareField(1000, /*labels=*/false);
+    EXPECT_TRUE(a->label.empty());  // a field without nearest sources needs none
+    a->PrepareField(1000, /*labels=*/true);
+    b->PrepareField(1000, /*labels=*/true);
   }
   EXPECT_EQ(pool.in_use(), 0);
   EXPECT_EQ(pool.idle(), 1);  // the second one released was freed
@@ -92,7 +94,13 @@ TEST(ScratchPoolTest, EngineScratchIsCountedAndPairsStaySmall) {
   GeodesicEngine fields(mesh, *graph);
   const SurfacePoint source = SurfacePoint::Vertex(7);
   ASSERT_OK(fields.Field(absl::MakeConstSpan(&source, 1), {}));
-  EXPECT_GE(fields.scratch_bytes(), mesh->num_vertices() * 20u);
+  // A label and a fan per node; each node's nearest source only when asked.
+  const uint64_t plain = fields.scratch_bytes();
+  EXPECT_GE(plain, mesh->num_vertices() * 16u);
+  FieldOptions nearest;
+  nearest.nearest_source = true;
+  ASSERT_OK(fields.Field(absl::MakeConstSpan(&source, 1), nearest));
+  EXPECT_GE(fields.scratch_bytes(), plain + mesh->num_vertices() * 4u);
 }
 
 }  // namespace

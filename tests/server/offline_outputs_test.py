@@ -249,4 +249,23 @@ with tempfile.TemporaryDirectory() as work:
         check(f"build {' '.join(args)} is refused", r.returncode != 0 and says in r.stderr,
               r.stderr)
 
+    # A field in a new process lays its per-node arrays (a label, a fan and
+    # the answer, 24 bytes a node) in memory that loading the mesh freed,
+    # rather than faulting in fresh pages: on a mesh whose arrays are each
+    # past glibc's default mmap threshold (128 KiB, so each was a mapping of
+    # its own before), fewer faults than a third of one array's pages. Needs
+    # the shared meshes (GEODESIC_SHARED_DIR): fails without them.
+    shared = os.environ.get("GEODESIC_SHARED_DIR", os.path.join(src, "..", "shared"))
+    fertility = os.path.join(shared, "meshes", "fertility.off")
+    check("the shared meshes are there", os.path.exists(fertility), fertility)
+    if os.path.exists(fertility):
+        big_graph = os.path.join(work, "fertility.dgg")
+        run("build", fertility, "--eps", "1e-2", "--out", big_graph)
+        f = json.loads(run("field", "--mesh", fertility, "--graph", big_graph, "--source",
+                           "v:17", "--out", os.path.join(work, "big.f64"), "--json").stdout)
+        array_pages = f["vertices"] * 8 // 4096
+        check("a big mesh's arrays are past the mmap threshold", array_pages * 4096 > 128 << 10, f)
+        check("a new process's field reuses freed memory, not fresh pages",
+              0 <= f["solve_page_faults"] < array_pages / 3, (f["solve_page_faults"], array_pages))
+
 check.finish()
