@@ -7,7 +7,11 @@ search. CGAL's heat solve (after its factorisation) in the same run gives
 the field's yardstick.
 
   bench/graphs_ab_bench.py --before OLD/geodesicd --after build/bin/geodesicd \\
-      [--meshes armadillo,bunny] [--eps 1e-3] [--rounds 5] [--pairs 2000]
+      [--meshes armadillo,bunny] [--eps 1e-3] [--rounds 5] [--pairs 2000] [--own-code]
+
+With --own-code each side's fields are its own binary's, on its own graph:
+the whole change, code and graph, as a user of each release sees it (pairs
+are then left out, as query_bench is --after's alone).
 
 Checks, before any timing counts, that both graphs give the same field to
 the last bit from every source timed (a graph's fans change which edges a
@@ -65,11 +69,15 @@ def heat_solve_seconds(mesh, vertex, tmp):
 def main():
     parser = before_after_parser(__doc__, rounds=5)
     parser.add_argument("--pairs", type=int, default=2000, help="pairs a round, of each kind")
+    parser.add_argument("--own-code", action="store_true",
+                        help="each side's fields by its own binary; no pairs")
     parser.add_argument("--sources", type=int, default=5, help="field sources a round")
     args = parser.parse_args()
     rng = random.Random(7)
-    print(f"ε = {args.eps}, {args.rounds} alternating rounds; fields and pairs by --after's code "
-          "on each graph, one query at a time\n")
+    queried_by = ("fields by each side's own binary on its own graph, no pairs" if args.own_code
+                  else "fields and pairs by --after's code on each graph")
+    print(f"ε = {args.eps}, {args.rounds} alternating rounds; {queried_by}, one query at a "
+          "time\n")
     print("| mesh | graph | build s | mean fan | field ms (new process) | ns / vertex "
           "| field / CGAL heat solve | vertex pairs p50 ms (relaxed) "
           "| face-point pairs p50 ms (relaxed) |")
@@ -94,7 +102,8 @@ def main():
                     fields = {}
                     for side in order:
                         out = os.path.join(tmp, f"{side}.f64")
-                        f = field(args.after, mesh, graphs[side], s, out)
+                        f = field(binaries[side] if args.own_code else args.after, mesh,
+                                  graphs[side], s, out)
                         stats[side]["field"].append(f["solve_seconds"] * 1e3)
                         stats[side]["nspv"].append(f["ns_per_vertex"])
                         with open(out, "rb") as data:
@@ -102,6 +111,8 @@ def main():
                     if not fields["before"] or fields["before"] != fields["after"]:
                         sys.exit(f"{name}: the two graphs' fields from vertex {s} differ")
                 for side in order:
+                    if args.own_code:
+                        break
                     for face, p, rel in ((False, "vp", "vr"), (True, "fp", "fr")):
                         q = pairs(mesh, graphs[side], args.pairs, face)
                         if q["failed"] or q["queries"] != args.pairs:
@@ -109,19 +120,25 @@ def main():
                         stats[side][p].append(q["p50_ms"])
                         stats[side][rel].append(q["edges_relaxed_per_query"])
             heat = heat_solve_seconds(mesh, 0, tmp)
-            med = {side: {k: statistics.median(v) if isinstance(v, list) else v
+            med = {side: {k: (statistics.median(v) if v else float("nan"))
+                          if isinstance(v, list) else v
                           for k, v in st.items()} for side, st in stats.items()}
+            def pairs_cell(p50, relaxed, p50_digits, relaxed_digits):
+                if args.own_code:
+                    return "-"
+                return f"{p50:.{p50_digits}f} ({relaxed:.{relaxed_digits}f})"
             for side in ("before", "after"):
                 m = med[side]
                 ratio = f"{m['field'] / (heat * 1e3):.2f}x" if heat else "n/a"
                 print(f"| {name} | {side} | {m['build']:.2f} | {m['fan']:.2f} | {m['field']:.2f} "
-                      f"| {m['nspv']:.0f} | {ratio} | {m['vp']:.3f} ({m['vr']:.0f}) "
-                      f"| {m['fp']:.3f} ({m['fr']:.0f}) |")
+                      f"| {m['nspv']:.0f} | {ratio} | {pairs_cell(m['vp'], m['vr'], 3, 0)} "
+                      f"| {pairs_cell(m['fp'], m['fr'], 3, 0)} |")
             b, a = med["before"], med["after"]
             print(f"| {name} | after / before | {a['build'] / b['build']:.2f} | "
                   f"{a['fan'] / b['fan']:.2f} | {a['field'] / b['field']:.2f} | "
-                  f"{a['nspv'] / b['nspv']:.2f} | | {a['vp'] / b['vp']:.2f} "
-                  f"({a['vr'] / b['vr']:.2f}) | {a['fp'] / b['fp']:.2f} ({a['fr'] / b['fr']:.2f}) |")
+                  f"{a['nspv'] / b['nspv']:.2f} | "
+                  f"| {pairs_cell(a['vp'] / b['vp'], a['vr'] / b['vr'], 2, 2)} "
+                  f"| {pairs_cell(a['fp'] / b['fp'], a['fr'] / b['fr'], 2, 2)} |")
             sys.stdout.flush()
             if heat:
                 print(f"\n{name}: CGAL heat solve {heat * 1e3:.1f} ms (after factorisation)\n",
