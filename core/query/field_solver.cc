@@ -36,13 +36,14 @@ absl::Status CheckTargets(const Mesh& mesh, absl::Span<const VertexId> targets) 
 
 // Vertex sources at 0; other points through their temporary edges. A seed
 // relaxes all its edges. Returns the seeded nodes, sorted, each once.
-std::vector<uint32_t> SeedField(const DggGraph& g, QueryScratch& sc,
+template <typename FanSlot>
+std::vector<uint32_t> SeedField(const DggGraph& g, QueryScratch& sc, FanSlot* fan,
                                 absl::Span<const Endpoint> sources, bool labels) {
   std::vector<uint32_t> seeds;
   auto seed = [&](uint32_t u, double d, uint32_t source) {
     if (!(d < sc.dist[u])) return;
     sc.dist[u] = d;
-    sc.fan[u] = AllEdges(g, u);
+    SetFan(fan[u], AllEdges(g, u));
     if (labels) sc.label[u] = source;
     seeds.push_back(u);
   };
@@ -78,20 +79,24 @@ void CopyFieldToVertexOrder(const Mesh& mesh, const DggGraph& g, const QueryScra
 
 // The field from sources already joined to the graph.
 absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
-                                       const BucketShape& bucket_shape, QueryScratch& sc,
-                                       absl::Span<const Endpoint> sources,
+                                       const BucketShape& bucket_shape, LaneFanLayout fan_layout,
+                                       QueryScratch& sc, absl::Span<const Endpoint> sources,
                                        const FieldOptions& options) {
   RETURN_IF_ERROR(CheckTargets(mesh, options.targets));
   const uint32_t nodes = g.num_nodes();
-  sc.PrepareField(nodes, options.nearest_source);
+  sc.PrepareField(nodes, options.nearest_source, fan_layout);
+  // The search's per-node state in as few bytes as the graph allows: what a
+  // search from a cold cache waits on.
+  const bool packed = fan_layout == LaneFanLayout::kPacked;
   std::vector<double>& dist = sc.dist;
-  std::vector<FanRange>& fan = sc.fan;
   std::vector<uint32_t>& label = sc.label;
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
   if (options.nearest_source) std::fill(label.begin(), label.begin() + nodes, kNone);
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
 
-  const std::vector<uint32_t> seeds = SeedField(g, sc, sources, options.nearest_source);
+  const std::vector<uint32_t> seeds =
+      packed ? SeedField(g, sc, sc.fan_packed.data(), sources, options.nearest_source)
+             : SeedField(g, sc, sc.fan.data(), sources, options.nearest_source);
 
   FieldResult result;
   size_t targets_left = options.targets.size();
@@ -112,15 +117,19 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
     if (targets_left && is_target[u] && --targets_left == 0) return Visit::kStop;
     return Visit::kRelax;
   };
-  // Each combination of fans and labels is its own search, so the inner
-  // loop tests neither (labels cost a read and a write per improvement).
-  auto search = [&]<bool kUseFans>(auto& queue) {
+  // Each combination of fans, their layout and labels is its own search, so
+  // the inner loop tests none of them (labels cost a read and a write per
+  // improvement).
+  auto search_with = [&]<bool kUseFans>(auto& queue, auto* fan) {
     if (options.nearest_source) {
       auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
-      return SearchGraph<kUseFans>(g, queue, dist.data(), fan.data(), visit, improved);
+      return SearchGraph<kUseFans>(g, queue, dist.data(), fan, visit, improved);
     }
-    return SearchGraph<kUseFans>(g, queue, dist.data(), fan.data(), visit,
-                                 [](uint32_t, uint32_t) {});
+    return SearchGraph<kUseFans>(g, queue, dist.data(), fan, visit, [](uint32_t, uint32_t) {});
+  };
+  auto search = [&]<bool kUseFans>(auto& queue) {
+    return packed ? search_with.template operator()<kUseFans>(queue, sc.fan_packed.data())
+                  : search_with.template operator()<kUseFans>(queue, sc.fan.data());
   };
   auto run = [&](auto& queue) {
     for (uint32_t s : seeds) queue.Push(s, dist[s]);
@@ -468,7 +477,7 @@ absl::StatusOr<FieldResult> GeodesicEngine::Field(absl::Span<const SurfacePoint>
   for (const SurfacePoint& p : sources) {
     ASSIGN_OR_RETURN(ends.emplace_back(), JoinToGraph(mesh, *graph_, *sc, p, false));
   }
-  return SolveField(mesh, *graph_, buckets_, *sc, ends, options);
+  return SolveField(mesh, *graph_, buckets_, lane_fans_, *sc, ends, options);
 }
 
 absl::StatusOr<std::vector<double>> GeodesicEngine::Matrix(

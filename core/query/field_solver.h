@@ -17,9 +17,10 @@
 namespace geodesic::query_internal {
 
 // The field from sources already joined to the graph.
+// `fan_layout`: LaneFanLayoutFor(g), or kWhole.
 absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
-                                       const BucketShape& bucket_shape, QueryScratch& sc,
-                                       absl::Span<const Endpoint> sources,
+                                       const BucketShape& bucket_shape, LaneFanLayout fan_layout,
+                                       QueryScratch& sc, absl::Span<const Endpoint> sources,
                                        const FieldOptions& options);
 
 }  // namespace geodesic::query_internal

@@ -55,6 +55,19 @@ inline BucketShape BucketShapeOf(const DggGraph& g) {
   return {sum / g.edges().size(), longest};
 }
 
+// A fan in 32 bits, its begin and count in 16 each: half a FanRange's
+// bytes, for graphs whose nodes all have fewer than 2^16 edges.
+inline constexpr uint64_t kMaxPackedDegree = 0xffff;
+inline uint32_t PackFan(FanRange f) { return f.begin | f.count << 16; }
+inline FanRange UnpackFan(uint32_t packed) { return {packed & 0xffff, packed >> 16}; }
+
+// A search keeps each node's fan whole or packed: these read and write
+// either.
+inline FanRange FanIn(FanRange slot) { return slot; }
+inline FanRange FanIn(uint32_t slot) { return UnpackFan(slot); }
+inline void SetFan(FanRange& slot, FanRange fan) { slot = fan; }
+inline void SetFan(uint32_t& slot, FanRange fan) { slot = PackFan(fan); }
+
 // The edges a seed relaxes: all of them.
 inline FanRange AllEdges(const DggGraph& g, uint32_t u) {
   return {0, static_cast<uint32_t>(g.offsets()[u + 1] - g.offsets()[u])};
@@ -74,14 +87,13 @@ inline void PrefetchEdges(const Edge* edges, uint64_t begin, uint64_t end) {
 }
 
 // Runs the search from what `queue` holds (the caller has set each seed's
-// dist and fan). `visit(u)` is asked about each node taken out; after
-// `dist[v]` improved through u, `improved(u, v)` is called. Without fans
-// every node relaxes all its edges (Dijkstra's rule, for checking). Returns
-// the work done from the first pop on: the seeds' pushes and labels are the
-// caller's to add. The choice is a template argument so that the inner loop
-// carries no test for it.
-template <bool kUseFans, typename Queue, typename VisitFn, typename ImprovedFn>
-SearchWork SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* fan, VisitFn visit,
+// dist and fan, a FanRange or a packed one per node: FanIn). `visit(u)` is asked about each node
+// taken out; after `dist[v]` improved through u, `improved(u, v)` is called. Without fans every
+// node relaxes all its edges (Dijkstra's rule, for checking). Returns the work done from the first
+// pop on: the seeds' pushes and labels are the caller's to add. The choice is a template argument
+// so that the inner loop carries no test for it.
+template <bool kUseFans, typename Queue, typename FanSlot, typename VisitFn, typename ImprovedFn>
+SearchWork SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanSlot* fan, VisitFn visit,
                        ImprovedFn improved) {
   const auto offsets = g.offsets();
   const DggEdge* edges = g.edges().data();
@@ -96,7 +108,7 @@ SearchWork SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* 
     if (what == Visit::kSkip) continue;
     if (what == Visit::kStop) break;
     const uint64_t begin = offsets[u], end = offsets[u + 1];
-    const FanRange run = kUseFans ? fan[u] : AllEdges(g, u);
+    const FanRange run = kUseFans ? FanIn(fan[u]) : AllEdges(g, u);
     // The graph is too large for the cache and the search visits it in no
     // order memory likes: start loading a coming node's fan now, every line
     // of it (a fan may wrap past the end of the node's list). With buckets
@@ -111,7 +123,7 @@ SearchWork SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* 
     }
     if (const uint32_t next = queue.Peek(kNone, kAhead); next != kNone) {
       const uint64_t list = offsets[next], list_end = offsets[next + 1];
-      const FanRange r = kUseFans ? fan[next] : AllEdges(g, next);
+      const FanRange r = kUseFans ? FanIn(fan[next]) : AllEdges(g, next);
       const uint64_t first = list + r.begin, last = first + r.count;
       if (r.count > 0) PrefetchEdges(edges, first, std::min(last, list_end));
       if (last > list_end) PrefetchEdges(edges, list, list + (last - list_end));
@@ -137,7 +149,7 @@ SearchWork SearchGraph(const DggGraph& g, Queue& queue, double* dist, FanRange* 
     improved_labels += found;
     for (size_t k = 0; k < found; ++k) {
       const DggEdge& e = edges[begin + improvements[k]];
-      if constexpr (kUseFans) fan[e.target] = e.fan;
+      if constexpr (kUseFans) SetFan(fan[e.target], e.fan);
       improved(u, e.target);
       queue.Push(e.target, dist[e.target]);
     }

@@ -25,11 +25,10 @@ void PairTable::Reset(uint32_t nodes) {
   }
 }
 
-void QueryScratch::PrepareField(size_t nodes, bool labels) {
-  if (dist.size() < nodes) {
-    dist.resize(nodes);
-    fan.resize(nodes);
-  }
+void QueryScratch::PrepareField(size_t nodes, bool labels, LaneFanLayout layout) {
+  if (dist.size() < nodes) dist.resize(nodes);
+  if (layout == LaneFanLayout::kPacked && fan_packed.size() < nodes) fan_packed.resize(nodes);
+  if (layout == LaneFanLayout::kWhole && fan.size() < nodes) fan.resize(nodes);
   if (labels && label.size() < nodes) label.resize(nodes);
 }
 
@@ -56,7 +55,7 @@ void QueryScratch::PrepareLanes(size_t nodes, LaneFanLayout layout) {
 uint64_t QueryScratch::bytes() const {
   uint64_t total = sizeof(*this) + pairs.bytes();
   total += dist.capacity() * sizeof(double) + fan.capacity() * sizeof(FanRange) +
-           label.capacity() * sizeof(uint32_t);
+           fan_packed.capacity() * sizeof(uint32_t) + label.capacity() * sizeof(uint32_t);
   total += lane_dist.capacity() * sizeof(LaneLabels) + lane_fan.capacity() * sizeof(LaneFans) +
            lane_fan_packed.capacity() * sizeof(PackedLaneFans) + lane_dirty.capacity() +
            lane_reached.capacity() * sizeof(uint32_t);

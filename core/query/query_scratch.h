@@ -22,6 +22,7 @@
 #include "core/dgg/dgg_graph.h"
 #include "core/exact/exact_geodesic.h"
 #include "core/mesh/mesh.h"
+#include "core/query/graph_search.h"
 
 namespace geodesic {
 
@@ -40,11 +41,9 @@ struct alignas(64) LaneFans {
 struct alignas(32) PackedLaneFans {
   uint32_t fan[kFieldLanes];
 };
-inline constexpr uint64_t kMaxPackedDegree = 0xffff;
-inline uint32_t PackFan(FanRange f) { return f.begin | f.count << 16; }
-inline FanRange UnpackFan(uint32_t packed) { return {packed & 0xffff, packed >> 16}; }
-// Which of the two a sweep keeps. kPacked only where LaneFanLayoutFor
-// allows it; kWhole anywhere (tests choose it on small graphs too).
+// Which of the two a sweep keeps (and a single field: fan or fan_packed
+// below). kPacked only where LaneFanLayoutFor allows it; kWhole anywhere
+// (tests choose it on small graphs too).
 enum class LaneFanLayout { kPacked, kWhole };
 // The smaller layout `g` allows: a scan of its nodes, made once per graph.
 LaneFanLayout LaneFanLayoutFor(const DggGraph& g);
@@ -109,8 +108,10 @@ struct QueryScratch {
   // graph (on first use: a scratch that only answers pairs never does).
   std::vector<double> dist;
   // The edges a node relaxes once taken out: the fan of the edge that set
-  // its label, copied from that edge's record when it improves the label.
+  // its label, copied from that edge's record when it improves the label;
+  // packed in half the bytes where the graph allows (LaneFanLayoutFor).
   std::vector<FanRange> fan;
+  std::vector<uint32_t> fan_packed;
   std::vector<uint32_t> label;  // index of the nearest source
   NodeHeap heap;                // Dijkstra's queue, for searches that stop at targets
   BucketQueue buckets;
@@ -146,10 +147,10 @@ struct QueryScratch {
   // there are some. Set at each lease.
   const FaceFrames* frames = nullptr;
 
-  // Sizes dist and fan to `nodes`, and label too when the field `labels`
-  // its nearest sources (left out otherwise: memory a new process would
-  // fault in for nothing).
-  void PrepareField(size_t nodes, bool labels);
+  // Sizes dist and the fans of `layout` to `nodes`, and label too when the
+  // field `labels` its nearest sources (what a field does not use is left
+  // out: memory a new process would fault in for nothing).
+  void PrepareField(size_t nodes, bool labels, LaneFanLayout layout);
   void PrepareLanes(size_t nodes, LaneFanLayout layout);
   ExactGeodesic& Exact(const Mesh& mesh) {
     if (!exact) exact = std::make_unique<ExactGeodesic>(mesh);

@@ -17,6 +17,7 @@
 #include "core/query/augmented_graph.h"
 #include "core/query/build_dgg.h"
 #include "core/query/field_lanes.h"
+#include "core/query/field_solver.h"
 #include "core/query/geodesic_engine.h"
 #include "core/query/graph_search.h"
 #include "tests/core/test_util.h"
@@ -835,6 +836,30 @@ TEST(QueriesTest, LaneSweepsAreTheSameWhateverTheFansAndEdgesLayout) {
       }
     }
   }
+}
+
+// A single field keeps its fans packed where the graph allows, as here, and
+// whole elsewhere: the same field, to the last bit, after the same work,
+// from spot's mixed points (vertices, edge and face points).
+TEST(QueriesTest, FieldsAreTheSameWithFansWholeOrPacked) {
+  SpotLaneSweep spot;
+  ASSERT_TRUE(spot.ok());
+  auto& [mesh, graph, shape, sc, sources, nodes] = spot;
+  FieldOptions options;
+  options.nearest_source = true;
+  auto packed = query_internal::SolveField(*mesh, *graph, shape, LaneFanLayout::kPacked, sc,
+                                           sources, options);
+  ASSERT_OK(packed);
+  ASSERT_EQ(packed->distance.size(), mesh->num_vertices());
+  for (double d : packed->distance) ASSERT_TRUE(std::isfinite(d));
+  EXPECT_GT(packed->relaxed, nodes);
+  auto whole =
+      query_internal::SolveField(*mesh, *graph, shape, LaneFanLayout::kWhole, sc, sources, options);
+  ASSERT_OK(whole);
+  EXPECT_EQ(packed->distance, whole->distance);
+  EXPECT_EQ(packed->nearest_source, whole->nearest_source);
+  EXPECT_EQ(packed->relaxed, whole->relaxed);
+  EXPECT_EQ(packed->queue_pops, whole->queue_pops);
 }
 
 // Narrows a compact copy of spot's edges by `narrow` (which returns how
