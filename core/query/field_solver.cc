@@ -75,6 +75,13 @@ void CopyFieldToVertexOrder(const Mesh& mesh, const DggGraph& g, const QueryScra
   }
 }
 
+// Calls `f` with the scratch's per-node fans as `layout` keeps them, so
+// that each layout's code is its own, with no test for it inside.
+template <typename F>
+auto WithFans(QueryScratch& sc, LaneFanLayout layout, F f) {
+  return layout == LaneFanLayout::kPacked ? f(sc.fan_packed.data()) : f(sc.fan.data());
+}
+
 }  // namespace
 
 // The field from sources already joined to the graph.
@@ -85,18 +92,17 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
   RETURN_IF_ERROR(CheckTargets(mesh, options.targets));
   const uint32_t nodes = g.num_nodes();
   sc.PrepareField(nodes, options.nearest_source, fan_layout);
-  // The search's per-node state in as few bytes as the graph allows: what a
-  // search from a cold cache waits on.
-  const bool packed = fan_layout == LaneFanLayout::kPacked;
   std::vector<double>& dist = sc.dist;
   std::vector<uint32_t>& label = sc.label;
   std::fill(dist.begin(), dist.begin() + nodes, kInfinity);
   if (options.nearest_source) std::fill(label.begin(), label.begin() + nodes, kNone);
   const bool use_fans = options.method == FieldMethod::kLabelCorrecting;
 
-  const std::vector<uint32_t> seeds =
-      packed ? SeedField(g, sc, sc.fan_packed.data(), sources, options.nearest_source)
-             : SeedField(g, sc, sc.fan.data(), sources, options.nearest_source);
+  // The fans in as few bytes as the graph allows: the search's per-node
+  // state is what a search from a cold cache waits on.
+  const std::vector<uint32_t> seeds = WithFans(sc, fan_layout, [&](auto* fan) {
+    return SeedField(g, sc, fan, sources, options.nearest_source);
+  });
 
   FieldResult result;
   size_t targets_left = options.targets.size();
@@ -120,16 +126,14 @@ absl::StatusOr<FieldResult> SolveField(const Mesh& mesh, const DggGraph& g,
   // Each combination of fans, their layout and labels is its own search, so
   // the inner loop tests none of them (labels cost a read and a write per
   // improvement).
-  auto search_with = [&]<bool kUseFans>(auto& queue, auto* fan) {
-    if (options.nearest_source) {
-      auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
-      return SearchGraph<kUseFans>(g, queue, dist.data(), fan, visit, improved);
-    }
-    return SearchGraph<kUseFans>(g, queue, dist.data(), fan, visit, [](uint32_t, uint32_t) {});
-  };
   auto search = [&]<bool kUseFans>(auto& queue) {
-    return packed ? search_with.template operator()<kUseFans>(queue, sc.fan_packed.data())
-                  : search_with.template operator()<kUseFans>(queue, sc.fan.data());
+    return WithFans(sc, fan_layout, [&](auto* fan) {
+      if (options.nearest_source) {
+        auto improved = [&](uint32_t u, uint32_t v) { label[v] = label[u]; };
+        return SearchGraph<kUseFans>(g, queue, dist.data(), fan, visit, improved);
+      }
+      return SearchGraph<kUseFans>(g, queue, dist.data(), fan, visit, [](uint32_t, uint32_t) {});
+    });
   };
   auto run = [&](auto& queue) {
     for (uint32_t s : seeds) queue.Push(s, dist[s]);

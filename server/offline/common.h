@@ -23,7 +23,7 @@ namespace geodesic::offline {
 // (loading the mesh, say) stays with the process for the next phase to
 // reuse, rather than going back to the kernel and coming again as fresh
 // pages, each faulted in at its first touch. On virtual machines such faults
-// cost microseconds a page, about a quarter of a field's solve in a new
+// cost microseconds a page, about a third of a field's solve in a new
 // process (bench/notes.md, "Page faults"). Call first.
 void KeepFreedMemory();
 // Page faults this process took so far that needed no disk read: first

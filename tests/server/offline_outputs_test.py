@@ -249,8 +249,8 @@ with tempfile.TemporaryDirectory() as work:
         check(f"build {' '.join(args)} is refused", r.returncode != 0 and says in r.stderr,
               r.stderr)
 
-    # A field in a new process lays its per-node arrays (a label, a fan and
-    # the answer, 24 bytes a node) in memory that loading the mesh freed,
+    # A field in a new process lays its per-node arrays (labels, fans and
+    # the answer) in memory that loading the mesh freed,
     # rather than faulting in fresh pages: on a mesh whose arrays are each
     # past glibc's default mmap threshold (128 KiB, so each was a mapping of
     # its own before), fewer faults than a third of one array's pages. Needs
